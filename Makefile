@@ -1,0 +1,58 @@
+# quadflight: `make fly` flies the default mission, `make test` runs every test.
+# Each target sets up what it needs (a pinned .venv, a colcon build) and redoes nothing that is current.
+SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
+VENV := .venv
+PY := $(VENV)/bin/python
+VENV_STAMP := $(VENV)/.installed
+BUILD_STAMP := install/.built
+MISSION ?= config/missions/maze.yaml
+PKG_FILES := $(wildcard src/*/package.xml src/*/setup.py src/*/setup.cfg src/*/resource/*) \
+             $(wildcard src/quad_bringup/launch/*.py)
+COLCON := source $(VENV)/bin/activate && colcon --log-base build/log
+
+.PHONY: venv build test test-packages test-graph lint fly bench clean lock
+.DEFAULT_GOAL := help
+
+help:
+	@echo "make fly     fly $(MISSION) in the simulator, write runs/ (MISSION=... to choose)"
+	@echo "make test    build, then every test (colcon test + test/ + ruff)"
+	@echo "make bench   run bench/ and rewrite docs/benchmarks.md"
+
+venv: $(VENV_STAMP)
+$(VENV_STAMP): requirements.txt requirements-ros-wheels.txt constraints.txt scripts/bootstrap-venv
+	scripts/bootstrap-venv
+	touch $@
+
+# --symlink-install: sources stay live, so only package metadata changes need a rebuild.
+build: $(BUILD_STAMP)
+$(BUILD_STAMP): $(VENV_STAMP) $(PKG_FILES)
+	$(COLCON) build --symlink-install --event-handlers console_direct- summary+ \
+	    --build-base build --install-base install
+	touch $@
+
+test: lint test-packages test-graph
+
+lint: $(VENV_STAMP)
+	$(VENV)/bin/ruff check src test bench
+
+test-packages: $(BUILD_STAMP)
+	rm -rf build/test_results
+	$(COLCON) test --build-base build --install-base install --event-handlers console_direct- summary+ \
+	    --pytest-args -q -p no:cacheprovider
+	$(COLCON) test-result --test-result-base build --verbose
+
+test-graph: $(BUILD_STAMP)
+	source install/setup.bash && $(PY) -m pytest -q -p no:cacheprovider test
+
+fly: $(VENV_STAMP)
+	./quadflight fly $(MISSION)
+
+bench: $(VENV_STAMP)
+	bench/run
+
+lock: $(VENV_STAMP)
+	$(VENV)/bin/pip freeze --exclude-editable | grep -v '^quad_' > constraints.txt
+
+clean:
+	rm -rf build install log $(VENV)

@@ -1,0 +1,165 @@
+"""ROS message <-> numpy conversions shared by every node (the only place they are written).
+
+Contract: DESIGN.md section 3 and docs/interfaces.md.
+"""
+
+import numpy as np
+from builtin_interfaces.msg import Duration, Time
+from geometry_msgs.msg import Quaternion, Transform, Twist, Vector3
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import Imu
+from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+from quad_common import rotations
+from quad_common.sampled_trajectory import SampledTrajectory
+from quad_common.types import AttitudeSetpoint, Reference, State
+
+WORLD_FRAME = 'map'
+BODY_FRAME = 'base_link'
+UNSET_COVARIANCE = -1.0
+
+
+def stamp_to_s(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def s_to_stamp(t_s: float) -> Time:
+    ns = int(round(t_s * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def s_to_duration(t_s: float) -> Duration:
+    ns = int(round(t_s * 1e9))
+    return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def vec3(msg) -> np.ndarray:
+    return np.array([msg.x, msg.y, msg.z])
+
+
+def to_vector3(v) -> Vector3:
+    return Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def quat(msg) -> np.ndarray:
+    return np.array([msg.x, msg.y, msg.z, msg.w])
+
+
+def to_quaternion(q) -> Quaternion:
+    return Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+
+
+# --- odometry -------------------------------------------------------------------------------
+
+def state_to_odometry(state: State, stamp: Time, frame_id=WORLD_FRAME, child_frame_id=BODY_FRAME) -> Odometry:
+    """Twist is expressed in child_frame_id (REP-105): v_body = R^T v_world."""
+    msg = Odometry()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.child_frame_id = child_frame_id
+    msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = map(float, state.position)
+    msg.pose.pose.orientation = to_quaternion(state.quaternion)
+    v_body = rotations.to_matrix(state.quaternion).T @ state.velocity
+    msg.twist.twist = Twist(linear=to_vector3(v_body), angular=to_vector3(state.body_rates))
+    return msg
+
+
+def odometry_to_state(msg: Odometry) -> State:
+    """Inverse of state_to_odometry: the body-frame twist is rotated back into the world frame."""
+    p = msg.pose.pose.position
+    q = rotations.normalize(quat(msg.pose.pose.orientation))
+    v_body = vec3(msg.twist.twist.linear)
+    return State(position=np.array([p.x, p.y, p.z]), velocity=rotations.to_matrix(q) @ v_body,
+                 quaternion=q, body_rates=vec3(msg.twist.twist.angular))
+
+
+# --- attitude/thrust setpoint (sensor_msgs/Imu used as a setpoint) ---------------------------
+
+def setpoint_to_imu(sp: AttitudeSetpoint, stamp: Time, frame_id=BODY_FRAME) -> Imu:
+    msg = Imu()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.orientation = to_quaternion(sp.quaternion)
+    msg.linear_acceleration = Vector3(x=0.0, y=0.0, z=float(sp.specific_force_mps2))
+    if sp.body_rates is None:
+        msg.angular_velocity_covariance[0] = UNSET_COVARIANCE
+    else:
+        msg.angular_velocity = to_vector3(sp.body_rates)
+    return msg
+
+
+def imu_to_setpoint(msg: Imu) -> AttitudeSetpoint:
+    """Raises ValueError on a non-finite or zero quaternion or thrust, naming the field."""
+    if msg.orientation_covariance[0] == UNSET_COVARIANCE:
+        raise ValueError('cmd/attitude_thrust.orientation is marked unset (covariance[0] = -1)')
+    if msg.linear_acceleration_covariance[0] == UNSET_COVARIANCE:
+        raise ValueError('cmd/attitude_thrust.linear_acceleration is marked unset (covariance[0] = -1)')
+    f = msg.linear_acceleration.z
+    if not np.isfinite(f):
+        raise ValueError(f'cmd/attitude_thrust.linear_acceleration.z must be finite, got {f}')
+    try:
+        q = rotations.normalize(quat(msg.orientation))
+    except ValueError as exc:
+        raise ValueError(f'cmd/attitude_thrust.orientation: {exc}') from None
+    rates = None
+    if msg.angular_velocity_covariance[0] != UNSET_COVARIANCE:
+        rates = vec3(msg.angular_velocity)
+        if not np.all(np.isfinite(rates)):
+            raise ValueError(f'cmd/attitude_thrust.angular_velocity must be finite, got {rates.tolist()}')
+    return AttitudeSetpoint(quaternion=q, specific_force_mps2=float(f), body_rates=rates)
+
+
+# --- trajectories ---------------------------------------------------------------------------
+
+def _point(t_s, p, v, a) -> MultiDOFJointTrajectoryPoint:
+    """p, v, a are (x, y, z, yaw) values and their derivatives."""
+    pt = MultiDOFJointTrajectoryPoint()
+    pt.transforms = [Transform(translation=to_vector3(p[:3]), rotation=to_quaternion(rotations.from_yaw(p[3])))]
+    pt.velocities = [Twist(linear=to_vector3(v[:3]), angular=Vector3(z=float(v[3])))]
+    pt.accelerations = [Twist(linear=to_vector3(a[:3]), angular=Vector3(z=float(a[3])))]
+    pt.time_from_start = s_to_duration(t_s)
+    return pt
+
+
+def sampled_to_msg(traj: SampledTrajectory, start_stamp: Time, frame_id=WORLD_FRAME) -> MultiDOFJointTrajectory:
+    msg = MultiDOFJointTrajectory()
+    msg.header.stamp = start_stamp
+    msg.header.frame_id = frame_id
+    msg.joint_names = [BODY_FRAME]
+    msg.points = [_point(t, p, v, a) for t, p, v, a in
+                  zip(traj.times_s - traj.times_s[0], traj.position, traj.velocity, traj.acceleration)]
+    return msg
+
+
+def msg_to_sampled(msg: MultiDOFJointTrajectory) -> tuple[float, SampledTrajectory]:
+    """(start time in seconds from header.stamp, interpolant over time since start)."""
+    if not msg.points:
+        raise ValueError('trajectory has no points')
+    n = len(msg.points)
+    t = np.empty(n)
+    p, v, a = np.zeros((n, 4)), np.zeros((n, 4)), np.zeros((n, 4))
+    for k, pt in enumerate(msg.points):
+        if not pt.transforms:
+            raise ValueError(f'trajectory point {k} has no transform')
+        t[k] = pt.time_from_start.sec + pt.time_from_start.nanosec * 1e-9
+        tf = pt.transforms[0]
+        p[k, :3] = vec3(tf.translation)
+        p[k, 3] = rotations.to_euler(quat(tf.rotation))[2]
+        if pt.velocities:
+            v[k, :3] = vec3(pt.velocities[0].linear)
+            v[k, 3] = pt.velocities[0].angular.z
+        if pt.accelerations:
+            a[k, :3] = vec3(pt.accelerations[0].linear)
+            a[k, 3] = pt.accelerations[0].angular.z
+    return stamp_to_s(msg.header.stamp), SampledTrajectory(t, p, v, a)
+
+
+def reference_to_msg(ref: Reference, stamp: Time, frame_id=WORLD_FRAME) -> MultiDOFJointTrajectory:
+    """One-point trajectory: what the controller tracked at one tick (`control/reference`)."""
+    msg = MultiDOFJointTrajectory()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.joint_names = [BODY_FRAME]
+    msg.points = [_point(0.0, np.append(ref.position, ref.yaw), np.append(ref.velocity, ref.yaw_rate),
+                         np.append(ref.acceleration, 0.0))]
+    return msg

@@ -1,0 +1,36 @@
+"""Isolation of test ROS graphs: each graph gets a ROS_DOMAIN_ID nobody else on the machine holds.
+
+Domains are claimed with an exclusive lock file, so parallel or repeated runs (two `make test`
+at once, colcon testing packages in parallel) never share a graph. Discovery is localhost-only.
+"""
+
+import fcntl
+import os
+import tempfile
+from contextlib import contextmanager
+
+_LOCK_DIR = os.path.join(tempfile.gettempdir(), 'quadflight-ros-domains')
+_DOMAINS = range(1, 101)  # Fast DDS port mapping is valid for 0..232; stay well inside it
+
+
+@contextmanager
+def isolated_domain():
+    """Yields (domain_id, env) with env a copy of os.environ set for that domain."""
+    os.makedirs(_LOCK_DIR, exist_ok=True)
+    start = os.getpid() % len(_DOMAINS)
+    for i in range(len(_DOMAINS)):
+        domain = _DOMAINS[(start + i) % len(_DOMAINS)]
+        f = open(os.path.join(_LOCK_DIR, f'{domain}.lock'), 'w')
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.close()
+            continue
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        try:
+            yield domain, env
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+            f.close()
+        return
+    raise RuntimeError(f'no free ROS domain id in {_DOMAINS}: too many test graphs running')

@@ -1,0 +1,50 @@
+import math
+
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+
+from quad_common.params import Param, ParameterSet, check_value
+from quad_common.testing import isolated_domain
+
+SPECS = [Param('kp', [5.0, 5.0, 20.0], 'gains', min=0.0, length=3),
+         Param('rate_hz', 100.0, 'loop rate', min=1.0, max=1000.0),
+         Param('mode', 'pd', 'controller', choices=('pd', 'pid'))]
+
+
+def test_check_value_names_parameter_and_value():
+    assert 'kp = [1.0, -1.0, 2.0] refused: must be >= 0.0' in check_value(SPECS[0], [1.0, -1.0, 2.0])
+    assert 'finite' in check_value(SPECS[1], math.nan)
+    assert 'one of pd, pid' in check_value(SPECS[2], 'lqr')
+    assert check_value(SPECS[0], [1.0, 2.0, 3.0]) is None
+
+
+@pytest.fixture
+def node():
+    with isolated_domain() as (domain, _):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        n = rclpy.create_node('params_test', context=ctx)
+        yield n
+        n.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def test_runtime_updates_refused_and_kept(node):
+    changes = []
+    ps = ParameterSet(node, SPECS, on_change=changes.append)
+    bad = node.set_parameters([Parameter('rate_hz', value=math.nan)])[0]
+    assert not bad.successful and 'rate_hz' in bad.reason and ps['rate_hz'] == 100.0
+    bad = node.set_parameters([Parameter('kp', value=[1.0, -2.0, 3.0])])[0]
+    assert not bad.successful and 'kept [5.0, 5.0, 20.0]' in bad.reason
+    ok = node.set_parameters([Parameter('mode', value='pid')])[0]
+    assert ok.successful and ps['mode'] == 'pid' and changes == [{'mode': 'pid'}]
+
+
+def test_cross_parameter_rule(node):
+    def validate(values):
+        if values['rate_hz'] > 500 and values['mode'] == 'pd':
+            raise ValueError('rate_hz above 500 needs mode pid')
+    ps = ParameterSet(node, SPECS, validate=validate)
+    res = node.set_parameters([Parameter('rate_hz', value=800.0)])[0]
+    assert not res.successful and 'needs mode pid' in res.reason and ps['rate_hz'] == 100.0

@@ -1,0 +1,26 @@
+from setuptools import find_packages, setup
+
+package_name = 'quad_sim'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    extras_require={'test': ['pytest']},
+    zip_safe=True,
+    maintainer='quadflight developers',
+    maintainer_email='dev@quadflight.invalid',
+    description='6-DOF quadrotor plant with rotors, onboard attitude loop, disturbances and a lockstep /clock; sim_node and the MAVLink vehicle simulator.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'sim_node = quad_sim.sim_node:main',
+            'mavlink_vehicle = quad_sim.mavlink_vehicle:main',
+        ],
+    },
+)

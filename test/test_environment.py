@@ -1,0 +1,60 @@
+"""The environment itself: rclpy over DDS between processes, and --params-file."""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+PUBLISHER = textwrap.dedent('''
+    import rclpy
+    from nav_msgs.msg import Odometry
+    rclpy.init()
+    node = rclpy.create_node('odom_talker')
+    pub = node.create_publisher(Odometry, 'odom', 10)
+    msg = Odometry()
+    msg.header.frame_id = 'map'
+    msg.pose.pose.position.x = 1.25
+    node.create_timer(0.05, lambda: pub.publish(msg))
+    rclpy.spin(node)
+''')
+
+SUBSCRIBER = textwrap.dedent('''
+    import rclpy
+    from nav_msgs.msg import Odometry
+    rclpy.init()
+    node = rclpy.create_node('odom_listener')
+    got = []
+    node.create_subscription(Odometry, 'odom', got.append, 10)
+    while not got:
+        rclpy.spin_once(node, timeout_sec=1.0)
+    print(got[0].header.frame_id, got[0].pose.pose.position.x, flush=True)
+''')
+
+PARAM_READER = textwrap.dedent('''
+    import json, sys
+    import rclpy
+    rclpy.init(args=sys.argv)
+    node = rclpy.create_node('reader')
+    names = {'rate_hz': 1.0, 'gains': [0.0], 'mode': ''}
+    print(json.dumps({k: node.declare_parameter(k, v).value for k, v in names.items()}))
+''')
+
+
+def test_odometry_crosses_processes_over_dds(ros_env):
+    pub = subprocess.Popen([sys.executable, '-c', PUBLISHER], env=ros_env)
+    try:
+        out = subprocess.run([sys.executable, '-c', SUBSCRIBER], env=ros_env, capture_output=True,
+                             text=True, timeout=60, check=True).stdout
+    finally:
+        pub.terminate()
+        pub.wait(timeout=10)
+    assert out.split() == ['map', '1.25']
+
+
+def test_node_reads_params_file(ros_env, tmp_path):
+    params = tmp_path / 'params.yaml'
+    params.write_text('reader:\n  ros__parameters:\n    rate_hz: 250.0\n    gains: [5.0, 5.0, 20.0]\n'
+                      '    mode: lockstep\n')
+    out = subprocess.run([sys.executable, '-c', PARAM_READER, '--ros-args', '--params-file', str(params)],
+                         env=ros_env, capture_output=True, text=True, timeout=60, check=True).stdout
+    assert json.loads(out) == {'rate_hz': 250.0, 'gains': [5.0, 5.0, 20.0], 'mode': 'lockstep'}
