@@ -1,12 +1,20 @@
 """The `quadflight` command: one entry point for planning, flying, recording and reporting."""
 
 import argparse
+import importlib
+import importlib.util
 import sys
 
 __version__ = '0.1.0'
 
-# name -> (module, help). Each module has add_arguments(parser) and run(args) -> exit code.
-SUBCOMMANDS = {}
+# name -> (module, help). Each module has add_arguments(parser) and run(args) -> exit code;
+# a subcommand whose module is not there yet is not offered.
+SUBCOMMANDS = {
+    'plan': ('quad_bringup.commands.plan', 'plan a trajectory through a mission\'s waypoints (no flight)'),
+    'fly': ('quad_bringup.commands.fly', 'fly a mission through the node graph in the simulator, record, report'),
+    'record': ('quad_bringup.commands.record', 'record topics to a rosbag2 bag (MCAP)'),
+    'report': ('quad_bringup.commands.report', 'metrics, tables and figures from a rosbag2 bag'),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -16,7 +24,10 @@ def build_parser() -> argparse.ArgumentParser:
                     'built-in simulator or on PX4/ArduPilot vehicles (a ROS 2 Jazzy node suite).')
     parser.add_argument('--version', action='version', version=f'quadflight {__version__}')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
-    for name, (module, help_text) in SUBCOMMANDS.items():
+    for name, (module_name, help_text) in SUBCOMMANDS.items():
+        if importlib.util.find_spec(module_name) is None:
+            continue
+        module = importlib.import_module(module_name)
         p = sub.add_parser(name, help=help_text, description=help_text)
         module.add_arguments(p)
         p.set_defaults(run=module.run)
