@@ -1,0 +1,66 @@
+"""ROS (world ENU, body FLU) <-> MAVLink (world NED, body FRD): the only place this conversion is written.
+
+World: (x, y, z)_ENU -> (y, x, -z)_NED, a 180 deg rotation about (1, 1, 0)/sqrt(2); it is its own inverse.
+Body:  (x, y, z)_FLU -> (x, -y, -z)_FRD, a 180 deg rotation about body x; also its own inverse.
+Attitude: R_NED_FRD = R_NED_ENU R_ENU_FLU R_FLU_FRD, so yaw_NED = 90 deg - yaw_ENU.
+ROS quaternions are (x, y, z, w); MAVLink quaternions are (w, x, y, z).
+"""
+
+import numpy as np
+
+from quad_common import rotations
+from quad_common.types import State
+
+_S = np.sqrt(0.5)
+Q_NED_ENU = np.array([_S, _S, 0.0, 0.0])     # ENU vectors -> NED vectors
+Q_FLU_FRD = np.array([1.0, 0.0, 0.0, 0.0])   # FRD vectors -> FLU vectors
+
+
+def world_enu_ned(v):
+    """(x, y, z) -> (y, x, -z): ENU -> NED and, being an involution, NED -> ENU."""
+    v = np.asarray(v, dtype=float)
+    return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
+
+
+def body_flu_frd(v):
+    """(x, y, z) -> (x, -y, -z): FLU -> FRD and FRD -> FLU (body rates, body velocities, forces)."""
+    v = np.asarray(v, dtype=float)
+    return np.stack([v[..., 0], -v[..., 1], -v[..., 2]], axis=-1)
+
+
+def quaternion_enu_to_ned(q_enu_flu):
+    """Attitude body FLU -> world ENU, (x,y,z,w), to attitude body FRD -> world NED, (x,y,z,w), w >= 0."""
+    q = rotations.multiply(Q_NED_ENU, rotations.multiply(q_enu_flu, Q_FLU_FRD))
+    return np.where(q[..., 3:4] < 0, -q, q)
+
+
+def quaternion_ned_to_enu(q_ned_frd):
+    """Inverse of quaternion_enu_to_ned."""
+    q = rotations.multiply(rotations.conjugate(Q_NED_ENU),
+                           rotations.multiply(q_ned_frd, rotations.conjugate(Q_FLU_FRD)))
+    return np.where(q[..., 3:4] < 0, -q, q)
+
+
+def state_to_ned(state: State) -> State:
+    """A ROS state (ENU/FLU) expressed in MAVLink's frames (NED/FRD); body rates stay body rates."""
+    return State(position=world_enu_ned(state.position), velocity=world_enu_ned(state.velocity),
+                 quaternion=quaternion_enu_to_ned(state.quaternion), body_rates=body_flu_frd(state.body_rates))
+
+
+def state_from_ned(state_ned: State) -> State:
+    """Inverse of state_to_ned: a MAVLink state (NED/FRD) in ROS frames (ENU/FLU)."""
+    return State(position=world_enu_ned(state_ned.position), velocity=world_enu_ned(state_ned.velocity),
+                 quaternion=quaternion_ned_to_enu(state_ned.quaternion),
+                 body_rates=body_flu_frd(state_ned.body_rates))
+
+
+def to_mavlink_quaternion(q_xyzw):
+    """(x, y, z, w) -> [w, x, y, z] as plain floats."""
+    x, y, z, w = (float(c) for c in q_xyzw)
+    return [w, x, y, z]
+
+
+def from_mavlink_quaternion(q_wxyz):
+    """[w, x, y, z] -> (x, y, z, w) array."""
+    w, x, y, z = (float(c) for c in q_wxyz)
+    return np.array([x, y, z, w])

@@ -1,0 +1,121 @@
+"""A pymavlink connection shared by threads: one receive thread, one lock around every send, and
+COMMAND_LONG calls that wait for their COMMAND_ACK on an event (never on the socket).
+
+MAVLink 2 is forced: MAVLINK20 must be set before pymavlink's dialect is first imported.
+"""
+
+import os
+import threading
+import time
+
+os.environ['MAVLINK20'] = '1'
+from pymavlink import mavutil  # noqa: E402
+
+mavlink = mavutil.mavlink
+MAV_COMP_ID_ONBOARD_COMPUTER = 191
+URL_PREFIXES = ('udpin:', 'udpout:', 'udp:', 'udpbcast:', 'tcp:', 'tcpin:')
+
+
+def check_fcu_url(url: str) -> str | None:
+    """The reason `url` is not a pymavlink connection string we accept, or None."""
+    if url.startswith(URL_PREFIXES):
+        host, _, port = url.split(':', 1)[1].rpartition(':')
+        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+            return f'fcu_url = {url!r} refused: needs HOST:PORT after the scheme'
+        return None
+    if url.startswith('/dev/') or url.upper().startswith('COM'):
+        return None
+    return f'fcu_url = {url!r} refused: use udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial device'
+
+
+def result_name(result: int | None) -> str:
+    if result is None:
+        return 'no COMMAND_ACK (timeout)'
+    enum = mavlink.enums['MAV_RESULT'].get(result)
+    return enum.name if enum else f'MAV_RESULT {result}'
+
+
+class MavlinkClient:
+    """on_message(msg) is called from the receive thread for every parsed message (never BAD_DATA)."""
+
+    def __init__(self, url: str, source_system: int, source_component: int, on_message, baud: int = 57600,
+                 signing_key: bytes | None = None):
+        self.conn = mavutil.mavlink_connection(url, baud=baud, source_system=source_system,
+                                               source_component=source_component, autoreconnect=True,
+                                               robust_parsing=True)
+        if signing_key is not None:
+            self.conn.setup_signing(signing_key, sign_outgoing=True)
+        self._on_message = on_message
+        self._send_lock = threading.Lock()
+        self._acks = {}           # (target system, command id) -> [event, result]
+        self._acks_lock = threading.Lock()
+        self._running = False
+        self._thread = None
+        self.bad_data = 0         # unparsable bytes / failed CRC
+        self.handler_errors = 0   # exceptions from on_message or the parser, survived
+
+    def start(self):
+        self._running = True
+        self._thread = threading.Thread(target=self._receive_loop, name='mavlink-rx', daemon=True)
+        self._thread.start()
+
+    def close(self):
+        self._running = False
+        if self._thread:
+            self._thread.join(timeout=2.0)
+        with self._send_lock:
+            self.conn.close()
+
+    def send(self, name: str, *args):
+        """mav.<name>_send(*args) under the send lock (pymavlink's encoder is not thread-safe)."""
+        with self._send_lock:
+            getattr(self.conn.mav, name + '_send')(*args)
+
+    def packet_loss_pct(self) -> float:
+        return float(self.conn.packet_loss())
+
+    def command_long(self, target_system, target_component, command, params, timeout_s=None):
+        """Sends COMMAND_LONG; with timeout_s, waits for the matching COMMAND_ACK and returns its result
+        (None on timeout), resending once halfway (confirmation 1). Without timeout_s returns None at once."""
+        params = list(params) + [0.0] * (7 - len(params))
+        if timeout_s is None:
+            self.send('command_long', target_system, target_component, command, 0, *params)
+            return None
+        waiter = [threading.Event(), None]
+        key = (target_system, command)
+        with self._acks_lock:
+            self._acks[key] = waiter
+        try:
+            for confirmation in (0, 1):
+                self.send('command_long', target_system, target_component, command, confirmation, *params)
+                if waiter[0].wait(timeout_s / 2):
+                    return waiter[1]
+            return None
+        finally:
+            with self._acks_lock:
+                if self._acks.get(key) is waiter:
+                    del self._acks[key]
+
+    def _receive_loop(self):
+        while self._running:
+            try:
+                msg = self.conn.recv_match(blocking=True, timeout=0.1)
+            except Exception:  # a malformed packet or a socket hiccup must not end the loop
+                self.handler_errors += 1
+                time.sleep(0.01)
+                continue
+            if msg is None:
+                continue
+            if msg.get_type() == 'BAD_DATA':
+                self.bad_data += 1
+                continue
+            if msg.get_type() == 'COMMAND_ACK':
+                with self._acks_lock:
+                    waiter = self._acks.get((msg.get_srcSystem(), msg.command))
+                if waiter is not None:
+                    waiter[1] = msg.result
+                    waiter[0].set()
+            try:
+                self._on_message(msg)
+            except Exception:
+                self.handler_errors += 1

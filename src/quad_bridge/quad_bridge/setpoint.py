@@ -1,0 +1,46 @@
+"""Setpoint checks before anything is sent to a vehicle: finite values, tilt within max_tilt."""
+
+import math
+
+import numpy as np
+
+from quad_common import rotations
+from quad_common.types import AttitudeSetpoint
+
+
+def tilt_rad(quaternion) -> float:
+    """Angle between body z and world z."""
+    return math.acos(float(np.clip(rotations.to_matrix(quaternion)[2, 2], -1.0, 1.0)))
+
+
+def _axis_angle(axis, angle) -> np.ndarray:
+    return np.append(np.asarray(axis) * math.sin(angle / 2), math.cos(angle / 2))
+
+
+def clamp_tilt(quaternion, max_tilt_rad: float) -> tuple[np.ndarray, bool]:
+    """(q, clamped): q = q_tilt q_yaw with q_yaw a rotation about world z and q_tilt about a horizontal
+    axis; an over-tilted attitude keeps its yaw part and tilt axis and gets the tilt angle max_tilt_rad."""
+    q = rotations.normalize(quaternion)
+    tilt = tilt_rad(q)
+    if tilt <= max_tilt_rad:
+        return q, False
+    z_body = rotations.to_matrix(q)[:, 2]
+    axis = np.cross([0.0, 0.0, 1.0], z_body)
+    n = np.linalg.norm(axis)
+    axis = axis / n if n > 1e-9 else np.array([1.0, 0.0, 0.0])  # upside down: any horizontal axis
+    q_yaw = rotations.multiply(rotations.conjugate(_axis_angle(axis, tilt)), q)
+    return rotations.normalize(rotations.multiply(_axis_angle(axis, max_tilt_rad), q_yaw)), True
+
+
+def check_setpoint(sp: AttitudeSetpoint, max_tilt_rad: float) -> tuple[AttitudeSetpoint, bool]:
+    """(safe setpoint, tilt was clamped). Raises ValueError naming the field on NaN/inf or a zero
+    quaternion, or a negative thrust."""
+    if not np.all(np.isfinite(sp.quaternion)):
+        raise ValueError(f'setpoint quaternion must be finite, got {np.asarray(sp.quaternion).tolist()}')
+    if not math.isfinite(sp.specific_force_mps2) or sp.specific_force_mps2 < 0.0:
+        raise ValueError(f'setpoint specific_force_mps2 must be finite and >= 0, got {sp.specific_force_mps2}')
+    if sp.body_rates is not None and not np.all(np.isfinite(sp.body_rates)):
+        raise ValueError(f'setpoint body_rates must be finite, got {np.asarray(sp.body_rates).tolist()}')
+    q, clamped = clamp_tilt(sp.quaternion, max_tilt_rad)
+    return AttitudeSetpoint(quaternion=q, specific_force_mps2=float(sp.specific_force_mps2),
+                            body_rates=None if sp.body_rates is None else np.asarray(sp.body_rates, float)), clamped
