@@ -5,7 +5,7 @@ Contract: DESIGN.md section 3 and docs/interfaces.md.
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
-from geometry_msgs.msg import Quaternion, Transform, Twist, Vector3
+from geometry_msgs.msg import Quaternion, Transform, TransformStamped, Twist, Vector3
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
@@ -169,7 +169,6 @@ def reference_to_msg(ref: Reference, stamp: Time, frame_id=WORLD_FRAME) -> Multi
 
 def state_to_transform(state: State, stamp: Time, frame_id=WORLD_FRAME, child_frame_id=BODY_FRAME):
     """geometry_msgs/TransformStamped map -> base_link of the state's pose (for /tf)."""
-    from geometry_msgs.msg import TransformStamped
     msg = TransformStamped()
     msg.header.stamp = stamp
     msg.header.frame_id = frame_id
