@@ -2,7 +2,9 @@
 
 lockstep: at sim time t_k publish odom (stamp t_k), then /clock (t_k); wait for a cmd/attitude_thrust stamped
 >= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. Until the first
-setpoint arrives a timeout re-publishes step k instead of advancing, so start-up order does not matter.
+setpoint arrives, step k is re-published every 0.1 s (for nodes that join late), and the timeout advances
+only when a controller (a cmd/attitude_thrust publisher with odom and /clock subscribers) is on the graph:
+start-up order does not matter, and a controller whose first tick is after t = 0 still starts the run.
 realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * elapsed wall time.
 """
 
@@ -225,19 +227,25 @@ class SimNode(Node):
         while rclpy.ok(context=self.context):
             self.publish_step()
             t_k = self.sim.time_ns
-            timeout_s = self.params['lockstep_timeout_s']
-            if self.setpoints_received == 0:  # nobody answering yet: re-publish step k soon for late joiners
-                timeout_s = min(timeout_s, STARTUP_REPUBLISH_S)
-            deadline = time.monotonic() + timeout_s
+            now = time.monotonic()
+            deadline, republish_at = now + self.params['lockstep_timeout_s'], now + STARTUP_REPUBLISH_S
             while self.setpoint_stamp_ns < t_k and rclpy.ok(context=self.context):
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
+                now = time.monotonic()
+                if now >= deadline:
                     break
-                executor.spin_once(timeout_sec=remaining)
+                if self.setpoints_received == 0 and now >= republish_at:  # for nodes that joined late
+                    self.publish_step()
+                    republish_at = now + STARTUP_REPUBLISH_S
+                executor.spin_once(timeout_sec=min(deadline, republish_at) - now)
             if self.sim.time_ns != t_k:  # reset while waiting
                 continue
-            if self.setpoint_stamp_ns >= t_k or self.setpoints_received > 0:
+            if self.setpoint_stamp_ns >= t_k or self.setpoints_received > 0 or self._controller_present():
                 self.advance(self.steps_per_period)
+
+    def _controller_present(self) -> bool:
+        """A setpoint publisher that also listens to odom and /clock is on the graph (it may not tick at t = 0)."""
+        return (self.count_publishers('cmd/attitude_thrust') > 0 and self.count_subscribers('odom') > 0
+                and self.count_subscribers('/clock') > 0)
 
     def start_realtime(self):
         period_s = 1.0 / self.params['odom_rate_hz']

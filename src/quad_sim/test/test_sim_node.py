@@ -11,12 +11,14 @@ import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import conversions, rotations
 from quad_common.diagnostics import ERROR, level_of
+from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.testing import isolated_domain
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
@@ -24,9 +26,9 @@ RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 GIVE_UP_S = 120.0  # only a guard against a hung graph; nothing here is timed
 
 
-def _start_sim(env, *params):
+def _start_sim(env, *params, module='quad_sim.sim_node'):
     env = dict(env, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
-    args = [sys.executable, '-m', 'quad_sim.sim_node', '--ros-args']
+    args = [sys.executable, '-m', module, '--ros-args']
     for p in params:
         args += ['-p', p]
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -86,14 +88,35 @@ class Graph:
         rclpy.shutdown(context=self.ctx)
 
 
-def _fly_once(steps=200):
+def _line_trajectory(duration_s=1.5, start=(0.0, 0.0, 1.0), end=(0.5, -0.3, 1.2)):
+    """A quintic rest-to-rest line sampled at 100 Hz (x, y, z, yaw)."""
+    t = np.linspace(0.0, duration_s, int(duration_s * 100) + 1)
+    u = t / duration_s
+    s, ds, dds = 10 * u**3 - 15 * u**4 + 6 * u**5, (30 * u**2 - 60 * u**3 + 30 * u**4) / duration_s, \
+        (60 * u - 180 * u**2 + 120 * u**3) / duration_s**2
+    delta = np.append(np.subtract(end, start), 0.0)
+    base = np.append(start, 0.0)
+    return SampledTrajectory(t, base + s[:, None] * delta, ds[:, None] * delta, dds[:, None] * delta)
+
+
+def _fly_once(steps=200, real_controller=False):
     with isolated_domain() as (domain, env):
-        graph = Graph(domain)
-        sim = _start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=60.0')
+        graph = Graph(domain, answer_until_s=-np.inf if real_controller else np.inf)
+        procs = []
+        if real_controller:
+            latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            traj_pub = graph.node.create_publisher(MultiDOFJointTrajectory, 'trajectory', latched)
+            traj_pub.publish(conversions.sampled_to_msg(_line_trajectory(), conversions.s_to_stamp(0.2)))
+            procs.append(_start_sim(env, 'lockstep:=true', 'use_sim_time:=true',
+                                    module='quad_control.position_controller_node'))
+        procs.append(_start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0'))
         try:
             graph.spin_until(lambda: len(graph.odom) >= steps)
         finally:
-            log = _stop(sim)
+            log = _stop(procs[-1])
+            for p in procs[:-1]:
+                _stop(p)
             graph.close()
     assert 'lockstep: crazyflie' in log
     return np.array(graph.odom[:steps]), graph.clock
@@ -106,6 +129,14 @@ def test_lockstep_is_deterministic():
     assert np.allclose(first[:, 0], np.arange(len(first)) * 0.01, atol=1e-12)  # one odom per 10 ms, integer ns
     assert set(np.round(first[:-1, 0], 9)) <= set(np.round(clock, 9))  # /clock follows every odom
     assert first[-1, 1] > 0.3 and first[-1, 2] < -0.15                          # it actually flew toward the target
+
+
+def test_lockstep_with_the_real_position_controller_is_deterministic():
+    first, _ = _fly_once(real_controller=True)
+    second, _ = _fly_once(real_controller=True)
+    assert np.array_equal(first, second)
+    assert np.allclose(first[:, 0], np.arange(len(first)) * 0.01, atol=1e-12)
+    assert first[-1, 1] == pytest.approx(0.5, abs=0.1) and first[-1, 2] == pytest.approx(-0.3, abs=0.1)
 
 
 def test_dead_controller_lets_the_failsafe_land():
