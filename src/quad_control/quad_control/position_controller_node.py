@@ -213,6 +213,8 @@ class PositionControllerNode(Node):
             self._fault(f'no setpoint at t = {t_ns * 1e-9:.3f} s: {exc}')
             return
         self.last_control_ns = t_ns
+        if not self.context.ok():  # shutting down (SIGINT/SIGTERM): publishers are gone
+            return
         stamp = _stamp(t_ns)
         self.cmd_pub.publish(conversions.setpoint_to_imu(setpoint, stamp))
         self.ref_pub.publish(conversions.reference_to_msg(ref, stamp))
