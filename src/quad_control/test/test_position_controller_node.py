@@ -42,8 +42,9 @@ class Graph:
         self.odom_pub = self.probe.create_publisher(Odometry, 'odom', RELIABLE)
         self.clock_pub = self.probe.create_publisher(Clock, '/clock', RELIABLE)
         self.traj_pub = self.probe.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
-        self.setpoints, self.diags = [], []
+        self.setpoints, self.diags, self.references = [], [], []
         self.probe.create_subscription(Imu, 'cmd/attitude_thrust', self.setpoints.append, RELIABLE)
+        self.probe.create_subscription(MultiDOFJointTrajectory, 'control/reference', self.references.append, RELIABLE)
         self.probe.create_subscription(DiagnosticArray, 'diagnostics', self.diags.append, RELIABLE)
         self.executor.add_node(self.probe)
         self.node = None
@@ -65,6 +66,15 @@ class Graph:
                 raise AssertionError(f'timed out waiting for {what}')
             self.executor.spin_once(timeout_sec=0.02)
 
+    def step(self, t_s, **odom):
+        """One simulator step: odom then /clock at t_s; returns the reference position tracked at t_s."""
+        self.publish_odom(t_s, **odom)
+        self.publish_clock(t_s)
+        stamp = conv.s_to_stamp(t_s)
+        self.spin_until(lambda: any(m.header.stamp == stamp for m in self.references), f'reference at {t_s}')
+        [ref] = [m for m in self.references if m.header.stamp == stamp]
+        return conv.vec3(ref.points[0].transforms[0].translation)
+
     def publish_odom(self, t_s, z=1.0, x=0.0):
         state = State(position=np.array([x, 0.0, z]))
         self.odom_pub.publish(conv.state_to_odometry(state, conv.s_to_stamp(t_s)))
@@ -74,6 +84,12 @@ class Graph:
 
     def setpoints_at(self, t_s):
         return [m for m in self.setpoints if m.header.stamp == conv.s_to_stamp(t_s)]
+
+    def node_status(self):
+        n = len(self.diags)
+        self.node.publish_diagnostics()
+        self.spin_until(lambda: len(self.diags) > n, 'diagnostics')
+        return _status(self.diags[-1])
 
     def close(self):
         for n in (self.node, self.probe):
@@ -134,6 +150,20 @@ def test_lockstep_tick_waits_for_its_odometry(graph):
         [sp] = graph.setpoints_at(t_s)
         assert math.isclose(_thrust(sp), MASS_KG * (GRAVITY_MPS2 + 20.0 * (1.0 - z)), rel_tol=1e-9)
     assert graph.node.counts['deferred_ticks'] >= 1
+
+
+def test_holds_before_start_tracks_then_holds_final_point(graph):
+    graph.start(use_sim_time=True, lockstep=True)
+    assert np.allclose(graph.step(1.0, x=0.3, z=0.7), [0.3, 0, 0.7])      # no trajectory: where it is
+    p = np.array([[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 1.0, 0.0]])
+    graph.traj_pub.publish(conv.sampled_to_msg(SampledTrajectory([0.0, 1.0], p, np.zeros((2, 4)), np.zeros((2, 4))),
+                                               conv.s_to_stamp(2.0)))
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    assert np.allclose(graph.step(1.5, x=0.0, z=1.0), [0.3, 0, 0.7])      # not started: still the hold point
+    assert np.allclose(graph.step(2.5), [0.5, 0, 1.0])                    # the quintic's midpoint
+    assert np.allclose(graph.step(4.0), [1.0, 0, 1.0])                    # after the end: the final point
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert values['mode'] == 'hold (trajectory ended)'
 
 
 def test_nonfinite_odometry_stops_setpoints_and_resumes(graph):
