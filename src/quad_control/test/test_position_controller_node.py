@@ -188,6 +188,21 @@ def test_nonfinite_odometry_stops_setpoints_and_resumes(graph):
     graph.spin_until(lambda: _status(graph.diags[-1]).level == diagnostics.OK, 'OK again')
 
 
+def test_nonfinite_trajectory_is_refused_and_the_previous_kept(graph):
+    graph.start(use_sim_time=True, lockstep=True)
+    graph.traj_pub.publish(_hover_trajectory(1.0))
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    kept = graph.node.trajectory
+    bad = _hover_trajectory(2.0)
+    bad.points[1].accelerations[0].linear.x = math.nan
+    graph.traj_pub.publish(bad)
+    graph.spin_until(lambda: graph.node.counts['rejected_trajectories'] == 1, 'refusal')
+    assert graph.node.trajectory is kept
+    graph.spin_until(lambda: any(_status(d).level == diagnostics.ERROR and 'trajectory refused' in _status(d).message
+                                 for d in graph.diags), 'ERROR naming the refusal')
+    assert np.allclose(graph.step(3.0, z=0.9), [0, 0, 1.0])  # still flying the first one
+
+
 def test_stale_odometry_stops_setpoints_then_resumes(graph):
     graph.start(odom_timeout_s=0.2, rate_hz=100.0)
     graph.publish_odom(0.0)
@@ -228,7 +243,7 @@ def test_bad_runtime_parameters_are_refused_and_good_ones_apply(graph):
     assert math.isclose(node.timer.timer_period_ns, 4e6)
 
 
-def test_invalid_startup_parameter_exits_2_naming_it(ros_env=None):
+def test_invalid_startup_parameter_exits_2_naming_it():
     with isolated_domain() as (_, env):
         proc = subprocess.run([sys.executable, '-m', 'quad_control.position_controller_node', '--ros-args',
                                '-p', 'kp_z:=-3.0'], env=env, capture_output=True, text=True, timeout=120)
