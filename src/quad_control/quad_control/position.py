@@ -74,6 +74,10 @@ class Saturation:
 
 def check_finite(state: State, ref: Reference):
     """Raises ValueError naming the first non-finite field of the state or the reference."""
+    values = np.concatenate([state.position, state.velocity, state.quaternion, state.body_rates, ref.position,
+                             ref.velocity, ref.acceleration, ref.jerk, [ref.yaw, ref.yaw_rate]])
+    if np.isfinite(values).all():
+        return
     for owner, obj, names in (('state', state, ('position', 'velocity', 'quaternion', 'body_rates')),
                               ('reference', ref, ('position', 'velocity', 'acceleration', 'jerk', 'yaw',
                                                   'yaw_rate'))):
@@ -128,12 +132,13 @@ def geometric_setpoint(acc_des, state: State, ref: Reference, mass_kg: float, li
         force[:2] *= force[2] * np.tan(limits.max_tilt_rad) / horizontal if horizontal > 0 else 1.0
     b3 = force / np.linalg.norm(force)
     b1_yaw = np.array([np.cos(ref.yaw), np.sin(ref.yaw), 0.0])
-    b2 = np.cross(b3, b1_yaw)
+    b2 = rotations.hat(b3) @ b1_yaw
     b2_norm = np.linalg.norm(b2)  # >= cos(max tilt) > 0
     b2 /= b2_norm
-    b1 = np.cross(b2, b3)
+    b1 = rotations.hat(b2) @ b3
     rot_des = np.column_stack([b1, b2, b3])
-    body_z = rotations.to_matrix(state.quaternion)[:, 2]
+    x, y, z, w = state.quaternion  # third column of R(q)
+    body_z = np.array([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)])
     thrust_n = _clamp_thrust(float(force @ body_z), limits, sat)
     rates = np.zeros(3)
     if use_jerk:
@@ -194,11 +199,15 @@ class PositionController:
         if not np.isfinite(dt_s) or dt_s < 0:
             raise ValueError(f'dt_s = {dt_s} must be finite and >= 0')
         check_finite(state, ref)
-        if self.name == 'pd':
-            return pd(state, ref, self.gains, self.vehicle, self.limits)
+        mass_kg = self.vehicle.mass_kg
         if self.name == 'se3':
-            return se3(state, ref, self.gains, self.vehicle, self.limits)
-        windup = self._integrate(np.asarray(ref.position) - state.position, dt_s)
-        sp, sat = pid(state, ref, self.gains, self.vehicle, self.integral_m_s, self.limits)
+            return geometric_setpoint(desired_acceleration(state, ref, self.gains), state, ref, mass_kg, self.limits,
+                                      use_jerk=self.gains.use_feedforward)
+        integral, windup = None, False
+        if self.name == 'pid':
+            windup = self._integrate(np.asarray(ref.position) - state.position, dt_s)
+            integral = self.integral_m_s
+        sp, sat = seed_setpoint(desired_acceleration(state, ref, self.gains, integral), ref.yaw, ref.yaw_rate,
+                                mass_kg, self.limits)
         sat.integral = windup
         return sp, sat

@@ -213,6 +213,8 @@ class PositionControllerNode(Node):
             self._fault(f'no setpoint at t = {t_ns * 1e-9:.3f} s: {exc}')
             return
         self.last_control_ns = t_ns
+        if not self.context.ok():  # shutting down (SIGINT/SIGTERM): publishers are gone
+            return
         stamp = _stamp(t_ns)
         self.cmd_pub.publish(conversions.setpoint_to_imu(setpoint, stamp))
         self.ref_pub.publish(conversions.reference_to_msg(ref, stamp))
@@ -226,7 +228,7 @@ class PositionControllerNode(Node):
     def _fault(self, reason: str):
         self.last_error = reason
         self.get_logger().error(reason)
-        self.publish_diagnostics()
+        self.publish_diagnostics(fault=reason)
 
     def _mode(self, now_ns: int) -> str:
         if self.trajectory is None:
@@ -242,12 +244,15 @@ class PositionControllerNode(Node):
         return (len(recent) - 1) / ((recent[-1] - recent[0]) * 1e-9) if len(recent) > 1 and recent[-1] > recent[0] \
             else 0.0
 
-    def publish_diagnostics(self):
+    def publish_diagnostics(self, fault: str | None = None):
+        """The periodic status; `fault` (a refused input) makes this one ERROR with that message."""
         now_ns = self.get_clock().now().nanoseconds
         timeout_s = self.params['odom_timeout_s']
         deferred_s = (self.steady.now().nanoseconds - self.pending_since_ns) * 1e-9
         level, message = diagnostics.OK, self._mode(now_ns)
-        if self.odom_fault is not None:
+        if fault is not None:
+            level, message = diagnostics.ERROR, fault
+        elif self.odom_fault is not None:
             level, message = diagnostics.ERROR, self.odom_fault
         elif self.stale:
             level, message = diagnostics.ERROR, f'odom stale (> {timeout_s} s): no setpoints'

@@ -42,8 +42,9 @@ class Graph:
         self.odom_pub = self.probe.create_publisher(Odometry, 'odom', RELIABLE)
         self.clock_pub = self.probe.create_publisher(Clock, '/clock', RELIABLE)
         self.traj_pub = self.probe.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
-        self.setpoints, self.diags = [], []
+        self.setpoints, self.diags, self.references = [], [], []
         self.probe.create_subscription(Imu, 'cmd/attitude_thrust', self.setpoints.append, RELIABLE)
+        self.probe.create_subscription(MultiDOFJointTrajectory, 'control/reference', self.references.append, RELIABLE)
         self.probe.create_subscription(DiagnosticArray, 'diagnostics', self.diags.append, RELIABLE)
         self.executor.add_node(self.probe)
         self.node = None
@@ -65,6 +66,15 @@ class Graph:
                 raise AssertionError(f'timed out waiting for {what}')
             self.executor.spin_once(timeout_sec=0.02)
 
+    def step(self, t_s, **odom):
+        """One simulator step: odom then /clock at t_s; returns the reference position tracked at t_s."""
+        self.publish_odom(t_s, **odom)
+        self.publish_clock(t_s)
+        stamp = conv.s_to_stamp(t_s)
+        self.spin_until(lambda: any(m.header.stamp == stamp for m in self.references), f'reference at {t_s}')
+        [ref] = [m for m in self.references if m.header.stamp == stamp]
+        return conv.vec3(ref.points[0].transforms[0].translation)
+
     def publish_odom(self, t_s, z=1.0, x=0.0):
         state = State(position=np.array([x, 0.0, z]))
         self.odom_pub.publish(conv.state_to_odometry(state, conv.s_to_stamp(t_s)))
@@ -74,6 +84,12 @@ class Graph:
 
     def setpoints_at(self, t_s):
         return [m for m in self.setpoints if m.header.stamp == conv.s_to_stamp(t_s)]
+
+    def node_status(self):
+        n = len(self.diags)
+        self.node.publish_diagnostics()
+        self.spin_until(lambda: len(self.diags) > n, 'diagnostics')
+        return _status(self.diags[-1])
 
     def close(self):
         for n in (self.node, self.probe):
@@ -136,6 +152,20 @@ def test_lockstep_tick_waits_for_its_odometry(graph):
     assert graph.node.counts['deferred_ticks'] >= 1
 
 
+def test_holds_before_start_tracks_then_holds_final_point(graph):
+    graph.start(use_sim_time=True, lockstep=True)
+    assert np.allclose(graph.step(1.0, x=0.3, z=0.7), [0.3, 0, 0.7])      # no trajectory: where it is
+    p = np.array([[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 1.0, 0.0]])
+    graph.traj_pub.publish(conv.sampled_to_msg(SampledTrajectory([0.0, 1.0], p, np.zeros((2, 4)), np.zeros((2, 4))),
+                                               conv.s_to_stamp(2.0)))
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    assert np.allclose(graph.step(1.5, x=0.0, z=1.0), [0.3, 0, 0.7])      # not started: still the hold point
+    assert np.allclose(graph.step(2.5), [0.5, 0, 1.0])                    # the quintic's midpoint
+    assert np.allclose(graph.step(4.0), [1.0, 0, 1.0])                    # after the end: the final point
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert values['mode'] == 'hold (trajectory ended)'
+
+
 def test_nonfinite_odometry_stops_setpoints_and_resumes(graph):
     graph.start(lockstep=True, rate_hz=100.0, use_sim_time=True)
     graph.publish_odom(0.5)
@@ -156,6 +186,21 @@ def test_nonfinite_odometry_stops_setpoints_and_resumes(graph):
     assert graph.node.counts['nonfinite_odom'] == 1
     graph.node.publish_diagnostics()
     graph.spin_until(lambda: _status(graph.diags[-1]).level == diagnostics.OK, 'OK again')
+
+
+def test_nonfinite_trajectory_is_refused_and_the_previous_kept(graph):
+    graph.start(use_sim_time=True, lockstep=True)
+    graph.traj_pub.publish(_hover_trajectory(1.0))
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    kept = graph.node.trajectory
+    bad = _hover_trajectory(2.0)
+    bad.points[1].accelerations[0].linear.x = math.nan
+    graph.traj_pub.publish(bad)
+    graph.spin_until(lambda: graph.node.counts['rejected_trajectories'] == 1, 'refusal')
+    assert graph.node.trajectory is kept
+    graph.spin_until(lambda: any(_status(d).level == diagnostics.ERROR and 'trajectory refused' in _status(d).message
+                                 for d in graph.diags), 'ERROR naming the refusal')
+    assert np.allclose(graph.step(3.0, z=0.9), [0, 0, 1.0])  # still flying the first one
 
 
 def test_stale_odometry_stops_setpoints_then_resumes(graph):
@@ -198,7 +243,7 @@ def test_bad_runtime_parameters_are_refused_and_good_ones_apply(graph):
     assert math.isclose(node.timer.timer_period_ns, 4e6)
 
 
-def test_invalid_startup_parameter_exits_2_naming_it(ros_env=None):
+def test_invalid_startup_parameter_exits_2_naming_it():
     with isolated_domain() as (_, env):
         proc = subprocess.run([sys.executable, '-m', 'quad_control.position_controller_node', '--ros-args',
                                '-p', 'kp_z:=-3.0'], env=env, capture_output=True, text=True, timeout=120)

@@ -1,0 +1,100 @@
+"""Control: cost of one position-control update per controller, and the node's achieved loop rate and
+period jitter (wall-clock mode) at 100, 250 and 500 Hz. Prints one markdown section."""
+
+import subprocess
+import sys
+import time
+import timeit
+
+import numpy as np
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu
+
+from quad_common import conversions as conv
+from quad_common.paths import resolve_config
+from quad_common.testing import isolated_domain
+from quad_common.types import Reference, State
+from quad_common.vehicle import load_vehicle
+from quad_control.position import CONTROLLERS, PositionController, PositionGains
+
+RATES_HZ = (100.0, 250.0, 500.0)
+MEASURE_S = 4.0
+
+
+def update_cost_us():
+    vehicle = load_vehicle(resolve_config('config/vehicles/crazyflie.yaml'))
+    state = State(position=np.array([0.1, -0.2, 0.9]), velocity=np.array([0.3, 0.1, 0.0]))
+    ref = Reference(position=np.array([0.0, 0.0, 1.0]), acceleration=np.array([0.2, 0.1, 0.0]),
+                    jerk=np.array([0.1, 0.0, 0.0]), yaw=0.3, yaw_rate=0.1)
+    out = {}
+    for name in CONTROLLERS:
+        ctl = PositionController(name, PositionGains(), vehicle)
+        n = 2000
+        best = min(timeit.repeat(lambda: ctl.update(state, ref, 0.01), number=n, repeat=5))  # noqa: B023
+        out[name] = best / n * 1e6
+    return out
+
+
+def node_timing(rate_hz, env, domain):
+    """Stamps of cmd/attitude_thrust (= tick times on the wall clock) over MEASURE_S seconds."""
+    proc = subprocess.Popen([sys.executable, '-m', 'quad_control.position_controller_node', '--ros-args',
+                             '-p', f'rate_hz:={rate_hz}', '-p', 'odom_timeout_s:=2.0', '--log-level', 'warn'],
+                            env=env)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = rclpy.create_node('bench_control', context=ctx)
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    stamps = []
+    node.create_subscription(Imu, 'cmd/attitude_thrust', lambda m: stamps.append(conv.stamp_to_s(m.header.stamp)),
+                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+    odom_pub = node.create_publisher(Odometry, 'odom', qos)
+    node.create_timer(0.02, lambda: odom_pub.publish(
+        conv.state_to_odometry(State(position=np.array([0.0, 0.0, 1.0])), node.get_clock().now().to_msg())))
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    try:
+        deadline = time.monotonic() + 60.0
+        while not stamps and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        stamps.clear()
+        end = time.monotonic() + MEASURE_S
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    t = np.sort(np.array(stamps))
+    periods = np.diff(t)
+    jitter = np.abs(periods - 1.0 / rate_hz)
+    return {'achieved_hz': (len(t) - 1) / (t[-1] - t[0]), 'p50_us': np.percentile(jitter, 50) * 1e6,
+            'p99_us': np.percentile(jitter, 99) * 1e6, 'max_period_ms': periods.max() * 1e3}
+
+
+def main():
+    cost = update_cost_us()
+    rows = []
+    with isolated_domain() as (domain, env):
+        for rate in RATES_HZ:
+            rows.append((rate, node_timing(rate, env, domain)))
+    print('### Control (quad_control)\n')
+    print('One `PositionController.update` (best of 5 x 2000 calls, crazyflie, one core), and the '
+          '`position_controller` node in wall-clock mode: setpoint stamps (= tick times) over '
+          f'{MEASURE_S:.0f} s, jitter = |period - 1/rate_hz|.\n')
+    print('| controller | update (us) |\n|---|---|')
+    for name, us in cost.items():
+        print(f'| {name} | {us:.1f} |')
+    print('\n| rate_hz | achieved (Hz) | jitter p50 (us) | jitter p99 (us) | longest period (ms) |')
+    print('|---|---|---|---|---|')
+    for rate, r in rows:
+        print(f"| {rate:.0f} | {r['achieved_hz']:.1f} | {r['p50_us']:.0f} | {r['p99_us']:.0f} | "
+              f"{r['max_period_ms']:.2f} |")
+
+
+if __name__ == '__main__':
+    main()
