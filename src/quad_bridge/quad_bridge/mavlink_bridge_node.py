@@ -74,6 +74,7 @@ TELEMETRY_MESSAGES = {  # message id -> share of telemetry_rate_hz
     mavlink.MAVLINK_MSG_ID_SYS_STATUS: 0.0,       # 0: 2 Hz
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.0,
 }
+OFFBOARD_MIN_STREAM_HZ = 5.0  # sent before asking for OFFBOARD (PX4 needs >= 2 Hz)
 ATTITUDE_RATES_IGNORE = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
                          | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
                          | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)
@@ -265,6 +266,9 @@ class MavlinkBridge(Node):
             return response
         v = self.vehicle
         if request.data:
+            deadline = time.monotonic() + 2.0  # PX4 enters OFFBOARD only with a live (>= 2 Hz) stream
+            while self.sent.rate_hz(self.now_s()) < OFFBOARD_MIN_STREAM_HZ and time.monotonic() < deadline:
+                time.sleep(0.05)
             if not self.streaming:
                 response.success = False
                 response.message = 'no live setpoint stream: publish cmd/attitude_thrust first'
@@ -453,6 +457,9 @@ def main(args=None):
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if rclpy.ok():  # a signal's shutdown can surface as an RCLError inside the executor
+            raise
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -90,8 +90,9 @@ class OnboardAutopilot:
                 ap.mode_from_name(self.autopilot, name)
             except ValueError:
                 return mavlink.MAV_RESULT_DENIED
-            if name == 'OFFBOARD' and not self.stream_live(now_s):
-                return mavlink.MAV_RESULT_DENIED  # PX4: offboard needs the setpoint stream first
+            if name == 'OFFBOARD' and not self.stream_live(now_s):  # PX4: offboard needs the setpoint stream first
+                self.log.append((now_s, f'OFFBOARD refused: setpoints at {self.setpoints.rate_hz(now_s):.1f} Hz'))
+                return mavlink.MAV_RESULT_DENIED
             self._set_mode(name, now_s, 'commanded')
             return mavlink.MAV_RESULT_ACCEPTED
         if command == mavlink.MAV_CMD_NAV_LAND:
@@ -177,9 +178,12 @@ class MavlinkVehicle:
         self.sim = Simulator(load_vehicle(args.vehicle), physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
                              setpoint_timeout_s=1e6)
-        self.sim.armed = False
         self.autopilot = OnboardAutopilot(args.autopilot, args.hover_throttle, guid_options=args.guid_options,
                                           offboard_loss_s=args.offboard_loss_s, guided_timeout_s=args.guided_timeout_s)
+        if not self.sim.landed:  # starts in the air: armed, holding position (like sim_node starts hovering)
+            self.autopilot.armed = True
+            self.autopilot.mode = ap.hold_mode(self.autopilot.autopilot) if args.autopilot == 'px4' else 'LOITER'
+        self.sim.armed = self.autopilot.armed
         self.conn = mavutil.mavlink_connection(args.url, source_system=args.system_id, source_component=1,
                                                autoreconnect=True, robust_parsing=True)
         self.intervals_s = dict(DEFAULT_INTERVALS_S)
@@ -302,7 +306,8 @@ def build_parser():
                    'ardupilot tcpin:127.0.0.1:5760)')
     p.add_argument('--system-id', type=int, default=1)
     p.add_argument('--vehicle', default=DEFAULT_VEHICLE, help='vehicle YAML (quad_common.vehicle)')
-    p.add_argument('--initial-position', type=_triple, default=[0.0, 0.0, 0.0], help='x,y,z in map (ENU), m')
+    p.add_argument('--initial-position', type=_triple, default=[0.0, 0.0, 0.0],
+                   help='x,y,z in map (ENU), m; above the floor: starts armed, holding (AUTO.LOITER / LOITER)')
     p.add_argument('--initial-yaw', type=float, default=0.0, help='rad, ENU')
     p.add_argument('--hover-throttle', type=float, default=0.5, help='thrust that hovers (MPC_THR_HOVER)')
     p.add_argument('--guid-options', type=int, default=8, help='ArduPilot GUID_OPTIONS (bit 3: thrust, not climb)')

@@ -1,0 +1,91 @@
+"""Setpoint checks (NaN/inf refused, tilt clamped keeping yaw) and the link state machine."""
+
+import math
+
+import numpy as np
+import pytest
+
+from quad_bridge.link import LinkState, RateMeter, is_vehicle_heartbeat, load_signing_key, resolve_autopilot
+from quad_bridge.setpoint import check_setpoint, clamp_tilt, tilt_rad
+from quad_common import rotations
+from quad_common.types import AttitudeSetpoint
+
+
+@pytest.mark.parametrize('field, sp', [
+    ('quaternion', AttitudeSetpoint(quaternion=np.array([np.nan, 0, 0, 1.0]))),
+    ('specific_force_mps2', AttitudeSetpoint(specific_force_mps2=math.inf)),
+    ('specific_force_mps2', AttitudeSetpoint(specific_force_mps2=-1.0)),
+    ('body_rates', AttitudeSetpoint(body_rates=np.array([0.0, math.nan, 0.0]))),
+])
+def test_non_finite_setpoints_are_refused_naming_the_field(field, sp):
+    with pytest.raises(ValueError, match=field):
+        check_setpoint(sp, math.radians(35.0))
+
+
+def test_tilt_within_limit_passes_unchanged():
+    q = rotations.from_euler(0.2, -0.1, 1.0)
+    sp, clamped = check_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=12.0), math.radians(35.0))
+    assert not clamped
+    np.testing.assert_allclose(sp.quaternion, q)
+    assert sp.specific_force_mps2 == 12.0
+
+
+def test_over_tilt_is_clamped_keeping_yaw_and_tilt_direction():
+    q = rotations.from_euler(math.radians(60.0), 0.0, math.radians(40.0))
+    q_c, clamped = clamp_tilt(q, math.radians(35.0))
+    assert clamped
+    assert math.degrees(tilt_rad(q_c)) == pytest.approx(35.0)
+    z_before, z_after = rotations.to_matrix(q)[:, 2], rotations.to_matrix(q_c)[:, 2]
+    heading = lambda z: math.atan2(z[1], z[0])  # noqa: E731
+    assert heading(z_after) == pytest.approx(heading(z_before))
+    x_after = rotations.to_matrix(q_c)[:, 0]
+    x_before = rotations.to_matrix(q)[:, 0]
+    assert math.atan2(x_after[1], x_after[0]) == pytest.approx(math.atan2(x_before[1], x_before[0]), abs=0.2)
+    # a pure roll to 60 deg becomes a pure roll to 35 deg at the same yaw
+    roll, pitch, yaw = rotations.to_euler(q_c)
+    assert (math.degrees(roll), math.degrees(pitch), math.degrees(yaw)) == pytest.approx((35.0, 0.0, 40.0), abs=1e-6)
+
+
+def test_link_state_machine():
+    link = LinkState(link_timeout_s=1.0)
+    assert link.state == LinkState.WAITING and link.update(5.0) is None
+    assert link.heartbeat(10.0) == 'connected'
+    assert link.heartbeat(10.9) is None
+    assert link.update(11.8) is None
+    assert link.update(12.0) == 'lost' and link.state == LinkState.LOST
+    assert link.update(13.0) is None                      # reported once
+    assert link.heartbeat(14.0) == 'reconnected'
+    assert (link.losses, link.reconnects, link.state) == (1, 1, LinkState.UP)
+
+
+def test_vehicle_heartbeats_and_autopilot_choice():
+    assert is_vehicle_heartbeat(2, 12)                    # quadrotor, PX4
+    assert not is_vehicle_heartbeat(6, 8)                 # GCS
+    assert not is_vehicle_heartbeat(18, 8)                # onboard controller
+    assert not is_vehicle_heartbeat(26, 3)                # gimbal
+    assert resolve_autopilot('auto', 12) == 12
+    assert resolve_autopilot('auto', 3) == 3
+    assert resolve_autopilot('px4', 3) == 12
+    with pytest.raises(ValueError, match='autopilot 8'):
+        resolve_autopilot('auto', 8)
+
+
+def test_rate_meter():
+    meter = RateMeter(window_s=1.0)
+    for k in range(100):
+        meter.tick(k * 0.02)
+    assert meter.rate_hz(1.98) == pytest.approx(50.0, abs=1.0)
+    assert meter.rate_hz(10.0) == 0.0
+
+
+def test_signing_key_file(tmp_path):
+    hex_key = tmp_path / 'hex.key'
+    hex_key.write_text('00' * 31 + 'ff\n')
+    assert load_signing_key(str(hex_key)) == bytes(31) + b'\xff'
+    phrase = tmp_path / 'phrase.key'
+    phrase.write_text('correct horse')
+    assert len(load_signing_key(str(phrase))) == 32
+    empty = tmp_path / 'empty.key'
+    empty.write_text('')
+    with pytest.raises(ValueError, match='empty'):
+        load_signing_key(str(empty))
