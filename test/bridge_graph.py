@@ -1,0 +1,154 @@
+"""Helpers of the bridge graph tests: processes on loopback ports, and an in-process observer node."""
+
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from std_srvs.srv import SetBool, Trigger
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from quad_common.conversions import stamp_to_s
+
+ROOT = Path(__file__).resolve().parent.parent
+VEHICLE_FILE = str(ROOT / 'config' / 'vehicles' / 'px4_quad.yaml')
+WAIT_S = 90.0  # generous: a busy 2-core machine
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def python_env(env):
+    """env with every package of src/ importable (also without a colcon install)."""
+    paths = [str(p) for p in sorted((ROOT / 'src').iterdir()) if p.is_dir()]
+    return dict(env, PYTHONPATH=os.pathsep.join(paths + [env.get('PYTHONPATH', '')]), PYTHONUNBUFFERED='1')
+
+
+class Processes:
+    """Child processes with logs under log_dir; stop() ends each one it started."""
+
+    def __init__(self, env, log_dir: Path):
+        self.env, self.log_dir, self.procs = python_env(env), log_dir, {}
+
+    def start(self, name, args):
+        log = open(self.log_dir / f'{name}.log', 'w')
+        self.procs[name] = subprocess.Popen([sys.executable, *args], env=self.env, stdout=log,
+                                            stderr=subprocess.STDOUT, cwd=str(ROOT))
+        return self.procs[name]
+
+    def stop(self, name):
+        p = self.procs.pop(name)
+        p.terminate()
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+    def stop_all(self):
+        for name in list(self.procs):
+            self.stop(name)
+
+    def log(self, name) -> str:
+        return (self.log_dir / f'{name}.log').read_text()
+
+    def vehicle(self, flavour, url, position=(0.0, 0.0, 1.0), name='vehicle', extra=()):
+        return self.start(name, ['-m', 'quad_sim.mavlink_vehicle', '--autopilot', flavour, '--url', url,
+                                 '--vehicle', VEHICLE_FILE, '--initial-position', ','.join(map(str, position)),
+                                 *extra])
+
+    def bridge(self, url, **params):
+        args = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', f'fcu_url:={url}']
+        for k, v in params.items():
+            args += ['-p', f'{k}:={v}']
+        return self.start('bridge', args)
+
+
+class Observer:
+    """Subscribes odom, diagnostics, control/reference, trajectory; calls the bridge's services."""
+
+    def __init__(self, domain_id):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node('bridge_test_observer', context=self.context)
+        self.lock = threading.Lock()
+        self.odom, self.diagnostics, self.references, self.trajectory = [], {}, [], None
+        self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
+        self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diag, 10)
+        self.node.create_subscription(MultiDOFJointTrajectory, 'control/reference', self._on_ref, 10)
+        latched = rclpy.qos.QoSProfile(depth=1, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_traj, latched)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        while self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.1)
+            except Exception:
+                if self.context.ok():
+                    raise
+
+    def _on_odom(self, msg):
+        p = msg.pose.pose.position
+        with self.lock:
+            self.odom.append((stamp_to_s(msg.header.stamp), (p.x, p.y, p.z)))
+
+    def _on_diag(self, msg):
+        with self.lock:
+            for st in msg.status:
+                self.diagnostics.setdefault(st.name, []).append(
+                    (time.monotonic(), st.message, {kv.key: kv.value for kv in st.values}))
+
+    def _on_ref(self, msg):
+        t = msg.points[0].transforms[0].translation
+        with self.lock:
+            self.references.append((stamp_to_s(msg.header.stamp), (t.x, t.y, t.z)))
+
+    def _on_traj(self, msg):
+        self.trajectory = msg
+
+    def link(self):
+        """(message, values) of the newest `mavlink_bridge: link` status, or (None, {})."""
+        with self.lock:
+            entries = self.diagnostics.get('mavlink_bridge: link')
+            return entries[-1][1:] if entries else (None, {})
+
+    def position(self):
+        with self.lock:
+            return self.odom[-1][1] if self.odom else None
+
+    def wait_for(self, condition, what, timeout_s=WAIT_S):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if condition():
+                return
+            time.sleep(0.05)
+        raise AssertionError(f'timed out after {timeout_s} s waiting for {what}')
+
+    def call(self, name, request, timeout_s=WAIT_S):
+        srv_type = Trigger if isinstance(request, Trigger.Request) else SetBool
+        client = self.node.create_client(srv_type, name)
+        try:
+            assert client.wait_for_service(timeout_sec=timeout_s), f'service {name} not offered'
+            future = client.call_async(request)
+            self.wait_for(future.done, f'{name} response', timeout_s)
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    def close(self):
+        self.context.try_shutdown()
+        self.thread.join(timeout=5)

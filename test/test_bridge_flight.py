@@ -1,0 +1,87 @@
+"""trajectory_node + position_controller + mavlink_bridge + mavlink_vehicle over UDP loopback, for PX4 and
+ArduPilot: a short mission flown within a tracking bound; a controller killed mid-flight ends landed."""
+
+import math
+
+import numpy as np
+import pytest
+from bridge_graph import VEHICLE_FILE, Observer, Processes, free_udp_port
+from std_srvs.srv import SetBool
+
+from quad_common.conversions import stamp_to_s
+from quad_common.testing import isolated_domain
+
+WAYPOINTS = [(0.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 1.0, 1.3)]
+TRACKING_BOUND_M = 0.3
+FINAL_MISS_M = 0.15
+
+
+@pytest.fixture
+def graph(tmp_path):
+    with isolated_domain() as (domain, env):
+        procs = Processes(env, tmp_path)
+        observer = Observer(domain)
+        try:
+            yield procs, observer
+        finally:
+            procs.stop_all()
+            observer.close()
+
+
+def _start_hovering_vehicle_in_offboard(procs, observer, flavour):
+    port = free_udp_port()
+    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=WAYPOINTS[0])
+    procs.bridge(f'udpin:127.0.0.1:{port}', autopilot='auto')
+    procs.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
+                               '-p', f'vehicle:={VEHICLE_FILE}', '-p', 'rate_hz:=50.0'])
+    observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+    observer.wait_for(lambda: observer.references, 'the controller to hold position')
+    result = observer.call('offboard', SetBool.Request(data=True))
+    assert result.success, result.message
+    expected = 'OFFBOARD' if flavour == 'px4' else 'GUIDED_NOGPS'
+    observer.wait_for(lambda: observer.link()[1].get('mode') == expected, f'mode {expected}')
+
+
+@pytest.mark.parametrize('flavour', ['px4', 'ardupilot'])
+def test_mission_through_the_bridge_is_tracked(graph, flavour):
+    procs, observer = graph
+    _start_hovering_vehicle_in_offboard(procs, observer, flavour)
+    flat = ','.join(str(c) for wp in WAYPOINTS for c in wp)
+    procs.start('trajectory', ['-m', 'quad_trajectory.trajectory_node', '--ros-args', '-p', f'waypoints:=[{flat}]',
+                               '-p', 'speed_mps:=0.5', '-p', 'start_delay_s:=1.0',
+                               '-p', f'vehicle_file:={VEHICLE_FILE}'])
+    observer.wait_for(lambda: observer.trajectory is not None, 'the trajectory')
+    traj = observer.trajectory
+    start_s = stamp_to_s(traj.header.stamp)
+    end_s = start_s + stamp_to_s(traj.points[-1].time_from_start)
+    observer.wait_for(lambda: observer.odom[-1][0] > end_s + 2.0, 'the end of the mission', 120.0)
+
+    with observer.lock:
+        odom_t = np.array([t for t, _ in observer.odom])
+        odom_p = np.array([p for _, p in observer.odom])
+        refs = [(t, p) for t, p in observer.references if start_s <= t <= end_s + 2.0]
+    assert len(refs) > 50, 'too few references during the mission'
+    errors = []
+    for t, p in refs:
+        k = int(np.searchsorted(odom_t, t))
+        k = min(max(k, 0), len(odom_t) - 1)
+        errors.append(float(np.linalg.norm(odom_p[k] - p)))
+    print(f'{flavour}: max tracking error {max(errors):.3f} m, rms {math.sqrt(np.mean(np.square(errors))):.3f} m')
+    assert max(errors) < TRACKING_BOUND_M
+    assert np.linalg.norm(odom_p[-1] - WAYPOINTS[-1]) < FINAL_MISS_M
+    values = observer.link()[1]
+    assert values['losses'] == '0' and values['handler_errors'] == '0'
+
+
+@pytest.mark.parametrize('flavour', ['ardupilot', 'px4'])
+def test_controller_killed_mid_flight_ends_landed(graph, flavour):
+    procs, observer = graph
+    _start_hovering_vehicle_in_offboard(procs, observer, flavour)
+    procs.stop('controller')
+    land = 'LAND' if flavour == 'ardupilot' else 'AUTO.LAND'
+    observer.wait_for(lambda: observer.link()[1].get('mode') == land, f'the bridge to command {land}')
+    observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle to land and disarm')
+    assert observer.position()[2] < 0.05
+    setpoints = observer.diagnostics['mavlink_bridge: setpoints'][-1][2]
+    assert int(setpoints['stale_events']) >= 1
+    assert 'setpoints stale' in procs.log('bridge')
