@@ -1,0 +1,142 @@
+"""The bridge's link: a cut link is reported and recovered; garbage and foreign traffic never crash it."""
+
+import math
+import os
+import random
+import select
+import socket
+import threading
+
+import pytest
+from bridge_graph import Observer, Processes, free_udp_port
+from std_srvs.srv import SetBool
+
+from quad_common.testing import isolated_domain
+
+os.environ['MAVLINK20'] = '1'
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+
+
+@pytest.fixture
+def graph(tmp_path):
+    with isolated_domain() as (domain, env):
+        procs = Processes(env, tmp_path)
+        observer = Observer(domain)
+        try:
+            yield procs, observer
+        finally:
+            procs.stop_all()
+            observer.close()
+
+
+class Relay:
+    """UDP relay vehicle <-> bridge on loopback that can be cut (drops everything while cut)."""
+
+    def __init__(self, bridge_port):
+        self.vehicle_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.vehicle_side.bind(('127.0.0.1', 0))
+        self.port = self.vehicle_side.getsockname()[1]
+        self.bridge_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.bridge_side.bind(('127.0.0.1', 0))
+        self.bridge_addr = ('127.0.0.1', bridge_port)
+        self.vehicle_addr = None
+        self.cut = threading.Event()
+        self.running = True
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while self.running:
+            ready, _, _ = select.select([self.vehicle_side, self.bridge_side], [], [], 0.1)
+            for sock in ready:
+                data, addr = sock.recvfrom(65536)
+                if sock is self.vehicle_side:
+                    self.vehicle_addr = addr
+                    if not self.cut.is_set():
+                        self.bridge_side.sendto(data, self.bridge_addr)
+                elif self.vehicle_addr and not self.cut.is_set():
+                    self.vehicle_side.sendto(data, self.vehicle_addr)
+
+    def close(self):
+        self.running = False
+        self.thread.join(timeout=2)
+        self.vehicle_side.close()
+        self.bridge_side.close()
+
+
+def test_link_loss_is_reported_and_recovered(graph):
+    procs, observer = graph
+    bridge_port = free_udp_port()
+    relay = Relay(bridge_port)
+    try:
+        procs.vehicle('px4', f'udpout:127.0.0.1:{relay.port}')
+        procs.bridge(f'udpin:127.0.0.1:{bridge_port}', link_timeout_s=1.0)
+        observer.wait_for(lambda: observer.link()[0] == 'link up', 'link up')
+
+        relay.cut.set()
+        observer.wait_for(lambda: observer.link()[0] == 'link lost', 'the loss to be reported')
+        assert observer.link()[1]['losses'] == '1'
+        assert not observer.call('offboard', SetBool.Request(data=True)).success  # nothing commanded while lost
+        relay.cut.clear()
+        observer.wait_for(lambda: observer.link()[0] == 'link up', 'the link to come back')
+        assert observer.link()[1]['reconnects'] == '1'
+        n = len(observer.odom)
+        observer.wait_for(lambda: len(observer.odom) > n + 10, 'odometry again')
+
+        procs.stop('vehicle')  # the vehicle process itself goes away and comes back
+        observer.wait_for(lambda: observer.link()[0] == 'link lost', 'the loss of the stopped vehicle')
+        procs.vehicle('px4', f'udpout:127.0.0.1:{relay.port}')
+        observer.wait_for(lambda: observer.link()[1].get('reconnects') == '2', 'the restarted vehicle')
+        assert observer.link()[1]['losses'] == '2'
+        assert 'heartbeat lost' in procs.log('bridge') and 'reconnected' in procs.log('bridge')
+    finally:
+        relay.close()
+
+
+def _frames():
+    """Malformed and foreign MAVLink: bad CRC, truncated, unknown id, v1, NaN telemetry, another system."""
+    ours = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    foreign = mavlink.MAVLink(None, srcSystem=42, srcComponent=1)
+    good = mavlink.MAVLink_local_position_ned_message(0, 1000.0, 1000.0, -1000.0, 0, 0, 0).pack(foreign)
+    nan = mavlink.MAVLink_local_position_ned_message(0, math.nan, math.inf, 0.0, 0, 0, 0).pack(ours)
+    hb = mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3).pack(foreign)
+    gcs = mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3).pack(foreign)
+    ack = mavlink.MAVLink_command_ack_message(400, 0, 0, 0, 1, 191).pack(foreign)
+    bad_crc = bytearray(good)
+    bad_crc[-1] ^= 0xFF
+    unknown_id = bytearray(good)
+    unknown_id[7:10] = (60000).to_bytes(3, 'little')
+    v1 = bytes([0xFE, 9, 0, 1, 1, 0]) + bytes(9) + b'\x00\x00'
+    huge_len = bytes([0xFD, 255, 0, 0, 0, 1, 1, 32, 0, 0]) + bytes(10)
+    return [bytes(bad_crc), bytes(unknown_id), good[:7], good[:-3], v1, huge_len, nan, good, hb, gcs, ack, good * 3]
+
+
+def test_garbage_and_foreign_traffic_leave_the_bridge_running(graph):
+    procs, observer = graph
+    port = free_udp_port()
+    procs.vehicle('px4', f'udpout:127.0.0.1:{port}')
+    bridge = procs.bridge(f'udpin:127.0.0.1:{port}', target_system=0)
+    observer.wait_for(lambda: observer.link()[0] == 'link up', 'link up')
+
+    rng = random.Random(7)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for k in range(400):
+            sock.sendto(bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 300))), ('127.0.0.1', port))
+            if k % 4 == 0:
+                for frame in _frames():
+                    sock.sendto(frame, ('127.0.0.1', port))
+        sock.sendto(b'\xfd' * 2000, ('127.0.0.1', port))
+    finally:
+        sock.close()
+
+    n = len(observer.odom)
+    observer.wait_for(lambda: len(observer.odom) > n + 50, 'odometry after the flood')
+    observer.wait_for(lambda: int(observer.link()[1].get('bad_data', 0)) > 0, 'bad data to be counted')
+    assert bridge.poll() is None
+    message, values = observer.link()
+    assert message == 'link up' and values['target_system'] == '1'
+    with observer.lock:
+        positions = [p for _, p in observer.odom]
+    assert all(math.isfinite(c) and abs(c) < 100.0 for p in positions for c in p), 'foreign or NaN telemetry used'
+    assert observer.call('arm', SetBool.Request(data=True)).success  # still commanding its own vehicle
