@@ -184,13 +184,14 @@ class MavlinkBridge(Node):
                 stale = False
                 self.streaming = fresh and sp is not None
         if stale:
-            action = self.params['stale_action']
-            self.get_logger().error(f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s): '
-                                    f'streaming stopped, commanding {action}')
             in_offboard = v.autopilot and ap.mode_name(v.autopilot, v.custom_mode) == ap.offboard_mode(v.autopilot)
+            action = 'nothing commanded (vehicle not flying our setpoints)'
             if v.armed and in_offboard and self.link.state == LinkState.UP:
-                mode = ap.land_mode(v.autopilot) if action == 'land' else ap.hold_mode(v.autopilot)
+                mode = ap.land_mode(v.autopilot) if self.params['stale_action'] == 'land' else ap.hold_mode(v.autopilot)
                 self.set_mode(mode, wait=False)
+                action = f'commanding {mode}'
+            self.get_logger().error(f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s): '
+                                    f'streaming stopped, {action}')
             return
         if not self.streaming or v.autopilot is None or self.link.state != LinkState.UP or self.fence_breached:
             return

@@ -1,0 +1,61 @@
+"""Bridge safety in a real graph: NaN and over-tilted setpoints are refused / clamped and counted; leaving the
+geofence box lands the vehicle."""
+
+import math
+
+import pytest
+from bridge_graph import Observer, Processes, free_udp_port
+from sensor_msgs.msg import Imu
+
+from quad_common import rotations
+from quad_common.conversions import to_quaternion
+from quad_common.testing import isolated_domain
+
+
+@pytest.fixture
+def graph(tmp_path):
+    with isolated_domain() as (domain, env):
+        procs = Processes(env, tmp_path)
+        observer = Observer(domain)
+        try:
+            yield procs, observer
+        finally:
+            procs.stop_all()
+            observer.close()
+
+
+def _setpoint(q, f):
+    msg = Imu()
+    msg.orientation = to_quaternion(q)
+    msg.linear_acceleration.z = f
+    msg.angular_velocity_covariance[0] = -1.0
+    return msg
+
+
+def test_bad_setpoints_are_counted_and_the_geofence_lands(graph):
+    procs, observer = graph
+    port = free_udp_port()
+    procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=(0.0, 0.0, 1.0))
+    procs.bridge(f'udpin:127.0.0.1:{port}', max_tilt_deg=30.0, geofence_enabled=True,
+                 geofence_min_m='[-5.0, -5.0, -1.0]', geofence_max_m='[5.0, 5.0, 3.0]')
+    observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the armed vehicle')
+    pub = observer.node.create_publisher(Imu, 'cmd/attitude_thrust', 10)
+
+    def counts():
+        entries = observer.diagnostics.get('mavlink_bridge: setpoints')
+        return entries[-1][2] if entries else {}
+
+    def publish_until(msg, key):
+        observer.wait_for(lambda: pub.publish(msg) or int(counts().get(key, 0)) > 0, f'{key} setpoints counted')
+
+    publish_until(_setpoint([0.0, 0.0, 0.0, 1.0], math.nan), 'refused')
+    publish_until(_setpoint(rotations.from_euler(math.radians(60.0), 0.0, 0.0), 9.81), 'clamped')
+    assert 'refused' in procs.log('bridge') and 'clamped to 30.0 deg' in procs.log('bridge')
+    assert observer.link()[1]['mode'] == 'AUTO.LOITER'  # neither commanded anything
+
+    procs.stop('bridge')
+    procs.bridge(f'udpin:127.0.0.1:{port}', geofence_enabled=True, geofence_min_m='[-5.0, -5.0, -1.0]',
+                 geofence_max_m='[5.0, 5.0, 0.5]')  # the vehicle hovers at 1 m: outside
+    observer.wait_for(lambda: observer.link()[1].get('mode') == 'AUTO.LAND', 'the geofence to command AUTO.LAND')
+    observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle to land and disarm')
+    assert 'geofence left' in procs.log('bridge')
