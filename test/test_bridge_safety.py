@@ -2,9 +2,11 @@
 geofence box lands the vehicle."""
 
 import math
+import subprocess
+import sys
 
 import pytest
-from bridge_graph import Observer, Processes, free_udp_port
+from bridge_graph import Observer, Processes, free_udp_port, python_env
 from sensor_msgs.msg import Imu
 
 from quad_common import rotations
@@ -59,3 +61,14 @@ def test_bad_setpoints_are_counted_and_the_geofence_lands(graph):
     observer.wait_for(lambda: observer.link()[1].get('mode') == 'AUTO.LAND', 'the geofence to command AUTO.LAND')
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle to land and disarm')
     assert 'geofence left' in procs.log('bridge')
+
+
+@pytest.mark.parametrize('param, value', [('fcu_url', 'bogus:1'), ('autopilot', 'betaflight'),
+                                          ('setpoint_rate_hz', '0.0'), ('geofence_min_m', '[1.0, 0.0, 0.0]')])
+def test_bad_start_up_parameters_exit_2_naming_the_field(ros_env, param, value):
+    env = python_env(ros_env)
+    out = subprocess.run([sys.executable, '-m', 'quad_bridge.mavlink_bridge_node', '--ros-args',
+                          '-p', f'{param}:={value}', '-p', 'geofence_max_m:=[1.0, 1.0, 1.0]'],
+                         env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert param in out.stderr + out.stdout
