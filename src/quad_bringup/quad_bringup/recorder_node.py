@@ -7,13 +7,15 @@ graph, with its type and durability taken from its publishers. Timestamps are re
 """
 
 import importlib
+import signal
 import sys
 import time
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec
 from quad_common.params import Param, ParameterSet
@@ -93,16 +95,28 @@ class RecorderNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
+    """Spins until SIGINT/SIGTERM, then takes what is already delivered and closes the bag."""
+    stop = []
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: stop.append(signum))
     try:
         node = RecorderNode()
     except Exception as exc:  # bad parameters, an existing bag directory, an unknown type
         print(f'recorder: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(2)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        while not stop:
+            executor.spin_once(timeout_sec=0.1)
+        drained = -1
+        while drained != node.bag.total:  # messages already in the subscriptions' queues are not lost
+            drained = node.bag.total
+            for _ in range(20):
+                executor.spin_once(timeout_sec=0.01)
+    except ExternalShutdownException:
         pass
     finally:
         node.close_bag()
