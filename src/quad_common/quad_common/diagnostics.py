@@ -6,8 +6,10 @@ OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, Diagnostic
                           DiagnosticStatus.STALE)
 
 
-def status(name: str, level: int, message: str, values: dict | None = None, hardware_id='') -> DiagnosticStatus:
-    return DiagnosticStatus(level=bytes([level]), name=name, message=message, hardware_id=hardware_id,
+def status(name: str, level, message: str, values: dict | None = None, hardware_id='') -> DiagnosticStatus:
+    """level: OK/WARN/ERROR/STALE above (bytes, as the message defines them) or an int."""
+    level = level if isinstance(level, (bytes, bytearray)) else bytes([level])
+    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
                             values=[KeyValue(key=str(k), value=str(v)) for k, v in (values or {}).items()])
 
 

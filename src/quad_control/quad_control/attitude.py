@@ -7,6 +7,10 @@
 with the seed's p_des = q_des = 0 and r_des = the yaw-rate feed-forward, or, with
 use_feedforward_rates, all three feed-forward body rates of the setpoint. quad_sim calls this
 at its physics rate; it is written only here.
+
+attitude_error='euler' (default) is the seed's per-axis Z-Y-X angle difference; 'so3' replaces it
+by the geometric error -e_R, e_R = vee(R_des^T R - R^T R_des) / 2 (Lee et al. 2010), which agrees
+with the Euler form near hover and stays meaningful at large tilt.
 """
 
 import numpy as np
@@ -17,11 +21,15 @@ from quad_common.vehicle import AttitudeGains
 
 
 def attitude_moments(quaternion, body_rates, setpoint: AttitudeSetpoint, gains: AttitudeGains,
-                     inertia_kgm2, use_feedforward_rates: bool = False) -> np.ndarray:
+                     inertia_kgm2, use_feedforward_rates: bool = False, attitude_error: str = 'euler') -> np.ndarray:
     """Body moments u2 (N m, FLU) from the current attitude/rates and the setpoint."""
-    angles = rotations.to_euler(quaternion)
-    angles_des = rotations.to_euler(setpoint.quaternion)
-    angle_error = rotations.wrap_angle(angles_des - angles)
+    if attitude_error == 'euler':
+        angle_error = rotations.wrap_angle(rotations.to_euler(setpoint.quaternion) - rotations.to_euler(quaternion))
+    elif attitude_error == 'so3':
+        rot, rot_des = rotations.to_matrix(quaternion), rotations.to_matrix(setpoint.quaternion)
+        angle_error = -rotations.vee(rot_des.T @ rot - rot.T @ rot_des)
+    else:
+        raise ValueError(f"attitude_error = {attitude_error!r} must be 'euler' or 'so3'")
     rates_des = np.zeros(3)
     if setpoint.body_rates is not None:
         rates_des = setpoint.body_rates.copy() if use_feedforward_rates else np.array([0, 0, setpoint.body_rates[2]])

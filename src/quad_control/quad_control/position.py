@@ -1,0 +1,200 @@
+"""Position controllers: the seed's cascaded PD (its eq. 1-5), PID (its section 5.1 fix), SE(3).
+
+All three share eq. 1, the desired acceleration per axis i in (x, y, z):
+
+    a_des_i = a_T_i + kd_i (v_T_i - v_i) + kp_i (r_T_i - r_i)  [+ ki_i integral(r_T_i - r_i) dt]
+
+and turn it into an attitude/thrust setpoint for the vehicle's attitude loop:
+- `pd`, `pid`: eq. 2-5, the seed's small-angle law
+      u1 = m g + m a_des_z
+      phi_des   = (a_des_x sin(psi_T) - a_des_y cos(psi_T)) / g
+      theta_des = (a_des_x cos(psi_T) + a_des_y sin(psi_T)) / g
+      psi_des   = psi_T,   body-rate feed-forward (0, 0, psi_T')
+- `se3`: Lee, Leok, McClamroch (2010) / Mellinger, Kumar (2011): b3_des = F/|F| with
+  F = m (a_des + g e3), b1 from psi_T, thrust F . b3 (current body z), body-rate feed-forward
+  from the reference jerk j: h = (j - (b3_des . j) b3_des) m / |F|, p = -h . b2_des,
+  q = h . b1_des, r = psi_T' (e3 . b3_des).
+Limits come from the vehicle (thrust range, max tilt); every clamp is reported in `Saturation`.
+A non-finite state or reference raises ValueError: no non-finite command is ever produced.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from quad_common import rotations
+from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
+from quad_common.vehicle import Vehicle
+
+CONTROLLERS = ('pd', 'pid', 'se3')
+E3 = np.array([0.0, 0.0, 1.0])
+
+
+def _axes(values):
+    return field(default_factory=lambda: np.array(values, dtype=float))
+
+
+@dataclass
+class PositionGains:
+    """Per-axis (x, y, z) gains of eq. 1; the seed's values are the defaults (x and y kept separate)."""
+
+    kp: np.ndarray = _axes([5.0, 5.0, 20.0])    # 1/s^2
+    kd: np.ndarray = _axes([5.0, 5.0, 10.0])    # 1/s
+    ki: np.ndarray = _axes([2.0, 2.0, 10.0])    # 1/s^3, used by pid only (stable while ki < kp kd)
+    integral_limit_mps2: float = 2.0            # anti-windup: |ki_i * integral_i| <= this
+    use_feedforward: bool = True                # reference acceleration in eq. 1, jerk in se3 rates
+
+
+@dataclass
+class Limits:
+    thrust_min_n: float
+    thrust_max_n: float
+    max_tilt_rad: float
+
+    @classmethod
+    def of(cls, vehicle: Vehicle, max_tilt_deg: float | None = None) -> 'Limits':
+        tilt = vehicle.max_tilt_deg if not max_tilt_deg else max_tilt_deg
+        return cls(vehicle.thrust_min_n, vehicle.thrust_max_n, np.deg2rad(tilt))
+
+
+@dataclass
+class Saturation:
+    """Which limit clipped this command (reported, never hidden)."""
+
+    thrust: bool = False
+    tilt: bool = False
+    integral: bool = False
+
+    @property
+    def any(self) -> bool:
+        return self.thrust or self.tilt or self.integral
+
+
+def check_finite(state: State, ref: Reference):
+    """Raises ValueError naming the first non-finite field of the state or the reference."""
+    for owner, obj, names in (('state', state, ('position', 'velocity', 'quaternion', 'body_rates')),
+                              ('reference', ref, ('position', 'velocity', 'acceleration', 'jerk', 'yaw',
+                                                  'yaw_rate'))):
+        for name in names:
+            value = np.asarray(getattr(obj, name), dtype=float)
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f'{owner}.{name} is not finite: {value.tolist()}')
+
+
+def desired_acceleration(state: State, ref: Reference, gains: PositionGains, integral_m_s=None) -> np.ndarray:
+    """Eq. 1 (plus ki * integral of the position error for pid)."""
+    acc = gains.kp * (ref.position - state.position) + gains.kd * (ref.velocity - state.velocity)
+    if gains.use_feedforward:
+        acc = acc + ref.acceleration
+    if integral_m_s is not None:
+        acc = acc + gains.ki * integral_m_s
+    return acc
+
+
+def _clamp_thrust(thrust_n, limits: Limits, sat: Saturation) -> float:
+    clamped = float(np.clip(thrust_n, limits.thrust_min_n, limits.thrust_max_n))
+    sat.thrust = clamped != thrust_n
+    return clamped
+
+
+def seed_setpoint(acc_des, yaw, yaw_rate, mass_kg: float, limits: Limits) -> tuple[AttitudeSetpoint, Saturation]:
+    """Eq. 2-5; roll/pitch scaled together so that their magnitude stays within the max tilt."""
+    sat = Saturation()
+    s, c = np.sin(yaw), np.cos(yaw)
+    roll = (acc_des[0] * s - acc_des[1] * c) / GRAVITY_MPS2
+    pitch = (acc_des[0] * c + acc_des[1] * s) / GRAVITY_MPS2
+    tilt = np.hypot(roll, pitch)
+    if tilt > limits.max_tilt_rad:
+        sat.tilt = True
+        roll, pitch = roll * limits.max_tilt_rad / tilt, pitch * limits.max_tilt_rad / tilt
+    thrust_n = _clamp_thrust(mass_kg * GRAVITY_MPS2 + mass_kg * acc_des[2], limits, sat)
+    return AttitudeSetpoint(quaternion=rotations.from_euler(roll, pitch, yaw), specific_force_mps2=thrust_n / mass_kg,
+                            body_rates=np.array([0.0, 0.0, float(yaw_rate)])), sat
+
+
+def geometric_setpoint(acc_des, state: State, ref: Reference, mass_kg: float, limits: Limits,
+                       use_jerk: bool = True) -> tuple[AttitudeSetpoint, Saturation]:
+    """SE(3): desired body z along the desired force, clipped to the max tilt; Mellinger rate feed-forward."""
+    sat = Saturation()
+    force = mass_kg * (np.asarray(acc_des, dtype=float) + GRAVITY_MPS2 * E3)
+    horizontal = np.hypot(force[0], force[1])
+    vertical_min = horizontal / np.tan(limits.max_tilt_rad) if horizontal > 0 else 0.0
+    if force[2] < vertical_min:  # too steep, or pointing down: keep the direction's azimuth, limit its tilt
+        sat.tilt = True
+        if force[2] <= 0:
+            force[2] = 1e-3 * mass_kg * GRAVITY_MPS2
+        force[:2] *= force[2] * np.tan(limits.max_tilt_rad) / horizontal if horizontal > 0 else 1.0
+    b3 = force / np.linalg.norm(force)
+    b1_yaw = np.array([np.cos(ref.yaw), np.sin(ref.yaw), 0.0])
+    b2 = np.cross(b3, b1_yaw)
+    b2 /= np.linalg.norm(b2)  # |b3 x b1_yaw| >= cos(max tilt) > 0
+    b1 = np.cross(b2, b3)
+    rot_des = np.column_stack([b1, b2, b3])
+    body_z = rotations.to_matrix(state.quaternion)[:, 2]
+    thrust_n = _clamp_thrust(float(force @ body_z), limits, sat)
+    rates = np.array([0.0, 0.0, ref.yaw_rate * b3[2]])
+    if use_jerk:
+        jerk = np.asarray(ref.jerk, dtype=float)
+        h = mass_kg / np.linalg.norm(force) * (jerk - (b3 @ jerk) * b3)
+        rates[:2] = [-h @ b2, h @ b1]
+    return AttitudeSetpoint(quaternion=rotations.from_matrix(rot_des), specific_force_mps2=thrust_n / mass_kg,
+                            body_rates=rates), sat
+
+
+def pd(state: State, ref: Reference, gains: PositionGains, vehicle: Vehicle, limits: Limits | None = None):
+    """The seed's controller, eq. 1-5."""
+    check_finite(state, ref)
+    return seed_setpoint(desired_acceleration(state, ref, gains), ref.yaw, ref.yaw_rate, vehicle.mass_kg,
+                         limits or Limits.of(vehicle))
+
+
+def pid(state: State, ref: Reference, gains: PositionGains, vehicle: Vehicle, integral_m_s,
+        limits: Limits | None = None):
+    """Eq. 1-5 with the integral term; `integral_m_s` is the (already clamped) error integral."""
+    check_finite(state, ref)
+    return seed_setpoint(desired_acceleration(state, ref, gains, integral_m_s), ref.yaw, ref.yaw_rate,
+                         vehicle.mass_kg, limits or Limits.of(vehicle))
+
+
+def se3(state: State, ref: Reference, gains: PositionGains, vehicle: Vehicle, limits: Limits | None = None):
+    """Geometric tracking controller on SE(3), valid at large tilt."""
+    check_finite(state, ref)
+    return geometric_setpoint(desired_acceleration(state, ref, gains), state, ref, vehicle.mass_kg,
+                              limits or Limits.of(vehicle), use_jerk=gains.use_feedforward)
+
+
+class PositionController:
+    """One of CONTROLLERS by name, holding the pid error integral (reset when a new trajectory starts)."""
+
+    def __init__(self, name: str, gains: PositionGains, vehicle: Vehicle, limits: Limits | None = None):
+        if name not in CONTROLLERS:
+            raise ValueError(f'controller = {name!r} must be one of {", ".join(CONTROLLERS)}')
+        self.name, self.gains, self.vehicle = name, gains, vehicle
+        self.limits = limits or Limits.of(vehicle)
+        self.integral_m_s = np.zeros(3)
+
+    def reset(self):
+        self.integral_m_s = np.zeros(3)
+
+    def _integrate(self, error_m, dt_s) -> bool:
+        """Clamp anti-windup: |ki_i I_i| <= integral_limit_mps2; True if the clamp acted."""
+        bound = np.full(3, np.inf)
+        active = self.gains.ki > 0
+        bound[active] = self.gains.integral_limit_mps2 / self.gains.ki[active]
+        raw = self.integral_m_s + error_m * dt_s
+        self.integral_m_s = np.clip(raw, -bound, bound)
+        return bool(np.any(self.integral_m_s != raw))
+
+    def update(self, state: State, ref: Reference, dt_s: float) -> tuple[AttitudeSetpoint, Saturation]:
+        """One control step; dt_s is the time since the previous step (integral only)."""
+        if not np.isfinite(dt_s) or dt_s < 0:
+            raise ValueError(f'dt_s = {dt_s} must be finite and >= 0')
+        check_finite(state, ref)
+        if self.name == 'pd':
+            return pd(state, ref, self.gains, self.vehicle, self.limits)
+        if self.name == 'se3':
+            return se3(state, ref, self.gains, self.vehicle, self.limits)
+        windup = self._integrate(np.asarray(ref.position) - state.position, dt_s)
+        sp, sat = pid(state, ref, self.gains, self.vehicle, self.integral_m_s, self.limits)
+        sat.integral = windup
+        return sp, sat

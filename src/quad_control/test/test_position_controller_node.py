@@ -1,0 +1,206 @@
+"""position_controller in a real rclpy graph (DDS, own domain), driven by a test node.
+
+Everything waits on messages or conditions, never on elapsed time.
+"""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from quad_common import conversions as conv
+from quad_common import diagnostics
+from quad_common.sampled_trajectory import SampledTrajectory
+from quad_common.testing import isolated_domain
+from quad_common.types import GRAVITY_MPS2, State
+from quad_control.position_controller_node import PositionControllerNode
+
+MASS_KG = 0.030  # config/vehicles/crazyflie.yaml
+TIMEOUT_S = 60.0
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class Graph:
+    """The controller under test plus a probe node publishing odom, /clock, trajectory and recording outputs."""
+
+    def __init__(self, ctx):
+        self.ctx = ctx
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.probe = rclpy.create_node('probe', context=ctx)
+        self.odom_pub = self.probe.create_publisher(Odometry, 'odom', RELIABLE)
+        self.clock_pub = self.probe.create_publisher(Clock, '/clock', RELIABLE)
+        self.traj_pub = self.probe.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
+        self.setpoints, self.diags = [], []
+        self.probe.create_subscription(Imu, 'cmd/attitude_thrust', self.setpoints.append, RELIABLE)
+        self.probe.create_subscription(DiagnosticArray, 'diagnostics', self.diags.append, RELIABLE)
+        self.executor.add_node(self.probe)
+        self.node = None
+
+    def start(self, **params):
+        self.node = PositionControllerNode(context=self.ctx, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
+        self.executor.add_node(self.node)
+        self.spin_until(lambda: self.odom_pub.get_subscription_count() > 0
+                        and (self.clock_pub.get_subscription_count() > 0 or not params.get('use_sim_time'))
+                        and len(self.probe.get_publishers_info_by_topic('/cmd/attitude_thrust')) > 0,
+                        'discovery')
+        return self.node
+
+    def spin_until(self, condition, what='condition'):
+        deadline = self.probe.get_clock().now().nanoseconds + int(TIMEOUT_S * 1e9)
+        while not condition():
+            if self.probe.get_clock().now().nanoseconds > deadline:
+                raise AssertionError(f'timed out waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def publish_odom(self, t_s, z=1.0, x=0.0):
+        state = State(position=np.array([x, 0.0, z]))
+        self.odom_pub.publish(conv.state_to_odometry(state, conv.s_to_stamp(t_s)))
+
+    def publish_clock(self, t_s):
+        self.clock_pub.publish(Clock(clock=conv.s_to_stamp(t_s)))
+
+    def setpoints_at(self, t_s):
+        return [m for m in self.setpoints if m.header.stamp == conv.s_to_stamp(t_s)]
+
+    def close(self):
+        for n in (self.node, self.probe):
+            if n is not None:
+                self.executor.remove_node(n)
+                n.destroy_node()
+        self.executor.shutdown()
+
+
+@pytest.fixture
+def graph():
+    with isolated_domain() as (domain, _):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        g = Graph(ctx)
+        try:
+            yield g
+        finally:
+            g.close()
+            rclpy.shutdown(context=ctx)
+
+
+def _hover_trajectory(z_m):
+    """A latched trajectory holding (0, 0, z_m), started at t = 0."""
+    p = np.array([[0.0, 0.0, z_m, 0.0]] * 2)
+    return conv.sampled_to_msg(SampledTrajectory([0.0, 100.0], p, np.zeros((2, 4)), np.zeros((2, 4))),
+                               conv.s_to_stamp(0.0))
+
+
+def _thrust(msg):
+    return msg.linear_acceleration.z * MASS_KG
+
+
+def _status(diag_msg):
+    return diag_msg.status[0]
+
+
+def test_lockstep_tick_waits_for_its_odometry(graph):
+    graph.start(use_sim_time=True, lockstep=True, rate_hz=100.0)
+    graph.traj_pub.publish(_hover_trajectory(1.0))
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    # t = 1.00: odom then clock, as the simulator does
+    graph.publish_odom(1.00, z=0.9)
+    graph.publish_clock(1.00)
+    graph.spin_until(lambda: graph.setpoints_at(1.00), 'setpoint at 1.00')
+    # t = 1.01: the clock comes first; the tick must wait for the odometry stamped 1.01
+    graph.publish_clock(1.01)
+    graph.spin_until(lambda: graph.node.pending_tick_ns == 1_010_000_000, 'deferred tick')
+    assert not graph.setpoints_at(1.01)
+    graph.publish_odom(1.01, z=0.8)
+    graph.spin_until(lambda: graph.setpoints_at(1.01), 'setpoint at 1.01')
+    # a third step as a barrier: everything stamped 1.01 has arrived before it
+    graph.publish_odom(1.02, z=0.95)
+    graph.publish_clock(1.02)
+    graph.spin_until(lambda: graph.setpoints_at(1.02), 'setpoint at 1.02')
+    # eq. 2 with kp_z 20, zero velocity: u1 = m (g + 20 (1 - z))
+    for t_s, z in ((1.00, 0.9), (1.01, 0.8), (1.02, 0.95)):
+        [sp] = graph.setpoints_at(t_s)
+        assert math.isclose(_thrust(sp), MASS_KG * (GRAVITY_MPS2 + 20.0 * (1.0 - z)), rel_tol=1e-9)
+    assert graph.node.counts['deferred_ticks'] >= 1
+
+
+def test_nonfinite_odometry_stops_setpoints_and_resumes(graph):
+    graph.start(lockstep=True, rate_hz=100.0, use_sim_time=True)
+    graph.publish_odom(0.5)
+    graph.publish_clock(0.5)
+    graph.spin_until(lambda: graph.setpoints_at(0.5), 'first setpoint')
+    graph.publish_odom(0.51, z=math.nan)
+    graph.publish_clock(0.51)
+    graph.spin_until(lambda: any(_status(d).level == diagnostics.ERROR
+                                 and 'non-finite' in _status(d).message for d in graph.diags), 'ERROR')
+    graph.spin_until(lambda: graph.node.pending_tick_ns == 510_000_000, 'tick 0.51 waiting')
+    assert not graph.setpoints_at(0.51)
+    # a finite odometry for the same time: the setpoint comes, computed from it, and finite
+    graph.publish_odom(0.51, z=0.9)
+    graph.spin_until(lambda: graph.setpoints_at(0.51), 'setpoint after recovery')
+    [sp] = graph.setpoints_at(0.51)
+    assert math.isclose(_thrust(sp), MASS_KG * (GRAVITY_MPS2 + 20.0 * 0.1), rel_tol=1e-9)
+    assert all(np.isfinite(m.linear_acceleration.z) for m in graph.setpoints)
+    assert graph.node.counts['nonfinite_odom'] == 1
+    graph.node.publish_diagnostics()
+    graph.spin_until(lambda: _status(graph.diags[-1]).level == diagnostics.OK, 'OK again')
+
+
+def test_stale_odometry_stops_setpoints_then_resumes(graph):
+    graph.start(odom_timeout_s=0.2, rate_hz=100.0)
+    graph.publish_odom(0.0)
+    graph.spin_until(lambda: len(graph.setpoints) > 0, 'setpoints with fresh odom')
+    # no more odometry: after 0.2 s the node stops and reports ERROR
+    graph.spin_until(lambda: any(_status(d).level == diagnostics.ERROR
+                                 and 'stale' in _status(d).message for d in graph.diags), 'stale ERROR')
+    stale_at = max(conv.stamp_to_s(d.header.stamp) for d in graph.diags
+                   if 'stale' in _status(d).message)
+    n_diags = len(graph.diags)
+    graph.spin_until(lambda: len(graph.diags) >= n_diags + 2, 'two more diagnostics')
+    assert _status(graph.diags[-1]).level == diagnostics.ERROR
+    assert not [m for m in graph.setpoints if conv.stamp_to_s(m.header.stamp) > stale_at]
+    assert graph.node.counts['odom_timeouts'] == 1
+    # odometry returns: setpoints resume, diagnostics OK
+    n_before = len(graph.setpoints)
+    graph.publish_odom(0.0)
+    graph.spin_until(lambda: len(graph.setpoints) > n_before, 'setpoints resume')
+    graph.node.publish_diagnostics()
+    graph.spin_until(lambda: _status(graph.diags[-1]).level == diagnostics.OK, 'OK again')
+    values = {kv.key: kv.value for kv in _status(graph.diags[-1]).values}
+    assert values['controller'] == 'pd' and values['odom_timeouts'] == '1'
+
+
+def test_bad_runtime_parameters_are_refused_and_good_ones_apply(graph):
+    node = graph.start()
+    for name, value in (('kp_x', -1.0), ('kd_y', math.nan), ('rate_hz', 0.0), ('controller', 'lqr'),
+                        ('max_tilt_deg', 95.0)):
+        old = node.params[name]
+        result = node.set_parameters([Parameter(name, value=value)])[0]
+        assert not result.successful and name in result.reason and repr(value) in result.reason
+        assert node.params[name] == old
+    assert node.set_parameters([Parameter('kp_y', value=7.5)])[0].successful
+    assert node.controller.gains.kp.tolist() == [5.0, 7.5, 20.0]
+    assert node.set_parameters([Parameter('controller', value='se3')])[0].successful
+    assert node.controller.name == 'se3'
+    assert node.set_parameters([Parameter('rate_hz', value=250.0)])[0].successful
+    assert math.isclose(node.timer.timer_period_ns, 4e6)
+
+
+def test_invalid_startup_parameter_exits_2_naming_it(ros_env=None):
+    with isolated_domain() as (_, env):
+        proc = subprocess.run([sys.executable, '-m', 'quad_control.position_controller_node', '--ros-args',
+                               '-p', 'kp_z:=-3.0'], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert 'kp_z' in proc.stderr + proc.stdout and '-3.0' in proc.stderr + proc.stdout
