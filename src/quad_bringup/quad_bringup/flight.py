@@ -6,6 +6,7 @@ in a ROS domain of their own (quad_common.testing.isolated_domain, localhost dis
 """
 
 import datetime
+import json
 import signal
 import time
 from dataclasses import dataclass, field
@@ -65,7 +66,7 @@ class FlightResult:
 def validate(options: FlightOptions):
     """Loads and plans the mission with quad_trajectory (so a bad one is refused before anything starts).
 
-    Returns (mission name, first waypoint, planned duration or None). Raises MissionRefused.
+    Returns (mission name, first waypoint). Raises MissionRefused naming the problem.
     """
     from quad_trajectory import mission as mission_module
 
@@ -81,11 +82,10 @@ def validate(options: FlightOptions):
             raise MissionRefused(f'{name} {value}: no such file')
     try:
         mission = mission_module.load_mission(path)
-        plan = mission_module.plan_mission(mission)
+        mission_module.plan_mission(mission, speed_mps=options.speed_mps)
     except (ValueError, KeyError, TypeError, OSError) as exc:
-        raise MissionRefused(f'mission {path}: {exc}') from None
-    first = [float(v) for v in list(mission.waypoints)[0]]
-    return path.stem, first, getattr(plan, 'duration_s', None)
+        raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
+    return mission.name, [float(v) for v in mission.initial_position]
 
 
 def node_parameters(options: FlightOptions, first_waypoint) -> dict:
@@ -143,7 +143,7 @@ class _Interrupt:
 
 def fly(options: FlightOptions, log=print) -> FlightResult:
     try:
-        mission_name, first_waypoint, _ = validate(options)
+        mission_name, first_waypoint = validate(options)
     except MissionRefused as exc:
         return FlightResult(EXIT_REFUSED, str(exc))
     run_dir = Path(options.out) if options.out else default_run_dir(mission_name, options.controller)
@@ -173,6 +173,7 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
             recorder.start(env)  # first, so the latched plan and the first odometry are in the bag
             for p in nodes:
                 p.start(env)
+            (run_dir / 'pids.json').write_text(json.dumps({p.name: p.pid for p in nodes + [recorder]}) + '\n')
             reason = _watch(judge, monitor, nodes + [recorder], interrupt, options, log)
         finally:
             stopped = processes.stop(nodes, log=log)
