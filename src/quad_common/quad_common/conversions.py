@@ -5,7 +5,7 @@ Contract: DESIGN.md section 3 and docs/interfaces.md.
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
-from geometry_msgs.msg import Quaternion, Transform, Twist, Vector3
+from geometry_msgs.msg import Quaternion, Transform, TransformStamped, Twist, Vector3
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
@@ -162,4 +162,27 @@ def reference_to_msg(ref: Reference, stamp: Time, frame_id=WORLD_FRAME) -> Multi
     msg.joint_names = [BODY_FRAME]
     msg.points = [_point(0.0, np.append(ref.position, ref.yaw), np.append(ref.velocity, ref.yaw_rate),
                          np.append(ref.acceleration, 0.0))]
+    return msg
+
+
+# --- simulated sensors (sim_node, mavlink_vehicle) ---------------------------------------------
+
+def state_to_transform(state: State, stamp: Time, frame_id=WORLD_FRAME, child_frame_id=BODY_FRAME):
+    """geometry_msgs/TransformStamped map -> base_link of the state's pose (for /tf)."""
+    msg = TransformStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.child_frame_id = child_frame_id
+    msg.transform = Transform(translation=to_vector3(state.position), rotation=to_quaternion(state.quaternion))
+    return msg
+
+
+def state_to_imu(state: State, specific_force_body_mps2, stamp: Time, frame_id=BODY_FRAME) -> Imu:
+    """A measured IMU reading: attitude, body rates (FLU) and the real specific force R^T (a + g e3)."""
+    msg = Imu()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.orientation = to_quaternion(state.quaternion)
+    msg.angular_velocity = to_vector3(state.body_rates)
+    msg.linear_acceleration = to_vector3(specific_force_body_mps2)
     return msg

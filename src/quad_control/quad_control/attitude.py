@@ -27,7 +27,7 @@ def attitude_moments(quaternion, body_rates, setpoint: AttitudeSetpoint, gains: 
         angle_error = rotations.wrap_angle(rotations.to_euler(setpoint.quaternion) - rotations.to_euler(quaternion))
     elif attitude_error == 'so3':
         rot, rot_des = rotations.to_matrix(quaternion), rotations.to_matrix(setpoint.quaternion)
-        angle_error = -rotations.vee(rot_des.T @ rot - rot.T @ rot_des)
+        angle_error = -0.5 * rotations.vee(rot_des.T @ rot - rot.T @ rot_des)
     else:
         raise ValueError(f"attitude_error = {attitude_error!r} must be 'euler' or 'so3'")
     rates_des = np.zeros(3)

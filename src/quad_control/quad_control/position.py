@@ -11,9 +11,11 @@ and turn it into an attitude/thrust setpoint for the vehicle's attitude loop:
       theta_des = (a_des_x cos(psi_T) + a_des_y sin(psi_T)) / g
       psi_des   = psi_T,   body-rate feed-forward (0, 0, psi_T')
 - `se3`: Lee, Leok, McClamroch (2010) / Mellinger, Kumar (2011): b3_des = F/|F| with
-  F = m (a_des + g e3), b1 from psi_T, thrust F . b3 (current body z), body-rate feed-forward
-  from the reference jerk j: h = (j - (b3_des . j) b3_des) m / |F|, p = -h . b2_des,
-  q = h . b1_des, r = psi_T' (e3 . b3_des).
+  F = m (a_des + g e3), b2 = b3 x c / |b3 x c| with c = (cos psi_T, sin psi_T, 0), thrust F . b3
+  (current body z), body-rate feed-forward from the reference jerk j (Mellinger), and r from
+  omega_z = -b1 . d(b2)/dt for this b2 construction, with y_c = e3 x c:
+      p = -(m / |F|) j . b2,   q = (m / |F|) j . b1,
+      r = (p c . b3 + psi_T' y_c . b2) / |b3 x c|
 Limits come from the vehicle (thrust range, max tilt); every clamp is reported in `Saturation`.
 A non-finite state or reference raises ValueError: no non-finite command is ever produced.
 """
@@ -127,16 +129,18 @@ def geometric_setpoint(acc_des, state: State, ref: Reference, mass_kg: float, li
     b3 = force / np.linalg.norm(force)
     b1_yaw = np.array([np.cos(ref.yaw), np.sin(ref.yaw), 0.0])
     b2 = np.cross(b3, b1_yaw)
-    b2 /= np.linalg.norm(b2)  # |b3 x b1_yaw| >= cos(max tilt) > 0
+    b2_norm = np.linalg.norm(b2)  # >= cos(max tilt) > 0
+    b2 /= b2_norm
     b1 = np.cross(b2, b3)
     rot_des = np.column_stack([b1, b2, b3])
     body_z = rotations.to_matrix(state.quaternion)[:, 2]
     thrust_n = _clamp_thrust(float(force @ body_z), limits, sat)
-    rates = np.array([0.0, 0.0, ref.yaw_rate * b3[2]])
+    rates = np.zeros(3)
     if use_jerk:
-        jerk = np.asarray(ref.jerk, dtype=float)
-        h = mass_kg / np.linalg.norm(force) * (jerk - (b3 @ jerk) * b3)
+        h = mass_kg / np.linalg.norm(force) * np.asarray(ref.jerk, dtype=float)
         rates[:2] = [-h @ b2, h @ b1]
+    y_yaw = np.array([-b1_yaw[1], b1_yaw[0], 0.0])
+    rates[2] = (rates[0] * (b1_yaw @ b3) + ref.yaw_rate * (y_yaw @ b2)) / b2_norm
     return AttitudeSetpoint(quaternion=rotations.from_matrix(rot_des), specific_force_mps2=thrust_n / mass_kg,
                             body_rates=rates), sat
 

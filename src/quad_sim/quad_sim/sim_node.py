@@ -1,0 +1,289 @@
+"""sim_node: the simulated vehicle on the ROS graph (docs/quad_sim.md).
+
+lockstep: at sim time t_k publish odom (stamp t_k), then /clock (t_k); wait for a cmd/attitude_thrust stamped
+>= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. Until the first
+setpoint arrives a timeout re-publishes step k instead of advancing, so start-up order does not matter.
+realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * elapsed wall time.
+"""
+
+import math
+import sys
+import time
+
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import Imu, JointState
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+try:  # not among the PyPI ROS wheels; present on every machine with ROS 2 installed
+    from tf2_msgs.msg import TFMessage
+except ImportError:
+    TFMessage = None
+
+from quad_common import conversions, diagnostics
+from quad_common.params import Param, ParameterSet
+from quad_common.paths import resolve_config
+from quad_common.vehicle import load_vehicle
+from quad_common.world import load_world
+from quad_sim.disturbances import load_profile
+from quad_sim.simulator import SimulationStopped, Simulator
+
+NAME = 'sim_node'
+DIAGNOSTICS_PERIOD_S = 1.0  # sim time
+STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first step until a setpoint arrives
+
+SPECS = [
+    Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
+    Param('initial_position', [0.0, 0.0, 0.0], 'start position, map frame (m); hovering unless on the floor',
+          length=3, read_only=True),
+    Param('initial_yaw', 0.0, 'start yaw (rad)', min=-math.pi, max=math.pi, read_only=True),
+    Param('physics_rate_hz', 1000.0, 'RK4 and onboard autopilot rate (Hz)', min=100.0, max=100000.0,
+          read_only=True),
+    Param('mode', 'lockstep', 'lockstep (deterministic, as fast as the graph) or realtime (paced by rtf)',
+          choices=('lockstep', 'realtime'), read_only=True),
+    Param('rtf', 1.0, 'realtime mode: simulated seconds per wall second', min=0.01, max=1000.0),
+    Param('lockstep_period_s', 0.01, 'lockstep: sim time per setpoint (= 1 / controller rate_hz)',
+          min=1e-4, max=1.0, read_only=True),
+    Param('lockstep_timeout_s', 0.5, 'lockstep: wall time to wait for a setpoint before advancing anyway',
+          min=0.001, max=60.0),
+    Param('odom_rate_hz', 100.0, 'realtime mode: odom, /clock and sensor rate (Hz)', min=1.0, max=1000.0,
+          read_only=True),
+    Param('disturbances', 'none', 'disturbance profile name in disturbances_file', read_only=True),
+    Param('disturbances_file', 'config/disturbances.yaml', 'disturbance profiles file', read_only=True),
+    Param('world', '', 'world file (boxes, JSON or YAML) for collisions; empty: none', read_only=True),
+    Param('robot_radius_m', 0.1, 'collision radius around the vehicle centre (m)', min=0.0, max=5.0,
+          read_only=True),
+    Param('setpoint_timeout_s', 0.5, 'sim time without a setpoint before the landing failsafe',
+          min=0.01, max=60.0, read_only=True),
+    Param('max_tracking_error_m', 0.0, 'stop the run when farther than this from control/reference; 0: off',
+          min=0.0, max=1000.0, read_only=True),
+    Param('seed', 0, 'random seed of gusts and odometry noise', min=0, max=2**31 - 1, read_only=True),
+]
+
+RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def stamp_of(time_ns: int) -> Time:
+    return Time(sec=time_ns // 1_000_000_000, nanosec=time_ns % 1_000_000_000)
+
+
+class SimNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__(NAME, **kwargs)
+        self.params = ParameterSet(self, SPECS)
+        p = self.params
+        vehicle = load_vehicle(self._config(p['vehicle'], 'vehicle'))
+        world = load_world(self._config(p['world'], 'world')) if p['world'] else None
+        profile = load_profile(self._config(p['disturbances_file'], 'disturbances_file'), p['disturbances'])
+        self.sim = Simulator(vehicle, physics_rate_hz=p['physics_rate_hz'], initial_position=p['initial_position'],
+                             initial_yaw=p['initial_yaw'], disturbances=profile, world=world,
+                             robot_radius_m=p['robot_radius_m'], seed=p['seed'],
+                             setpoint_timeout_s=p['setpoint_timeout_s'])
+        try:
+            self.steps_per_period = self.sim.steps_in(p['lockstep_period_s'])
+        except ValueError as exc:
+            raise ValueError(f'lockstep_period_s: {exc}') from None
+        self.odom_pub = self.create_publisher(Odometry, 'odom', RELIABLE_10)
+        self.clock_pub = self.create_publisher(ClockMsg, '/clock', RELIABLE_10)
+        self.tf_pub = self.create_publisher(TFMessage, '/tf', QoSProfile(depth=100)) if TFMessage else None
+        if TFMessage is None:
+            self.get_logger().warn('tf2_msgs is not installed here: /tf is not published (odom carries the pose)')
+        self.imu_pub = self.create_publisher(Imu, 'imu', RELIABLE_10)
+        self.rotor_pub = self.create_publisher(JointState, 'rotor_speeds', RELIABLE_10)
+        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', RELIABLE_10)
+        self.create_subscription(Imu, 'cmd/attitude_thrust', self._on_setpoint, RELIABLE_10)
+        if p['max_tracking_error_m'] > 0:
+            self.create_subscription(MultiDOFJointTrajectory, 'control/reference', self._on_reference, RELIABLE_10)
+        self.create_service(Trigger, 'reset', self._on_reset)
+        self._rotor_names = [f'rotor_{i}' for i in range(4)]
+        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._reset_bookkeeping()
+        self.get_logger().info(
+            f'{p["mode"]}: {vehicle.name} at {list(p["initial_position"])}, {p["physics_rate_hz"]:g} Hz physics, '
+            f'disturbances {profile.name}, world {p["world"] or "none"}')
+
+    def _config(self, path, name):
+        try:
+            return resolve_config(path)
+        except FileNotFoundError as exc:
+            raise ValueError(f'{name} = {path!r}: {exc}') from None
+
+    def _reset_bookkeeping(self):
+        self.setpoint_stamp_ns = -1
+        self.setpoints_received = 0
+        self._events_reported = 0
+        self._next_diagnostics_ns = 0
+        self._wall_start_s = time.monotonic()
+        self._sim_start_ns = self.sim.time_ns
+
+    # --- inputs ------------------------------------------------------------------------------------------
+
+    def _on_setpoint(self, msg: Imu):
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if stamp_ns < self.setpoint_stamp_ns:
+            return  # older than the one applied
+        try:
+            setpoint = conversions.imu_to_setpoint(msg)
+            self.sim.set_setpoint(setpoint)
+        except ValueError as exc:
+            self.get_logger().warn(f'setpoint refused: {exc}', throttle_duration_sec=1.0)
+            return
+        self.setpoint_stamp_ns = stamp_ns
+        self.setpoints_received += 1
+
+    def _on_reference(self, msg: MultiDOFJointTrajectory):
+        if msg.points and msg.points[0].transforms and self.sim.stopped is None:
+            try:
+                self.sim.check_tracking(conversions.vec3(msg.points[0].transforms[0].translation),
+                                        self.params['max_tracking_error_m'])
+            except SimulationStopped as exc:
+                self._report_stop(exc)
+
+    def _on_reset(self, request, response):
+        self.sim.reset()
+        self._reset_bookkeeping()
+        response.success, response.message = True, 'simulation reset to its initial state; time restarts at 0'
+        self.get_logger().info(response.message)
+        return response
+
+    # --- outputs -----------------------------------------------------------------------------------------
+
+    def publish_step(self):
+        """odom, /tf, imu, rotor_speeds and then /clock at the current sim time (contract order)."""
+        stamp = stamp_of(self.sim.time_ns)
+        state = self.sim.odometry_state()
+        self.odom_pub.publish(conversions.state_to_odometry(state, stamp))
+        truth = self.sim.state
+        if self.tf_pub is not None:
+            self.tf_pub.publish(TFMessage(transforms=[conversions.state_to_transform(truth, stamp)]))
+        self.imu_pub.publish(conversions.state_to_imu(truth, self.sim.specific_force_body_mps2, stamp))
+        rotors = JointState(name=self._rotor_names, velocity=self.sim.rotor_speeds_radps.tolist())
+        rotors.header.stamp = stamp
+        self.rotor_pub.publish(rotors)
+        self.clock_pub.publish(ClockMsg(clock=stamp))
+        if len(self.sim.events) > self._events_reported or self.sim.time_ns >= self._next_diagnostics_ns:
+            self.publish_diagnostics()
+
+    def publish_diagnostics(self):
+        sim = self.sim
+        statuses = []
+        new_events = sim.events[self._events_reported:]
+        self._events_reported = len(sim.events)
+        self._next_diagnostics_ns = sim.time_ns + int(DIAGNOSTICS_PERIOD_S * 1e9)
+        collisions = [e for e in sim.events if e.kind == 'collision']
+        if collisions:
+            e = collisions[-1]
+            statuses.append(diagnostics.status(f'{NAME}: collision', diagnostics.ERROR,
+                                               f'collision {len(collisions)}: within {sim.robot_radius_m} m '
+                                               'of an obstacle', _place(e)))
+        failsafe = [e for e in sim.events if e.kind in ('failsafe', 'failsafe_cleared', 'disarmed')]
+        if sim.failsafe_active or any(e.kind == 'failsafe' for e in new_events):
+            e = failsafe[-1]
+            statuses.append(diagnostics.status(f'{NAME}: failsafe', diagnostics.ERROR,
+                                               f'setpoint lost: landing failsafe ({e.kind})', _place(e)))
+        saturated = sim.saturation or any(e.kind == 'saturation' for e in new_events)
+        statuses.append(diagnostics.status(
+            f'{NAME}: saturation', diagnostics.WARN if saturated else diagnostics.OK,
+            f'rotor limits reduced {", ".join(sim.saturation) or "the command"}' if saturated else 'within limits',
+            {'saturated_steps': sim.saturated_steps}))
+        if sim.stopped is not None:
+            statuses.append(diagnostics.status(f'{NAME}: stopped', diagnostics.ERROR, str(sim.stopped),
+                                               {'reason': sim.stopped.reason, 'time_s': sim.stopped.time_s}))
+        rtf = self.real_time_factor()
+        statuses.append(diagnostics.status(f'{NAME}: real_time_factor', diagnostics.OK, f'{rtf:.2f}x',
+                                           {'rtf': f'{rtf:.3f}'}))
+        self.diag_pub.publish(diagnostics.array(stamp_of(sim.time_ns), statuses))
+
+    def real_time_factor(self) -> float:
+        wall_s = time.monotonic() - self._wall_start_s
+        return (self.sim.time_ns - self._sim_start_ns) * 1e-9 / wall_s if wall_s > 0 else 0.0
+
+    def advance(self, steps):
+        if self.sim.stopped is not None:
+            return
+        try:
+            self.sim.advance_steps(steps)
+        except SimulationStopped as exc:
+            self._report_stop(exc)
+
+    def _report_stop(self, exc):
+        self.get_logger().error(str(exc))
+        self.publish_diagnostics()
+
+    # --- modes -------------------------------------------------------------------------------------------
+
+    def run_lockstep(self, executor):
+        """The lockstep loop (see the module docstring); returns when rclpy shuts down."""
+        while rclpy.ok(context=self.context):
+            self.publish_step()
+            t_k = self.sim.time_ns
+            timeout_s = self.params['lockstep_timeout_s']
+            if self.setpoints_received == 0:  # nobody answering yet: re-publish step k soon for late joiners
+                timeout_s = min(timeout_s, STARTUP_REPUBLISH_S)
+            deadline = time.monotonic() + timeout_s
+            while self.setpoint_stamp_ns < t_k and rclpy.ok(context=self.context):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                executor.spin_once(timeout_sec=remaining)
+            if self.sim.time_ns != t_k:  # reset while waiting
+                continue
+            if self.setpoint_stamp_ns >= t_k or self.setpoints_received > 0:
+                self.advance(self.steps_per_period)
+
+    def start_realtime(self):
+        period_s = 1.0 / self.params['odom_rate_hz']
+        self._last_wall_s = time.monotonic()
+        self._target_ns = float(self.sim.time_ns)
+        self.create_timer(period_s, self._realtime_tick, clock=self._wall)
+        self.publish_step()
+
+    def _realtime_tick(self):
+        now = time.monotonic()
+        self._target_ns += (now - self._last_wall_s) * self.params['rtf'] * 1e9
+        self._last_wall_s = now
+        steps = int((self._target_ns - self.sim.time_ns) // self.sim.step_ns)
+        if steps > 0:
+            self.advance(steps)
+        self.publish_step()
+
+
+def _place(event) -> dict:
+    return {'time_s': f'{event.time_s:.3f}', 'x': f'{event.position[0]:.3f}', 'y': f'{event.position[1]:.3f}',
+            'z': f'{event.position[2]:.3f}', **event.detail}
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = SimNode()
+    except (ValueError, SimulationStopped) as exc:
+        print(f'[{NAME}] refused to start: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(2)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        if node.params['mode'] == 'lockstep':
+            node.run_lockstep(executor)
+        else:
+            node.start_realtime()
+            executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

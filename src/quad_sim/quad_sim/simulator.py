@@ -1,0 +1,333 @@
+"""The simulated vehicle: rigid body + rotors + onboard autopilot + failsafe + floor + world + disturbances.
+
+Time is kept in integer nanoseconds; `advance` runs a whole number of fixed physics steps. Every physics
+step the onboard autopilot turns the held setpoint into body moments with the seed's equation 6
+(quad_control.attitude.attitude_moments) and a collective thrust (specific force * mass), the mixer turns
+them into rotor speed commands (reporting saturation), and RK4 integrates the plant over the step.
+
+Failsafe (like PX4's / ArduPilot's setpoint-loss landing): when no setpoint arrived for
+setpoint_timeout_s, the autopilot levels (keeping the current yaw) and descends at failsafe_descent_mps,
+    specific force = g + k_v (-descent - v_z),  clipped to [0.5 g, 1.5 g],
+and disarms (rotors to their minimum speed) once it rests on the floor. A new setpoint ends it.
+
+Floor at z = floor_z_m (the world's lower bound, else 0): the vehicle never goes below it; it rests
+(zero velocity and rates, level, yaw kept) while the thrust's vertical part cannot lift its weight.
+"""
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from quad_common import rotations
+from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, State
+from quad_common.vehicle import Vehicle
+from quad_common.world import World
+from quad_control.attitude import attitude_moments
+from quad_sim.disturbances import DisturbanceProfile, Gusts
+from quad_sim.mixer import Mixer
+from quad_sim.rigid_body import STATE_SIZE, RigidBody
+
+NON_FINITE, SPEED_LIMIT, BODY_RATE_LIMIT, FAR_FROM_REFERENCE = (
+    'non_finite_state', 'speed_limit', 'body_rate_limit', 'far_from_reference')
+FAILSAFE_VELOCITY_GAIN = 2.0  # 1/s, vertical speed loop of the landing failsafe
+SATURATION_GAP_S = 0.1        # a saturation event is reported when saturation starts after this long without
+
+
+class SimulationStopped(RuntimeError):
+    """A validity check failed: the run cannot go on meaningfully (reason is one of the constants above)."""
+
+    def __init__(self, reason: str, time_s: float, position, detail: str = ''):
+        self.reason, self.time_s, self.position = reason, time_s, np.asarray(position, dtype=float)
+        super().__init__(f'simulation stopped at t = {time_s:.3f} s, position {np.round(self.position, 3).tolist()}: '
+                         f'{reason}{" (" + detail + ")" if detail else ""}')
+
+
+@dataclass
+class Event:
+    """Something a run report should show: kind in collision, failsafe, failsafe_cleared, disarmed,
+    saturation, touchdown, takeoff, stopped."""
+
+    kind: str
+    time_s: float
+    position: np.ndarray
+    detail: dict = field(default_factory=dict)
+
+
+class Simulator:
+    def __init__(self, vehicle: Vehicle, physics_rate_hz: float = 1000.0, initial_position=(0.0, 0.0, 0.0),
+                 initial_yaw: float = 0.0, disturbances: DisturbanceProfile | None = None,
+                 world: World | None = None, robot_radius_m: float = 0.1, seed: int = 0,
+                 setpoint_timeout_s: float = 0.5, floor_z_m: float | None = None, max_speed_mps: float = 50.0,
+                 max_body_rate_radps: float = 100.0, failsafe_descent_mps: float = 0.5):
+        self._check(physics_rate_hz > 0 and math.isfinite(physics_rate_hz), 'physics_rate_hz', physics_rate_hz,
+                    'must be a finite number > 0')
+        self.step_ns = int(round(1e9 / physics_rate_hz))
+        self._check(self.step_ns >= 1000, 'physics_rate_hz', physics_rate_hz, 'must be <= 1e6')
+        for name, value in (('setpoint_timeout_s', setpoint_timeout_s), ('robot_radius_m', robot_radius_m),
+                            ('max_speed_mps', max_speed_mps), ('max_body_rate_radps', max_body_rate_radps),
+                            ('failsafe_descent_mps', failsafe_descent_mps)):
+            self._check(math.isfinite(value) and value >= 0, name, value, 'must be a finite number >= 0')
+        self.vehicle = vehicle
+        self.physics_rate_hz = physics_rate_hz
+        self.step_s = self.step_ns * 1e-9
+        self.profile = disturbances or DisturbanceProfile()
+        self.world = world
+        self.robot_radius_m = float(robot_radius_m)
+        self.floor_z_m = float(floor_z_m if floor_z_m is not None else (world.bounds[4] if world else 0.0))
+        self.initial_position = np.asarray(initial_position, dtype=float)
+        self._check(self.initial_position.shape == (3,) and np.all(np.isfinite(self.initial_position)),
+                    'initial_position', initial_position, 'must be 3 finite numbers')
+        self._check(self.initial_position[2] >= self.floor_z_m, 'initial_position', initial_position,
+                    f'is below the floor z = {self.floor_z_m}')
+        self._check(math.isfinite(initial_yaw), 'initial_yaw', initial_yaw, 'must be finite')
+        self.initial_yaw = float(initial_yaw)
+        self.seed = int(seed)
+        self.setpoint_timeout_ns = int(round(setpoint_timeout_s * 1e9))
+        self.max_speed_mps, self.max_body_rate_radps = max_speed_mps, max_body_rate_radps
+        self.failsafe_descent_mps = failsafe_descent_mps
+        self.body = RigidBody(vehicle, self.profile.aerodynamics(vehicle))
+        self.mixer = Mixer(vehicle)
+        self._inertia = vehicle.inertia_matrix
+        self._gains = vehicle.attitude_gains
+        self._collision_world = None
+        if world is not None:  # the floor is ground contact, not a collision: drop the bounds' lower face
+            bounds = world.bounds.copy()
+            bounds[4] -= 1e6
+            self._collision_world = World(bounds, world.blocks, name=world.name)
+            r = self.robot_radius_m
+            self._inflated_blocks = [tuple(b[0::2] - r) + tuple(b[1::2] + r) for b in world.blocks]
+            self._safe_bounds = tuple(world.bounds[0::2] + r) + tuple(world.bounds[1::2] - r)
+        self.reset()
+
+    @staticmethod
+    def _check(ok, name, value, rule):
+        if not ok:
+            raise ValueError(f'{name} = {value!r} {rule}')
+
+    # --- state --------------------------------------------------------------------------------------------
+
+    def reset(self):
+        """Back to the initial state: hovering at initial_position (resting, if that is on the floor)."""
+        q0 = rotations.from_yaw(self.initial_yaw)
+        self.landed = bool(self.initial_position[2] <= self.floor_z_m)
+        hover = math.sqrt(self.vehicle.hover_thrust_n / (4 * self.vehicle.k_eta))
+        w0 = self.vehicle.rotor_speed_min_radps if self.landed else hover
+        self._x = [*map(float, self.initial_position), 0.0, 0.0, 0.0, *map(float, q0), 0.0, 0.0, 0.0, w0, w0, w0, w0]
+        assert len(self._x) == STATE_SIZE
+        self._w_cmd = [w0] * 4
+        self.time_ns = 0
+        self._setpoint = AttitudeSetpoint(quaternion=q0, specific_force_mps2=GRAVITY_MPS2)
+        self._setpoint_time_ns = 0
+        self.failsafe_active = False
+        self.armed = True
+        self._failsafe_quaternion = q0
+        self.saturation = ()
+        self.saturated_steps = 0
+        self._last_saturated_ns = None
+        self.colliding = False
+        self.collision_count = 0
+        self.events: list[Event] = []
+        self.stopped: SimulationStopped | None = None
+        self._rng_gusts = np.random.default_rng([self.seed, 0])
+        self._rng_noise = np.random.default_rng([self.seed, 1])
+        self._gusts = Gusts(self.profile, self.step_s, self._rng_gusts) if self.profile.has_gusts else None
+        self._wind = tuple(map(float, self.profile.wind_mps))
+        self._history = deque()
+
+    @property
+    def time_s(self) -> float:
+        return self.time_ns * 1e-9
+
+    @property
+    def state(self) -> State:
+        x = self._x
+        return State(position=np.array(x[0:3]), velocity=np.array(x[3:6]), quaternion=np.array(x[6:10]),
+                     body_rates=np.array(x[10:13]))
+
+    @property
+    def rotor_speeds_radps(self) -> np.ndarray:
+        return np.array(self._x[13:17])
+
+    @property
+    def wind_mps(self) -> np.ndarray:
+        return np.array(self._wind)
+
+    @property
+    def specific_force_body_mps2(self) -> np.ndarray:
+        """What an ideal accelerometer reads: R^T (a + g e3); at rest on the floor R^T g e3."""
+        x = self._x
+        R = rotations.to_matrix(x[6:10])
+        if self.landed:
+            accel = np.zeros(3)
+        else:
+            accel = np.array(self.body.derivative(x, self._w_cmd, wind_world=self._wind)[3:6])
+        return R.T @ (accel + np.array([0.0, 0.0, GRAVITY_MPS2]))
+
+    @property
+    def collided(self) -> bool:
+        return self.collision_count > 0
+
+    def odometry_state(self) -> State:
+        """The state as a motion-capture system reports it: profile latency (state at the newest advance()
+        end at least odom_latency_s old) and Gaussian noise (seeded). The truth is `state`."""
+        latency_ns = int(round(self.profile.odom_latency_s * 1e9))
+        state = self.state
+        if latency_ns > 0 and self._history:
+            for t_ns, past in reversed(self._history):
+                if t_ns <= self.time_ns - latency_ns:
+                    state = past
+                    break
+            else:
+                state = self._history[0][1]
+        if not self.profile.has_odom_noise:
+            return state
+        n, rng = self.profile.odom_noise, self._rng_noise
+        tilt = rng.standard_normal(3) * n['attitude_std_rad']
+        dq = np.append(0.5 * tilt, 1.0)
+        return State(position=state.position + rng.standard_normal(3) * n['position_std_m'],
+                     velocity=state.velocity + rng.standard_normal(3) * n['velocity_std_mps'],
+                     quaternion=rotations.normalize(rotations.multiply(state.quaternion, dq)),
+                     body_rates=state.body_rates + rng.standard_normal(3) * n['body_rates_std_radps'])
+
+    # --- inputs -------------------------------------------------------------------------------------------
+
+    def set_setpoint(self, setpoint: AttitudeSetpoint):
+        """The autopilot's input, received now (sim time); held until the next one."""
+        if not setpoint.is_finite():
+            raise ValueError(f'setpoint must be finite, got {setpoint}')
+        self._setpoint = setpoint
+        self._setpoint_time_ns = self.time_ns
+        if self.failsafe_active:
+            self.failsafe_active = False
+            self.armed = True
+            self._event('failsafe_cleared')
+
+    def check_tracking(self, reference_position, max_error_m: float):
+        """Stops the run when the vehicle is farther than max_error_m from the reference position."""
+        error = float(np.linalg.norm(np.asarray(reference_position, dtype=float) - self._x[0:3]))
+        if not error <= max_error_m:
+            self._stop(FAR_FROM_REFERENCE, f'{error:.2f} m from the reference, limit {max_error_m} m')
+
+    # --- time ---------------------------------------------------------------------------------------------
+
+    def steps_in(self, duration_s: float) -> int:
+        """Number of physics steps in duration_s; refuses a duration that is not a whole number of steps."""
+        duration_ns = int(round(duration_s * 1e9))
+        steps, rest = divmod(duration_ns, self.step_ns)
+        if rest or duration_ns < 0:
+            raise ValueError(f'duration {duration_s!r} s is not a whole number of physics steps '
+                             f'of {self.step_ns} ns ({self.physics_rate_hz} Hz)')
+        return steps
+
+    def advance(self, duration_s: float):
+        """Simulates duration_s (a whole number of physics steps). Raises SimulationStopped."""
+        self.advance_steps(self.steps_in(duration_s))
+
+    def advance_steps(self, steps: int):
+        if self.stopped is not None:
+            raise self.stopped
+        for _ in range(steps):
+            self._physics_step()
+        if self.profile.odom_latency_s > 0:
+            self._history.append((self.time_ns, self.state))
+            oldest_needed_ns = self.time_ns - 2 * self.profile.odom_latency_s * 1e9
+            while len(self._history) > 1 and self._history[1][0] <= oldest_needed_ns:
+                self._history.popleft()
+
+    # --- one physics step ---------------------------------------------------------------------------------
+
+    def _physics_step(self):
+        x = self._x
+        if not self.failsafe_active and self.time_ns - self._setpoint_time_ns > self.setpoint_timeout_ns:
+            self._enter_failsafe()
+        if self.failsafe_active:
+            if self.landed and self.armed:
+                self.armed = False
+                self._event('disarmed')
+            sp = AttitudeSetpoint(quaternion=self._failsafe_quaternion, specific_force_mps2=min(max(
+                GRAVITY_MPS2 + FAILSAFE_VELOCITY_GAIN * (-self.failsafe_descent_mps - x[5]),
+                0.5 * GRAVITY_MPS2), 1.5 * GRAVITY_MPS2))
+        else:
+            sp = self._setpoint
+        if self.armed:
+            moments = attitude_moments(np.array(x[6:10]), np.array(x[10:13]), sp, self._gains, self._inertia)
+            w_cmd, flags = self.mixer.rotor_speeds(max(sp.specific_force_mps2, 0.0) * self.vehicle.mass_kg, moments)
+        else:
+            w_cmd, flags = [self.mixer.speed_min_radps] * 4, ()
+        self._w_cmd = w_cmd
+        self._note_saturation(flags)
+        if self._gusts is not None:
+            self._wind = tuple(self.profile.wind_mps + self._gusts.step())
+        x = self.body.step(x, w_cmd, self.step_s, wind_world=self._wind)
+        self.time_ns += self.step_ns
+        if x[2] <= self.floor_z_m:
+            self._ground_contact(x)
+        elif self.landed:
+            self.landed = False
+            self._event('takeoff', position=x[0:3])
+        self._x = x
+        total = sum(x)
+        if not math.isfinite(total):
+            self._stop(NON_FINITE, 'a state component is NaN or infinite')
+        if x[3] * x[3] + x[4] * x[4] + x[5] * x[5] > self.max_speed_mps ** 2:
+            self._stop(SPEED_LIMIT, f'speed above {self.max_speed_mps} m/s')
+        if x[10] * x[10] + x[11] * x[11] + x[12] * x[12] > self.max_body_rate_radps ** 2:
+            self._stop(BODY_RATE_LIMIT, f'body rate above {self.max_body_rate_radps} rad/s')
+        if self._collision_world is not None:
+            self._check_collision(x)
+
+    def _enter_failsafe(self):
+        self.failsafe_active = True
+        yaw = rotations.to_euler(self._x[6:10])[2]
+        self._failsafe_quaternion = rotations.from_yaw(yaw)
+        self._event('failsafe', detail={'reason': f'no setpoint for {self.setpoint_timeout_ns * 1e-9:.3f} s',
+                                        'action': 'level, descend, land, disarm'})
+
+    def _ground_contact(self, x):
+        """Keeps x on the floor; rests when the thrust's vertical part cannot lift the weight."""
+        x[2] = self.floor_z_m
+        impact_mps = x[5]
+        qx, qy, qz, qw = x[6:10]
+        lift_n = self.body.thrust_n(x) * (1 - 2 * (qx * qx + qy * qy))
+        if lift_n <= self.vehicle.hover_thrust_n:
+            if not self.landed:
+                self.landed = True
+                self._event('touchdown', position=x[0:3], detail={'vertical_speed_mps': round(impact_mps, 3)})
+            yaw = math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+            x[3:13] = [0.0, 0.0, 0.0, 0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2), 0.0, 0.0, 0.0]
+        elif x[5] < 0.0:
+            x[5] = 0.0
+
+    def _check_collision(self, x):
+        px, py, pz = x[0], x[1], x[2]
+        b = self._safe_bounds
+        suspect = not (b[0] < px < b[3] and b[1] < py < b[4] and pz < b[5]) or any(
+            lx < px < hx and ly < py < hy and lz < pz < hz for lx, ly, lz, hx, hy, hz in self._inflated_blocks)
+        hit = suspect and bool(self._collision_world.collides(np.array(x[0:3]), self.robot_radius_m)[0])
+        if hit and not self.colliding:
+            self.collision_count += 1
+            distance = float(self._collision_world.obstacle_distance(np.array(x[0:3]))[0])
+            self._event('collision', position=x[0:3], detail={'clearance_m': round(distance, 4),
+                                                              'robot_radius_m': self.robot_radius_m})
+        self.colliding = hit
+
+    def _note_saturation(self, flags):
+        self.saturation = flags
+        if not flags:
+            return
+        self.saturated_steps += 1
+        last = self._last_saturated_ns
+        if last is None or self.time_ns - last > SATURATION_GAP_S * 1e9:
+            self._event('saturation', detail={'reduced': list(flags)})
+        self._last_saturated_ns = self.time_ns
+
+    def _event(self, kind, position=None, detail=None):
+        self.events.append(Event(kind, self.time_s, np.array(position if position is not None else self._x[0:3]),
+                                 detail or {}))
+
+    def _stop(self, reason, detail):
+        self.stopped = SimulationStopped(reason, self.time_s, self._x[0:3], detail)
+        self._event('stopped', detail={'reason': reason, 'detail': detail})
+        raise self.stopped

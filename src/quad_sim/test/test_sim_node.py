@@ -1,0 +1,140 @@
+"""sim_node in a real rclpy graph: lockstep determinism, failsafe diagnostics, refusal of bad parameters."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu
+
+from quad_common import conversions, rotations
+from quad_common.diagnostics import ERROR, level_of
+from quad_common.testing import isolated_domain
+from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
+
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+GIVE_UP_S = 120.0  # only a guard against a hung graph; nothing here is timed
+
+
+def _start_sim(env, *params):
+    env = dict(env, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    args = [sys.executable, '-m', 'quad_sim.sim_node', '--ros-args']
+    for p in params:
+        args += ['-p', p]
+    return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _stop(proc):
+    proc.send_signal(signal.SIGINT)
+    try:
+        return proc.communicate(timeout=30)[0]
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.communicate()[0]
+
+
+def _pd_setpoint(state, target):
+    """The seed's position PD (eq. 1-5 at small angles) so the graph flies something non-trivial."""
+    acc = np.array([5.0, 5.0, 20.0]) * (target - state.position) - np.array([5.0, 5.0, 10.0]) * state.velocity
+    roll, pitch = -acc[1] / GRAVITY_MPS2, acc[0] / GRAVITY_MPS2
+    return AttitudeSetpoint(quaternion=rotations.from_euler(roll, pitch, 0.0),
+                            specific_force_mps2=GRAVITY_MPS2 + acc[2], body_rates=np.zeros(3))
+
+
+class Graph:
+    """An in-process test node that answers each odom with a setpoint stamped like it."""
+
+    def __init__(self, domain, answer_until_s=np.inf, target=(0.5, -0.3, 1.2)):
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node('test_controller', context=self.ctx)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.odom, self.clock, self.diagnostics = [], [], []
+        self.answer_until_s, self.target = answer_until_s, np.array(target)
+        self.pub = self.node.create_publisher(Imu, 'cmd/attitude_thrust', RELIABLE)
+        self.node.create_subscription(Odometry, 'odom', self._on_odom, RELIABLE)
+        self.node.create_subscription(Clock, '/clock', lambda m: self.clock.append(conversions.stamp_to_s(m.clock)),
+                                      RELIABLE)
+        self.node.create_subscription(DiagnosticArray, 'diagnostics', self.diagnostics.append, RELIABLE)
+
+    def _on_odom(self, msg):
+        t = conversions.stamp_to_s(msg.header.stamp)
+        state = conversions.odometry_to_state(msg)
+        if not self.odom or t > self.odom[-1][0]:
+            self.odom.append((t, *state.position, *state.velocity, *state.quaternion, *state.body_rates))
+        if t < self.answer_until_s:
+            self.pub.publish(conversions.setpoint_to_imu(_pd_setpoint(state, self.target), msg.header.stamp))
+
+    def spin_until(self, condition):
+        deadline = time.monotonic() + GIVE_UP_S
+        while not condition():
+            assert time.monotonic() < deadline, 'graph hung'
+            self.executor.spin_once(timeout_sec=0.5)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+def _fly_once(steps=200):
+    with isolated_domain() as (domain, env):
+        graph = Graph(domain)
+        sim = _start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=60.0')
+        try:
+            graph.spin_until(lambda: len(graph.odom) >= steps)
+        finally:
+            log = _stop(sim)
+            graph.close()
+    assert 'lockstep: crazyflie' in log
+    return np.array(graph.odom[:steps]), graph.clock
+
+
+def test_lockstep_is_deterministic():
+    first, clock = _fly_once()
+    second, _ = _fly_once()
+    assert np.array_equal(first, second)
+    assert np.allclose(first[:, 0], np.arange(len(first)) * 0.01, atol=1e-12)  # one odom per 10 ms, integer ns
+    assert set(np.round(first[:-1, 0], 9)) <= set(np.round(clock, 9))  # /clock follows every odom
+    assert first[-1, 1] > 0.3 and first[-1, 2] < -0.15                          # it actually flew toward the target
+
+
+def test_dead_controller_lets_the_failsafe_land():
+    with isolated_domain() as (domain, env):
+        graph = Graph(domain, answer_until_s=0.2, target=(0.0, 0.0, 0.3))
+        sim = _start_sim(env, 'initial_position:=[0.0, 0.0, 0.3]', 'lockstep_timeout_s:=0.01')
+        try:
+            graph.spin_until(lambda: graph.odom and graph.odom[-1][3] == 0.0 and graph.odom[-1][0] > 1.0)
+            failsafe = [s for a in graph.diagnostics for s in a.status if s.name == 'sim_node: failsafe']
+        finally:
+            _stop(sim)
+            graph.close()
+    assert failsafe and level_of(failsafe[0]) == level_of_error()
+    values = {kv.key: kv.value for kv in failsafe[0].values}
+    assert float(values['time_s']) == pytest.approx(0.2 + 0.5, abs=0.02)
+
+
+def level_of_error():
+    return ERROR[0] if isinstance(ERROR, (bytes, bytearray)) else int(ERROR)
+
+
+@pytest.mark.parametrize('param,words', [
+    ('physics_rate_hz:=0.0', 'physics_rate_hz'), ('vehicle:=no_such_vehicle.yaml', 'no_such_vehicle.yaml'),
+    ('lockstep_period_s:=0.0015', 'lockstep_period_s'), ('disturbances:=gale', "disturbances = 'gale'"),
+    ('mode:=fast', 'mode'),
+])
+def test_bad_parameters_refused_with_exit_2(param, words):
+    with isolated_domain() as (_, env):
+        proc = _start_sim(env, param)
+        out = proc.communicate(timeout=GIVE_UP_S)[0]
+    assert proc.returncode == 2, out
+    assert words in out
