@@ -66,7 +66,7 @@ class FlightResult:
 def validate(options: FlightOptions):
     """Loads and plans the mission with quad_trajectory (so a bad one is refused before anything starts).
 
-    Returns (mission name, first waypoint). Raises MissionRefused naming the problem.
+    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem.
     """
     from quad_trajectory import mission as mission_module
 
@@ -85,10 +85,10 @@ def validate(options: FlightOptions):
         mission_module.plan_mission(mission, speed_mps=options.speed_mps)
     except (ValueError, KeyError, TypeError, OSError) as exc:
         raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
-    return mission.name, [float(v) for v in mission.initial_position]
+    return mission
 
 
-def node_parameters(options: FlightOptions, first_waypoint) -> dict:
+def node_parameters(options: FlightOptions, mission) -> dict:
     """{node: {ros__parameters: ...}}: the config/ files plus what this flight sets."""
     params = {}
     for node, (_, config) in GRAPH.items():
@@ -103,7 +103,8 @@ def node_parameters(options: FlightOptions, first_waypoint) -> dict:
     if options.speed_mps is not None:
         params['trajectory_node']['speed'] = float(options.speed_mps)
     params['position_controller'].update(controller=options.controller, lockstep=True)
-    params['sim_node'].update(mode='lockstep', initial_position=[float(v) for v in first_waypoint])
+    params['sim_node'].update(mode='lockstep', initial_position=[float(v) for v in mission.initial_position],
+                              world=mission.world_path or '', robot_radius_m=float(mission.options.robot_radius_m))
     if options.vehicle is not None:
         vehicle = str(Path(options.vehicle).resolve())
         params['position_controller']['vehicle'] = vehicle
@@ -111,8 +112,9 @@ def node_parameters(options: FlightOptions, first_waypoint) -> dict:
     if options.disturbances is not None:
         params['sim_node']['disturbances'] = options.disturbances
     for p in params.values():  # files named in config/ are relative to the repository
-        if p.get('vehicle') and not Path(p['vehicle']).is_absolute():
-            p['vehicle'] = str(resolve_config(p['vehicle']))
+        for key in ('vehicle', 'disturbances_file'):
+            if p.get(key) and not Path(p[key]).is_absolute():
+                p[key] = str(resolve_config(p[key]))
     return {node: {'ros__parameters': p} for node, p in params.items()}
 
 
@@ -143,14 +145,14 @@ class _Interrupt:
 
 def fly(options: FlightOptions, log=print) -> FlightResult:
     try:
-        mission_name, first_waypoint = validate(options)
+        mission = validate(options)
     except MissionRefused as exc:
         return FlightResult(EXIT_REFUSED, str(exc))
-    run_dir = Path(options.out) if options.out else default_run_dir(mission_name, options.controller)
+    run_dir = Path(options.out) if options.out else default_run_dir(mission.name, options.controller)
     if (run_dir / 'bag').exists():
         return FlightResult(EXIT_REFUSED, f'--out {run_dir}: already holds a bag; choose a new run directory')
     try:
-        params = node_parameters(options, first_waypoint)
+        params = node_parameters(options, mission)
     except (ValueError, OSError) as exc:
         return FlightResult(EXIT_REFUSED, f'parameters: {exc}')
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -180,7 +182,7 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
             stopped.update(processes.stop([recorder], log=log))
             monitor.close()
     pids = [p.pid for p in nodes + [recorder] if p.popen is not None]
-    extra = {'mission': mission_name, 'controller': options.controller, 'speed_mps': options.speed_mps,
+    extra = {'mission': mission.name, 'controller': options.controller, 'speed_mps': options.speed_mps,
              'outcome': reason.reason}
     try:
         metrics = write_report(run_dir / 'bag', run_dir, extra, options.rule)
