@@ -26,7 +26,7 @@ def graph(context):
     sim_time = {'use_sim_time': True}
     return [
         Node(package='quad_trajectory', executable='trajectory_node', name='trajectory_node', output='screen',
-             parameters=[config('trajectory.yaml'), sim_time, {'mission': mission}]),
+             parameters=[config('trajectory.yaml'), sim_time, {'mission_file': mission}]),
         Node(package='quad_control', executable='position_controller', name='position_controller', output='screen',
              parameters=[config('control.yaml'), sim_time, {'controller': controller, 'lockstep': True}]),
         Node(package='quad_sim', executable='sim_node', name='sim_node', output='screen',

@@ -99,9 +99,9 @@ def node_parameters(options: FlightOptions, mission) -> dict:
         params['position_controller'].update(profile.get('position_controller', {}).get('ros__parameters', {}))
     for node in params:
         params[node]['use_sim_time'] = True
-    params['trajectory_node']['mission'] = str(Path(options.mission).resolve())
+    params['trajectory_node']['mission_file'] = str(Path(options.mission).resolve())
     if options.speed_mps is not None:
-        params['trajectory_node']['speed'] = float(options.speed_mps)
+        params['trajectory_node']['speed_mps'] = float(options.speed_mps)
     params['position_controller'].update(controller=options.controller, lockstep=True)
     params['sim_node'].update(mode='lockstep', initial_position=[float(v) for v in mission.initial_position],
                               world=mission.world_path or '', robot_radius_m=float(mission.options.robot_radius_m))

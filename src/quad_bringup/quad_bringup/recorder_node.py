@@ -49,7 +49,10 @@ class RecorderNode(Node):
         for topic in self.params['topics']:
             spec = DEFAULT_TOPICS.get(topic)
             if spec is not None:
-                self._subscribe(topic, spec)
+                try:
+                    self._subscribe(topic, spec)
+                except ImportError as exc:  # e.g. tf2_msgs is not among the PyPI ROS wheels
+                    self.get_logger().warning(f'not recording {topic}: {spec.msgtype} is not installed ({exc})')
             else:
                 self._pending.append(topic)
         self.create_timer(self.params['flush_period_s'], self.bag.flush,
@@ -84,7 +87,7 @@ class RecorderNode(Node):
                                                for p in publishers)
             try:
                 self._subscribe(topic, TopicSpec(types[full][0], latched))
-            except ValueError as exc:
+            except (ValueError, ImportError) as exc:
                 self.get_logger().error(str(exc))
             self._pending.remove(topic)
 
