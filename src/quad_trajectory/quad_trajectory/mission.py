@@ -1,0 +1,123 @@
+"""Mission files (docs/missions.md): waypoints, yaw, trajectory options, vehicle and world.
+
+`load_mission(path)` validates the file (errors name the file, the field and the value) and resolves
+paths inside it relative to the file; `plan_mission(mission)` plans it. The `quadflight plan/fly`
+commands and the trajectory node all go through these two functions.
+"""
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from quad_common.vehicle import Vehicle, load_vehicle
+from quad_common.world import World, load_world
+from quad_common.yaml_io import load_yaml
+from quad_trajectory import planner
+
+SEED_CONTROL_POINTS = (0.1, 0.9)
+_REPO_CONFIG = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', '..', 'config')
+DEFAULT_VEHICLE_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'vehicles', 'crazyflie.yaml'))
+DEFAULT_MISSION_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'missions', 'maze.yaml'))
+_TRAJECTORY_KEYS = {'method', 'waypoint_constraint', 'speed', 'time_allocation', 'control_points', 'limits',
+                    'avoid_collisions', 'rho'}
+_LIMIT_KEYS = {'v_max_mps', 'a_max_mps2'}
+
+
+@dataclass
+class Mission:
+    path: str
+    name: str
+    waypoints: np.ndarray                 # (N, 3) as written (merging happens when planning)
+    yaw: object                           # None, one number, or one per waypoint
+    options: planner.PlanOptions
+    vehicle: Vehicle | None
+    vehicle_path: str | None
+    world: World | None = None
+    world_path: str | None = None
+    extra: dict = field(default_factory=dict)   # top-level keys owned by other tools (fly, sim)
+
+    @property
+    def initial_position(self) -> np.ndarray:
+        """Where the vehicle starts: the first waypoint."""
+        return self.waypoints[0].copy()
+
+
+def _relative(base_file, value, key):
+    if not isinstance(value, str) or not value:
+        raise ValueError(f'{base_file}: {key} = {value!r} must be a file path (relative to the mission file)')
+    return os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(base_file)), value))
+
+
+def _control_points(value, path):
+    if value is None or value is False:
+        return ()
+    if value is True:
+        return SEED_CONTROL_POINTS
+    if isinstance(value, list):
+        return tuple(value)
+    raise ValueError(f'{path}: trajectory.control_points = {value!r} must be true, false or a list of fractions')
+
+
+def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
+    """Validated Mission from a parsed mission file; relative paths are taken relative to `path`."""
+    traj = data.get('trajectory') or {}
+    if not isinstance(traj, dict):
+        raise ValueError(f'{path}: trajectory = {traj!r} must be a mapping')
+    unknown = sorted(set(traj) - _TRAJECTORY_KEYS)
+    if unknown:
+        raise ValueError(f'{path}: trajectory.{unknown[0]} is not a known key '
+                         f'(known: {", ".join(sorted(_TRAJECTORY_KEYS))})')
+    limits = traj.get('limits') or {}
+    if not isinstance(limits, dict) or set(limits) - _LIMIT_KEYS:
+        raise ValueError(f'{path}: trajectory.limits = {limits!r} may only hold {", ".join(sorted(_LIMIT_KEYS))}')
+    try:
+        if 'waypoints' not in data:
+            raise ValueError('waypoints is missing')
+        waypoints = planner.validate_waypoints(data['waypoints'])
+        yaw = data.get('yaw')
+        planner.validate_yaw(yaw, len(waypoints))
+        defaults = planner.PlanOptions()
+        options = planner.PlanOptions(
+            method=traj.get('method', defaults.method),
+            waypoint_constraint=traj.get('waypoint_constraint', defaults.waypoint_constraint),
+            speed_mps=traj.get('speed', defaults.speed_mps),
+            time_allocation=traj.get('time_allocation', defaults.time_allocation),
+            control_points=_control_points(traj.get('control_points'), path),
+            v_max_mps=limits.get('v_max_mps'), a_max_mps2=limits.get('a_max_mps2'), rho=traj.get('rho'),
+            robot_radius_m=data.get('robot_radius_m', defaults.robot_radius_m),
+            avoid_collisions=bool(traj.get('avoid_collisions', defaults.avoid_collisions)))
+        if 'vehicle' in data:
+            vehicle_path = _relative(path, data['vehicle'], 'vehicle')
+        else:
+            vehicle_path = DEFAULT_VEHICLE_PATH if os.path.exists(DEFAULT_VEHICLE_PATH) else None
+        vehicle = load_vehicle(vehicle_path) if vehicle_path else None
+        planner.validate_options(options, vehicle)
+        world_path = _relative(path, data['world'], 'world') if data.get('world') is not None else None
+        world = load_world(world_path) if world_path else None
+    except ValueError as exc:
+        raise ValueError(f'{path}: {exc}') from None
+    known = {'name', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m'}
+    return Mission(path=path, name=str(data.get('name', os.path.splitext(os.path.basename(path))[0])),
+                   waypoints=waypoints, yaw=yaw, options=options, vehicle=vehicle, vehicle_path=vehicle_path,
+                   world=world, world_path=world_path, extra={k: v for k, v in data.items() if k not in known})
+
+
+def load_mission(path) -> Mission:
+    path = os.fspath(path)
+    return mission_from_dict(load_yaml(path), path)
+
+
+def plan_mission(mission: Mission, speed_mps: float | None = None, **overrides) -> planner.PlanResult:
+    """Plan the mission; speed_mps and any PlanOptions field given override the file's values."""
+    if speed_mps is not None:
+        overrides['speed_mps'] = speed_mps
+    unknown = set(overrides) - {f.name for f in dataclasses.fields(planner.PlanOptions)}
+    if unknown:
+        raise ValueError(f'plan_mission: unknown option {sorted(unknown)[0]!r}')
+    options = dataclasses.replace(mission.options, **overrides)
+    try:
+        return planner.plan(mission.waypoints, mission.yaw, options, world=mission.world, vehicle=mission.vehicle)
+    except ValueError as exc:
+        raise ValueError(f'{mission.path}: {exc}') from None

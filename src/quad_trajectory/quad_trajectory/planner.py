@@ -1,0 +1,261 @@
+"""Plan a trajectory through waypoints: validate, merge near-duplicates, add control points, allocate
+times, solve (solver.py), and, in a world, replan until collision-free.
+
+Bad input raises ValueError naming the field and the value.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize
+
+from quad_common.vehicle import Vehicle
+from quad_common.world import World
+from quad_trajectory import collision, solver, timing
+from quad_trajectory.polynomial import PiecewisePolynomial
+
+MERGE_DISTANCE_M = 1e-3
+MAX_REPLANS = 12
+_LIMIT_TARGET = 0.97   # plan to 97 % of v_max / a_max so that samples between ours stay inside too
+_LIMIT_ITERATIONS = 10
+
+
+@dataclass
+class PlanOptions:
+    method: str = 'minsnap'                    # minaccel | minjerk | minsnap
+    waypoint_constraint: str = 'continuity'    # continuity | stop
+    speed_mps: float = 0.5                     # the seed's speed constant
+    time_allocation: str = 'sqrt'              # sqrt | proportional | limits | optimal
+    control_points: tuple = ()                 # fractions along each segment, the seed's (0.1, 0.9)
+    v_max_mps: float | None = None             # limits; None: timing.DEFAULT_V_MAX_MPS
+    a_max_mps2: float | None = None            # limits; None: from the vehicle's thrust-to-weight
+    rho: float | None = None                   # optimal: weight of total time; None: 2r - 1
+    robot_radius_m: float = 0.0
+    avoid_collisions: bool = True              # insert points and replan until collision-free
+
+
+@dataclass
+class MergedWaypoint:
+    index: int          # the dropped waypoint (input numbering)
+    into_index: int     # the kept waypoint it was merged into
+    distance_m: float
+
+    def __str__(self):
+        return (f'waypoint {self.index} merged into waypoint {self.into_index} '
+                f'({self.distance_m * 1000:.3f} mm apart, < {MERGE_DISTANCE_M * 1000:g} mm)')
+
+
+@dataclass
+class PlanResult:
+    trajectory: PiecewisePolynomial
+    waypoints: np.ndarray        # (K, 3) waypoints planned through, after merging
+    yaw: np.ndarray              # (K,) unwrapped yaw at those waypoints
+    points: np.ndarray           # (M + 1, 4) every point a segment ends at: waypoints, control and inserted points
+    is_waypoint: np.ndarray      # (M + 1,) True where points[i] is a mission waypoint
+    options: PlanOptions
+    merged: list = field(default_factory=list)
+    inserted_points: int = 0     # points added by collision replanning
+    world: World | None = None
+
+    def waypoint_times_s(self) -> np.ndarray:
+        return self.trajectory.breaks_s[self.is_waypoint]
+
+    def summary(self) -> dict:
+        t = self.trajectory
+        return {'segments': t.n_segments, 'waypoints': len(self.waypoints), 'merged_waypoints': len(self.merged),
+                'inserted_points': self.inserted_points, 'time_planned_s': t.duration_s,
+                'length_planned_m': t.arc_length(), 'max_speed_mps': t.max_speed(),
+                'max_acceleration_mps2': t.max_acceleration(), 'max_jerk_mps3': t.max_jerk()}
+
+    def to_dict(self) -> dict:
+        """The JSON layout of DESIGN.md section 6 (waypoints, segments) plus what else the plan knows."""
+        o = self.options
+        return {'waypoints': self.waypoints.tolist(), **self.trajectory.to_dict(),
+                'yaw': self.yaw.tolist(), 'points': self.points.tolist(), 'is_waypoint': self.is_waypoint.tolist(),
+                'method': o.method, 'waypoint_constraint': o.waypoint_constraint, 'speed_mps': o.speed_mps,
+                'time_allocation': o.time_allocation, 'control_points': list(o.control_points),
+                'robot_radius_m': o.robot_radius_m, 'merged': [m.__dict__ for m in self.merged],
+                'summary': self.summary()}
+
+
+# --- validation -----------------------------------------------------------------------------
+
+def _finite_number(name, value, positive=True):
+    ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool) and \
+        np.isfinite(value) and (value > 0 if positive else value >= 0)
+    if not ok:
+        raise ValueError(f'{name} = {value!r} must be a finite number {"> 0" if positive else ">= 0"}')
+    return float(value)
+
+
+def validate_waypoints(waypoints) -> np.ndarray:
+    try:
+        w = np.asarray(waypoints, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f'waypoints = {waypoints!r} must be a list of [x, y, z] in metres') from None
+    if w.ndim != 2 or w.shape[1] != 3:
+        raise ValueError(f'waypoints = {np.asarray(waypoints).tolist()!r} must be a list of [x, y, z] in metres')
+    bad = np.nonzero(~np.all(np.isfinite(w), axis=1))[0]
+    if bad.size:
+        raise ValueError(f'waypoints[{bad[0]}] = {w[bad[0]].tolist()} must be finite')
+    if len(w) < 2:
+        raise ValueError(f'waypoints = {w.tolist()} needs at least two distinct waypoints')
+    return w
+
+
+def validate_yaw(yaw, n: int) -> np.ndarray:
+    """None -> 0; one value -> constant; one per waypoint -> unwrapped."""
+    if yaw is None:
+        return np.zeros(n)
+    y = np.asarray(yaw, dtype=float) if not isinstance(yaw, str) else None
+    if y is None or not (y.ndim == 0 or y.shape == (n,)):
+        raise ValueError(f'yaw = {yaw!r} must be one number or one per waypoint ({n})')
+    if not np.all(np.isfinite(y)):
+        raise ValueError(f'yaw = {yaw!r} must be finite')
+    return np.full(n, float(y)) if y.ndim == 0 else np.unwrap(y)
+
+
+def validate_options(o: PlanOptions, vehicle: Vehicle | None = None) -> PlanOptions:
+    if o.method not in solver.ORDERS:
+        raise ValueError(f'method = {o.method!r} must be one of {", ".join(solver.ORDERS)}')
+    if o.waypoint_constraint not in solver.MODES:
+        raise ValueError(f'waypoint_constraint = {o.waypoint_constraint!r} must be one of {", ".join(solver.MODES)}')
+    if o.time_allocation not in timing.ALLOCATIONS:
+        raise ValueError(f'time_allocation = {o.time_allocation!r} must be one of {", ".join(timing.ALLOCATIONS)}')
+    _finite_number('speed', o.speed_mps)
+    _finite_number('robot_radius_m', o.robot_radius_m, positive=False)
+    fractions = tuple(o.control_points or ())
+    for f in fractions:
+        if not (isinstance(f, (int, float)) and 0 < f < 1):
+            raise ValueError(f'control_points = {list(fractions)!r} must be fractions strictly between 0 and 1')
+    if o.v_max_mps is not None:
+        _finite_number('limits.v_max_mps', o.v_max_mps)
+    if o.a_max_mps2 is not None:
+        _finite_number('limits.a_max_mps2', o.a_max_mps2)
+        if vehicle is not None and o.a_max_mps2 > timing.vehicle_acceleration_capability(vehicle.thrust_to_weight):
+            cap = timing.vehicle_acceleration_capability(vehicle.thrust_to_weight)
+            raise ValueError(f'limits.a_max_mps2 = {o.a_max_mps2} cannot be met: vehicle {vehicle.name} gives at most '
+                             f'g (thrust/weight - 1) = {cap:.2f} m/s^2')
+    if o.rho is not None:
+        _finite_number('rho', o.rho)
+    return o
+
+
+def merge_close_waypoints(waypoints, yaw):
+    """Drop each waypoint closer than 1 mm to the previous kept one; returns (kept, yaw, merged reports)."""
+    keep, merged = [0], []
+    for i in range(1, len(waypoints)):
+        d = float(np.linalg.norm(waypoints[i] - waypoints[keep[-1]]))
+        if d < MERGE_DISTANCE_M:
+            merged.append(MergedWaypoint(index=i, into_index=keep[-1], distance_m=d))
+        else:
+            keep.append(i)
+    if len(keep) < 2:
+        raise ValueError(f'waypoints = {waypoints.tolist()} needs at least two distinct waypoints '
+                         f'(all are within {MERGE_DISTANCE_M * 1000:g} mm of the first)')
+    return waypoints[keep], yaw[keep], merged
+
+
+def add_control_points(points, fractions):
+    """The seed's improvement (5.3): on each leg (a, b) insert a + f (b - a) for f in fractions."""
+    f = np.sort(np.asarray(fractions, dtype=float))
+    if f.size == 0:
+        return points, np.ones(len(points), dtype=bool)
+    a, b = points[:-1], points[1:]
+    inner = a[:, None, :] + f[None, :, None] * (b - a)[:, None, :]  # (legs, F, 4)
+    legs = np.concatenate([a[:, None, :], inner], axis=1).reshape(-1, points.shape[1])
+    mask = np.tile(np.r_[True, np.zeros(f.size, dtype=bool)], len(a))
+    return np.vstack([legs, points[-1:]]), np.append(mask, True)
+
+
+# --- solving --------------------------------------------------------------------------------
+
+def solve(points, durations_s, method='minsnap', mode='continuity') -> PiecewisePolynomial:
+    r = solver.ORDERS[method]
+    return PiecewisePolynomial(durations_s, solver.solve_banded_coefficients(durations_s, points, r, mode))
+
+
+def _limit_times(points, durations, o: PlanOptions, v_max, a_max):
+    """Rescale segment times until peak speed / acceleration per segment sit at the limits, then scale all
+    times by one factor so that the whole trajectory meets them (time scaling by k divides speed by k and
+    acceleration by k^2, and keeps a rest-to-rest optimum optimal)."""
+    T = durations.copy()
+    for _ in range(_LIMIT_ITERATIONS):
+        traj = solve(points, T, o.method, o.waypoint_constraint)
+        k = np.maximum(traj.segment_peaks(1) / v_max, np.sqrt(traj.segment_peaks(2) / a_max))
+        T = T * np.sqrt(np.maximum(k, 1e-3) / _LIMIT_TARGET)
+    traj = solve(points, T, o.method, o.waypoint_constraint)
+    k = max(traj.max_speed() / v_max, np.sqrt(traj.max_acceleration() / a_max)) / _LIMIT_TARGET
+    return T * k
+
+
+def _optimal_times(points, durations, o: PlanOptions):
+    """Minimise J(T) = cost(T) / cost(T0) + rho sum(T) / sum(T0) over log T, starting from T0.
+
+    With rho = 2r - 1 (default) the optimum along uniform scaling is T0 itself, so the seed's total
+    time L / speed is kept near while the split between segments is optimised.
+    """
+    r = solver.ORDERS[o.method]
+    rho = o.rho if o.rho is not None else 2 * r - 1.0
+
+    def cost(T):
+        c = solver.solve_banded_coefficients(T, points, r, o.waypoint_constraint)
+        return solver.derivative_cost(T, c, r)
+
+    c0, s0 = cost(durations), durations.sum()
+    res = minimize(lambda x: cost(np.exp(x)) / c0 + rho * np.exp(x).sum() / s0, np.log(durations),
+                   method='L-BFGS-B', options={'maxiter': 200})
+    return np.exp(res.x)
+
+
+def allocate_times(points, o: PlanOptions, vehicle: Vehicle | None = None) -> np.ndarray:
+    if o.time_allocation == 'proportional':
+        return timing.proportional_allocation(points, o.speed_mps)
+    T = timing.sqrt_allocation(points, o.speed_mps)
+    if o.time_allocation == 'limits':
+        v_max = o.v_max_mps if o.v_max_mps is not None else timing.DEFAULT_V_MAX_MPS
+        if o.a_max_mps2 is not None:
+            a_max = o.a_max_mps2
+        elif vehicle is not None:
+            a_max = timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
+        else:
+            raise ValueError('time_allocation = limits needs limits.a_max_mps2 or a vehicle')
+        return _limit_times(points, T, o, v_max, a_max)
+    if o.time_allocation == 'optimal':
+        return _optimal_times(points, T, o)
+    return T
+
+
+def plan(waypoints, yaw=None, options: PlanOptions | None = None, world: World | None = None,
+         vehicle: Vehicle | None = None) -> PlanResult:
+    o = validate_options(options or PlanOptions(), vehicle)
+    w = validate_waypoints(waypoints)
+    y = validate_yaw(yaw, len(w))
+    w, y, merged = merge_close_waypoints(w, y)
+    points, is_waypoint = add_control_points(np.column_stack([w, y]), o.control_points or ())
+    if world is not None:
+        bad = collision.polyline_collisions(world, w, o.robot_radius_m)
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f'waypoints: the straight leg {w[i].tolist()} -> {w[i + 1].tolist()} comes within '
+                             f'robot_radius_m = {o.robot_radius_m} of an obstacle or the bounds of {world.name}: '
+                             f'no trajectory through these waypoints can be collision-free')
+    inserted = 0
+    for attempt in range(MAX_REPLANS + 1):
+        traj = solve(points, allocate_times(points, o, vehicle), o.method, o.waypoint_constraint)
+        if world is None:
+            break
+        segments, times = collision.trajectory_collisions(world, traj, o.robot_radius_m)
+        if segments.size == 0:
+            break
+        if not o.avoid_collisions or attempt == MAX_REPLANS:
+            raise ValueError(f'trajectory collides with {world.name} at t = {times[0]:.3f} s '
+                             f'(robot_radius_m = {o.robot_radius_m}, {len(segments)} segments'
+                             + (f', still after inserting {inserted} points)' if o.avoid_collisions else ')'))
+        # pull each colliding segment onto its straight leg: insert the leg's midpoint
+        mid = 0.5 * (points[segments] + points[segments + 1])
+        points = np.insert(points, segments + 1, mid, axis=0)
+        is_waypoint = np.insert(is_waypoint, segments + 1, False)
+        inserted += len(segments)
+    return PlanResult(trajectory=traj, waypoints=w, yaw=y, points=points, is_waypoint=is_waypoint, options=o,
+                      merged=merged, inserted_points=inserted, world=world)

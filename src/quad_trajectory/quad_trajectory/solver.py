@@ -1,0 +1,136 @@
+"""The seed's linear system A c = b for minimum-derivative splines, and its O(M) banded solution.
+
+A segment of order-r minimum (r = 2 acceleration, 3 jerk, 4 snap) is a polynomial of degree 2r-1,
+2r coefficients per axis, written in normalised time s = tau / T in [0, 1] while solving (this keeps
+A well conditioned whatever the segment durations) and returned in powers of local time tau.
+
+Rows, 2r per segment (the seed's sections 3.2 and 3.3):
+- start: p(0) = p_0 and derivatives 1..r-1 zero; end: the same at the last point;
+- each inner waypoint i, mode `continuity`: p_{i-1}(T) = p_i = p_i(0) and derivatives 1..2r-2 equal
+  on both sides. This is the exact minimiser of sum_i int |p_i^(r)|^2 dt for the given times (its
+  Euler-Lagrange equation p^(2r) = 0 makes the optimum a degree 2r-1 spline with C^(2r-2) joints);
+- each inner waypoint i, mode `stop`: both sides at p_i with derivatives 1..r-1 zero (rest at every point).
+
+Ordering unknowns segment by segment and rows waypoint by waypoint, a row touches only the two
+segments beside its waypoint, so A is banded with bandwidth < 3r: LAPACK's banded LU (gbsv) solves
+it in O(M). `solve_dense_reference` is the seed's x = A^-1 b on the same rows, kept as the reference.
+"""
+
+from math import factorial
+
+import numpy as np
+from scipy.linalg import solve_banded
+
+from quad_trajectory.polynomial import derivative_factors
+
+ORDERS = {'minaccel': 2, 'minjerk': 3, 'minsnap': 4}
+MODES = ('continuity', 'stop')
+
+
+def _boundary_rows(n_coef: int):
+    """D0[j] and D1[j]: coefficients of d^j/ds^j at s = 0 and s = 1 (j = 0..n_coef-1)."""
+    d0 = np.zeros((n_coef, n_coef))
+    d1 = np.zeros((n_coef, n_coef))
+    for j in range(n_coef):
+        d0[j, j] = factorial(j)
+        d1[j, j:] = derivative_factors(n_coef, j)
+    return d0, d1
+
+
+def _inner_block(r: int, mode: str):
+    """Rows of one inner waypoint: list of (terms, rhs_is_point); term = (side 0 left/1 right, j, at_end, sign)."""
+    if mode == 'continuity':
+        rows = [([(0, 0, True, 1.0)], True)]
+        rows += [([(0, j, True, 1.0), (1, j, False, -1.0)], False) for j in range(1, 2 * r - 1)]
+        rows += [([(1, 0, False, 1.0)], True)]
+    else:
+        rows = [([(0, j, True, 1.0)], j == 0) for j in range(r)]
+        rows += [([(1, j, False, 1.0)], j == 0) for j in range(r)]
+    return rows
+
+
+def assemble(durations_s, points, r: int, mode: str):
+    """Sparse triplets (rows, cols, vals) of A (size 2rM) and the right-hand side b (2rM, K)."""
+    if mode not in MODES:
+        raise ValueError(f'waypoint_constraint = {mode!r} must be one of {", ".join(MODES)}')
+    T = np.asarray(durations_s, dtype=float)
+    P = np.asarray(points, dtype=float)
+    m, n = T.size, 2 * r
+    d0, d1 = _boundary_rows(n)
+    rows, cols, vals = [], [], []
+    b = np.zeros((n * m, P.shape[1]))
+
+    def add(row, col0, coef):
+        nz = np.nonzero(np.atleast_2d(coef).any(axis=0))[0]
+        rows.append(np.repeat(row, nz.size))
+        cols.append((col0[:, None] + nz[None, :]).reshape(-1))
+        vals.append(np.broadcast_to(coef[..., nz], (np.size(row), nz.size)).reshape(-1))
+
+    one = np.zeros(1, dtype=int)
+    for j in range(r):  # start block: rows 0..r-1
+        add(np.array([j]), one, d0[j])
+        b[j] = P[0] if j == 0 else 0.0
+    inner = np.arange(1, m)
+    for q, (terms, rhs_is_point) in enumerate(_inner_block(r, mode)):
+        row = r + (inner - 1) * n + q
+        for side, j, at_end, sign in terms:
+            coef = sign * (d1[j] if at_end else d0[j])
+            if at_end and j > 0 and len(terms) > 1:  # continuity: scale d^j/ds^j by (T_right / T_left)^j
+                coef = coef[None, :] * ((T[inner] / T[inner - 1]) ** j)[:, None]
+            add(row, (inner - 1 + side) * n, coef)
+        if rhs_is_point:
+            b[row] = P[inner]
+    for j in range(r):  # end block
+        row = np.array([n * m - r + j])
+        add(row, np.array([(m - 1) * n]), d1[j])
+        b[row] = P[m] if j == 0 else 0.0
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), b
+
+
+def _to_time_powers(x, durations_s, r):
+    """Normalised-time solution (2rM, K) -> coefficients (M, K, 2r) in powers of local time."""
+    m, n = durations_s.size, 2 * r
+    c = x.reshape(m, n, -1).transpose(0, 2, 1)
+    return c / durations_s[:, None, None] ** np.arange(n)[None, None, :]
+
+
+def solve_banded_coefficients(durations_s, points, r: int, mode: str) -> np.ndarray:
+    """O(M): banded LU of A. Returns coefficients (M, K, 2r) in powers of local time."""
+    T = np.asarray(durations_s, dtype=float)
+    rows, cols, vals, b = assemble(T, points, r, mode)
+    lower, upper = int(np.max(rows - cols)), int(np.max(cols - rows))
+    ab = np.zeros((lower + upper + 1, b.shape[0]))
+    ab[upper + rows - cols, cols] = vals
+    x = solve_banded((lower, upper), ab, b, overwrite_ab=True, overwrite_b=True, check_finite=False)
+    return _to_time_powers(x, T, r)
+
+
+def solve_dense_reference(durations_s, points, r: int, mode: str) -> np.ndarray:
+    """The seed's formulation x = A^-1 b with a dense inverse: O(M^3), a reference for tests and benchmarks only."""
+    T = np.asarray(durations_s, dtype=float)
+    rows, cols, vals, b = assemble(T, points, r, mode)
+    a = np.zeros((b.shape[0], b.shape[0]))
+    a[rows, cols] = vals
+    return _to_time_powers(np.linalg.inv(a) @ b, T, r)
+
+
+def derivative_cost_matrix(duration_s: float, n_coef: int, order: int) -> np.ndarray:
+    """Q with c^T Q c = int_0^T (d^order p / dtau^order)^2 dtau for p = sum c_k tau^k."""
+    q = np.zeros((n_coef, n_coef))
+    f = np.zeros(n_coef)
+    f[order:] = derivative_factors(n_coef, order)
+    for i in range(order, n_coef):
+        for k in range(order, n_coef):
+            power = i + k - 2 * order + 1
+            q[i, k] = f[i] * f[k] * duration_s ** power / power
+    return q
+
+
+def derivative_cost(durations_s, coefficients, order: int) -> float:
+    """sum over segments and x, y, z of int |p^(order)|^2 dt (the snap cost for order 4)."""
+    total = 0.0
+    n = coefficients.shape[2]
+    for T, c in zip(durations_s, coefficients):
+        q = derivative_cost_matrix(T, n, order)
+        total += float(np.einsum('ak,kl,al->', c[:3], q, c[:3]))
+    return total
