@@ -85,10 +85,11 @@ import time, numpy as np
 from rotorpy.vehicles.multirotor import Multirotor
 from rotorpy.vehicles.crazyflie_params import quad_params
 from rotorpy.controllers.quadrotor_control import SE3Control
-from rotorpy.trajectories.circular_traj import CircularTraj
+from rotorpy.trajectories.circular_traj import ThreeDCircularTraj
 from rotorpy.environments import Environment
 env = Environment(vehicle=Multirotor(quad_params), controller=SE3Control(quad_params),
-                  trajectory=CircularTraj(radius=1.0, freq=1/20.0), sim_rate=100)
+                  trajectory=ThreeDCircularTraj(radius=np.array([1.0, 1.0, 0.0]), freq=np.array([0.05, 0.05, 0.0])),
+                  sim_rate=100)
 start = time.perf_counter()
 env.run(t_final=20.0, use_mocap=False, terminate=False, plot=False, animate_bool=False, verbose=False)
 print(20.0 / (time.perf_counter() - start))

@@ -1,8 +1,17 @@
+import os
 from glob import glob
 
 from setuptools import find_packages, setup
 
 package_name = 'quad_bringup'
+
+
+def config_files():
+    """config/ (a link to the repository's config/) -> share/quad_bringup/config, keeping sub-folders."""
+    entries = {}
+    for path in sorted(glob('config/**/*.*', recursive=True)):
+        entries.setdefault(os.path.join('share', package_name, os.path.dirname(path)), []).append(path)
+    return list(entries.items())
 
 setup(
     name=package_name,
@@ -12,6 +21,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
+        *config_files(),
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},

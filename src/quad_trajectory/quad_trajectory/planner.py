@@ -143,6 +143,8 @@ def validate_options(o: PlanOptions, vehicle: Vehicle | None = None) -> PlanOpti
 
 def merge_close_waypoints(waypoints, yaw):
     """Drop each waypoint closer than 1 mm to the previous kept one; returns (kept, yaw, merged reports)."""
+    if np.all(np.linalg.norm(np.diff(waypoints, axis=0), axis=1) >= MERGE_DISTANCE_M):
+        return waypoints, yaw, []
     keep, merged = [0], []
     for i in range(1, len(waypoints)):
         d = float(np.linalg.norm(waypoints[i] - waypoints[keep[-1]]))

@@ -1,0 +1,84 @@
+"""Every mission x controller through `quadflight fly` (the real node graph, lockstep simulator).
+
+Default: every mission in config/missions/ except long_100 at 0.5 m/s (its flight alone takes minutes),
+with pd (seed gains), pid and se3 at the seed's 0.5 m/s and at 2 m/s average, plus 2 m/s with the
+drag_wind disturbance profile. --quick: maze only. --all: everything. Prints one markdown section.
+"""
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
+
+from quad_bringup.flight import CONTROLLERS, FlightOptions, fly  # noqa: E402
+
+SPEEDS = (0.5, 2.0)
+
+
+def cases(args):
+    missions = sorted((ROOT / 'config' / 'missions').glob('*.yaml'))
+    if args.quick:
+        missions = [m for m in missions if m.stem == 'maze']
+    for mission in missions:
+        for speed in SPEEDS:
+            if mission.stem == 'long_100' and speed < 1.0 and not args.all:
+                continue
+            for controller in CONTROLLERS:
+                yield mission, controller, speed, None
+        yield mission, 'se3' if args.quick else 'pd', 2.0, 'drag_wind'
+
+
+def run_case(mission, controller, speed, disturbances, out_root):
+    out = out_root / f'{mission.stem}-{controller}-{speed}-{disturbances or "none"}'
+    start = time.monotonic()
+    result = fly(FlightOptions(mission=mission, controller=controller, speed_mps=speed, out=out,
+                               disturbances=disturbances, quiet=True), log=lambda line: None)
+    wall_s = time.monotonic() - start
+    m = result.metrics or {}
+    return {'mission': mission.stem, 'controller': controller, 'speed': speed, 'disturbances': disturbances or 'none',
+            'completed': result.exit_code == 0, 'reason': result.reason.splitlines()[0] if result.exit_code else '',
+            'over_s': m.get('time_over_s'), 'rmse_m': m.get('rmse_m'), 'max_m': m.get('max_error_m'),
+            'actual_s': m.get('time_actual_s'), 'wall_s': wall_s}
+
+
+def fmt(value, spec):
+    return '-' if value is None else format(value, spec)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument('--quick', action='store_true', help='the maze mission only')
+    parser.add_argument('--all', action='store_true', help='also long_100 at 0.5 m/s')
+    parser.add_argument('--json', type=Path, help='also write the rows as JSON')
+    args = parser.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory(prefix='bench_missions-') as tmp:
+        for case in cases(args):
+            rows.append(run_case(*case, Path(tmp)))
+            print(f'  {rows[-1]}', file=sys.stderr, flush=True)
+    print('### Missions flown through the node graph (quadflight fly, lockstep simulator)\n')
+    print('Each row is one `quadflight fly` run (separate processes, DDS, bag, report); wall time includes '
+          'start-up and the report. RTF = simulated flight time / wall time. '
+          f'Run: {"maze only (--quick)" if args.quick else "all missions"}'
+          f'{"" if args.all else ", long_100 only at 2 m/s"}; goal at 2 m/s: RMSE < 2 cm (no disturbances), '
+          '< 5 cm (drag_wind), time actual - planned < 0.3 s.\n')
+    print('| mission | controller | speed (m/s) | disturbances | completed | actual - planned (s) | RMSE (cm) '
+          '| max error (cm) | wall (s) | RTF |')
+    print('|---|---|---:|---|---|---:|---:|---:|---:|---:|')
+    for r in rows:
+        rtf = r['actual_s'] / r['wall_s'] if r['actual_s'] else None
+        print(f'| {r["mission"]} | {r["controller"]} | {r["speed"]} | {r["disturbances"]} | '
+              f'{"yes" if r["completed"] else "no: " + r["reason"][:60]} | {fmt(r["over_s"], ".3f")} | '
+              f'{fmt(r["rmse_m"] and 100 * r["rmse_m"], ".2f")} | {fmt(r["max_m"] and 100 * r["max_m"], ".2f")} | '
+              f'{r["wall_s"]:.1f} | {fmt(rtf, ".2f")} |')
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,43 @@
+"""`quadflight fly MISSION.yaml`: fly a mission through the node graph in the lockstep simulator."""
+
+import sys
+from pathlib import Path
+
+from quad_bringup.flight import CONTROLLERS, FlightOptions, fly
+from quad_bringup.report import Completion, metrics_table
+
+
+def add_arguments(parser):
+    parser.add_argument('mission', help='mission YAML (waypoints, trajectory, world), e.g. config/missions/maze.yaml')
+    parser.add_argument('--controller', default='pd', choices=CONTROLLERS, help='position controller (default pd)')
+    parser.add_argument('--speed', type=float, metavar='V',
+                        help='average speed constant in m/s (overrides the mission)')
+    parser.add_argument('--out', type=Path, help='run directory (default runs/<mission>-<controller>-<timestamp>)')
+    parser.add_argument('--vehicle', type=Path, help='vehicle YAML for controller and simulator')
+    parser.add_argument('--disturbances', metavar='PROFILE', help='simulator disturbance profile (e.g. drag_wind)')
+    parser.add_argument('--control-profile', type=Path, metavar='FILE',
+                        help='params file overriding config/control.yaml gains (e.g. config/control_fast.yaml)')
+    parser.add_argument('--time-limit-factor', type=float, default=3.0, metavar='K',
+                        help='give up after K x the planned duration + 10 s of simulated time (default 3)')
+    parser.add_argument('--position-tolerance', type=float, default=Completion.position_tolerance_m, metavar='M',
+                        help='completion: distance to the final waypoint (default %(default)s m)')
+    parser.add_argument('--speed-tolerance', type=float, default=Completion.speed_tolerance_mps, metavar='V',
+                        help='completion: speed (default %(default)s m/s)')
+    parser.add_argument('--quiet', action='store_true', help='no progress lines')
+
+
+def options_from(args) -> FlightOptions:
+    return FlightOptions(mission=Path(args.mission), controller=args.controller, speed_mps=args.speed, out=args.out,
+                         vehicle=args.vehicle, disturbances=args.disturbances, control_profile=args.control_profile,
+                         rule=Completion(args.position_tolerance, args.speed_tolerance),
+                         time_limit_factor=args.time_limit_factor, quiet=args.quiet)
+
+
+def run(args) -> int:
+    result = fly(options_from(args), log=lambda line: print(line, flush=True))
+    if result.metrics is not None:
+        print(metrics_table(result.metrics))
+        print(f'run: {result.run_dir} (bag/, metrics.json, report.md, figures/)')
+    stream = sys.stdout if result.exit_code == 0 else sys.stderr
+    print(f'{"OK" if result.exit_code == 0 else "FAILED"}: {result.reason}', file=stream, flush=True)
+    return result.exit_code

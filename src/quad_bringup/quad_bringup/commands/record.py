@@ -1,0 +1,27 @@
+"""`quadflight record --out DIR [TOPIC ...]`: the recorder node in this process until Ctrl-C."""
+
+from quad_bringup import recorder_node
+from quad_bringup.recorder import DEFAULT_TOPICS
+
+
+def add_arguments(parser):
+    parser.add_argument('--out', required=True, help='bag directory to create (rosbag2, MCAP storage)')
+    parser.add_argument('topics', nargs='*', default=list(DEFAULT_TOPICS),
+                        help='topics to record (default: the topics quadflight fly records)')
+    parser.add_argument('--flush-period', type=float, default=1.0, metavar='S',
+                        help='seconds between pushes of the open chunk to disk (default 1.0)')
+
+
+def ros_arguments(out, topics, flush_period_s=1.0) -> list[str]:
+    """--ros-args for the recorder node (also how `fly` starts it as a process)."""
+    quoted = ','.join(f'"{t}"' for t in topics)
+    return ['--ros-args', '-r', '__node:=recorder', '-p', f'output_dir:={out}', '-p', f'topics:=[{quoted}]',
+            '-p', f'flush_period_s:={float(flush_period_s)}']
+
+
+def run(args) -> int:
+    try:
+        recorder_node.main(ros_arguments(args.out, args.topics, args.flush_period))
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    return 0

@@ -1,0 +1,230 @@
+"""`quadflight fly` orchestration: validate, write params, start the node graph, watch, stop, report.
+
+The graph is the one sim.launch.py describes: trajectory_node, position_controller, sim_node
+(lockstep, use_sim_time) and the recorder, each a separate process in its own process group,
+in a ROS domain of their own (quad_common.testing.isolated_domain, localhost discovery).
+"""
+
+import datetime
+import json
+import signal
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from quad_bringup import processes
+from quad_bringup.recorder import DEFAULT_TOPICS
+from quad_bringup.report import Completion, write_report
+from quad_common.paths import REPO_ROOT, resolve_config
+from quad_common.testing import isolated_domain
+from quad_common.yaml_io import load_yaml
+
+CONTROLLERS = ('pd', 'pid', 'se3')
+EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+# node name -> (module, params file under config/)
+GRAPH = {
+    'trajectory_node': ('quad_trajectory.trajectory_node', 'config/trajectory.yaml'),
+    'position_controller': ('quad_control.position_controller_node', 'config/control.yaml'),
+    'sim_node': ('quad_sim.sim_node', 'config/sim.yaml'),
+}
+RECORDER = 'recorder'
+
+
+class MissionRefused(ValueError):
+    """The mission (or an option) is unusable; nothing was started."""
+
+
+@dataclass
+class FlightOptions:
+    mission: Path
+    controller: str = 'pd'
+    speed_mps: float | None = None
+    out: Path | None = None
+    vehicle: Path | None = None
+    disturbances: str | None = None
+    control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
+    rule: Completion = field(default_factory=Completion)
+    time_limit_factor: float = 3.0
+    startup_timeout_s: float = 180.0      # wall clock until the first trajectory and odometry
+    stall_timeout_s: float = 60.0         # wall clock without new odometry
+    divergence_m: float = 1.0
+    quiet: bool = False
+
+
+@dataclass
+class FlightResult:
+    exit_code: int
+    reason: str
+    run_dir: Path | None = None
+    metrics: dict | None = None
+    pids: list = field(default_factory=list)
+
+
+def validate(options: FlightOptions):
+    """Loads and plans the mission with quad_trajectory (so a bad one is refused before anything starts).
+
+    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem.
+    """
+    from quad_trajectory import mission as mission_module
+
+    if options.controller not in CONTROLLERS:
+        raise MissionRefused(f'--controller {options.controller!r} refused: must be one of {", ".join(CONTROLLERS)}')
+    if options.speed_mps is not None and not options.speed_mps > 0:
+        raise MissionRefused(f'--speed {options.speed_mps} refused: must be > 0 m/s')
+    path = Path(options.mission)
+    if not path.is_file():
+        raise MissionRefused(f'mission {path}: no such file')
+    for name, value in (('--vehicle', options.vehicle), ('--control-profile', options.control_profile)):
+        if value is not None and not Path(value).is_file():
+            raise MissionRefused(f'{name} {value}: no such file')
+    try:
+        mission = mission_module.load_mission(path)
+        mission_module.plan_mission(mission, speed_mps=options.speed_mps)
+    except (ValueError, KeyError, TypeError, OSError) as exc:
+        raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
+    return mission
+
+
+def node_parameters(options: FlightOptions, mission) -> dict:
+    """{node: {ros__parameters: ...}}: the config/ files plus what this flight sets."""
+    params = {}
+    for node, (_, config) in GRAPH.items():
+        data = load_yaml(resolve_config(config)) or {}
+        params[node] = dict(data.get(node, {}).get('ros__parameters', {}))
+    if options.control_profile is not None:
+        profile = load_yaml(options.control_profile) or {}
+        params['position_controller'].update(profile.get('position_controller', {}).get('ros__parameters', {}))
+    for node in params:
+        params[node]['use_sim_time'] = True
+    params['trajectory_node']['mission_file'] = str(Path(options.mission).resolve())
+    if options.speed_mps is not None:
+        params['trajectory_node']['speed_mps'] = float(options.speed_mps)
+    params['position_controller'].update(controller=options.controller, lockstep=True)
+    params['sim_node'].update(mode='lockstep', initial_position=[float(v) for v in mission.initial_position],
+                              world=mission.world_path or '', robot_radius_m=float(mission.options.robot_radius_m))
+    if options.vehicle is not None:
+        vehicle = str(Path(options.vehicle).resolve())
+        params['position_controller']['vehicle'] = vehicle
+        params['sim_node']['vehicle'] = vehicle
+    if options.disturbances is not None:
+        params['sim_node']['disturbances'] = options.disturbances
+    for p in params.values():  # files named in config/ are relative to the repository
+        for key in ('vehicle', 'disturbances_file'):
+            if p.get(key) and not Path(p[key]).is_absolute():
+                p[key] = str(resolve_config(p[key]))
+    return {node: {'ros__parameters': p} for node, p in params.items()}
+
+
+def default_run_dir(mission_name: str, controller: str) -> Path:
+    stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
+    return REPO_ROOT / 'runs' / f'{mission_name}-{controller}-{stamp}'
+
+
+class _Interrupt:
+    """SIGINT/SIGTERM to fly during a flight: remember it, stop in order (children are in their own groups)."""
+
+    def __init__(self):
+        self.signum = None
+        self._old = {}
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        self.signum = signum
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+def fly(options: FlightOptions, log=print) -> FlightResult:
+    try:
+        mission = validate(options)
+    except MissionRefused as exc:
+        return FlightResult(EXIT_REFUSED, str(exc))
+    run_dir = Path(options.out) if options.out else default_run_dir(mission.name, options.controller)
+    if (run_dir / 'bag').exists():
+        return FlightResult(EXIT_REFUSED, f'--out {run_dir}: already holds a bag; choose a new run directory')
+    try:
+        params = node_parameters(options, mission)
+    except (ValueError, OSError) as exc:
+        return FlightResult(EXIT_REFUSED, f'parameters: {exc}')
+    run_dir.mkdir(parents=True, exist_ok=True)
+    params_file = run_dir / 'params.yaml'
+    params_file.write_text(yaml.safe_dump(params, sort_keys=False))
+    nodes = [processes.NodeProcess(name, module, ['--params-file', str(params_file)], run_dir / 'logs' / f'{name}.log')
+             for name, (module, _) in GRAPH.items()]
+    topics = ','.join(f'"{t}"' for t in DEFAULT_TOPICS)
+    recorder = processes.NodeProcess(RECORDER, 'quad_bringup.recorder_node',
+                                     ['-p', f'output_dir:={run_dir / "bag"}', '-p', f'topics:=[{topics}]'],
+                                     run_dir / 'logs' / 'recorder.log')
+    log(f'flying {options.mission} with {options.controller} -> {run_dir}')
+    with isolated_domain() as (domain, env), _Interrupt() as interrupt:
+        from quad_bringup.flight_monitor import FlightJudge, FlightMonitor
+
+        judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
+                            time_limit_factor=options.time_limit_factor)
+        monitor = FlightMonitor(domain, judge)
+        try:
+            recorder.start(env)  # first, so the latched plan and the first odometry are in the bag
+            for p in nodes:
+                p.start(env)
+            (run_dir / 'pids.json').write_text(json.dumps({p.name: p.pid for p in nodes + [recorder]}) + '\n')
+            reason = _watch(judge, monitor, nodes + [recorder], interrupt, options, log)
+        finally:
+            stopped = processes.stop(nodes, log=log)
+            stopped.update(processes.stop([recorder], log=log))
+            monitor.close()
+    pids = [p.pid for p in nodes + [recorder] if p.popen is not None]
+    extra = {'mission': mission.name, 'controller': options.controller, 'speed_mps': options.speed_mps,
+             'outcome': reason.reason}
+    try:
+        metrics = write_report(run_dir / 'bag', run_dir, extra, options.rule)
+    except (ValueError, FileNotFoundError) as exc:
+        return FlightResult(EXIT_FAILED if reason.ok else _failure_code(interrupt),
+                            f'{reason.reason}; no report: {exc}', run_dir, None, pids)
+    if interrupt.signum is not None:
+        return FlightResult(EXIT_INTERRUPTED, reason.reason, run_dir, metrics, pids)
+    if reason.ok and not (metrics['completed'] and not metrics['collided']):
+        reason.ok, reason.reason = False, f'{reason.reason}, but the bag does not show completion'
+    return FlightResult(EXIT_COMPLETED if reason.ok else EXIT_FAILED, reason.reason, run_dir, metrics, pids)
+
+
+def _failure_code(interrupt):
+    return EXIT_INTERRUPTED if interrupt.signum is not None else EXIT_FAILED
+
+
+def _watch(judge, monitor, children, interrupt, options, log):
+    """Spin the monitor until a verdict, a dead child, a stall or a signal."""
+    from quad_bringup.flight_monitor import Verdict
+
+    started = last_progress = time.monotonic()
+    last_t, last_change = None, time.monotonic()
+    while True:
+        monitor.spin_once(0.05)
+        now = time.monotonic()
+        if judge.verdict is not None:
+            return judge.verdict
+        if interrupt.signum is not None:
+            return Verdict(False, f'interrupted by {signal.Signals(interrupt.signum).name} at '
+                                  f'{judge.progress().strip()}')
+        for p in children:
+            code = p.exit_code()
+            if code is not None:
+                return Verdict(False, f'node {p.name} exited with status {code} ({p.log_path}):\n{p.log_tail()}')
+        if judge.t_s != last_t:
+            last_t, last_change = judge.t_s, now
+        if judge.trajectory is None or judge.t_s is None:
+            if now - started > options.startup_timeout_s:
+                return Verdict(False, f'no trajectory and odometry within {options.startup_timeout_s:.0f} s of start')
+        elif now - last_change > options.stall_timeout_s:
+            return Verdict(False, f'simulation stalled: no new odometry for {options.stall_timeout_s:.0f} s')
+        if not options.quiet and now - last_progress >= 1.0:
+            log(judge.progress())
+            last_progress = now

@@ -1,0 +1,127 @@
+"""In-process watcher of a flight (fly's eyes): trajectory, odometry and diagnostics -> a verdict.
+
+The judgement itself (`FlightJudge`) has no rclpy: it is fed plain numbers, so it is unit-tested.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from quad_bringup.report import Completion
+from quad_common import conversions
+from quad_common.diagnostics import ERROR, level_of
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+@dataclass
+class Verdict:
+    ok: bool
+    reason: str
+
+
+class FlightJudge:
+    """Decides when a flight is over: completed, collided, diverged or out of time (simulated seconds)."""
+
+    def __init__(self, rule: Completion, divergence_m=1.0, time_limit_factor=3.0, time_limit_margin_s=10.0,
+                 hold_after_completion_s=0.5):
+        self.rule = rule
+        self.divergence_m = divergence_m
+        self.time_limit_factor = time_limit_factor
+        self.time_limit_margin_s = time_limit_margin_s
+        self.hold_after_completion_s = hold_after_completion_s
+        self.start_s = None
+        self.trajectory = None
+        self.t_s = None
+        self.error_m = float('nan')
+        self.completed_at_s = None
+        self.verdict = None
+
+    def set_trajectory(self, start_s, trajectory):
+        self.start_s, self.trajectory = start_s, trajectory
+
+    @property
+    def planned_s(self):
+        return None if self.trajectory is None else self.trajectory.duration_s
+
+    def on_collision(self, t_s, message):
+        if self.verdict is None:
+            self.verdict = Verdict(False, f'collision at t = {self._since_start(t_s):.2f} s: {message}')
+
+    def on_odometry(self, t_s, position, velocity):
+        self.t_s = t_s
+        if self.trajectory is None or self.verdict is not None:
+            return
+        elapsed = t_s - self.start_s
+        desired = self.trajectory.evaluate(elapsed, order=0)[0][:3]
+        self.error_m = float(np.linalg.norm(position - desired))
+        if not (np.all(np.isfinite(position)) and self.error_m <= self.divergence_m):
+            self.verdict = Verdict(False, f'diverged at t = {elapsed:.2f} s: position error {self.error_m:.3f} m '
+                                          f'> {self.divergence_m} m')
+            return
+        final = self.trajectory.position[-1, :3]
+        done = (elapsed >= self.planned_s
+                and np.linalg.norm(position - final) <= self.rule.position_tolerance_m
+                and np.linalg.norm(velocity) <= self.rule.speed_tolerance_mps)
+        if done and self.completed_at_s is None:
+            self.completed_at_s = elapsed
+        if self.completed_at_s is not None and elapsed >= self.completed_at_s + self.hold_after_completion_s:
+            self.verdict = Verdict(True, f'completed at t = {self.completed_at_s:.2f} s '
+                                         f'(planned {self.planned_s:.2f} s)')
+        elif elapsed > self.time_limit_s:
+            self.verdict = Verdict(False, f'time limit: not complete after {elapsed:.1f} s '
+                                          f'(planned {self.planned_s:.1f} s; limit {self.time_limit_s:.1f} s)')
+
+    @property
+    def time_limit_s(self):
+        return self.time_limit_factor * self.planned_s + self.time_limit_margin_s
+
+    def _since_start(self, t_s):
+        return t_s - self.start_s if self.start_s is not None else t_s
+
+    def progress(self) -> str:
+        if self.trajectory is None or self.t_s is None:
+            return 'waiting for the trajectory and odometry'
+        return (f't = {self.t_s - self.start_s:6.2f} / {self.planned_s:.2f} s   '
+                f'error {100 * self.error_m:6.2f} cm')
+
+
+class FlightMonitor:
+    """An rclpy node in its own context feeding a FlightJudge."""
+
+    def __init__(self, domain_id: int, judge: FlightJudge):
+        self.judge = judge
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id,
+                   signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('fly_monitor', context=self.context)
+        self.node.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_trajectory, LATCHED)
+        self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
+        self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diagnostics, 50)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def _on_trajectory(self, msg):
+        self.judge.set_trajectory(*conversions.msg_to_sampled(msg))
+
+    def _on_odom(self, msg):
+        state = conversions.odometry_to_state(msg)
+        self.judge.on_odometry(conversions.stamp_to_s(msg.header.stamp), state.position, state.velocity)
+
+    def _on_diagnostics(self, msg):
+        for st in msg.status:
+            if level_of(st) == ERROR[0] and st.name.endswith('collision'):
+                self.judge.on_collision(conversions.stamp_to_s(msg.header.stamp), st.message)
+
+    def spin_once(self, timeout_s=0.1):
+        self.executor.spin_once(timeout_sec=timeout_s)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)

@@ -1,0 +1,84 @@
+"""Node processes of a flight: each in its own process group, stopped so that nothing is orphaned."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class NodeProcess:
+    name: str
+    module: str
+    ros_args: list
+    log_path: Path
+    popen: subprocess.Popen | None = field(default=None, repr=False)
+
+    def command(self) -> list[str]:
+        return [sys.executable, '-m', self.module, '--ros-args', '-r', f'__node:={self.name}', *self.ros_args]
+
+    def start(self, env):
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with self.log_path.open('w') as log:
+            # A new session: its own process group, so a signal to the group reaches everything it started,
+            # and a Ctrl-C on fly's terminal reaches fly only (fly decides the order of stopping).
+            self.popen = subprocess.Popen(self.command(), env=env, stdout=log, stderr=subprocess.STDOUT,
+                                          stdin=subprocess.DEVNULL, start_new_session=True)
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def exit_code(self):
+        return None if self.popen is None else self.popen.poll()
+
+    def log_tail(self, lines=8) -> str:
+        try:
+            return '\n'.join(self.log_path.read_text(errors='replace').splitlines()[-lines:])
+        except OSError:
+            return ''
+
+    def signal_group(self, sig):
+        try:
+            os.killpg(self.popen.pid, sig)
+        except ProcessLookupError:
+            pass
+
+
+def stop(processes, grace_s=10.0, log=print):
+    """SIGINT to every group, then SIGTERM, then SIGKILL to groups still alive after `grace_s` each.
+
+    Returns {name: exit code}. Waits for each group leader, and kills the rest of its group.
+    """
+    running = [p for p in processes if p.popen is not None]
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        alive = [p for p in running if p.exit_code() is None]
+        if not alive:
+            break
+        if sig != signal.SIGINT:
+            log(f'{", ".join(p.name for p in alive)} still running: sending {signal.Signals(sig).name}')
+        for p in alive:
+            p.signal_group(sig)
+        deadline = time.monotonic() + grace_s
+        for p in alive:
+            try:
+                p.popen.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+    for p in running:  # grandchildren, if a node started any
+        p.signal_group(signal.SIGKILL)
+    return {p.name: p.exit_code() for p in running}
+
+
+def group_alive(pgid: int) -> bool:
+    """True if any process of process group `pgid` still exists."""
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

@@ -1,0 +1,131 @@
+"""Node `recorder`: raw (serialized) subscriptions -> a rosbag2 bag (MCAP), see recorder.py.
+
+Topics of DEFAULT_TOPICS are subscribed at once with the QoS their publishers use (latched
+trajectory topics transient_local); any other topic is subscribed when it appears in the
+graph, with its type and durability taken from its publishers. Timestamps are receive times
+(system clock, as `ros2 bag record` does). SIGINT/SIGTERM close the bag cleanly.
+"""
+
+import importlib
+import signal
+import sys
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec
+from quad_common.params import Param, ParameterSet
+
+PARAMS = [
+    Param('output_dir', '', 'bag directory to create (must not exist yet)', read_only=True),
+    Param('topics', list(DEFAULT_TOPICS), 'topics to record (relative names resolve in the node namespace)',
+          read_only=True),
+    Param('flush_period_s', 1.0, 'wall-clock period of pushing the open chunk to disk (what a SIGKILL can lose)',
+          min=0.05, max=60.0),
+    Param('queue_depth', 1000, 'subscription history depth (reliable; generous so a busy recorder drops nothing)',
+          min=1, max=100000, read_only=True),
+]
+
+
+def message_class(msgtype: str):
+    """nav_msgs/msg/Odometry -> the rclpy message class."""
+    package, _, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), name)
+
+
+class RecorderNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('recorder', **kwargs)
+        self.params = ParameterSet(self, PARAMS)
+        if not self.params['output_dir']:
+            raise ValueError('output_dir = \'\' refused: give the bag directory to create')
+        self.bag = BagRecorder(self.params['output_dir'])
+        self._raw_subscriptions = {}
+        self._pending = []
+        for topic in self.params['topics']:
+            spec = DEFAULT_TOPICS.get(topic)
+            if spec is not None:
+                try:
+                    self._subscribe(topic, spec)
+                except ImportError as exc:  # e.g. tf2_msgs is not among the PyPI ROS wheels
+                    self.get_logger().warning(f'not recording {topic}: {spec.msgtype} is not installed ({exc})')
+            else:
+                self._pending.append(topic)
+        self.create_timer(self.params['flush_period_s'], self.bag.flush,
+                          clock=rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME))
+        if self._pending:
+            self.create_timer(0.5, self._discover,
+                              clock=rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME))
+        self.get_logger().info(f'recording {len(self.params["topics"])} topics to {self.params["output_dir"]}')
+
+    def _subscribe(self, topic: str, spec: TopicSpec):
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST,
+                         depth=1 if spec.latched else self.params['queue_depth'],
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if spec.latched else DurabilityPolicy.VOLATILE)
+        self.bag.add_topic(topic, spec, depth=qos.depth)
+
+        def on_message(data: bytes, topic=topic):
+            self.bag.write(topic, time.time_ns(), data)
+
+        self._raw_subscriptions[topic] = self.create_subscription(message_class(spec.msgtype), topic, on_message, qos,
+                                                              raw=True)
+
+    def _discover(self):
+        """Subscribe to requested topics that have appeared in the graph since."""
+        types = dict(self.get_topic_names_and_types())
+        for topic in list(self._pending):
+            full = self.resolve_topic_name(topic)
+            if full not in types:
+                continue
+            publishers = self.get_publishers_info_by_topic(full)
+            latched = bool(publishers) and all(p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                                               for p in publishers)
+            try:
+                self._subscribe(topic, TopicSpec(types[full][0], latched))
+            except (ValueError, ImportError) as exc:
+                self.get_logger().error(str(exc))
+            self._pending.remove(topic)
+
+    def close_bag(self):
+        self.bag.close()
+        self.get_logger().info(f'bag closed: {self.bag.total} messages '
+                               + ', '.join(f'{t}={n}' for t, n in self.bag.counts.items() if n))
+
+
+def main(args=None):
+    """Spins until SIGINT/SIGTERM, then takes what is already delivered and closes the bag."""
+    stop = []
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: stop.append(signum))
+    try:
+        node = RecorderNode()
+    except Exception as exc:  # bad parameters, an existing bag directory, an unknown type
+        print(f'recorder: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(2)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop:
+            executor.spin_once(timeout_sec=0.1)
+        drained = -1
+        while drained != node.bag.total:  # messages already in the subscriptions' queues are not lost
+            drained = node.bag.total
+            for _ in range(20):
+                executor.spin_once(timeout_sec=0.01)
+    except ExternalShutdownException:
+        pass
+    finally:
+        node.close_bag()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

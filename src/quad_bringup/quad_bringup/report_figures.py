@@ -1,0 +1,194 @@
+"""The report's figures (matplotlib, Agg): the seed's Figures 1-5, error over time and commands."""
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
+
+AXES = ('x', 'y', 'z')
+DESIRED = {'color': 'tab:blue', 'linestyle': '--', 'linewidth': 1.6, 'label': 'desired'}
+ACTUAL = {'color': 'tab:red', 'linewidth': 1.2, 'label': 'actual'}
+WAYPOINT = {'color': 'black', 'marker': 'o', 's': 22, 'zorder': 5, 'label': 'waypoints'}
+OBSTACLE = {'facecolor': 'tab:gray', 'edgecolor': 'dimgray', 'alpha': 0.35}
+
+
+def _series(flight):
+    """Flight time since trajectory start, actual and desired position/velocity at the odometry times."""
+    t0 = flight.traj_start_s
+    t = flight.odom_t - t0
+    desired = flight.trajectory.evaluate(t, order=1)
+    return t, desired[0][:, :3], desired[1][:, :3]
+
+
+def _mark_events(ax, flight):
+    ax.axvline(flight.trajectory.duration_s, color='gray', linestyle=':', linewidth=1)
+    if flight.collision_time_s is not None:
+        ax.axvline(flight.collision_time_s - flight.traj_start_s, color='black', linewidth=1.5)
+
+
+def fig_position_velocity(flight, path):
+    """Seed Figure 1: desired vs actual position and velocity per axis."""
+    t, p_des, v_des = _series(flight)
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7), sharex=True)
+    for i, name in enumerate(AXES):
+        for row, (des, act, unit) in enumerate([(p_des, flight.position, 'm'), (v_des, flight.velocity, 'm/s')]):
+            ax = axes[row, i]
+            ax.plot(t, des[:, i], **DESIRED)
+            ax.plot(t, act[:, i], **ACTUAL)
+            _mark_events(ax, flight)
+            ax.set_title(f'{"position" if row == 0 else "velocity"} {name}')
+            ax.set_ylabel(f'{name} ({unit})' if row == 0 else f'v{name} ({unit})')
+            ax.grid(True, alpha=0.3)
+        axes[1, i].set_xlabel('time since trajectory start (s)')
+    axes[0, 0].legend(loc='best')
+    fig.suptitle('Desired vs actual position and velocity (dotted line: planned end)')
+    return _save(fig, path)
+
+
+def _box_faces(centre, size):
+    lo, hi = centre - size / 2, centre + size / 2
+    c = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    idx = [(0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5)]
+    return [c[list(f)] for f in idx]
+
+
+def fig_path_3d(flight, path):
+    """Seed Figures 2-3: 3D desired and actual path with waypoints and obstacles."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    fig = plt.figure(figsize=(9, 8))
+    ax = fig.add_subplot(projection='3d')
+    plan = flight.trajectory.position[:, :3]
+    ax.plot(*plan.T, **DESIRED)
+    ax.plot(*flight.position.T, **ACTUAL)
+    if len(flight.waypoints):
+        ax.scatter(*flight.waypoints.T, **WAYPOINT)
+    for centre, size in flight.obstacles:
+        ax.add_collection3d(Poly3DCollection(_box_faces(centre, size), **OBSTACLE))
+    pts = np.vstack([plan, flight.position] + [np.vstack([c - s / 2, c + s / 2]) for c, s in flight.obstacles])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2, 0.1)
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(max(mid[2] - half, lo[2] - 0.1), max(mid[2] - half, lo[2] - 0.1) + 2 * half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel('x (m)')
+    ax.set_ylabel('y (m)')
+    ax.set_zlabel('z (m)')
+    ax.legend(loc='upper left')
+    ax.set_title('3D path: desired (planned) vs actual' + (', obstacles in gray' if flight.obstacles else ''))
+    return _save(fig, path)
+
+
+def fig_plane_views(flight, path):
+    """Seed Figure 4: XY, XZ, YZ views with equal aspect."""
+    fig, axes = plt.subplots(1, 3, figsize=(16, 5.5))
+    plan = flight.trajectory.position[:, :3]
+    for ax, (i, j) in zip(axes, [(0, 1), (0, 2), (1, 2)]):
+        for centre, size in flight.obstacles:
+            ax.add_patch(Rectangle((centre[i] - size[i] / 2, centre[j] - size[j] / 2), size[i], size[j], **OBSTACLE))
+        ax.plot(plan[:, i], plan[:, j], **DESIRED)
+        ax.plot(flight.position[:, i], flight.position[:, j], **ACTUAL)
+        if len(flight.waypoints):
+            ax.scatter(flight.waypoints[:, i], flight.waypoints[:, j], **WAYPOINT)
+        ax.set_aspect('equal', adjustable='datalim')
+        ax.set_xlabel(f'{AXES[i]} (m)')
+        ax.set_ylabel(f'{AXES[j]} (m)')
+        ax.set_title(f'{AXES[i].upper()}{AXES[j].upper()}-plane view')
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(loc='best')
+    fig.suptitle('Plane-wise views of the desired and actual trajectory')
+    return _save(fig, path)
+
+
+def fig_axis_tracking(flight, path):
+    """Seed Figure 5: per-axis tracking, with the per-axis error beside it."""
+    t, p_des, _ = _series(flight)
+    fig, axes = plt.subplots(3, 2, figsize=(14, 9), sharex=True, gridspec_kw={'width_ratios': [2, 1]})
+    for i, name in enumerate(AXES):
+        ax = axes[i, 0]
+        ax.plot(t, p_des[:, i], **DESIRED)
+        ax.plot(t, flight.position[:, i], **ACTUAL)
+        _mark_events(ax, flight)
+        ax.set_ylabel(f'{name} (m)')
+        ax.set_title(f'{name}: desired vs actual')
+        ax.grid(True, alpha=0.3)
+        ax = axes[i, 1]
+        ax.plot(t, 100 * (flight.position[:, i] - p_des[:, i]), color='tab:purple', label=f'{name} actual - desired')
+        ax.axhline(0, color='gray', linewidth=0.8)
+        ax.set_ylabel(f'error {name} (cm)')
+        ax.set_title(f'{name} tracking error')
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(loc='best')
+    for ax in axes[-1]:
+        ax.set_xlabel('time since trajectory start (s)')
+    fig.suptitle('X, Y, Z trajectory tracking')
+    return _save(fig, path)
+
+
+def fig_error(flight, path):
+    """Position error norm over time."""
+    t, p_des, _ = _series(flight)
+    err = np.linalg.norm(flight.position - p_des, axis=1)
+    fig, ax = plt.subplots(figsize=(11, 4.5))
+    ax.plot(t, 100 * err, color='tab:red', label='|p actual - p desired|')
+    _mark_events(ax, flight)
+    ax.set_xlabel('time since trajectory start (s)')
+    ax.set_ylabel('position error (cm)')
+    ax.set_title('Position tracking error (dotted line: planned end)')
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc='best')
+    return _save(fig, path)
+
+
+def fig_commands(flight, path):
+    """Commanded specific force (thrust / mass) and commanded vs actual attitude."""
+    fig, axes = plt.subplots(4, 1, figsize=(11, 10), sharex=True)
+    t0 = flight.traj_start_s
+    tc = flight.cmd_t - t0
+    ax = axes[0]
+    if len(tc):
+        ax.plot(tc, flight.cmd_specific_force, color='tab:green', label='commanded thrust / mass')
+    ax.axhline(9.81, color='gray', linestyle=':', label='g (hover)')
+    ax.set_ylabel('specific force (m/s²)')
+    ax.set_title('Commanded collective thrust (per unit mass) and attitude')
+    ax.legend(loc='best')
+    for k, name in enumerate(('roll', 'pitch', 'yaw')):
+        ax = axes[k + 1]
+        if len(tc):
+            ax.plot(tc, np.degrees(flight.cmd_euler[:, k]), color='tab:blue', linestyle='--', label='commanded')
+        ax.plot(flight.odom_t - t0, np.degrees(flight.euler[:, k]), color='tab:red', linewidth=1, label='actual')
+        ax.set_ylabel(f'{name} (deg)')
+        ax.legend(loc='best')
+    for ax in axes:
+        _mark_events(ax, flight)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel('time since trajectory start (s)')
+    return _save(fig, path)
+
+
+FIGURES = [
+    ('fig1_position_velocity.png', fig_position_velocity),
+    ('fig2_path_3d.png', fig_path_3d),
+    ('fig4_plane_views.png', fig_plane_views),
+    ('fig5_axis_tracking.png', fig_axis_tracking),
+    ('error_over_time.png', fig_error),
+    ('commands.png', fig_commands),
+]
+
+
+def draw_all(flight, out_dir) -> list[Path]:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return [draw(flight, out_dir / name) for name, draw in FIGURES]
+
+
+def _save(fig, path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)

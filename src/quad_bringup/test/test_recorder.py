@@ -1,0 +1,145 @@
+"""The recorder node in a real graph: a test publisher, the bag read back with rosbags."""
+
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.rosbag2 import Reader
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import String
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+
+from quad_bringup.commands.record import ros_arguments
+from quad_bringup.recorder import open_bag_reader, repair_bag, typestore
+from quad_common.testing import isolated_domain
+
+N_ODOM = 300
+N_CLOCK = 40
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TIMEOUT_S = 120.0
+
+
+@pytest.fixture
+def graph():
+    with isolated_domain() as (domain, env):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        node = rclpy.create_node('recorder_test_talker', context=ctx)
+        yield node, env
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def start_recorder(bag, env, topics):
+    cmd = [sys.executable, '-m', 'quad_bringup.recorder_node', *ros_arguments(bag, topics, flush_period_s=0.1)]
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def wait_for(condition, what):
+    """Polls a condition (an event we cannot block on) with a generous deadline."""
+    deadline = time.monotonic() + TIMEOUT_S
+    while not condition():
+        assert time.monotonic() < deadline, f'timed out waiting for {what}'
+        time.sleep(0.05)
+
+
+def flushed_counts(bag, tmp_path):
+    """Message counts of what the running recorder has flushed so far (read from a repaired copy)."""
+    copy = tmp_path / 'copy'
+    shutil.rmtree(copy, ignore_errors=True)
+    try:
+        shutil.copytree(bag, copy)
+        repair_bag(copy)
+        with Reader(copy) as reader:
+            return {c.topic: c.msgcount for c in reader.connections}
+    except Exception:
+        return {}
+
+
+def publish_flight(node, env, bag, tmp_path):
+    """Latched trajectory before the recorder starts; odom, clock and a discovered topic after."""
+    traj_pub = node.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
+    traj = MultiDOFJointTrajectory()
+    traj.header.frame_id = 'map'
+    traj.joint_names = ['base_link']
+    traj_pub.publish(traj)
+    odom_pub = node.create_publisher(Odometry, 'odom', 10)
+    clock_pub = node.create_publisher(Clock, '/clock', 10)
+    chatter_pub = node.create_publisher(String, 'chatter', 10)
+    proc = start_recorder(bag, env, ['trajectory', 'odom', '/clock', 'chatter'])
+    pubs = [odom_pub, clock_pub, chatter_pub, traj_pub]
+    wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs) or proc.poll() is not None,
+             'the recorder to subscribe')
+    assert proc.poll() is None, proc.stdout.read()
+    for k in range(N_ODOM):
+        msg = Odometry()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = k // 100, (k % 100) * 10_000_000
+        msg.pose.pose.position.x = 0.001 * k
+        odom_pub.publish(msg)
+        if k % (N_ODOM // N_CLOCK) == 0 and k // (N_ODOM // N_CLOCK) < N_CLOCK:
+            clock_pub.publish(Clock(clock=msg.header.stamp))
+    chatter_pub.publish(String(data='hello bag'))
+    for p in pubs:
+        assert p.wait_for_all_acked()
+    expected = {'trajectory': 1, 'odom': N_ODOM, '/clock': N_CLOCK, 'chatter': 1}
+    wait_for(lambda: flushed_counts(bag, tmp_path) == expected, f'the recorder to flush {expected}')
+    return proc, expected
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_recorder_writes_every_message_and_closes_on_signal(graph, tmp_path, sig):
+    node, env = graph
+    bag = tmp_path / 'bag'
+    proc, expected = publish_flight(node, env, bag, tmp_path)
+    proc.send_signal(sig)
+    out, _ = proc.communicate(timeout=TIMEOUT_S)
+    assert proc.returncode == 0, out
+    assert f'bag closed: {sum(expected.values())} messages' in out  # delivered == written
+    ts = typestore()
+    with Reader(bag) as reader:  # closed cleanly: metadata.yaml and a full MCAP summary
+        conns = {c.topic: c for c in reader.connections}
+        assert {t: c.msgcount for t, c in conns.items()} == expected
+        assert conns['odom'].digest == ts.hash_rihs01('nav_msgs/msg/Odometry')
+        assert conns['chatter'].msgtype == 'std_msgs/msg/String'
+        assert conns['trajectory'].ext.offered_qos_profiles[0].durability.name == 'TRANSIENT_LOCAL'
+        xs = [ts.deserialize_cdr(raw, c.msgtype).pose.pose.position.x
+              for c, _, raw in reader.messages(connections=[conns['odom']])]
+        texts = [ts.deserialize_cdr(raw, c.msgtype).data
+                 for c, _, raw in reader.messages(connections=[conns['chatter']])]
+        stamps = [t for _, t, _ in reader.messages()]
+    assert xs == pytest.approx([0.001 * k for k in range(N_ODOM)])
+    assert texts == ['hello bag']
+    assert all(abs(t - time.time_ns()) < 3600e9 for t in stamps)  # receive times on the system clock
+
+
+def test_killed_recorder_leaves_a_readable_bag(graph, tmp_path):
+    node, env = graph
+    bag = tmp_path / 'bag'
+    proc, expected = publish_flight(node, env, bag, tmp_path)
+    proc.kill()
+    proc.communicate(timeout=TIMEOUT_S)
+    assert not (bag / 'metadata.yaml').exists()
+    reader = open_bag_reader(bag)  # repairs: cuts a torn record, appends the footer, writes metadata.yaml
+    try:
+        assert {c.topic: c.msgcount for c in reader.connections} == expected
+        ts = typestore()
+        odom = [c for c in reader.connections if c.topic == 'odom']
+        xs = [ts.deserialize_cdr(raw, c.msgtype).pose.pose.position.x for c, _, raw in reader.messages(odom)]
+    finally:
+        reader.close()
+    assert xs == pytest.approx([0.001 * k for k in range(N_ODOM)])
+
+
+def test_recorder_refuses_an_existing_bag_directory(graph, tmp_path):
+    _, env = graph
+    (tmp_path / 'bag').mkdir()
+    proc = start_recorder(tmp_path / 'bag', env, ['odom'])
+    out, _ = proc.communicate(timeout=TIMEOUT_S)
+    assert proc.returncode == 2
+    assert 'exists already' in out

@@ -1,0 +1,199 @@
+"""Report metrics on a synthetic bag whose numbers are known in closed form.
+
+The plan is a minimum-jerk move x(t) = L (10 s^3 - 15 s^4 + 6 s^5), s = t / T, from (0, 0, 1) to
+(L, 0, 1); the vehicle flies the same move DELAY_S late (and hovers at both ends), so
+error(t) = x(t) - x(t - DELAY_S), and completion is DELAY_S after the plan itself first satisfies
+the completion rule.
+"""
+
+import json
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from quad_bringup.commands import report as report_command
+from quad_bringup.recorder import typestore
+from quad_bringup.report import Completion, closest_approach, compute_metrics, load_flight, write_report
+
+L_M, T_S, DELAY_S, T0_S, RATE_HZ = 2.0, 4.0, 0.5, 10.0, 100
+MISSED_WAYPOINT = (1.0, 0.03, 1.0)  # 3 cm beside the straight path
+
+
+def min_jerk(t):
+    s = np.clip(np.asarray(t, dtype=float) / T_S, 0, 1)
+    x = L_M * (10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5)
+    v = L_M / T_S * (30 * s ** 2 - 60 * s ** 3 + 30 * s ** 4)
+    a = L_M / T_S ** 2 * (60 * s - 180 * s ** 2 + 120 * s ** 3)
+    return x, v, a
+
+
+def stamp(ts, t_s):
+    ns = int(round(t_s * 1e9))
+    return ts.types['builtin_interfaces/msg/Time'](sec=ns // 10 ** 9, nanosec=ns % 10 ** 9)
+
+
+def make_bag(path, storage=StoragePlugin.MCAP, end_s=T0_S + T_S + 2.0, collision_at_s=None):
+    ts = typestore()
+    M = ts.types
+    v3 = M['geometry_msgs/msg/Vector3']
+    quat = M['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0)
+    header = M['std_msgs/msg/Header']
+    point, pose = M['geometry_msgs/msg/Point'], M['geometry_msgs/msg/Pose']
+    pose_stamped = M['geometry_msgs/msg/PoseStamped']
+    twist = M['geometry_msgs/msg/Twist']
+
+    def traj_point(t):
+        x, v, a = min_jerk(t)
+        tf = M['geometry_msgs/msg/Transform'](translation=v3(x=float(x), y=0.0, z=1.0), rotation=quat)
+        ns = int(round(t * 1e9))
+        return M['trajectory_msgs/msg/MultiDOFJointTrajectoryPoint'](
+            transforms=[tf], velocities=[twist(linear=v3(x=float(v), y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=0.0))],
+            accelerations=[twist(linear=v3(x=float(a), y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=0.0))],
+            time_from_start=M['builtin_interfaces/msg/Duration'](sec=ns // 10 ** 9, nanosec=ns % 10 ** 9))
+
+    traj = M['trajectory_msgs/msg/MultiDOFJointTrajectory'](
+        header=header(stamp=stamp(ts, T0_S), frame_id='map'), joint_names=['base_link'],
+        points=[traj_point(k / RATE_HZ) for k in range(int(T_S * RATE_HZ) + 1)])
+    waypoints = M['nav_msgs/msg/Path'](header=header(stamp=stamp(ts, T0_S), frame_id='map'), poses=[
+        pose_stamped(header=header(stamp=stamp(ts, T0_S), frame_id='map'),
+                     pose=pose(position=point(x=float(w[0]), y=float(w[1]), z=float(w[2])), orientation=quat))
+        for w in [(0, 0, 1), MISSED_WAYPOINT, (L_M, 0, 1)]])
+    marker = M['visualization_msgs/msg/Marker']
+    box = marker(header=header(stamp=stamp(ts, T0_S), frame_id='map'), ns='obstacles', id=0, type=1, action=0,
+                 pose=pose(position=point(x=1.0, y=0.6, z=1.0), orientation=quat), scale=v3(x=0.4, y=0.4, z=2.0),
+                 color=M['std_msgs/msg/ColorRGBA'](r=0.5, g=0.5, b=0.5, a=0.5),
+                 lifetime=M['builtin_interfaces/msg/Duration'](sec=0, nanosec=0), frame_locked=False, points=[],
+                 colors=[], texture_resource='', texture=M['sensor_msgs/msg/CompressedImage'](
+                     header=header(stamp=stamp(ts, 0), frame_id=''), format='', data=np.zeros(0, np.uint8)),
+                 uv_coordinates=[], text='', mesh_resource='',
+                 mesh_file=M['visualization_msgs/msg/MeshFile'](filename='', data=np.zeros(0, np.uint8)),
+                 mesh_use_embedded_materials=False)
+    markers = M['visualization_msgs/msg/MarkerArray'](markers=[box])
+    cov9, cov36 = np.zeros(9), np.zeros(36)
+
+    def odom(t):
+        x, v, _ = min_jerk(t - T0_S - DELAY_S)
+        return M['nav_msgs/msg/Odometry'](
+            header=header(stamp=stamp(ts, t), frame_id='map'), child_frame_id='base_link',
+            pose=M['geometry_msgs/msg/PoseWithCovariance'](pose=pose(position=point(x=float(x), y=0.0, z=1.0),
+                                                                     orientation=quat), covariance=cov36),
+            twist=M['geometry_msgs/msg/TwistWithCovariance'](
+                twist=twist(linear=v3(x=float(v), y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=0.0)), covariance=cov36))
+
+    def command(t):
+        return M['sensor_msgs/msg/Imu'](header=header(stamp=stamp(ts, t), frame_id='base_link'), orientation=quat,
+                                        orientation_covariance=cov9, angular_velocity=v3(x=0.0, y=0.0, z=0.0),
+                                        angular_velocity_covariance=cov9,
+                                        linear_acceleration=v3(x=0.0, y=0.0, z=9.81),
+                                        linear_acceleration_covariance=cov9)
+
+    with Writer(path, version=9, storage_plugin=storage) as writer:
+        conns = {name: writer.add_connection(name, msgtype, typestore=ts) for name, msgtype in [
+            ('trajectory', 'trajectory_msgs/msg/MultiDOFJointTrajectory'),
+            ('trajectory/waypoints', 'nav_msgs/msg/Path'),
+            ('trajectory/markers', 'visualization_msgs/msg/MarkerArray'), ('odom', 'nav_msgs/msg/Odometry'),
+            ('cmd/attitude_thrust', 'sensor_msgs/msg/Imu'), ('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray')]}
+
+        def write(topic, t, msg):
+            writer.write(conns[topic], int(t * 1e9), ts.serialize_cdr(msg, conns[topic].msgtype))
+
+        write('trajectory', T0_S - 1, traj)
+        write('trajectory/waypoints', T0_S - 1, waypoints)
+        write('trajectory/markers', T0_S - 1, markers)
+        for k in range(int((T0_S - 1) * RATE_HZ), int(round(end_s * RATE_HZ)) + 1):
+            write('odom', k / RATE_HZ, odom(k / RATE_HZ))
+            write('cmd/attitude_thrust', k / RATE_HZ, command(k / RATE_HZ))
+        if collision_at_s is not None:
+            kv = M['diagnostic_msgs/msg/KeyValue']
+            status = M['diagnostic_msgs/msg/DiagnosticStatus'](
+                level=2, name='sim_node: collision', message='hit obstacle 0', hardware_id='',
+                values=[kv(key='time_s', value=str(collision_at_s)), kv(key='x', value='1.0')])
+            write('diagnostics', collision_at_s, M['diagnostic_msgs/msg/DiagnosticArray'](
+                header=header(stamp=stamp(ts, collision_at_s), frame_id=''), status=[status]))
+    return path
+
+
+def expected_completion_s(rule=None):
+    """First plan time (on the 100 Hz grid) within tolerance of the end at low speed, plus the delay."""
+    rule = rule or Completion()
+    t = np.arange(0, T_S + 1e-9, 1 / RATE_HZ)
+    x, v, _ = min_jerk(t)
+    ok = (np.abs(x - L_M) <= rule.position_tolerance_m) & (np.abs(v) <= rule.speed_tolerance_mps)
+    return t[np.argmax(ok)] + DELAY_S
+
+
+@pytest.mark.parametrize('storage', [StoragePlugin.MCAP, StoragePlugin.SQLITE3], ids=['mcap', 'sqlite3'])
+def test_metrics_match_closed_form(tmp_path, storage):
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag', storage)))
+    t_done = expected_completion_s()
+    t = np.arange(0, t_done + 1e-9, 1 / RATE_HZ)
+    err = min_jerk(t)[0] - min_jerk(t - DELAY_S)[0]
+    assert metrics['time_planned_s'] == pytest.approx(T_S)
+    assert metrics['time_actual_s'] == pytest.approx(t_done, abs=1e-9)
+    assert metrics['time_over_s'] == pytest.approx(t_done - T_S, abs=1e-9)
+    assert metrics['length_planned_m'] == pytest.approx(L_M)
+    assert metrics['length_actual_m'] == pytest.approx(min_jerk(t_done - DELAY_S)[0])
+    assert metrics['avg_velocity_mps'] == pytest.approx(min_jerk(t_done - DELAY_S)[0] / t_done)
+    assert metrics['rmse_m'] == pytest.approx(np.sqrt(np.mean(err ** 2)), rel=1e-6)
+    assert metrics['max_error_m'] == pytest.approx(np.max(err), rel=1e-6)
+    assert 0.45 < metrics['max_error_m'] < 0.47  # ~ peak speed 0.9375 m/s x 0.5 s
+    assert metrics['waypoint_miss_max_m'] == pytest.approx(0.03)
+    assert metrics['completed'] is True and metrics['collided'] is False
+    assert metrics['max_speed_mps'] == pytest.approx(1.875 * L_M / T_S, rel=1e-3)
+
+
+def test_tolerances_are_configurable(tmp_path):
+    rule = Completion(position_tolerance_m=0.1, speed_tolerance_mps=0.2)
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag')), rule)
+    assert metrics['time_actual_s'] == pytest.approx(expected_completion_s(rule), abs=1e-9)
+    assert metrics['time_actual_s'] < expected_completion_s()
+
+
+def test_unfinished_flight_counts_until_the_end_of_the_bag(tmp_path):
+    end_s = T0_S + 3.0
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag', end_s=end_s)))
+    assert metrics['completed'] is False
+    assert metrics['time_actual_s'] == pytest.approx(end_s - T0_S)
+    assert metrics['length_actual_m'] == pytest.approx(min_jerk(3.0 - DELAY_S)[0])
+
+
+def test_collision_from_diagnostics(tmp_path):
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag', collision_at_s=T0_S + 1.5)))
+    assert metrics['collided'] is True
+    assert metrics['completed'] is False
+    assert metrics['collision_time_s'] == pytest.approx(1.5)
+    assert metrics['errors'] == ['1.50 s sim_node: collision: hit obstacle 0']
+
+
+def test_closest_approach_uses_segments():
+    path = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    assert closest_approach(path, np.array([0.5, 0.2, 0])) == pytest.approx(0.2)
+    assert closest_approach(path, np.array([2.0, 0, 0])) == pytest.approx(1.0)
+
+
+def test_report_writes_metrics_markdown_and_figures(tmp_path):
+    bag = make_bag(tmp_path / 'run' / 'bag')
+    metrics = write_report(bag, tmp_path / 'run', extra={'mission': 'synthetic', 'controller': 'pd'})
+    on_disk = json.loads((tmp_path / 'run' / 'metrics.json').read_text())
+    assert on_disk == metrics
+    assert on_disk['mission'] == 'synthetic'
+    md = (tmp_path / 'run' / 'report.md').read_text()
+    assert 'Time planned (s)' in md and 'Avg. velocity (m/s)' in md and 'RMSE (m)' in md
+    figures = sorted(p.name for p in (tmp_path / 'run' / 'figures').glob('*.png'))
+    assert figures == ['commands.png', 'error_over_time.png', 'fig1_position_velocity.png', 'fig2_path_3d.png',
+                       'fig4_plane_views.png', 'fig5_axis_tracking.png']
+    assert all(f'figures/{name}' in md for name in figures)
+    assert all((tmp_path / 'run' / 'figures' / n).stat().st_size > 10_000 for n in figures)
+
+
+def test_report_command(tmp_path, capsys):
+    bag = make_bag(tmp_path / 'run' / 'bag')
+    parser = __import__('argparse').ArgumentParser()
+    report_command.add_arguments(parser)
+    assert report_command.run(parser.parse_args([str(bag)])) == 0
+    out = capsys.readouterr().out
+    metrics = json.loads((tmp_path / 'run' / 'metrics.json').read_text())
+    assert f'{metrics["time_actual_s"]:.2f}' in out
+    assert report_command.run(parser.parse_args([str(tmp_path / 'missing')])) == 2
+    assert 'no such directory' in capsys.readouterr().err
