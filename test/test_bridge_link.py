@@ -9,7 +9,7 @@ import threading
 
 import pytest
 from bridge_graph import Observer, Processes, free_udp_port
-from std_srvs.srv import SetBool
+from std_srvs.srv import SetBool, Trigger
 
 from quad_common.testing import isolated_domain
 
@@ -140,3 +140,20 @@ def test_garbage_and_foreign_traffic_leave_the_bridge_running(graph):
         positions = [p for _, p in observer.odom]
     assert all(math.isfinite(c) and abs(c) < 100.0 for p in positions for c in p), 'foreign or NaN telemetry used'
     assert observer.call('arm', SetBool.Request(data=True)).success  # still commanding its own vehicle
+
+
+def test_ardupilot_over_tcp(graph):
+    """ArduPilot SITL's transport: the vehicle listens on TCP, the bridge connects (config/bridge_ardupilot.yaml)."""
+    procs, observer = graph
+    port = free_udp_port()
+    procs.vehicle('ardupilot', f'tcpin:127.0.0.1:{port}')
+    observer.wait_for(lambda: 'ardupilot on tcpin' in procs.log('vehicle'), 'the vehicle to listen')
+    procs.bridge(f'tcp:127.0.0.1:{port}', autopilot='ardupilot')
+    observer.wait_for(lambda: observer.link()[1].get('mode') == 'LOITER', 'ArduPilot telemetry over TCP')
+    assert observer.link()[1]['autopilot'] == 'ArduPilot'
+    n = len(observer.odom)
+    observer.wait_for(lambda: len(observer.odom) > n + 20, 'odometry over TCP')
+    assert abs(observer.position()[2] - 1.0) < 0.1
+    result = observer.call('land', Trigger.Request())
+    assert result.success and result.message == 'mode LAND: MAV_RESULT_ACCEPTED'
+    observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle to land and disarm')
