@@ -6,6 +6,7 @@ import subprocess
 import sys
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import rclpy
@@ -16,6 +17,7 @@ from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common.conversions import stamp_to_s
+from quad_common.testing import isolated_domain
 
 ROOT = Path(__file__).resolve().parent.parent
 VEHICLE_FILE = str(ROOT / 'config' / 'vehicles' / 'px4_quad.yaml')
@@ -152,3 +154,16 @@ class Observer:
     def close(self):
         self.context.try_shutdown()
         self.thread.join(timeout=5)
+
+
+@contextmanager
+def running_graph(log_dir: Path):
+    """(Processes, Observer) in a ROS domain of their own; every process is stopped at the end."""
+    with isolated_domain() as (domain, env):
+        procs = Processes(env, log_dir)
+        observer = Observer(domain)
+        try:
+            yield procs, observer
+        finally:
+            procs.stop_all()
+            observer.close()

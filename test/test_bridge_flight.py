@@ -5,11 +5,10 @@ import math
 
 import numpy as np
 import pytest
-from bridge_graph import VEHICLE_FILE, Observer, Processes, free_udp_port
+from bridge_graph import VEHICLE_FILE, free_udp_port, running_graph
 from std_srvs.srv import SetBool
 
 from quad_common.conversions import stamp_to_s
-from quad_common.testing import isolated_domain
 
 WAYPOINTS = [(0.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 1.0, 1.3)]
 TRACKING_BOUND_M = 0.3
@@ -18,14 +17,8 @@ FINAL_MISS_M = 0.15
 
 @pytest.fixture
 def graph(tmp_path):
-    with isolated_domain() as (domain, env):
-        procs = Processes(env, tmp_path)
-        observer = Observer(domain)
-        try:
-            yield procs, observer
-        finally:
-            procs.stop_all()
-            observer.close()
+    with running_graph(tmp_path) as g:
+        yield g
 
 
 def _start_hovering_vehicle_in_offboard(procs, observer, flavour):

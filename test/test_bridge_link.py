@@ -8,10 +8,8 @@ import socket
 import threading
 
 import pytest
-from bridge_graph import Observer, Processes, free_udp_port
+from bridge_graph import free_udp_port, running_graph
 from std_srvs.srv import SetBool, Trigger
-
-from quad_common.testing import isolated_domain
 
 os.environ['MAVLINK20'] = '1'
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
@@ -19,14 +17,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 @pytest.fixture
 def graph(tmp_path):
-    with isolated_domain() as (domain, env):
-        procs = Processes(env, tmp_path)
-        observer = Observer(domain)
-        try:
-            yield procs, observer
-        finally:
-            procs.stop_all()
-            observer.close()
+    with running_graph(tmp_path) as g:
+        yield g
 
 
 class Relay:

@@ -6,24 +6,17 @@ import subprocess
 import sys
 
 import pytest
-from bridge_graph import Observer, Processes, free_udp_port, python_env
+from bridge_graph import free_udp_port, python_env, running_graph
 from sensor_msgs.msg import Imu
 
 from quad_common import rotations
 from quad_common.conversions import to_quaternion
-from quad_common.testing import isolated_domain
 
 
 @pytest.fixture
 def graph(tmp_path):
-    with isolated_domain() as (domain, env):
-        procs = Processes(env, tmp_path)
-        observer = Observer(domain)
-        try:
-            yield procs, observer
-        finally:
-            procs.stop_all()
-            observer.close()
+    with running_graph(tmp_path) as g:
+        yield g
 
 
 def _setpoint(q, f):

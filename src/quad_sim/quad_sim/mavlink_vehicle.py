@@ -68,6 +68,10 @@ class OnboardAutopilot:
             self.log.append((now_s, f'mode {mode}: {why}'))
 
     def on_attitude_target(self, q_ned, rates_frd, thrust, rates_ignored, now_s):
+        """Raises ValueError (setpoint ignored) on a zero or non-finite quaternion, thrust or rates."""
+        q_ned = rotations.normalize(q_ned)
+        if not math.isfinite(thrust) or not (rates_ignored or np.all(np.isfinite(rates_frd))):
+            raise ValueError(f'non-finite SET_ATTITUDE_TARGET: thrust {thrust}, rates {list(rates_frd)}')
         self.setpoint = (frames.quaternion_ned_to_enu(q_ned), float(thrust),
                          None if rates_ignored else frames.body_flu_frd(rates_frd))
         self.setpoint_time_s = now_s
@@ -223,20 +227,26 @@ class MavlinkVehicle:
             kind = msg.get_type()
             if kind == 'BAD_DATA' or getattr(msg, 'target_system', self.args.system_id) not in (0, self.args.system_id):
                 continue
-            now = self.now_s()
-            if kind == 'SET_ATTITUDE_TARGET':
-                rates_ignored = msg.type_mask & 7 == 7
-                self.autopilot.on_attitude_target(frames.from_mavlink_quaternion(msg.q),
-                                                  [msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate],
-                                                  msg.thrust, rates_ignored, now)
-            elif kind == 'COMMAND_LONG':
-                params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
-                result = self.autopilot.command(msg.command, params, self.sim.landed, now)
-                if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-                    self.set_interval(int(msg.param1), msg.param2)
-                self.conn.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
-            elif kind == 'TIMESYNC' and msg.tc1 == 0:
-                self.conn.mav.timesync_send(time.monotonic_ns(), msg.ts1)
+            try:
+                self.handle(msg, kind)
+            except (ValueError, TypeError, OverflowError) as exc:  # malformed fields (NaN mode numbers, ...)
+                print(f'mavlink_vehicle: {kind} ignored: {exc}', flush=True)
+
+    def handle(self, msg, kind):
+        now = self.now_s()
+        if kind == 'SET_ATTITUDE_TARGET':
+            rates_ignored = msg.type_mask & 7 == 7
+            self.autopilot.on_attitude_target(frames.from_mavlink_quaternion(msg.q),
+                                              [msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate],
+                                              msg.thrust, rates_ignored, now)
+        elif kind == 'COMMAND_LONG':
+            params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+            result = self.autopilot.command(msg.command, params, self.sim.landed, now)
+            if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+                self.set_interval(int(msg.param1), msg.param2)
+            self.conn.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+        elif kind == 'TIMESYNC' and msg.tc1 == 0:
+            self.conn.mav.timesync_send(time.monotonic_ns(), msg.ts1)
 
     def set_interval(self, msg_id, interval_us):
         entry = mavlink.mavlink_map.get(msg_id)
