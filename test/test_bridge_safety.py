@@ -8,6 +8,7 @@ import sys
 import pytest
 from bridge_graph import free_udp_port, python_env, running_graph
 from sensor_msgs.msg import Imu
+from std_srvs.srv import SetBool
 
 from quad_common import rotations
 from quad_common.conversions import to_quaternion
@@ -65,3 +66,23 @@ def test_bad_start_up_parameters_exit_2_naming_the_field(ros_env, param, value):
                          env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert param in out.stderr + out.stdout
+
+
+def test_signed_link(graph, tmp_path):
+    """A vehicle that accepts only signed messages obeys a bridge with its key and ignores one without."""
+    procs, observer = graph
+    key = tmp_path / 'signing.key'
+    key.write_text('a5' * 32)
+    port = free_udp_port()
+    procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=(0.0, 0.0, 0.0), extra=('--signing-key-file', str(key)))
+    procs.bridge(f'udpin:127.0.0.1:{port}', command_timeout_s=1.0)
+    observer.wait_for(lambda: observer.link()[0] == 'link up', 'the signed vehicle heard (unsigned bridge)')
+    answer = observer.call('arm', SetBool.Request(data=True))
+    assert not answer.success and 'no COMMAND_ACK' in answer.message
+    procs.stop('bridge')
+    with observer.lock:
+        observer.diagnostics.clear()
+    procs.bridge(f'udpin:127.0.0.1:{port}', command_timeout_s=1.0, signing_key_file=str(key))
+    observer.wait_for(lambda: observer.link()[0] == 'link up', 'the signed vehicle heard (signed bridge)')
+    answer = observer.call('arm', SetBool.Request(data=True))
+    assert answer.success, answer.message

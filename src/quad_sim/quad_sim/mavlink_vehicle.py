@@ -20,7 +20,7 @@ import numpy as np
 
 from quad_bridge import autopilot as ap
 from quad_bridge import frames
-from quad_bridge.link import RateMeter
+from quad_bridge.link import RateMeter, load_signing_key
 from quad_bridge.mavlink_client import mavlink, mavutil
 from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, State
@@ -190,6 +190,8 @@ class MavlinkVehicle:
         self.sim.armed = self.autopilot.armed
         self.conn = mavutil.mavlink_connection(args.url, source_system=args.system_id, source_component=1,
                                                autoreconnect=True, robust_parsing=True)
+        if args.signing_key_file:  # signs what it sends and accepts only messages signed with the same key
+            self.conn.setup_signing(load_signing_key(args.signing_key_file), sign_outgoing=True)
         self.intervals_s = dict(DEFAULT_INTERVALS_S)
         self.next_due_s = {}
         self.t0 = time.monotonic()
@@ -325,6 +327,7 @@ def build_parser():
     p.add_argument('--guided-timeout-s', type=float, default=3.0, help='ArduPilot GUID_TIMEOUT')
     p.add_argument('--physics-rate-hz', type=float, default=500.0)
     p.add_argument('--loop-rate-hz', type=float, default=100.0)
+    p.add_argument('--signing-key-file', default='', help='MAVLink 2 signing key (as the bridge\'s); empty: unsigned')
     p.add_argument('--duration-s', type=float, default=0.0, help='stop after this long (0: run until killed)')
     return p
 
