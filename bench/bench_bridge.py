@@ -19,6 +19,7 @@ from quad_common.testing import isolated_domain  # noqa: E402
 
 HOVER_THROTTLE = 0.5
 RUN_S = 4.0
+NAMESPACE = f'/bench_bridge_{os.getpid()}'  # no cross-talk even with a stray graph in the same domain
 
 
 class Listener:
@@ -65,12 +66,13 @@ def run(rate_hz, publish_hz, env, domain, python_path):
     listener = Listener()
     bridge = subprocess.Popen([sys.executable, '-m', 'quad_bridge.mavlink_bridge_node', '--ros-args',
                                '-p', f'fcu_url:=udpout:127.0.0.1:{listener.port}', '-p', f'setpoint_rate_hz:={rate_hz}',
-                               '-p', f'hover_throttle:={HOVER_THROTTLE}', '-p', 'autopilot:=px4'],
+                               '-p', f'hover_throttle:={HOVER_THROTTLE}', '-p', 'autopilot:=px4',
+                               '-r', f'__ns:={NAMESPACE}'],
                               env=dict(env, PYTHONPATH=python_path), stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
-    node = rclpy.create_node('bench_bridge', context=context)
+    node = rclpy.create_node('bench_bridge', namespace=NAMESPACE, context=context)
     pub = node.create_publisher(Imu, 'cmd/attitude_thrust', 10)
     published = {}
     try:

@@ -1,5 +1,6 @@
 """Helpers of the bridge graph tests: processes on loopback ports, and an in-process observer node."""
 
+import itertools
 import os
 import socket
 import subprocess
@@ -22,6 +23,7 @@ from quad_common.testing import isolated_domain
 ROOT = Path(__file__).resolve().parent.parent
 VEHICLE_FILE = str(ROOT / 'config' / 'vehicles' / 'px4_quad.yaml')
 WAIT_S = 90.0  # generous: a busy 2-core machine
+_GRAPHS = itertools.count()
 
 
 def free_udp_port() -> int:
@@ -37,12 +39,15 @@ def python_env(env):
 
 
 class Processes:
-    """Child processes with logs under log_dir; stop() ends each one it started."""
+    """Child processes with logs under log_dir; stop() ends each one it started. ROS nodes run in `namespace`,
+    so even a stray process left in the same ROS domain by someone else cannot cross-talk with the graph."""
 
-    def __init__(self, env, log_dir: Path):
-        self.env, self.log_dir, self.procs = python_env(env), log_dir, {}
+    def __init__(self, env, log_dir: Path, namespace: str):
+        self.env, self.log_dir, self.namespace, self.procs = python_env(env), log_dir, namespace, {}
 
     def start(self, name, args):
+        if '--ros-args' in args:
+            args = [*args, '-r', f'__ns:={self.namespace}']
         log = open(self.log_dir / f'{name}.log', 'w')
         self.procs[name] = subprocess.Popen([sys.executable, *args], env=self.env, stdout=log,
                                             stderr=subprocess.STDOUT, cwd=str(ROOT))
@@ -79,10 +84,10 @@ class Processes:
 class Observer:
     """Subscribes odom, diagnostics, control/reference, trajectory; calls the bridge's services."""
 
-    def __init__(self, domain_id):
+    def __init__(self, domain_id, namespace):
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node('bridge_test_observer', context=self.context)
+        self.node = rclpy.create_node('bridge_test_observer', namespace=namespace, context=self.context)
         self.lock = threading.Lock()
         self.odom, self.diagnostics, self.references, self.trajectory = [], {}, [], None
         self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
@@ -159,9 +164,10 @@ class Observer:
 @contextmanager
 def running_graph(log_dir: Path):
     """(Processes, Observer) in a ROS domain of their own; every process is stopped at the end."""
+    namespace = f'/bridge_test_{os.getpid()}_{next(_GRAPHS)}'
     with isolated_domain() as (domain, env):
-        procs = Processes(env, log_dir)
-        observer = Observer(domain)
+        procs = Processes(env, log_dir, namespace)
+        observer = Observer(domain, namespace)
         try:
             yield procs, observer
         finally:

@@ -11,7 +11,8 @@ from std_srvs.srv import SetBool
 from quad_common.conversions import stamp_to_s
 
 WAYPOINTS = [(0.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 1.0, 1.3)]
-TRACKING_BOUND_M = 0.3
+TRACKING_BOUND_M = 0.5   # max: a loaded machine's stalls show up here (a quiet one: < 0.1 m)
+RMS_BOUND_M = 0.15
 FINAL_MISS_M = 0.15
 
 
@@ -22,11 +23,13 @@ def graph(tmp_path):
 
 
 def _start_hovering_vehicle_in_offboard(procs, observer, flavour):
+    # Timeouts well above a busy 2-core machine's scheduling stalls (the defaults suit a real vehicle): the
+    # vehicle's COM_OF_LOSS_T, the bridge's stale-setpoint and the controller's stale-odometry limits.
     port = free_udp_port()
-    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=WAYPOINTS[0])
-    procs.bridge(f'udpin:127.0.0.1:{port}', autopilot='auto')
+    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=WAYPOINTS[0], extra=('--offboard-loss-s', '3.0'))
+    procs.bridge(f'udpin:127.0.0.1:{port}', autopilot='auto', setpoint_timeout_s=1.0)
     procs.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
-                               '-p', f'vehicle:={VEHICLE_FILE}', '-p', 'rate_hz:=50.0'])
+                               '-p', f'vehicle:={VEHICLE_FILE}', '-p', 'rate_hz:=50.0', '-p', 'odom_timeout_s:=1.0'])
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
     observer.wait_for(lambda: observer.references, 'the controller to hold position')
     result = observer.call('offboard', SetBool.Request(data=True))
@@ -61,6 +64,7 @@ def test_mission_through_the_bridge_is_tracked(graph, flavour):
         errors.append(float(np.linalg.norm(odom_p[k] - p)))
     print(f'{flavour}: max tracking error {max(errors):.3f} m, rms {math.sqrt(np.mean(np.square(errors))):.3f} m')
     assert max(errors) < TRACKING_BOUND_M
+    assert math.sqrt(np.mean(np.square(errors))) < RMS_BOUND_M
     assert np.linalg.norm(odom_p[-1] - WAYPOINTS[-1]) < FINAL_MISS_M
     values = observer.link()[1]
     assert values['losses'] == '0' and values['handler_errors'] == '0'

@@ -62,24 +62,28 @@ def test_link_loss_is_reported_and_recovered(graph):
     relay = Relay(bridge_port)
     try:
         procs.vehicle('px4', f'udpout:127.0.0.1:{relay.port}')
-        procs.bridge(f'udpin:127.0.0.1:{bridge_port}', link_timeout_s=1.0)
+        procs.bridge(f'udpin:127.0.0.1:{bridge_port}', link_timeout_s=2.5)  # 1 Hz heartbeats, jittery machine
         observer.wait_for(lambda: observer.link()[0] == 'link up', 'link up')
 
+        def count(key):
+            return int(observer.link()[1].get(key, 0))
+
+        losses, reconnects = count('losses'), count('reconnects')
         relay.cut.set()
         observer.wait_for(lambda: observer.link()[0] == 'link lost', 'the loss to be reported')
-        assert observer.link()[1]['losses'] == '1'
+        assert count('losses') > losses
         assert not observer.call('offboard', SetBool.Request(data=True)).success  # nothing commanded while lost
         relay.cut.clear()
         observer.wait_for(lambda: observer.link()[0] == 'link up', 'the link to come back')
-        assert observer.link()[1]['reconnects'] == '1'
+        assert count('reconnects') > reconnects
         n = len(observer.odom)
         observer.wait_for(lambda: len(observer.odom) > n + 10, 'odometry again')
 
+        losses, reconnects = count('losses'), count('reconnects')
         procs.stop('vehicle')  # the vehicle process itself goes away and comes back
-        observer.wait_for(lambda: observer.link()[0] == 'link lost', 'the loss of the stopped vehicle')
+        observer.wait_for(lambda: count('losses') > losses, 'the loss of the stopped vehicle')
         procs.vehicle('px4', f'udpout:127.0.0.1:{relay.port}')
-        observer.wait_for(lambda: observer.link()[1].get('reconnects') == '2', 'the restarted vehicle')
-        assert observer.link()[1]['losses'] == '2'
+        observer.wait_for(lambda: count('reconnects') > reconnects, 'the restarted vehicle')
         assert 'heartbeat lost' in procs.log('bridge') and 'reconnected' in procs.log('bridge')
     finally:
         relay.close()

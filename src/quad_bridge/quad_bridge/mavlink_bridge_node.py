@@ -89,7 +89,7 @@ def _validate(values):
                          f'{values["geofence_max_m"]} on every axis')
 
 
-class Vehicle:
+class VehicleStatus:
     """What we know about the target vehicle (written by the receive thread)."""
 
     def __init__(self):
@@ -111,7 +111,7 @@ class MavlinkBridge(Node):
         self.params = ParameterSet(self, PARAMS, validate=_validate)
         p = self.params
         key = load_signing_key(p['signing_key_file']) if p['signing_key_file'] else None
-        self.vehicle = Vehicle()
+        self.vehicle = VehicleStatus()
         if p['target_system']:
             self.vehicle.system = p['target_system']
         self.link = LinkState(p['link_timeout_s'])
