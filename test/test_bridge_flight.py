@@ -11,8 +11,10 @@ from std_srvs.srv import SetBool
 from quad_common.conversions import stamp_to_s
 
 WAYPOINTS = [(0.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 1.0, 1.3)]
-TRACKING_BOUND_M = 0.5   # max: a loaded machine's stalls show up here (a quiet one: < 0.1 m)
-RMS_BOUND_M = 0.15
+PATH_BOUND_M = 0.5       # distance of every flown point from the planned path (quiet machine: < 0.1 m)
+HOLD_BOUND_M = 0.05      # hovering in offboard before the start: thrust normalisation and frames
+TRACKING_BOUND_M = 1.0   # time-matched error: a loaded machine's stalls (the vehicle runs on the wall clock)
+                         # show up here as lag; a quiet machine stays below 0.1 m
 FINAL_MISS_M = 0.15
 
 
@@ -49,6 +51,9 @@ def test_mission_through_the_bridge_is_tracked(graph, flavour):
     observer.wait_for(lambda: observer.trajectory is not None, 'the trajectory')
     traj = observer.trajectory
     start_s = stamp_to_s(traj.header.stamp)
+    with observer.lock:
+        hold = [p for t, p in observer.odom if start_s - 1.0 <= t < start_s]
+    assert hold and max(np.linalg.norm(np.array(hold) - WAYPOINTS[0], axis=1)) < HOLD_BOUND_M
     end_s = start_s + stamp_to_s(traj.points[-1].time_from_start)
     observer.wait_for(lambda: observer.odom[-1][0] > end_s + 2.0, 'the end of the mission', 120.0)
 
@@ -57,14 +62,15 @@ def test_mission_through_the_bridge_is_tracked(graph, flavour):
         odom_p = np.array([p for _, p in observer.odom])
         refs = [(t, p) for t, p in observer.references if start_s <= t <= end_s + 2.0]
     assert len(refs) > 50, 'too few references during the mission'
-    errors = []
-    for t, p in refs:
-        k = int(np.searchsorted(odom_t, t))
-        k = min(max(k, 0), len(odom_t) - 1)
-        errors.append(float(np.linalg.norm(odom_p[k] - p)))
-    print(f'{flavour}: max tracking error {max(errors):.3f} m, rms {math.sqrt(np.mean(np.square(errors))):.3f} m')
-    assert max(errors) < TRACKING_BOUND_M
-    assert math.sqrt(np.mean(np.square(errors))) < RMS_BOUND_M
+    ref_t, ref_p = np.array([t for t, _ in refs]), np.array([p for _, p in refs])
+    k = np.clip(np.searchsorted(odom_t, ref_t), 0, len(odom_t) - 1)
+    errors = np.linalg.norm(odom_p[k] - ref_p, axis=1)
+    flown = odom_p[(odom_t >= start_s) & (odom_t <= end_s + 2.0)]
+    off_path = np.min(np.linalg.norm(flown[:, None, :] - ref_p[None, :, :], axis=2), axis=1)
+    print(f'{flavour}: tracking error max {errors.max():.3f} m, rms {math.sqrt(np.mean(errors ** 2)):.3f} m; '
+          f'distance from the path max {off_path.max():.3f} m')
+    assert off_path.max() < PATH_BOUND_M
+    assert errors.max() < TRACKING_BOUND_M
     assert np.linalg.norm(odom_p[-1] - WAYPOINTS[-1]) < FINAL_MISS_M
     values = observer.link()[1]
     assert values['losses'] == '0' and values['handler_errors'] == '0'
