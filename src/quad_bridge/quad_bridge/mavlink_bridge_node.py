@@ -144,11 +144,12 @@ class MavlinkBridge(Node):
         self.client = MavlinkClient(p['fcu_url'], p['source_system'], p['source_component'], self.on_mavlink,
                                     baud=p['baud'], signing_key=key)
         timers = MutuallyExclusiveCallbackGroup()
-        stream = MutuallyExclusiveCallbackGroup()
-        self.create_timer(1.0 / p['setpoint_rate_hz'], self.stream_tick, callback_group=stream)
         self.create_timer(1.0, self.heartbeat_tick, callback_group=timers)
         self.create_timer(0.05, self.link_tick, callback_group=timers)
         self.client.start()
+        self.stopping = threading.Event()
+        self.stream_thread = threading.Thread(target=self.stream_loop, name='setpoint-stream', daemon=True)
+        self.stream_thread.start()
         self.get_logger().info(f'{NAME}: {p["fcu_url"]}, autopilot {p["autopilot"]}, '
                                f'setpoints at {p["setpoint_rate_hz"]} Hz')
 
@@ -170,6 +171,24 @@ class MavlinkBridge(Node):
                                    f'({self.clamped} so far)', throttle_duration_sec=1.0)
         with self.lock:
             self.setpoint, self.setpoint_time_s = sp, self.now_s()
+
+    def stream_loop(self):
+        """stream_tick at setpoint_rate_hz in a thread of its own: a fixed rate that executor load cannot
+        stretch (rclpy timers share the executor with the subscription and the services); when late it
+        skips ahead instead of bursting."""
+        period_s = 1.0 / self.params['setpoint_rate_hz']
+        next_s = time.monotonic()
+        while not self.stopping.is_set():
+            try:
+                self.stream_tick()
+            except Exception as exc:  # never let the stream thread die silently
+                self.get_logger().error(f'setpoint stream: {exc!r}', throttle_duration_sec=1.0)
+            next_s += period_s
+            delay_s = next_s - time.monotonic()
+            if delay_s < -period_s:
+                next_s = time.monotonic()
+            elif delay_s > 0:
+                self.stopping.wait(delay_s)
 
     def stream_tick(self):
         """Re-send the newest valid setpoint; a stale stream stops and lands/holds the vehicle once."""
@@ -440,6 +459,8 @@ class MavlinkBridge(Node):
         self.diag_pub.publish(diagnostics.array(self.get_clock().now().to_msg(), [link, setpoints]))
 
     def destroy_node(self):
+        self.stopping.set()
+        self.stream_thread.join(timeout=2.0)
         self.client.close()
         super().destroy_node()
 
