@@ -89,6 +89,7 @@ class SimNode(Node):
                              initial_yaw=p['initial_yaw'], disturbances=profile, world=world,
                              robot_radius_m=p['robot_radius_m'], seed=p['seed'],
                              setpoint_timeout_s=p['setpoint_timeout_s'])
+        self.sim.warm_up()
         try:
             self.steps_per_period = self.sim.steps_in(p['lockstep_period_s'])
         except ValueError as exc:
