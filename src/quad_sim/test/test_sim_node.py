@@ -110,6 +110,9 @@ def _fly_once(steps=200, real_controller=False):
             traj_pub.publish(conversions.sampled_to_msg(_line_trajectory(), conversions.s_to_stamp(0.2)))
             procs.append(_start_sim(env, 'lockstep:=true', 'use_sim_time:=true',
                                     module='quad_control.position_controller_node'))
+            # the controller must have the (latched) trajectory before sim time reaches its start: the sim starts
+            # only once the controller's subscription is matched, and then needs a second to come up
+            graph.spin_until(lambda: traj_pub.get_subscription_count() >= 1)
         procs.append(_start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0'))
         try:
             graph.spin_until(lambda: len(graph.odom) >= steps)
