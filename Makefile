@@ -21,7 +21,7 @@ help:
 
 venv: $(VENV_STAMP)
 $(VENV_STAMP): requirements.txt requirements-ros-wheels.txt constraints.txt scripts/bootstrap-venv
-	scripts/bootstrap-venv
+	scripts/bootstrap-venv --if-changed
 	touch $@
 
 # --symlink-install: sources stay live, so only package metadata changes need a rebuild.

@@ -28,7 +28,8 @@ def graph(context):
         Node(package='quad_trajectory', executable='trajectory_node', name='trajectory_node', output='screen',
              parameters=[config('trajectory.yaml'), sim_time, {'mission_file': mission}]),
         Node(package='quad_control', executable='position_controller', name='position_controller', output='screen',
-             parameters=[config('control.yaml'), sim_time, {'controller': controller, 'lockstep': True}]),
+             parameters=[config('control.yaml'), sim_time,
+                         {'controller': controller, 'lockstep': True, 'wait_for_trajectory': True}]),
         Node(package='quad_sim', executable='sim_node', name='sim_node', output='screen',
              parameters=[config('sim.yaml'), sim_time, {'mode': 'lockstep', 'initial_position': first_waypoint}]),
     ]

@@ -102,7 +102,7 @@ def node_parameters(options: FlightOptions, mission) -> dict:
     params['trajectory_node']['mission_file'] = str(Path(options.mission).resolve())
     if options.speed_mps is not None:
         params['trajectory_node']['speed_mps'] = float(options.speed_mps)
-    params['position_controller'].update(controller=options.controller, lockstep=True)
+    params['position_controller'].update(controller=options.controller, lockstep=True, wait_for_trajectory=True)
     params['sim_node'].update(mode='lockstep', initial_position=[float(v) for v in mission.initial_position],
                               world=mission.world_path or '', robot_radius_m=float(mission.options.robot_radius_m))
     if options.vehicle is not None:

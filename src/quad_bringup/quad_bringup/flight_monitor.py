@@ -44,6 +44,7 @@ class FlightJudge:
 
     def set_trajectory(self, start_s, trajectory):
         self.start_s, self.trajectory = start_s, trajectory
+        self.arrival_s = self.rule.plan_arrival_s(trajectory)
 
     @property
     def planned_s(self):
@@ -64,10 +65,7 @@ class FlightJudge:
             self.verdict = Verdict(False, f'diverged at t = {elapsed:.2f} s: position error {self.error_m:.3f} m '
                                           f'> {self.divergence_m} m')
             return
-        final = self.trajectory.position[-1, :3]
-        done = (elapsed >= self.planned_s
-                and np.linalg.norm(position - final) <= self.rule.position_tolerance_m
-                and np.linalg.norm(velocity) <= self.rule.speed_tolerance_mps)
+        done = self.rule.done(elapsed, position, velocity, self.trajectory, self.arrival_s)
         if done and self.completed_at_s is None:
             self.completed_at_s = elapsed
         if self.completed_at_s is not None and elapsed >= self.completed_at_s + self.hold_after_completion_s:

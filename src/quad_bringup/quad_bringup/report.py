@@ -34,9 +34,25 @@ ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from r
 
 @dataclass(frozen=True)
 class Completion:
-    """The course simulator's completion rule (configurable)."""
+    """The course simulator's completion rule (configurable): the one definition that fly's live
+    verdict and the report's time_actual_s both use."""
     position_tolerance_m: float = 0.02
     speed_tolerance_mps: float = 0.03
+
+    def plan_arrival_s(self, trajectory) -> float:
+        """Time since the trajectory's start after which the plan itself stays within the tolerance
+        of its final point (so a loop that passes its end early is not 'complete' at take-off)."""
+        final = trajectory.position[-1, :3]
+        outside = np.linalg.norm(trajectory.position[:, :3] - final, axis=1) > self.position_tolerance_m
+        return float(trajectory.times_s[np.nonzero(outside)[0][-1] + 1] - trajectory.times_s[0]
+                     if np.any(outside) else 0.0)
+
+    def done(self, elapsed_s, position, velocity, trajectory, arrival_s):
+        """Completion test for one sample or arrays of them (positions/velocities on the last axis)."""
+        final = trajectory.position[-1, :3]
+        return ((np.asarray(elapsed_s) >= arrival_s)
+                & (np.linalg.norm(np.asarray(position) - final, axis=-1) <= self.position_tolerance_m)
+                & (np.linalg.norm(velocity, axis=-1) <= self.speed_tolerance_mps))
 
 
 @dataclass
@@ -143,14 +159,9 @@ def planned_position(flight: Flight, t_s) -> np.ndarray:
 
 def completion_time(flight: Flight, rule: Completion) -> float | None:
     """Absolute time of completion (see module docstring), or None."""
-    traj = flight.trajectory
-    final = traj.position[-1, :3]
-    outside = np.linalg.norm(traj.position[:, :3] - final, axis=1) > rule.position_tolerance_m
-    plan_arrival = flight.traj_start_s + (traj.times_s[np.nonzero(outside)[0][-1] + 1] - traj.times_s[0]
-                                          if np.any(outside) else 0.0)
-    done = ((flight.odom_t >= plan_arrival)
-            & (np.linalg.norm(flight.position - final, axis=1) <= rule.position_tolerance_m)
-            & (np.linalg.norm(flight.velocity, axis=1) <= rule.speed_tolerance_mps))
+    arrival_s = rule.plan_arrival_s(flight.trajectory)
+    done = rule.done(flight.odom_t - flight.traj_start_s, flight.position, flight.velocity, flight.trajectory,
+                     arrival_s)
     return float(flight.odom_t[np.argmax(done)]) if np.any(done) else None
 
 

@@ -38,6 +38,8 @@ SPECS = [
     Param('rate_hz', 100.0, 'control loop rate on the node clock; in lockstep 1 / sim lockstep_period_s',
           min=1.0, max=2000.0),
     Param('lockstep', False, 'compute the tick at t from the odometry stamped t (deferred until it arrives)'),
+    Param('wait_for_trajectory', False, 'lockstep: defer the ticks (so simulated time waits) until a trajectory '
+          'arrives; a late latched plan then never starts in the past'),
     Param('odom_timeout_s', 0.2, 'odometry older than this stops the setpoints (failsafe) and reports ERROR',
           min=0.001, max=10.0),
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file: mass, thrust range, max tilt',
@@ -137,6 +139,7 @@ class PositionControllerNode(Node):
         self.controller.reset()
         self.get_logger().info(f'trajectory: {len(traj.times_s)} samples, {traj.duration_s:.2f} s, '
                                f'starts at {start_s:.3f} s')
+        self._run_pending_tick()
 
     def _on_change(self, changed: dict):
         values = self.params.values
@@ -182,6 +185,8 @@ class PositionControllerNode(Node):
     def _run_pending_tick(self):
         """Lockstep: the pending tick at t runs as soon as the odometry stamped >= t is here."""
         if self.pending_tick_ns is None or self.odom is None or self.odom_fault is not None:
+            return
+        if self.trajectory is None and self.params['wait_for_trajectory']:
             return
         if self.odom[0] < self.pending_tick_ns:
             return

@@ -143,6 +143,8 @@ def validate_options(o: PlanOptions, vehicle: Vehicle | None = None) -> PlanOpti
 
 def merge_close_waypoints(waypoints, yaw):
     """Drop each waypoint closer than 1 mm to the previous kept one; returns (kept, yaw, merged reports)."""
+    if np.all(np.linalg.norm(np.diff(waypoints, axis=0), axis=1) >= MERGE_DISTANCE_M):
+        return waypoints, yaw, []
     keep, merged = [0], []
     for i in range(1, len(waypoints)):
         d = float(np.linalg.norm(waypoints[i] - waypoints[keep[-1]]))
@@ -183,10 +185,9 @@ def _limit_times(points, durations, o: PlanOptions, v_max, a_max):
     for _ in range(_LIMIT_ITERATIONS):
         traj = solve(points, T, o.method, o.waypoint_constraint)
         k = np.maximum(traj.segment_peaks(1) / v_max, np.sqrt(traj.segment_peaks(2) / a_max))
-        T = T * np.sqrt(np.maximum(k, 1e-3) / _LIMIT_TARGET)
+        T = T * np.sqrt(np.maximum(k, 1e-3))
     traj = solve(points, T, o.method, o.waypoint_constraint)
-    k = max(traj.max_speed() / v_max, np.sqrt(traj.max_acceleration() / a_max)) / _LIMIT_TARGET
-    return T * k
+    return T * max(traj.max_speed() / v_max, np.sqrt(traj.max_acceleration() / a_max))
 
 
 def _optimal_times(points, durations, o: PlanOptions):
@@ -213,11 +214,11 @@ def allocate_times(points, o: PlanOptions, vehicle: Vehicle | None = None) -> np
         return timing.proportional_allocation(points, o.speed_mps)
     T = timing.sqrt_allocation(points, o.speed_mps)
     if o.time_allocation == 'limits':
-        v_max = o.v_max_mps if o.v_max_mps is not None else timing.DEFAULT_V_MAX_MPS
+        v_max = _LIMIT_TARGET * (o.v_max_mps if o.v_max_mps is not None else timing.DEFAULT_V_MAX_MPS)
         if o.a_max_mps2 is not None:
-            a_max = o.a_max_mps2
+            a_max = _LIMIT_TARGET * o.a_max_mps2
         elif vehicle is not None:
-            a_max = timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
+            a_max = _LIMIT_TARGET * timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
         else:
             raise ValueError('time_allocation = limits needs limits.a_max_mps2 or a vehicle')
         return _limit_times(points, T, o, v_max, a_max)

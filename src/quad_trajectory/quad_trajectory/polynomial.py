@@ -11,7 +11,11 @@ from quad_common.sampled_trajectory import SampledTrajectory
 
 AXES = ('x', 'y', 'z', 'yaw')
 _PEAK_SAMPLES_PER_SEGMENT = 128
-_GAUSS_NODES, _GAUSS_WEIGHTS = roots_legendre(16)
+# arc length: composite Gauss-Legendre, 16 pieces x 5 nodes per segment (the speed |v| has kinks where v = 0)
+_PIECES = 16
+_NODES, _WEIGHTS = roots_legendre(5)
+_GAUSS_NODES = ((np.arange(_PIECES)[:, None] + 0.5 * (_NODES[None, :] + 1.0)) / _PIECES).reshape(-1)  # in [0, 1]
+_GAUSS_WEIGHTS = np.tile(_WEIGHTS / (2 * _PIECES), _PIECES)                                          # sum to 1
 
 
 def derivative_factors(n_coef: int, order: int) -> np.ndarray:
@@ -99,11 +103,11 @@ class PiecewisePolynomial:
         return float(self.segment_peaks(3).max())
 
     def segment_lengths(self) -> np.ndarray:
-        """Arc length of each segment (16-point Gauss-Legendre on the speed): (M,)."""
-        tau = 0.5 * self.durations_s[:, None] * (_GAUSS_NODES[None, :] + 1.0)
+        """Arc length of each segment (composite Gauss-Legendre on the speed): (M,)."""
+        tau = self.durations_s[:, None] * _GAUSS_NODES[None, :]
         seg = np.repeat(np.arange(self.n_segments)[:, None], _GAUSS_NODES.size, axis=1)
         speed = np.linalg.norm(self.evaluate_local(seg, tau, 1)[..., :3], axis=-1)
-        return 0.5 * self.durations_s * (speed @ _GAUSS_WEIGHTS)
+        return self.durations_s * (speed @ _GAUSS_WEIGHTS)
 
     def arc_length(self) -> float:
         return float(self.segment_lengths().sum())

@@ -1,0 +1,66 @@
+"""`quadflight plan MISSION.yaml --out traj.json [--csv RATE]`: plan only, no flight.
+
+The JSON is DESIGN.md section 6's layout ({"waypoints", "segments": [{"duration", "coefficients": {x, y, z, yaw}}]},
+coefficients in ascending powers of local time) plus the plan's options, merges and summary.
+"""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from quad_trajectory.mission import load_mission, plan_mission
+
+
+def add_arguments(parser):
+    parser.add_argument('mission', type=Path, help='mission YAML, e.g. config/missions/maze.yaml')
+    parser.add_argument('--out', type=Path, help='write the trajectory JSON here')
+    parser.add_argument('--csv', type=float, metavar='RATE',
+                        help='also write samples at RATE Hz next to --out (.csv): t, position, velocity, acceleration')
+    parser.add_argument('--speed', type=float, metavar='V', help='average speed in m/s (overrides the mission)')
+
+
+def write_csv(path: Path, trajectory, rate_hz: float):
+    t = trajectory.sample_times(rate_hz)
+    columns = [t[:, None]] + [trajectory.evaluate(t, order) for order in range(3)]
+    header = 't_s,' + ','.join(f'{q}_{a}' for q in ('pos', 'vel', 'acc') for a in ('x', 'y', 'z', 'yaw'))
+    np.savetxt(path, np.hstack(columns), delimiter=',', header=header, comments='', fmt='%.9g')
+
+
+def summary_table(result) -> str:
+    s = result.summary()
+    rows = [('segments', f'{s["segments"]}'), ('waypoints', f'{s["waypoints"]} ({s["merged_waypoints"]} merged)'),
+            ('time planned (s)', f'{s["time_planned_s"]:.3f}'), ('length planned (m)', f'{s["length_planned_m"]:.3f}'),
+            ('max speed (m/s)', f'{s["max_speed_mps"]:.3f}'),
+            ('max acceleration (m/s^2)', f'{s["max_acceleration_mps2"]:.3f}')]
+    width = max(len(k) for k, _ in rows)
+    return '\n'.join(f'{k:<{width}}  {v}' for k, v in rows)
+
+
+def run(args) -> int:
+    if args.csv is not None and args.out is None:
+        print('quadflight plan: --csv needs --out (the CSV goes next to it)', file=sys.stderr)
+        return 2
+    try:
+        mission = load_mission(args.mission)
+        result = plan_mission(mission, speed_mps=args.speed)
+        if args.csv is not None:
+            result.trajectory.sample_times(args.csv)   # validates the rate before anything is written
+    except ValueError as exc:
+        print(f'quadflight plan: {exc}', file=sys.stderr)
+        return 2
+    for m in result.merged:
+        print(f'note: {m}')
+    if result.inserted_points:
+        print(f'note: {result.inserted_points} points inserted to avoid obstacles')
+    print(summary_table(result))
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({'mission': str(args.mission), **result.to_dict()}))
+        print(f'wrote {args.out}')
+        if args.csv is not None:
+            csv_path = args.out.with_suffix('.csv')
+            write_csv(csv_path, result.trajectory, args.csv)
+            print(f'wrote {csv_path}')
+    return 0

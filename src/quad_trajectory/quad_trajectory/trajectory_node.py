@@ -1,0 +1,196 @@
+"""trajectory_node: plans a trajectory through waypoints and publishes it (DESIGN.md section 3).
+
+Plans at start from `mission_file` or the flat `waypoints` parameter, and again on every
+nav_msgs/Path on `waypoints`. A request that cannot be planned is refused with a logged error and an
+ERROR diagnostics status; the previous trajectory stays published (latched) and in force.
+"""
+
+import dataclasses
+import sys
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Path
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+from visualization_msgs.msg import MarkerArray
+
+from quad_common import diagnostics
+from quad_common.conversions import sampled_to_msg
+from quad_common.params import Param, ParameterSet
+from quad_common.vehicle import load_vehicle
+from quad_common.world import load_world
+from quad_trajectory import messages, planner, solver, timing
+from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SEED_CONTROL_POINTS, load_mission
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+PATH_RATE_HZ = 20.0   # trajectory/path and the marker line: for viewing, not for control
+DIAG_NAME = 'trajectory_node: trajectory'
+
+PARAMS = [
+    Param('mission_file', '', 'mission YAML (docs/missions.md); when set, its waypoints, options, vehicle and world '
+          'are used and the planning parameters below are ignored, except speed_mps', read_only=True),
+    Param('waypoints', Parameter.Type.DOUBLE_ARRAY, 'flat [x0, y0, z0, x1, y1, z1, ...] in metres (map frame); '
+          'planned at start when given'),
+    Param('yaw', [0.0], 'yaw (rad): one value, or one per waypoint'),
+    Param('method', 'minsnap', 'minimum-derivative order', choices=tuple(solver.ORDERS)),
+    Param('waypoint_constraint', 'continuity', 'continuity: smooth through waypoints; stop: at rest at each',
+          choices=solver.MODES),
+    Param('speed_mps', 0.0, 'average speed: total time = path length / speed; 0 = the mission\'s speed, or the '
+          'seed\'s 0.5 without a mission', min=0.0, max=100.0),
+    Param('time_allocation', 'sqrt', 'segment times', choices=timing.ALLOCATIONS),
+    Param('control_points', False, 'insert the seed\'s control points on every leg'),
+    Param('control_point_fractions', list(SEED_CONTROL_POINTS), 'where along each leg (0..1)', min=1e-3,
+          max=0.999),
+    Param('v_max_mps', 0.0, 'time_allocation limits: max speed; 0 = 2.0 m/s', min=0.0, max=100.0),
+    Param('a_max_mps2', 0.0, 'time_allocation limits: max acceleration; 0 = half the vehicle\'s spare thrust',
+          min=0.0, max=100.0),
+    Param('rho', 0.0, 'time_allocation optimal: weight of total time; 0 = 2r-1', min=0.0),
+    Param('sample_rate_hz', 100.0, 'rate of the points in `trajectory`', min=100.0, max=10000.0),
+    Param('start_delay_s', 1.0, 'trajectory start = node clock now + this', min=0.0, max=3600.0),
+    Param('frame_id', 'map', 'frame of every output'),
+    Param('vehicle_file', '', 'vehicle YAML for the limits; empty = config/vehicles/crazyflie.yaml', read_only=True),
+    Param('world_file', '', 'world (MEAM620/rotorpy JSON or YAML) to plan collision-free in; empty = none',
+          read_only=True),
+    Param('robot_radius_m', 0.0, 'robot radius for the collision check', min=0.0, max=10.0),
+    Param('avoid_collisions', True, 'insert points and replan until collision-free (else refuse)'),
+]
+
+
+class TrajectoryNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('trajectory_node', **kwargs)
+        self.params = ParameterSet(self, PARAMS, validate=self._check, on_change=self._replan_current)
+        self.mission = load_mission(self.params['mission_file']) if self.params['mission_file'] else None
+        if self.mission:
+            self.vehicle, self.world = self.mission.vehicle, self.mission.world
+        else:
+            self.vehicle = load_vehicle(self.params['vehicle_file'] or DEFAULT_VEHICLE_PATH)
+            self.world = load_world(self.params['world_file']) if self.params['world_file'] else None
+        planner.validate_options(self._options(), self.vehicle)
+        self.traj_pub = self.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
+        self.path_pub = self.create_publisher(Path, 'trajectory/path', LATCHED)
+        self.waypoints_pub = self.create_publisher(Path, 'trajectory/waypoints', LATCHED)
+        self.markers_pub = self.create_publisher(MarkerArray, 'trajectory/markers', LATCHED)
+        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', RELIABLE)
+        self.create_subscription(Path, 'waypoints', self._on_waypoints, RELIABLE)
+        self.result = None          # the plan in force
+        self.request = None         # (waypoints, yaw) of the plan in force
+        self.last_status = diagnostics.status(DIAG_NAME, diagnostics.WARN, 'no trajectory yet')
+        self.create_timer(1.0, self._publish_diagnostics)
+        if self.mission:
+            self._plan_and_publish(self.mission.waypoints, self.mission.yaw, raise_errors=True)
+        elif self.params['waypoints']:
+            flat = np.asarray(self.params['waypoints'], dtype=float)
+            if flat.size % 3:
+                raise ValueError(f'waypoints = {self.params["waypoints"]!r} must hold x, y, z per waypoint '
+                                 f'(a multiple of 3 numbers, got {flat.size})')
+            self._plan_and_publish(flat.reshape(-1, 3), self._yaw_param(), raise_errors=True)
+
+    # --- options ----------------------------------------------------------------------------
+    def _options(self, values=None) -> planner.PlanOptions:
+        v = values or self.params.values
+        if self.mission:
+            if v['speed_mps'] > 0:
+                return dataclasses.replace(self.mission.options, speed_mps=v['speed_mps'])
+            return self.mission.options
+        return planner.PlanOptions(
+            method=v['method'], waypoint_constraint=v['waypoint_constraint'],
+            speed_mps=v['speed_mps'] or planner.PlanOptions.speed_mps,
+            time_allocation=v['time_allocation'],
+            control_points=tuple(v['control_point_fractions']) if v['control_points'] else (),
+            v_max_mps=v['v_max_mps'] or None, a_max_mps2=v['a_max_mps2'] or None, rho=v['rho'] or None,
+            robot_radius_m=v['robot_radius_m'], avoid_collisions=v['avoid_collisions'])
+
+    def _check(self, values):
+        if not hasattr(self, 'vehicle'):   # start-up: the vehicle is checked once it is loaded
+            return
+        planner.validate_options(self._options(values), self.vehicle)
+
+    def _yaw_param(self):
+        yaw = self.params['yaw']
+        return yaw[0] if len(yaw) == 1 else yaw
+
+    # --- planning ---------------------------------------------------------------------------
+    def _on_waypoints(self, msg: Path):
+        try:
+            positions, yaw = messages.path_to_waypoints(msg)
+        except ValueError as exc:
+            self._refuse(str(exc))
+            return
+        self._plan_and_publish(positions, yaw if yaw is not None else self.params['yaw'][0])
+
+    def _replan_current(self, changed):
+        if self.request is not None:
+            self.get_logger().info(f'parameters {", ".join(changed)} changed: replanning')
+            self._plan_and_publish(*self.request)
+
+    def _plan_and_publish(self, waypoints, yaw, raise_errors=False):
+        try:
+            result = planner.plan(waypoints, yaw, self._options(), world=self.world, vehicle=self.vehicle)
+        except ValueError as exc:
+            if raise_errors:
+                raise
+            self._refuse(str(exc))
+            return
+        self.result, self.request = result, (waypoints, yaw)
+        for m in result.merged:
+            self.get_logger().warning(str(m))
+        self._publish(result)
+
+    def _refuse(self, reason):
+        kept = 'the previous trajectory stays in force' if self.result else 'no trajectory is in force'
+        self.get_logger().error(f'waypoints refused: {reason}; {kept}')
+        self.last_status = diagnostics.status(DIAG_NAME, diagnostics.ERROR, f'request refused: {reason}',
+                                              {'kept_previous': self.result is not None})
+        self._publish_diagnostics()
+
+    def _publish(self, result: planner.PlanResult):
+        frame = self.params['frame_id']
+        now = self.get_clock().now()
+        start = (now + Duration(nanoseconds=int(self.params['start_delay_s'] * 1e9))).to_msg()
+        traj = result.trajectory
+        self.traj_pub.publish(sampled_to_msg(traj.to_sampled(self.params['sample_rate_hz']), start, frame))
+        t_view = traj.sample_times(PATH_RATE_HZ)
+        view = traj.evaluate(t_view)
+        self.path_pub.publish(messages.poses_to_path(view[:, :3], view[:, 3], start, frame))
+        self.waypoints_pub.publish(messages.poses_to_path(result.waypoints, result.yaw, start, frame))
+        self.markers_pub.publish(messages.plan_markers(result.waypoints, result.world, view[:, :3], start, frame))
+        s = result.summary()
+        self.get_logger().info(
+            f'planned {s["segments"]} segments through {s["waypoints"]} waypoints: {s["time_planned_s"]:.2f} s, '
+            f'{s["length_planned_m"]:.2f} m, max speed {s["max_speed_mps"]:.2f} m/s, start at '
+            f'{start.sec}.{start.nanosec:09d}')
+        self.last_status = diagnostics.status(DIAG_NAME, diagnostics.OK, 'trajectory published',
+                                              {k: round(v, 4) if isinstance(v, float) else v for k, v in s.items()})
+        self._publish_diagnostics()
+
+    def _publish_diagnostics(self):
+        self.diag_pub.publish(diagnostics.array(self.get_clock().now().to_msg(), [self.last_status]))
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = TrajectoryNode()
+    except ValueError as exc:
+        rclpy.logging.get_logger('trajectory_node').error(str(exc))
+        rclpy.try_shutdown()
+        sys.exit(2)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
