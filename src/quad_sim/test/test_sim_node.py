@@ -110,9 +110,9 @@ def _fly_once(steps=200, real_controller=False):
             traj_pub.publish(conversions.sampled_to_msg(_line_trajectory(), conversions.s_to_stamp(0.2)))
             procs.append(_start_sim(env, 'lockstep:=true', 'use_sim_time:=true',
                                     module='quad_control.position_controller_node'))
-            # the controller must have the (latched) trajectory before sim time reaches its start: the sim starts
-            # only once the controller's subscription is matched, and then needs a second to come up
-            graph.spin_until(lambda: traj_pub.get_subscription_count() >= 1)
+            # the controller must have the (latched) trajectory before sim time reaches its start (0.2 s: a
+            # fraction of a wall second with the compiled sim): start the sim once its diagnostics say so
+            graph.spin_until(lambda: _controller_mode(graph) == 'hold (trajectory not started)')
         procs.append(_start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0'))
         try:
             graph.spin_until(lambda: len(graph.odom) >= steps)
@@ -123,6 +123,12 @@ def _fly_once(steps=200, real_controller=False):
             graph.close()
     assert 'lockstep: crazyflie' in log
     return np.array(graph.odom[:steps]), graph.clock
+
+
+def _controller_mode(graph):
+    modes = [kv.value for a in graph.diagnostics for st in a.status if st.name.startswith('position_controller')
+             for kv in st.values if kv.key == 'mode']
+    return modes[-1] if modes else None
 
 
 def test_lockstep_is_deterministic():
