@@ -34,10 +34,12 @@ def _kernel_sources_hash() -> str:
 
 
 def _cache_dir() -> str:
-    base = Path(os.environ.get('XDG_CACHE_HOME') or Path.home() / '.cache')
-    if not os.access(base, os.W_OK) and not (not base.exists() and os.access(base.parent, os.W_OK)):
-        base = Path(tempfile.gettempdir())
-    return str(base / 'quadflight' / f'numba-{_kernel_sources_hash()}')
+    base = Path(os.environ.get('XDG_CACHE_HOME') or Path.home() / '.cache') / 'quadflight'
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+    except OSError:  # no writable home: the temporary folder
+        base = Path(tempfile.gettempdir()) / 'quadflight'
+    return str(base / f'numba-{_kernel_sources_hash()}')
 
 
 if 'NUMBA_CACHE_DIR' not in os.environ and os.environ.get('NUMBA_DISABLE_JIT', '0') in ('', '0'):
