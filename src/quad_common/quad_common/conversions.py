@@ -113,12 +113,13 @@ def imu_to_setpoint(msg: Imu) -> AttitudeSetpoint:
 
 def _point(t_s, p, v, a) -> MultiDOFJointTrajectoryPoint:
     """p, v, a are (x, y, z, yaw) values and their derivatives."""
-    pt = MultiDOFJointTrajectoryPoint()
-    pt.transforms = [Transform(translation=to_vector3(p[:3]), rotation=to_quaternion(rotations.from_yaw(p[3])))]
-    pt.velocities = [Twist(linear=to_vector3(v[:3]), angular=Vector3(z=float(v[3])))]
-    pt.accelerations = [Twist(linear=to_vector3(a[:3]), angular=Vector3(z=float(a[3])))]
-    pt.time_from_start = s_to_duration(t_s)
-    return pt
+    p, v, a = (np.asarray(x, dtype=float).tolist() for x in (p, v, a))  # Python floats: cheap field checks
+    return MultiDOFJointTrajectoryPoint(
+        transforms=[Transform(translation=Vector3(x=p[0], y=p[1], z=p[2]),
+                              rotation=to_quaternion(rotations.from_yaw(p[3]).tolist()))],
+        velocities=[Twist(linear=Vector3(x=v[0], y=v[1], z=v[2]), angular=Vector3(z=v[3]))],
+        accelerations=[Twist(linear=Vector3(x=a[0], y=a[1], z=a[2]), angular=Vector3(z=a[3]))],
+        time_from_start=s_to_duration(t_s))
 
 
 def sampled_to_msg(traj: SampledTrajectory, start_stamp: Time, frame_id=WORLD_FRAME) -> MultiDOFJointTrajectory:
@@ -160,8 +161,7 @@ def reference_to_msg(ref: Reference, stamp: Time, frame_id=WORLD_FRAME) -> Multi
     msg.header.stamp = stamp
     msg.header.frame_id = frame_id
     msg.joint_names = [BODY_FRAME]
-    msg.points = [_point(0.0, np.append(ref.position, ref.yaw), np.append(ref.velocity, ref.yaw_rate),
-                         np.append(ref.acceleration, 0.0))]
+    msg.points = [_point(0.0, [*ref.position, ref.yaw], [*ref.velocity, ref.yaw_rate], [*ref.acceleration, 0.0])]
     return msg
 
 

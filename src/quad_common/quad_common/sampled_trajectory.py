@@ -26,6 +26,13 @@ def _quintic_coefficients(h, p0, v0, a0, p1, v1, a1):
     ], axis=-1)
 
 
+# d-th derivative of sum_m c_m s^m is sum_{m >= d} c_m m! / (m - d)! s^(m - d): factors and powers per (d, m)
+_ORDERS, _TERMS = np.arange(4)[:, None], np.arange(6)[None, :]
+_FACTORS = np.array([[float(np.prod(np.arange(m - d + 1, m + 1))) if m >= d else 0.0 for m in range(6)]
+                     for d in range(4)])
+_POWERS = np.maximum(_TERMS - _ORDERS, 0)
+
+
 class SampledTrajectory:
     """Samples t (N,), and per axis (x, y, z, yaw) position, velocity, acceleration (N, 4)."""
 
@@ -80,8 +87,17 @@ class SampledTrajectory:
         return out.reshape((order + 1,) + t.shape + (4,))
 
     def reference(self, t_s) -> Reference:
-        """The flat-output reference at one time."""
-        p, v, a, j = self.evaluate(float(t_s), order=3)
+        """The flat-output reference at one time (evaluate(t, 3) for a single t, without its array set-up:
+        the controller calls this every tick)."""
+        t, times = float(t_s), self.times_s
+        if t <= times[0] or t >= times[-1]:
+            p, v, a, j = np.zeros((4, 4))
+            p[:] = self.position[0] if t <= times[0] else self.position[-1]
+        else:
+            k = min(max(int(np.searchsorted(times, t, side='right')) - 1, 0), len(times) - 2)
+            h = times[k + 1] - times[k]
+            s = (t - times[k]) / h
+            p, v, a, j = (_FACTORS * s ** _POWERS) @ self._coef[k].T / (h ** np.arange(4))[:, None]
         return Reference(position=p[:3].copy(), velocity=v[:3].copy(), acceleration=a[:3].copy(),
                          jerk=j[:3].copy(), yaw=float(p[3]), yaw_rate=float(v[3]))
 

@@ -56,8 +56,10 @@ SPECS = [
           min=1e-4, max=1.0, read_only=True),
     Param('lockstep_timeout_s', 0.5, 'lockstep: wall time to wait for a setpoint before advancing anyway',
           min=0.001, max=60.0),
-    Param('odom_rate_hz', 100.0, 'realtime mode: odom, /clock and sensor rate (Hz)', min=1.0, max=1000.0,
+    Param('odom_rate_hz', 100.0, 'realtime mode: odom and /clock rate (Hz)', min=1.0, max=1000.0,
           read_only=True),
+    Param('sensor_rate_hz', 20.0, 'imu, rotor_speeds and /tf rate in sim time (Hz), at most the odom rate; '
+          '0: with every odom', min=0.0, max=1000.0, read_only=True),
     Param('disturbances', 'none', 'disturbance profile name in disturbances_file', read_only=True),
     Param('disturbances_file', 'config/disturbances.yaml', 'disturbance profiles file', read_only=True),
     Param('world', '', 'world file (boxes, JSON or YAML) for collisions; empty: none', read_only=True),
@@ -89,6 +91,7 @@ class SimNode(Node):
                              initial_yaw=p['initial_yaw'], disturbances=profile, world=world,
                              robot_radius_m=p['robot_radius_m'], seed=p['seed'],
                              setpoint_timeout_s=p['setpoint_timeout_s'])
+        self.sim.warm_up()
         try:
             self.steps_per_period = self.sim.steps_in(p['lockstep_period_s'])
         except ValueError as exc:
@@ -107,6 +110,7 @@ class SimNode(Node):
         self.create_service(Trigger, 'reset', self._on_reset)
         self._rotor_names = [f'rotor_{i}' for i in range(4)]
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._sensor_period_ns = int(round(1e9 / p['sensor_rate_hz'])) if p['sensor_rate_hz'] > 0 else 0
         self._reset_bookkeeping()
         self.get_logger().info(
             f'{p["mode"]}: {vehicle.name} at {list(p["initial_position"])}, {p["physics_rate_hz"]:g} Hz physics, '
@@ -123,6 +127,7 @@ class SimNode(Node):
         self.setpoints_received = 0
         self._events_reported = 0
         self._next_diagnostics_ns = 0
+        self._next_sensors_ns = 0
         self._wall_start_s = time.monotonic()
         self._sim_start_ns = self.sim.time_ns
 
@@ -159,10 +164,19 @@ class SimNode(Node):
     # --- outputs -----------------------------------------------------------------------------------------
 
     def publish_step(self):
-        """odom, /tf, imu, rotor_speeds and then /clock at the current sim time (contract order)."""
-        stamp = stamp_of(self.sim.time_ns)
-        state = self.sim.odometry_state()
-        self.odom_pub.publish(conversions.state_to_odometry(state, stamp))
+        """odom and then /clock at the current sim time (contract order); then, every 1 / sensor_rate_hz of sim
+        time, /tf, imu and rotor_speeds (after /clock: the controller's tick does not wait for them)."""
+        time_ns = self.sim.time_ns
+        stamp = stamp_of(time_ns)
+        self.odom_pub.publish(conversions.state_to_odometry(self.sim.odometry_state(), stamp))
+        self.clock_pub.publish(ClockMsg(clock=stamp))
+        if time_ns >= self._next_sensors_ns:
+            self._next_sensors_ns = time_ns + self._sensor_period_ns
+            self.publish_sensors(stamp)
+        if len(self.sim.events) > self._events_reported or time_ns >= self._next_diagnostics_ns:
+            self.publish_diagnostics()
+
+    def publish_sensors(self, stamp):
         truth = self.sim.state
         if self.tf_pub is not None:
             self.tf_pub.publish(TFMessage(transforms=[conversions.state_to_transform(truth, stamp)]))
@@ -170,9 +184,6 @@ class SimNode(Node):
         rotors = JointState(name=self._rotor_names, velocity=self.sim.rotor_speeds_radps.tolist())
         rotors.header.stamp = stamp
         self.rotor_pub.publish(rotors)
-        self.clock_pub.publish(ClockMsg(clock=stamp))
-        if len(self.sim.events) > self._events_reported or self.sim.time_ns >= self._next_diagnostics_ns:
-            self.publish_diagnostics()
 
     def publish_diagnostics(self):
         sim = self.sim

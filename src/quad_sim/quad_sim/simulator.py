@@ -2,8 +2,13 @@
 
 Time is kept in integer nanoseconds; `advance` runs a whole number of fixed physics steps. Every physics
 step the onboard autopilot turns the held setpoint into body moments with the seed's equation 6
-(quad_control.attitude.attitude_moments) and a collective thrust (specific force * mass), the mixer turns
+(quad_control.attitude.moments) and a collective thrust (specific force * mass), the mixer turns
 them into rotor speed commands (reporting saturation), and RK4 integrates the plant over the step.
+
+Speed: the step is compiled (quad_common.compiled). `quiet_steps` runs whole runs of steps in which
+nothing happens that needs bookkeeping (no saturation, floor, limit, collision suspicion, failsafe,
+gusts); it leaves the first step that does to `_physics_step`, which runs the same kernels one step at a
+time with the event logic around them. The result is the same either way.
 
 Failsafe (like PX4's / ArduPilot's setpoint-loss landing): when no setpoint arrived for
 setpoint_timeout_s, the autopilot levels (keeping the current yaw) and descends at failsafe_descent_mps,
@@ -21,18 +26,23 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_common import rotations
+from quad_common.compiled import float_array, njit
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, State
 from quad_common.vehicle import Vehicle
 from quad_common.world import World
-from quad_control.attitude import attitude_moments
+from quad_control.attitude import desired_rates, moments
 from quad_sim.disturbances import DisturbanceProfile, Gusts
-from quad_sim.mixer import Mixer
-from quad_sim.rigid_body import STATE_SIZE, RigidBody
+from quad_sim.mixer import Mixer, flag_names, rotor_commands
+from quad_sim.rigid_body import NO_FORCE, STATE_SIZE, RigidBody, rk4_step
 
 NON_FINITE, SPEED_LIMIT, BODY_RATE_LIMIT, FAR_FROM_REFERENCE = (
     'non_finite_state', 'speed_limit', 'body_rate_limit', 'far_from_reference')
 FAILSAFE_VELOCITY_GAIN = 2.0  # 1/s, vertical speed loop of the landing failsafe
 SATURATION_GAP_S = 0.1        # a saturation event is reported when saturation starts after this long without
+# the autopilot's input as the kernels take it: quaternion (4), collective thrust (N), desired body rates (3)
+SP_QUATERNION, SP_THRUST, SP_RATES, SP_SIZE = slice(0, 4), 4, slice(5, 8), 8
+# quiet_steps' limits: floor z, squared max speed, squared max body rate
+LIMIT_FLOOR, LIMIT_SPEED2, LIMIT_RATE2 = 0, 1, 2
 
 
 class SimulationStopped(RuntimeError):
@@ -89,16 +99,22 @@ class Simulator:
         self.failsafe_descent_mps = failsafe_descent_mps
         self.body = RigidBody(vehicle, self.profile.aerodynamics(vehicle))
         self.mixer = Mixer(vehicle)
-        self._inertia = vehicle.inertia_matrix
-        self._gains = vehicle.attitude_gains
+        self._inertia = float_array(vehicle.inertia_matrix)
+        self._kp = float_array(vehicle.attitude_gains.kp)
+        self._kd = float_array(vehicle.attitude_gains.kd)
+        self._limits = float_array([self.floor_z_m, max_speed_mps ** 2, max_body_rate_radps ** 2])
         self._collision_world = None
+        self._inflated_blocks = np.zeros((0, 6))  # lo x, y, z, hi x, y, z of each block grown by the radius
+        self._safe_bounds = float_array([-np.inf] * 3 + [np.inf] * 3)
         if world is not None:  # the floor is ground contact, not a collision: drop the bounds' lower face
             bounds = world.bounds.copy()
             bounds[4] -= 1e6
             self._collision_world = World(bounds, world.blocks, name=world.name)
             r = self.robot_radius_m
-            self._inflated_blocks = [tuple(b[0::2] - r) + tuple(b[1::2] + r) for b in world.blocks]
-            self._safe_bounds = tuple(world.bounds[0::2] + r) + tuple(world.bounds[1::2] - r)
+            self._inflated_blocks = float_array([tuple(b[0::2] - r) + tuple(b[1::2] + r) for b in world.blocks]
+                                                ).reshape(-1, 6)
+            self._safe_bounds = float_array(tuple(world.bounds[0::2] + r) + tuple(world.bounds[1::2] - r))
+        self._thrusts = np.empty(4)
         self.reset()
 
     @staticmethod
@@ -114,11 +130,11 @@ class Simulator:
         self.landed = bool(self.initial_position[2] <= self.floor_z_m)
         hover = math.sqrt(self.vehicle.hover_thrust_n / (4 * self.vehicle.k_eta))
         w0 = self.vehicle.rotor_speed_min_radps if self.landed else hover
-        self._x = [*map(float, self.initial_position), 0.0, 0.0, 0.0, *map(float, q0), 0.0, 0.0, 0.0, w0, w0, w0, w0]
+        self._x = float_array([*self.initial_position, 0.0, 0.0, 0.0, *q0, 0.0, 0.0, 0.0, w0, w0, w0, w0])
         assert len(self._x) == STATE_SIZE
-        self._w_cmd = [w0] * 4
+        self._w_cmd = np.full(4, w0)
         self.time_ns = 0
-        self._setpoint = AttitudeSetpoint(quaternion=q0, specific_force_mps2=GRAVITY_MPS2)
+        self._set_setpoint_vector(AttitudeSetpoint(quaternion=q0, specific_force_mps2=GRAVITY_MPS2))
         self._setpoint_time_ns = 0
         self.failsafe_active = False
         self.armed = True
@@ -133,7 +149,7 @@ class Simulator:
         self._rng_gusts = np.random.default_rng([self.seed, 0])
         self._rng_noise = np.random.default_rng([self.seed, 1])
         self._gusts = Gusts(self.profile, self.step_s, self._rng_gusts) if self.profile.has_gusts else None
-        self._wind = tuple(map(float, self.profile.wind_mps))
+        self._wind = float_array(self.profile.wind_mps).copy()
         self._history = deque()
 
     @property
@@ -197,12 +213,23 @@ class Simulator:
         """The autopilot's input, received now (sim time); held until the next one."""
         if not setpoint.is_finite():
             raise ValueError(f'setpoint must be finite, got {setpoint}')
-        self._setpoint = setpoint
+        self._set_setpoint_vector(setpoint)
         self._setpoint_time_ns = self.time_ns
         if self.failsafe_active:
             self.failsafe_active = False
             self.armed = True
             self._event('failsafe_cleared')
+
+    def _set_setpoint_vector(self, setpoint: AttitudeSetpoint):
+        self._setpoint = setpoint
+        self._setpoint_vector = self._autopilot_input(setpoint.quaternion, setpoint.specific_force_mps2,
+                                                      desired_rates(setpoint))
+
+    def _autopilot_input(self, quaternion, specific_force_mps2, rates_des=(0.0, 0.0, 0.0)) -> np.ndarray:
+        sp = np.empty(SP_SIZE)
+        sp[SP_QUATERNION], sp[SP_RATES] = quaternion, rates_des
+        sp[SP_THRUST] = max(specific_force_mps2, 0.0) * self.vehicle.mass_kg
+        return sp
 
     def check_tracking(self, reference_position, max_error_m: float):
         """Stops the run when the vehicle is farther than max_error_m from the reference position."""
@@ -228,8 +255,19 @@ class Simulator:
     def advance_steps(self, steps: int):
         if self.stopped is not None:
             raise self.stopped
-        for _ in range(steps):
-            self._physics_step()
+        while steps > 0:
+            if not self.failsafe_active and self.armed and not self.landed and self._gusts is None:
+                done = quiet_steps(self._x, self._w_cmd, self._setpoint_vector, steps, self.time_ns, self.step_ns,
+                                   self._setpoint_time_ns + self.setpoint_timeout_ns, self.step_s, self._wind,
+                                   self._kp, self._kd, self._inertia, self.mixer.params, self.body.params,
+                                   self._limits, self._safe_bounds, self._inflated_blocks)
+                if done:  # what _physics_step would have recorded for quiet steps
+                    self.time_ns += done * self.step_ns
+                    self.saturation, self.colliding = (), False
+                    steps -= done
+            if steps > 0:
+                self._physics_step()
+                steps -= 1
         if self.profile.odom_latency_s > 0:
             self._history.append((self.time_ns, self.state))
             oldest_needed_ns = self.time_ns - 2 * self.profile.odom_latency_s * 1e9
@@ -246,29 +284,27 @@ class Simulator:
             if self.landed and self.armed:
                 self.armed = False
                 self._event('disarmed')
-            sp = AttitudeSetpoint(quaternion=self._failsafe_quaternion, specific_force_mps2=min(max(
+            sp = self._autopilot_input(self._failsafe_quaternion, min(max(
                 GRAVITY_MPS2 + FAILSAFE_VELOCITY_GAIN * (-self.failsafe_descent_mps - x[5]),
                 0.5 * GRAVITY_MPS2), 1.5 * GRAVITY_MPS2))
         else:
-            sp = self._setpoint
+            sp = self._setpoint_vector
         if self.armed:
-            moments = attitude_moments(np.array(x[6:10]), np.array(x[10:13]), sp, self._gains, self._inertia)
-            w_cmd, flags = self.mixer.rotor_speeds(max(sp.specific_force_mps2, 0.0) * self.vehicle.mass_kg, moments)
+            flags = flag_names(command_rotors(x, sp, self._kp, self._kd, self._inertia, self.mixer.params,
+                                              self._thrusts, self._w_cmd))
         else:
-            w_cmd, flags = [self.mixer.speed_min_radps] * 4, ()
-        self._w_cmd = w_cmd
+            self._w_cmd[:], flags = self.mixer.speed_min_radps, ()
         self._note_saturation(flags)
         if self._gusts is not None:
-            self._wind = tuple(self.profile.wind_mps + self._gusts.step())
-        x = self.body.step(x, w_cmd, self.step_s, wind_world=self._wind)
+            self._wind = self.profile.wind_mps + self._gusts.step()
+        rk4_step(x, self._w_cmd, self.step_s, NO_FORCE, self._wind, self.body.params)
         self.time_ns += self.step_ns
         if x[2] <= self.floor_z_m:
             self._ground_contact(x)
         elif self.landed:
             self.landed = False
             self._event('takeoff', position=x[0:3])
-        self._x = x
-        total = sum(x)
+        total = float(x.sum())
         if not math.isfinite(total):
             self._stop(NON_FINITE, 'a state component is NaN or infinite')
         if x[3] * x[3] + x[4] * x[4] + x[5] * x[5] > self.max_speed_mps ** 2:
@@ -277,6 +313,14 @@ class Simulator:
             self._stop(BODY_RATE_LIMIT, f'body rate above {self.max_body_rate_radps} rad/s')
         if self._collision_world is not None:
             self._check_collision(x)
+
+    def warm_up(self):
+        """Loads (or, the first time, compiles) the step kernels now, on a throwaway copy of this simulator,
+        so that start-up pays for it rather than the first lockstep step."""
+        spare = Simulator(self.vehicle, physics_rate_hz=self.physics_rate_hz, initial_position=(0.0, 0.0, 1.0),
+                          disturbances=self.profile)
+        spare.advance_steps(1)
+        spare._physics_step()
 
     def _enter_failsafe(self):
         self.failsafe_active = True
@@ -288,8 +332,8 @@ class Simulator:
     def _ground_contact(self, x):
         """Keeps x on the floor; rests when the thrust's vertical part cannot lift the weight."""
         x[2] = self.floor_z_m
-        impact_mps = x[5]
-        qx, qy, qz, qw = x[6:10]
+        impact_mps = float(x[5])
+        qx, qy, qz, qw = x[6:10].tolist()
         lift_n = self.body.thrust_n(x) * (1 - 2 * (qx * qx + qy * qy))
         if lift_n <= self.vehicle.hover_thrust_n:
             if not self.landed:
@@ -328,6 +372,43 @@ class Simulator:
                                  detail or {}))
 
     def _stop(self, reason, detail):
-        self.stopped = SimulationStopped(reason, self.time_s, self._x[0:3], detail)
+        self.stopped = SimulationStopped(reason, self.time_s, self._x[0:3].copy(), detail)
         self._event('stopped', detail={'reason': reason, 'detail': detail})
         raise self.stopped
+
+
+@njit
+def command_rotors(x, setpoint, kp, kd, inertia, mixer_params, thrusts_out, w_cmd_out):
+    """The onboard autopilot: eq. 6 moments and the collective thrust, mixed into rotor commands; mixer flag bits."""
+    mx, my, mz = moments(x[6:10], x[10:13], setpoint[0:4], setpoint[5:8], kp, kd, inertia, False)
+    return rotor_commands(setpoint[4], mx, my, mz, mixer_params, thrusts_out, w_cmd_out)
+
+
+@njit
+def quiet_steps(x, w_cmd, setpoint, steps, time_ns, step_ns, failsafe_after_ns, step_s, wind, kp, kd, inertia,
+                mixer_params, body_params, limits, safe_bounds, inflated_blocks):
+    """Up to `steps` physics steps on x and w_cmd (in place) while each is quiet: no failsafe due, no mixer
+    saturation, above the floor, finite and within the speed and rate limits, not near an obstacle or the
+    world's bounds. A step that is not quiet is undone, and left to Simulator._physics_step. Returns the
+    number of steps done."""
+    x_before, w_before, thrusts = np.empty(17), np.empty(4), np.empty(4)
+    for i in range(steps):
+        if time_ns + i * step_ns > failsafe_after_ns:
+            return i
+        x_before[:] = x
+        w_before[:] = w_cmd
+        flags = command_rotors(x, setpoint, kp, kd, inertia, mixer_params, thrusts, w_cmd)
+        rk4_step(x, w_cmd, step_s, NO_FORCE, wind, body_params)
+        px, py, pz = x[0], x[1], x[2]
+        b = safe_bounds
+        suspect = not (b[0] < px < b[3] and b[1] < py < b[4] and pz < b[5])
+        for k in range(inflated_blocks.shape[0]):
+            lo_x, lo_y, lo_z, hi_x, hi_y, hi_z = inflated_blocks[k]
+            suspect = suspect or (lo_x < px < hi_x and lo_y < py < hi_y and lo_z < pz < hi_z)
+        if (flags != 0 or pz <= limits[LIMIT_FLOOR] or not math.isfinite(x.sum()) or suspect
+                or x[3] * x[3] + x[4] * x[4] + x[5] * x[5] > limits[LIMIT_SPEED2]
+                or x[10] * x[10] + x[11] * x[11] + x[12] * x[12] > limits[LIMIT_RATE2]):
+            x[:] = x_before
+            w_cmd[:] = w_before
+            return i
+    return steps

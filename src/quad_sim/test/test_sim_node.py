@@ -110,6 +110,9 @@ def _fly_once(steps=200, real_controller=False):
             traj_pub.publish(conversions.sampled_to_msg(_line_trajectory(), conversions.s_to_stamp(0.2)))
             procs.append(_start_sim(env, 'lockstep:=true', 'use_sim_time:=true',
                                     module='quad_control.position_controller_node'))
+            # the controller must have the (latched) trajectory before sim time reaches its start (0.2 s: a
+            # fraction of a wall second with the compiled sim): start the sim once its diagnostics say so
+            graph.spin_until(lambda: _controller_mode(graph) == 'hold (trajectory not started)')
         procs.append(_start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0'))
         try:
             graph.spin_until(lambda: len(graph.odom) >= steps)
@@ -122,6 +125,12 @@ def _fly_once(steps=200, real_controller=False):
     return np.array(graph.odom[:steps]), graph.clock
 
 
+def _controller_mode(graph):
+    modes = [kv.value for a in graph.diagnostics for st in a.status if st.name.startswith('position_controller')
+             for kv in st.values if kv.key == 'mode']
+    return modes[-1] if modes else None
+
+
 def test_lockstep_is_deterministic():
     first, clock = _fly_once()
     second, _ = _fly_once()
@@ -132,11 +141,18 @@ def test_lockstep_is_deterministic():
 
 
 def test_lockstep_with_the_real_position_controller_is_deterministic():
+    """This test's own odom subscriber is not in the lockstep loop: at the compiled sim's pace a busy machine can
+    make it miss samples that the publisher's depth-10 history no longer holds. So the runs are compared at every
+    stamp both received (bit for bit), which must be most of them."""
     first, _ = _fly_once(real_controller=True)
     second, _ = _fly_once(real_controller=True)
-    assert np.array_equal(first, second)
-    assert np.allclose(first[:, 0], np.arange(len(first)) * 0.01, atol=1e-12)
-    assert first[-1, 1] == pytest.approx(0.5, abs=0.1) and first[-1, 2] == pytest.approx(-0.3, abs=0.1)
+    ticks = [dict(zip(np.round(run[:, 0] * 100).astype(int), run)) for run in (first, second)]
+    common = sorted(set(ticks[0]) & set(ticks[1]))
+    assert len(common) >= 100
+    assert all(np.array_equal(ticks[0][k], ticks[1][k]) for k in common)
+    assert np.allclose(first[:, 0] * 100, np.round(first[:, 0] * 100), atol=1e-9)  # on the 10 ms grid
+    last = ticks[0][common[-1]]
+    assert last[1] == pytest.approx(0.5, abs=0.1) and last[2] == pytest.approx(-0.3, abs=0.1)
 
 
 def test_dead_controller_lets_the_failsafe_land():

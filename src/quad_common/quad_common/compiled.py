@@ -1,0 +1,68 @@
+"""`njit`: numba's nopython compiler for the per-physics-step kernels (eq. 6, mixer, RK4), or the identity.
+
+The kernels are plain Python over float64 arrays and scalars, so the same source runs compiled (numba
+installed: machine code, cached on disk so a new process loads instead of recompiling) or interpreted
+(numba missing, or NUMBA_DISABLE_JIT=1): one implementation of the physics either way.
+
+numba's cache checks only the file that defines a function, not the kernels it calls from other files
+(simulator.py inlines attitude.py, mixer.py and rigid_body.py). So the cache lives in a folder named by a
+hash of every kernel file of these packages (NUMBA_CACHE_DIR, unless set already): an edit anywhere
+recompiles instead of loading stale machine code.
+"""
+
+import hashlib
+import importlib.util
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+KERNEL_PACKAGES = ('quad_common', 'quad_control', 'quad_sim')
+
+
+def _kernel_sources_hash() -> str:
+    digest = hashlib.sha256()
+    for package in KERNEL_PACKAGES:
+        spec = importlib.util.find_spec(package)
+        for folder in (spec.submodule_search_locations or []) if spec else []:
+            for path in sorted(Path(folder).glob('*.py')):
+                text = path.read_bytes()
+                if b'@njit' in text:
+                    digest.update(path.name.encode() + text)
+    return digest.hexdigest()[:16]
+
+
+def _cache_dir() -> str:
+    base = Path(os.environ.get('XDG_CACHE_HOME') or Path.home() / '.cache') / 'quadflight'
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+    except OSError:  # no writable home: the temporary folder
+        base = Path(tempfile.gettempdir()) / 'quadflight'
+    return str(base / f'numba-{_kernel_sources_hash()}')
+
+
+if 'NUMBA_CACHE_DIR' not in os.environ and os.environ.get('NUMBA_DISABLE_JIT', '0') in ('', '0'):
+    try:
+        os.environ['NUMBA_CACHE_DIR'] = _cache_dir()
+    except OSError:  # unreadable sources or home: numba's default cache place (next to the sources)
+        pass
+
+try:
+    import numba
+except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
+    numba = None
+
+COMPILED = numba is not None
+
+
+def njit(function):
+    """Compile `function` with numba (nopython, cached, no GIL held) where numba is installed."""
+    if numba is None:
+        return function
+    return numba.njit(cache=True, nogil=True)(function)
+
+
+def float_array(values) -> np.ndarray:
+    """values as a C-contiguous float64 array (no copy when they already are one): the kernels' argument type."""
+    return np.ascontiguousarray(values, dtype=np.float64)
