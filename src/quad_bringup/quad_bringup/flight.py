@@ -220,8 +220,6 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
             monitor.close()
     pids = [p.pid for p in nodes + [recorder] if p.popen is not None]
     extra = {'mission': mission.name, 'controller': options.controller, 'speed_mps': options.speed_mps,
-             'time_allocation': options.time_allocation or mission.options.time_allocation,
-             'control_profile': str(options.control_profile) if options.control_profile else None,
              'outcome': reason.reason}
     try:
         metrics = write_report(run_dir / 'bag', run_dir, extra, options.rule)
