@@ -2,7 +2,10 @@
 
 Default: every mission in config/missions/ except long_100 at 0.5 m/s (its flight alone takes minutes),
 with pd (seed gains), pid and se3 at the seed's 0.5 m/s and at 2 m/s average, plus 2 m/s with the
-drag_wind disturbance profile. --quick: maze only. --all: everything. Prints one markdown section.
+drag_wind disturbance profile; plus the fast profile (config/control_fast.yaml, se3) at 2 m/s with and without
+drag_wind, planned with time_allocation limits where the mission file gives trajectory.limits (the sqrt profile at
+2 m/s exceeds the Crazyflie's tilt there; docs/quad_control.md "Tuning for speed").
+--quick: maze only. --all: everything. Prints one markdown section.
 """
 
 import argparse
@@ -16,8 +19,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 
 from quad_bringup.flight import CONTROLLERS, FlightOptions, fly  # noqa: E402
+from quad_trajectory.mission import load_mission  # noqa: E402
 
 SPEEDS = (0.5, 2.0)
+FAST_PROFILE = ROOT / 'config' / 'control_fast.yaml'
+
+
+def fast_allocation(mission) -> str | None:
+    """limits where the mission file gives trajectory.limits, else the mission's own allocation."""
+    return 'limits' if load_mission(mission).options.v_max_mps is not None else None
 
 
 def cases(args):
@@ -25,25 +35,34 @@ def cases(args):
     if args.quick:
         missions = [m for m in missions if m.stem == 'maze']
     for mission in missions:
+        if args.fast_only:
+            for disturbances in (None, 'drag_wind'):
+                yield mission, 'se3', 2.0, disturbances, FAST_PROFILE
+            continue
         for speed in SPEEDS:
             if mission.stem == 'long_100' and speed < 1.0 and not args.all:
                 continue
             for controller in CONTROLLERS:
-                yield mission, controller, speed, None
-        yield mission, 'se3' if args.quick else 'pd', 2.0, 'drag_wind'
+                yield mission, controller, speed, None, None
+        yield mission, 'se3' if args.quick else 'pd', 2.0, 'drag_wind', None
+        for disturbances in (None, 'drag_wind'):
+            yield mission, 'se3', 2.0, disturbances, FAST_PROFILE
 
 
-def run_case(mission, controller, speed, disturbances, out_root):
-    out = out_root / f'{mission.stem}-{controller}-{speed}-{disturbances or "none"}'
+def run_case(mission, controller, speed, disturbances, profile, out_root):
+    allocation = fast_allocation(mission) if profile else None
+    label = f'{controller} ({profile.stem}{", " + allocation if allocation else ""})' if profile else controller
+    out = out_root / f'{mission.stem}-{controller}-{speed}-{disturbances or "none"}-{profile.stem if profile else ""}'
     start = time.monotonic()
     result = fly(FlightOptions(mission=mission, controller=controller, speed_mps=speed, out=out,
-                               disturbances=disturbances, quiet=True), log=lambda line: None)
+                               disturbances=disturbances, control_profile=profile, time_allocation=allocation,
+                               quiet=True), log=lambda line: None)
     wall_s = time.monotonic() - start
     m = result.metrics or {}
-    return {'mission': mission.stem, 'controller': controller, 'speed': speed, 'disturbances': disturbances or 'none',
+    return {'mission': mission.stem, 'controller': label, 'speed': speed, 'disturbances': disturbances or 'none',
             'completed': result.exit_code == 0, 'reason': result.reason.splitlines()[0] if result.exit_code else '',
             'over_s': m.get('time_over_s'), 'rmse_m': m.get('rmse_m'), 'max_m': m.get('max_error_m'),
-            'actual_s': m.get('time_actual_s'), 'wall_s': wall_s}
+            'actual_s': m.get('time_actual_s'), 'avg_mps': m.get('avg_velocity_mps'), 'wall_s': wall_s}
 
 
 def fmt(value, spec):
@@ -54,6 +73,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument('--quick', action='store_true', help='the maze mission only')
     parser.add_argument('--all', action='store_true', help='also long_100 at 0.5 m/s')
+    parser.add_argument('--fast-only', action='store_true', help='only the fast profile rows (2 m/s)')
     parser.add_argument('--json', type=Path, help='also write the rows as JSON')
     args = parser.parse_args()
     rows = []
@@ -67,12 +87,13 @@ def main():
           f'Run: {"maze only (--quick)" if args.quick else "all missions"}'
           f'{"" if args.all else ", long_100 only at 2 m/s"}; goal at 2 m/s: RMSE < 2 cm (no disturbances), '
           '< 5 cm (drag_wind), time actual - planned < 0.3 s.\n')
-    print('| mission | controller | speed (m/s) | disturbances | completed | actual - planned (s) | RMSE (cm) '
-          '| max error (cm) | wall (s) | RTF |')
-    print('|---|---|---:|---|---|---:|---:|---:|---:|---:|')
+    print('| mission | controller | speed (m/s) | avg flown (m/s) | disturbances | completed | actual - planned (s) '
+          '| RMSE (cm) | max error (cm) | wall (s) | RTF |')
+    print('|---|---|---:|---:|---|---|---:|---:|---:|---:|---:|')
     for r in rows:
         rtf = r['actual_s'] / r['wall_s'] if r['actual_s'] else None
-        print(f'| {r["mission"]} | {r["controller"]} | {r["speed"]} | {r["disturbances"]} | '
+        print(f'| {r["mission"]} | {r["controller"]} | {r["speed"]} | {fmt(r["avg_mps"], ".2f")} | '
+              f'{r["disturbances"]} | '
               f'{"yes" if r["completed"] else "no: " + r["reason"][:60]} | {fmt(r["over_s"], ".3f")} | '
               f'{fmt(r["rmse_m"] and 100 * r["rmse_m"], ".2f")} | {fmt(r["max_m"] and 100 * r["max_m"], ".2f")} | '
               f'{r["wall_s"]:.1f} | {fmt(rtf, ".2f")} |')

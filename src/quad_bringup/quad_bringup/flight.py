@@ -5,6 +5,7 @@ The graph is the one sim.launch.py describes: trajectory_node, position_controll
 in a ROS domain of their own (quad_common.testing.isolated_domain, localhost discovery).
 """
 
+import dataclasses
 import datetime
 import json
 import signal
@@ -20,6 +21,7 @@ from quad_bringup.report import Completion, write_report
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.testing import isolated_domain
 from quad_common.yaml_io import load_yaml
+from quad_trajectory.timing import ALLOCATIONS as TIME_ALLOCATIONS
 
 CONTROLLERS = ('pd', 'pid', 'se3')
 EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -40,8 +42,9 @@ class MissionRefused(ValueError):
 @dataclass
 class FlightOptions:
     mission: Path
-    controller: str = 'pd'
+    controller: str | None = None         # None: the control profile's `controller`, else pd
     speed_mps: float | None = None
+    time_allocation: str | None = None    # overrides the mission's trajectory.time_allocation (e.g. limits)
     out: Path | None = None
     vehicle: Path | None = None
     disturbances: str | None = None
@@ -70,6 +73,9 @@ def validate(options: FlightOptions):
     """
     from quad_trajectory import mission as mission_module
 
+    if options.time_allocation is not None and options.time_allocation not in TIME_ALLOCATIONS:
+        raise MissionRefused(f'--time-allocation {options.time_allocation!r} refused: must be one of '
+                             f'{", ".join(TIME_ALLOCATIONS)}')
     if options.controller not in CONTROLLERS:
         raise MissionRefused(f'--controller {options.controller!r} refused: must be one of {", ".join(CONTROLLERS)}')
     if options.speed_mps is not None and not options.speed_mps > 0:
@@ -82,10 +88,37 @@ def validate(options: FlightOptions):
             raise MissionRefused(f'{name} {value}: no such file')
     try:
         mission = mission_module.load_mission(path)
-        mission_module.plan_mission(mission, speed_mps=options.speed_mps)
+        mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
     except (ValueError, KeyError, TypeError, OSError) as exc:
         raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
     return mission
+
+
+def plan_overrides(options: FlightOptions) -> dict:
+    return {} if options.time_allocation is None else {'time_allocation': options.time_allocation}
+
+
+def with_profile_controller(options: FlightOptions) -> FlightOptions:
+    """--controller if given, else the control profile's `controller`, else pd."""
+    if options.controller is not None:
+        return options
+    controller = 'pd'
+    if options.control_profile is not None and Path(options.control_profile).is_file():
+        profile = load_yaml(options.control_profile) or {}
+        controller = profile.get('position_controller', {}).get('ros__parameters', {}).get('controller', controller)
+    return dataclasses.replace(options, controller=controller)
+
+
+def write_flown_mission(options: FlightOptions, mission, path: Path) -> Path:
+    """The mission file with this flight's trajectory overrides, its file paths made absolute (so the
+    trajectory node plans exactly what was validated; kept in the run directory)."""
+    data = load_yaml(options.mission)
+    data['trajectory'] = {**(data.get('trajectory') or {}), **plan_overrides(options)}
+    for key, value in (('vehicle', mission.vehicle_path), ('world', mission.world_path)):
+        if value:
+            data[key] = str(Path(value).resolve())
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
 
 
 def node_parameters(options: FlightOptions, mission) -> dict:
@@ -145,8 +178,9 @@ class _Interrupt:
 
 def fly(options: FlightOptions, log=print) -> FlightResult:
     try:
+        options = with_profile_controller(options)
         mission = validate(options)
-    except MissionRefused as exc:
+    except (MissionRefused, ValueError) as exc:
         return FlightResult(EXIT_REFUSED, str(exc))
     run_dir = Path(options.out) if options.out else default_run_dir(mission.name, options.controller)
     if (run_dir / 'bag').exists():
@@ -156,6 +190,9 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
     except (ValueError, OSError) as exc:
         return FlightResult(EXIT_REFUSED, f'parameters: {exc}')
     run_dir.mkdir(parents=True, exist_ok=True)
+    if plan_overrides(options):
+        flown = write_flown_mission(options, mission, run_dir / 'mission.yaml')
+        params['trajectory_node']['ros__parameters']['mission_file'] = str(flown.resolve())
     params_file = run_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
     nodes = [processes.NodeProcess(name, module, ['--params-file', str(params_file)], run_dir / 'logs' / f'{name}.log')

@@ -45,6 +45,9 @@ class PositionGains:
     ki: np.ndarray = _axes([2.0, 2.0, 10.0])    # 1/s^3, used by pid only (stable while ki < kp kd)
     integral_limit_mps2: float = 2.0            # anti-windup: |ki_i * integral_i| <= this
     use_feedforward: bool = True                # reference acceleration in eq. 1, jerk in se3 rates
+    # Speed extensions (all off by default, so the defaults are the seed's controller; docs "Tuning for speed"):
+    attitude_lead_s: float = 0.0                # attitude from a_des + lead * jerk_T (thrust from a_des)
+    disturbance_time_constant_s: float = 0.0    # > 0: subtract the observed external acceleration (filtered)
 
 
 @dataclass
@@ -97,18 +100,33 @@ def desired_acceleration(state: State, ref: Reference, gains: PositionGains, int
     return acc
 
 
+def attitude_acceleration(acc_des, ref: Reference, gains: PositionGains) -> np.ndarray:
+    """The acceleration the attitude is computed from: a_des + lead * jerk_T.
+
+    The onboard eq. 6 with p_des = q_des = 0 follows an attitude step like kp / (s^2 + kd s + kp), i.e. with
+    a lag of about kd / kp (0.1 s with the seed's 3000 / 300): commanding the attitude that the plan needs
+    `lead` seconds later cancels it to first order (the thrust magnitude, which has no such lag, is not led).
+    """
+    if not gains.attitude_lead_s:
+        return acc_des
+    return acc_des + gains.attitude_lead_s * np.asarray(ref.jerk, dtype=float)
+
+
 def _clamp_thrust(thrust_n, limits: Limits, sat: Saturation) -> float:
     clamped = float(np.clip(thrust_n, limits.thrust_min_n, limits.thrust_max_n))
     sat.thrust = clamped != thrust_n
     return clamped
 
 
-def seed_setpoint(acc_des, yaw, yaw_rate, mass_kg: float, limits: Limits) -> tuple[AttitudeSetpoint, Saturation]:
-    """Eq. 2-5; roll/pitch scaled together so that their magnitude stays within the max tilt."""
+def seed_setpoint(acc_des, yaw, yaw_rate, mass_kg: float, limits: Limits,
+                  acc_attitude=None) -> tuple[AttitudeSetpoint, Saturation]:
+    """Eq. 2-5 (roll/pitch from acc_attitude if given, else acc_des); roll/pitch scaled together so that
+    their magnitude stays within the max tilt."""
     sat = Saturation()
     s, c = np.sin(yaw), np.cos(yaw)
-    roll = (acc_des[0] * s - acc_des[1] * c) / GRAVITY_MPS2
-    pitch = (acc_des[0] * c + acc_des[1] * s) / GRAVITY_MPS2
+    acc_att = acc_des if acc_attitude is None else acc_attitude
+    roll = (acc_att[0] * s - acc_att[1] * c) / GRAVITY_MPS2
+    pitch = (acc_att[0] * c + acc_att[1] * s) / GRAVITY_MPS2
     tilt = np.hypot(roll, pitch)
     if tilt > limits.max_tilt_rad:
         sat.tilt = True
@@ -119,10 +137,12 @@ def seed_setpoint(acc_des, yaw, yaw_rate, mass_kg: float, limits: Limits) -> tup
 
 
 def geometric_setpoint(acc_des, state: State, ref: Reference, mass_kg: float, limits: Limits,
-                       use_jerk: bool = True) -> tuple[AttitudeSetpoint, Saturation]:
-    """SE(3): desired body z along the desired force, clipped to the max tilt; Mellinger rate feed-forward."""
+                       use_jerk: bool = True, acc_attitude=None) -> tuple[AttitudeSetpoint, Saturation]:
+    """SE(3): desired body z along the desired force (of acc_attitude if given), clipped to the max tilt;
+    thrust = m (acc_des + g e3) . current body z; Mellinger rate feed-forward."""
     sat = Saturation()
-    force = mass_kg * (np.asarray(acc_des, dtype=float) + GRAVITY_MPS2 * E3)
+    thrust_force = mass_kg * (np.asarray(acc_des, dtype=float) + GRAVITY_MPS2 * E3)
+    force = mass_kg * (np.asarray(acc_des if acc_attitude is None else acc_attitude, dtype=float) + GRAVITY_MPS2 * E3)
     horizontal = np.hypot(force[0], force[1])
     vertical_min = horizontal / np.tan(limits.max_tilt_rad) if horizontal > 0 else 0.0
     if force[2] < vertical_min:  # too steep, or pointing down: keep the direction's azimuth, limit its tilt
@@ -139,7 +159,7 @@ def geometric_setpoint(acc_des, state: State, ref: Reference, mass_kg: float, li
     rot_des = np.column_stack([b1, b2, b3])
     x, y, z, w = state.quaternion  # third column of R(q)
     body_z = np.array([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)])
-    thrust_n = _clamp_thrust(float(force @ body_z), limits, sat)
+    thrust_n = _clamp_thrust(float(thrust_force @ body_z), limits, sat)
     rates = np.zeros(3)
     if use_jerk:
         h = mass_kg / np.linalg.norm(force) * np.asarray(ref.jerk, dtype=float)
@@ -181,9 +201,24 @@ class PositionController:
         self.name, self.gains, self.vehicle = name, gains, vehicle
         self.limits = limits or Limits.of(vehicle)
         self.integral_m_s = np.zeros(3)
+        self.disturbance_mps2 = np.zeros(3)
+        self._previous = None   # (velocity, body z, specific force commanded) of the previous step
 
     def reset(self):
         self.integral_m_s = np.zeros(3)
+        self.disturbance_mps2 = np.zeros(3)
+        self._previous = None
+
+    def _observe_disturbance(self, state: State, dt_s):
+        """External acceleration (drag, wind) seen over the last step, first-order filtered:
+        d = (v_k - v_k-1) / dt - (f_k-1 (b3_k-1 + b3_k) / 2 - g e3), the thrust being the commanded one."""
+        body_z = rotations.to_matrix(state.quaternion)[:, 2]
+        if self._previous is not None and dt_s > 0:
+            velocity, previous_z, force_mps2 = self._previous
+            raw = (state.velocity - velocity) / dt_s - (force_mps2 * 0.5 * (previous_z + body_z) - GRAVITY_MPS2 * E3)
+            tau = self.gains.disturbance_time_constant_s
+            self.disturbance_mps2 = self.disturbance_mps2 + dt_s / (tau + dt_s) * (raw - self.disturbance_mps2)
+        return body_z
 
     def _integrate(self, error_m, dt_s) -> bool:
         """Clamp anti-windup: |ki_i I_i| <= integral_limit_mps2; True if the clamp acted."""
@@ -200,14 +235,22 @@ class PositionController:
             raise ValueError(f'dt_s = {dt_s} must be finite and >= 0')
         check_finite(state, ref)
         mass_kg = self.vehicle.mass_kg
-        if self.name == 'se3':
-            return geometric_setpoint(desired_acceleration(state, ref, self.gains), state, ref, mass_kg, self.limits,
-                                      use_jerk=self.gains.use_feedforward)
         integral, windup = None, False
         if self.name == 'pid':
             windup = self._integrate(np.asarray(ref.position) - state.position, dt_s)
             integral = self.integral_m_s
-        sp, sat = seed_setpoint(desired_acceleration(state, ref, self.gains, integral), ref.yaw, ref.yaw_rate,
-                                mass_kg, self.limits)
+        acc = desired_acceleration(state, ref, self.gains, integral)
+        observing = self.gains.disturbance_time_constant_s > 0
+        if observing:
+            body_z = self._observe_disturbance(state, dt_s)
+            acc = acc - self.disturbance_mps2
+        acc_attitude = attitude_acceleration(acc, ref, self.gains)
+        if self.name == 'se3':
+            sp, sat = geometric_setpoint(acc, state, ref, mass_kg, self.limits, use_jerk=self.gains.use_feedforward,
+                                         acc_attitude=acc_attitude)
+        else:
+            sp, sat = seed_setpoint(acc, ref.yaw, ref.yaw_rate, mass_kg, self.limits, acc_attitude=acc_attitude)
         sat.integral = windup
+        if observing:
+            self._previous = (np.array(state.velocity, dtype=float), body_z, sp.specific_force_mps2)
         return sp, sat

@@ -54,6 +54,10 @@ SPECS = [
     Param('integral_limit_mps2', SEED.integral_limit_mps2, 'anti-windup clamp on ki * integral, per axis (m/s^2)',
           min=0.0, max=100.0),
     Param('use_feedforward', True, 'reference acceleration in eq. 1 and jerk-based body rates in se3'),
+    Param('attitude_lead_s', SEED.attitude_lead_s, 'attitude from a_des + lead * reference jerk, cancelling the '
+          'onboard attitude loop lag (about kd/kp of eq. 6 = 0.1 s); 0 = off (the seed)', min=0.0, max=1.0),
+    Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '
+          'external acceleration (drag, wind) subtracted from a_des; 0 = off (the seed)', min=0.0, max=10.0),
 ]
 
 
@@ -62,7 +66,9 @@ def gains_from(values: dict) -> PositionGains:
                          kd=np.array([values[f'kd_{a}'] for a in AXES], dtype=float),
                          ki=np.array([values[f'ki_{a}'] for a in AXES], dtype=float),
                          integral_limit_mps2=float(values['integral_limit_mps2']),
-                         use_feedforward=bool(values['use_feedforward']))
+                         use_feedforward=bool(values['use_feedforward']),
+                         attitude_lead_s=float(values['attitude_lead_s']),
+                         disturbance_time_constant_s=float(values['disturbance_time_constant_s']))
 
 
 def _stamp_ns(stamp) -> int:

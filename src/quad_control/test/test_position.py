@@ -253,3 +253,36 @@ def test_attitude_so3_error_agrees_with_euler_near_hover():
                                         attitude_error='so3'), 0, atol=1e-15)
     with pytest.raises(ValueError, match='quaternions'):
         attitude_moments(q, np.zeros(3), sp, AttitudeGains(), inertia, attitude_error='quaternions')
+
+
+@pytest.mark.parametrize('law', ['pd', 'se3'])
+def test_attitude_lead_tilts_by_lead_times_jerk_and_leaves_thrust(law):
+    ref = _ref(acceleration=(1.0, 0, 0), jerk=(4.0, 0, 0))
+    plain = PositionController(law, SEED, VEHICLE).update(_state(), ref, 0.01)[0]
+    led = PositionController(law, replace(SEED, attitude_lead_s=0.1), VEHICLE).update(_state(), ref, 0.01)[0]
+    pitch_plain, pitch_led = rotations.to_euler(plain.quaternion)[1], rotations.to_euler(led.quaternion)[1]
+    # the attitude is that of a_x = 1 + 0.1 * 4 = 1.4 m/s^2 instead of 1.0
+    expected = (1.4 / G, 1.0 / G) if law == 'pd' else (math.atan(1.4 / G), math.atan(1.0 / G))
+    assert (pitch_led, pitch_plain) == pytest.approx(expected, abs=1e-9)
+    assert led.specific_force_mps2 == pytest.approx(plain.specific_force_mps2, abs=1e-12)
+
+
+def test_disturbance_observer_converges_to_a_constant_external_acceleration():
+    """A level vehicle at hover thrust whose velocity grows by d dt per step: the observer estimates d (first
+    order, time constant tau), and the command then asks for -d on top of eq. 1."""
+    gains = replace(SEED, kp=np.zeros(3), kd=np.zeros(3), disturbance_time_constant_s=0.05)
+    ctl = PositionController('se3', gains, VEHICLE)
+    d, dt, v = np.array([0.6, -0.3, 0.0]), 0.01, np.zeros(3)
+    for _ in range(100):   # 1 s = 20 tau; the command is ignored (the plant is the scripted one)
+        sp, _ = ctl.update(_state(velocity=v), _ref(), dt)
+        thrust_before = ctl._previous[2]
+        v = v + d * dt + (thrust_before - G) * dt * np.array([0, 0, 1.0])
+    assert ctl.disturbance_mps2 == pytest.approx(d, abs=1e-6)
+    tilt_from_command = rotations.to_matrix(sp.quaternion)[:2, 2] * sp.specific_force_mps2
+    assert tilt_from_command == pytest.approx(-d[:2], abs=3e-3)  # thrust along the current (level) body z
+    ctl.reset()
+    assert not ctl.disturbance_mps2.any()
+
+
+def test_speed_extensions_are_off_by_default():
+    assert SEED.attitude_lead_s == 0.0 and SEED.disturbance_time_constant_s == 0.0

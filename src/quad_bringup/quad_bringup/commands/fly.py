@@ -3,15 +3,18 @@
 import sys
 from pathlib import Path
 
-from quad_bringup.flight import CONTROLLERS, FlightOptions, fly
+from quad_bringup.flight import CONTROLLERS, TIME_ALLOCATIONS, FlightOptions, fly
 from quad_bringup.report import Completion, metrics_table
 
 
 def add_arguments(parser):
     parser.add_argument('mission', help='mission YAML (waypoints, trajectory, world), e.g. config/missions/maze.yaml')
-    parser.add_argument('--controller', default='pd', choices=CONTROLLERS, help='position controller (default pd)')
+    parser.add_argument('--controller', choices=CONTROLLERS,
+                        help="position controller (default: the control profile's, else pd)")
     parser.add_argument('--speed', type=float, metavar='V',
                         help='average speed constant in m/s (overrides the mission)')
+    parser.add_argument('--time-allocation', choices=TIME_ALLOCATIONS,
+                        help="segment times (overrides the mission's; limits: within trajectory.limits)")
     parser.add_argument('--out', type=Path, help='run directory (default runs/<mission>-<controller>-<timestamp>)')
     parser.add_argument('--vehicle', type=Path, help='vehicle YAML for controller and simulator')
     parser.add_argument('--disturbances', metavar='PROFILE', help='simulator disturbance profile (e.g. drag_wind)')
@@ -28,6 +31,7 @@ def add_arguments(parser):
 
 def options_from(args) -> FlightOptions:
     return FlightOptions(mission=Path(args.mission), controller=args.controller, speed_mps=args.speed, out=args.out,
+                         time_allocation=args.time_allocation,
                          vehicle=args.vehicle, disturbances=args.disturbances, control_profile=args.control_profile,
                          rule=Completion(args.position_tolerance, args.speed_tolerance),
                          time_limit_factor=args.time_limit_factor, quiet=args.quiet)

@@ -1,0 +1,80 @@
+"""The flight loop without ROS, for tuning: quad_sim's Simulator + a quad_control PositionController at the
+controller rate, tracking the mission's plan sampled as the trajectory node publishes it.
+
+Same pieces and the same timing as the lockstep graph (at tick t_k the controller sees the odometry of t_k, its
+setpoint is held for one period), minus DDS, processes and the bag; the metrics come from the report's own
+`compute_metrics` on the simulated arrays, so the numbers are defined exactly as `quadflight fly` reports them.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from quad_bringup.report import Completion, Flight, compute_metrics
+from quad_common import rotations
+from quad_control.position import Limits, PositionController, PositionGains
+from quad_sim.disturbances import load_profile
+from quad_sim.simulator import SimulationStopped, Simulator
+from quad_trajectory.mission import load_mission, plan_mission
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+DISTURBANCES_FILE = REPO_ROOT / 'config' / 'disturbances.yaml'
+SAMPLE_RATE_HZ = 100.0   # config/trajectory.yaml sample_rate_hz
+
+
+@dataclass
+class LoopOptions:
+    controller: str = 'pd'
+    gains: PositionGains | None = None          # None: the seed's
+    speed_mps: float | None = None              # None: the mission's
+    plan_overrides: dict | None = None          # PlanOptions fields (e.g. time_allocation='limits')
+    disturbances: str = 'none'
+    rate_hz: float = 100.0
+    physics_rate_hz: float = 1000.0
+    time_limit_factor: float = 3.0
+    rule: Completion = Completion()
+
+
+def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
+    """Plans and flies one mission; returns the report's metrics (plus 'stopped' when the sim gave up)."""
+    options = options or LoopOptions()
+    mission = load_mission(mission_path)
+    plan = plan_mission(mission, speed_mps=options.speed_mps, **(options.plan_overrides or {}))
+    trajectory = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
+    profile = load_profile(DISTURBANCES_FILE, options.disturbances)
+    sim = Simulator(mission.vehicle, options.physics_rate_hz, initial_position=mission.initial_position,
+                    initial_yaw=float(trajectory.position[0, 3]), disturbances=profile, world=mission.world,
+                    robot_radius_m=mission.options.robot_radius_m)
+    controller = PositionController(options.controller, options.gains or PositionGains(), mission.vehicle,
+                                    Limits.of(mission.vehicle))
+    period_s = 1.0 / options.rate_hz
+    arrival_s = options.rule.plan_arrival_s(trajectory)
+    end_s = options.time_limit_factor * trajectory.duration_s + 10.0
+    times, positions, velocities, eulers = [], [], [], []
+    stopped = None
+    for k in range(int(end_s * options.rate_hz) + 1):
+        t_s = k * period_s
+        truth = sim.state
+        times.append(t_s)
+        positions.append(truth.position)
+        velocities.append(truth.velocity)
+        eulers.append(rotations.to_euler(truth.quaternion))
+        if options.rule.done(t_s, truth.position, truth.velocity, trajectory, arrival_s):
+            break
+        ref = trajectory.reference(min(t_s, trajectory.duration_s))
+        setpoint, _ = controller.update(sim.odometry_state(), ref, period_s if k else 0.0)
+        sim.set_setpoint(setpoint)
+        try:
+            sim.advance(period_s)
+        except SimulationStopped as exc:
+            stopped = str(exc)
+            break
+    collision = next((e.time_s for e in sim.events if e.kind == 'collision'), None)
+    flight = Flight(odom_t=np.array(times), position=np.array(positions), velocity=np.array(velocities),
+                    euler=np.array(eulers), traj_start_s=0.0, trajectory=trajectory, waypoints=plan.waypoints,
+                    collision_time_s=collision)
+    metrics = compute_metrics(flight, options.rule)
+    if stopped:
+        metrics['stopped'] = stopped
+    return metrics

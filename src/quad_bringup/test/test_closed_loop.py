@@ -1,0 +1,59 @@
+"""The ROS-free flight loop used for tuning, the fast profile it produced, and fly's profile/timing options."""
+
+import numpy as np
+import pytest
+
+from quad_bringup.closed_loop import LoopOptions, fly_offline
+from quad_bringup.flight import FlightOptions, MissionRefused, validate, with_profile_controller, write_flown_mission
+from quad_common.paths import resolve_config
+from quad_common.yaml_io import load_yaml
+from quad_control.position_controller_node import SPECS, gains_from
+from quad_trajectory.mission import load_mission, plan_mission
+
+FAST = resolve_config('config/control_fast.yaml')
+MAZE = resolve_config('config/missions/maze.yaml')
+
+
+def fast_profile():
+    values = {spec.name: spec.default for spec in SPECS}
+    values.update(load_yaml(FAST)['position_controller']['ros__parameters'])
+    return values['controller'], gains_from(values)
+
+
+def test_seed_pd_at_half_a_metre_per_second_tracks_to_millimetres():
+    m = fly_offline(MAZE, LoopOptions(speed_mps=0.5))
+    assert m['completed'] and not m['collided'] and m['rmse_m'] < 0.005
+
+
+def test_fast_profile_meets_the_2_mps_goal_where_the_seed_gains_do_not():
+    controller, gains = fast_profile()
+    fast = fly_offline(MAZE, LoopOptions(controller=controller, gains=gains, speed_mps=2.0))
+    seed = fly_offline(MAZE, LoopOptions(speed_mps=2.0))
+    assert fast['completed'] and fast['rmse_m'] < 0.02 and fast['time_over_s'] < 0.3
+    assert seed['rmse_m'] > 0.05 and seed['time_over_s'] > 0.3
+    windy = fly_offline(MAZE, LoopOptions(controller=controller, gains=gains, speed_mps=2.0,
+                                          disturbances='drag_wind'))
+    assert windy['completed'] and not windy['collided'] and windy['rmse_m'] < 0.05
+
+
+def test_profile_names_the_controller_unless_fly_is_told_one():
+    assert with_profile_controller(FlightOptions(MAZE, control_profile=FAST)).controller == 'se3'
+    assert with_profile_controller(FlightOptions(MAZE, controller='pid', control_profile=FAST)).controller == 'pid'
+    assert with_profile_controller(FlightOptions(MAZE)).controller == 'pd'
+
+
+def test_flown_mission_carries_the_time_allocation_and_plans_the_same(tmp_path):
+    figure8 = resolve_config('config/missions/figure8.yaml')
+    options = FlightOptions(figure8, controller='se3', speed_mps=2.0, time_allocation='limits')
+    mission = validate(options)
+    flown = load_mission(write_flown_mission(options, mission, tmp_path / 'mission.yaml'))
+    assert flown.options.time_allocation == 'limits' and flown.options.a_max_mps2 == 6.0
+    planned = plan_mission(flown, speed_mps=2.0).trajectory
+    expected = plan_mission(mission, speed_mps=2.0, time_allocation='limits').trajectory
+    assert np.allclose(planned.durations_s, expected.durations_s)
+    assert planned.max_acceleration() <= 6.0
+
+
+def test_unknown_time_allocation_refused_naming_it():
+    with pytest.raises(MissionRefused, match="--time-allocation 'fastest'"):
+        validate(FlightOptions(MAZE, controller='pd', time_allocation='fastest'))
