@@ -182,6 +182,7 @@ class MavlinkVehicle:
         self.sim = Simulator(load_vehicle(args.vehicle), physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
                              setpoint_timeout_s=1e6)
+        self.sim.warm_up()  # before the first heartbeat: compiling mid-flight would stall the link for seconds
         self.autopilot = OnboardAutopilot(args.autopilot, args.hover_throttle, guid_options=args.guid_options,
                                           offboard_loss_s=args.offboard_loss_s, guided_timeout_s=args.guided_timeout_s)
         if not self.sim.landed:  # starts in the air: armed, holding position (like sim_node starts hovering)
