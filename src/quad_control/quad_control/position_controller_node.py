@@ -21,6 +21,7 @@ from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import conversions, diagnostics, rotations
+from quad_common.hot_path import HotPathExecutor
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.types import Reference
@@ -105,13 +106,17 @@ class PositionControllerNode(Node):
         self.cmd_pub = self.create_publisher(Imu, 'cmd/attitude_thrust', reliable)
         self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, 'control/reference', reliable)
         self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', reliable)
-        self.create_subscription(Odometry, 'odom', self._on_odom, reliable)
+        self.odom_sub = self.create_subscription(Odometry, 'odom', self._on_odom, reliable)
         self.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_trajectory, latched)
         self.timer = self.create_timer(1.0 / self.params['rate_hz'], self._on_tick)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=self.steady)
         self.get_logger().info(f"{self.params['controller']} at {self.params['rate_hz']} Hz, "
                                f"lockstep={self.params['lockstep']}, vehicle {self.vehicle.name}")
+
+    def hot_entities(self):
+        """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom and the tick timer."""
+        return [s for s in self.subscriptions if s.topic_name == '/clock'] + [self.odom_sub], [self.timer]
 
     # --- inputs ---------------------------------------------------------------------------------
 
@@ -287,11 +292,14 @@ def main(args=None):
         rclpy.logging.get_logger(NODE_NAME).error(f'invalid start-up parameters: {exc}')
         rclpy.try_shutdown()
         sys.exit(2)
+    executor = HotPathExecutor(node.hot_entities)
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -17,7 +17,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -31,6 +31,7 @@ except ImportError:
     TFMessage = None
 
 from quad_common import conversions, diagnostics
+from quad_common.hot_path import HotPathExecutor
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
@@ -104,9 +105,11 @@ class SimNode(Node):
         self.imu_pub = self.create_publisher(Imu, 'imu', RELIABLE_10)
         self.rotor_pub = self.create_publisher(JointState, 'rotor_speeds', RELIABLE_10)
         self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', RELIABLE_10)
-        self.create_subscription(Imu, 'cmd/attitude_thrust', self._on_setpoint, RELIABLE_10)
+        self.hot_subscriptions = [self.create_subscription(Imu, 'cmd/attitude_thrust', self._on_setpoint, RELIABLE_10)]
         if p['max_tracking_error_m'] > 0:
-            self.create_subscription(MultiDOFJointTrajectory, 'control/reference', self._on_reference, RELIABLE_10)
+            self.hot_subscriptions.append(self.create_subscription(
+                MultiDOFJointTrajectory, 'control/reference', self._on_reference, RELIABLE_10))
+        self.hot_timers = []
         self.create_service(Trigger, 'reset', self._on_reset)
         self._rotor_names = [f'rotor_{i}' for i in range(4)]
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -262,7 +265,7 @@ class SimNode(Node):
         period_s = 1.0 / self.params['odom_rate_hz']
         self._last_wall_s = time.monotonic()
         self._target_ns = float(self.sim.time_ns)
-        self.create_timer(period_s, self._realtime_tick, clock=self._wall)
+        self.hot_timers.append(self.create_timer(period_s, self._realtime_tick, clock=self._wall))
         self.publish_step()
 
     def _realtime_tick(self):
@@ -288,7 +291,7 @@ def main(args=None):
         print(f'[{NAME}] refused to start: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(2)
-    executor = SingleThreadedExecutor()
+    executor = HotPathExecutor(lambda: (node.hot_subscriptions, node.hot_timers))
     executor.add_node(node)
     try:
         if node.params['mode'] == 'lockstep':
