@@ -67,13 +67,18 @@ def graph_rtf():
             if first[0] is not None and t > last[0]:
                 last[:] = t, time.perf_counter()
         node.create_subscription(DiagnosticArray, 'diagnostics', on_diagnostics, QoSProfile(depth=10))
-        procs = [subprocess.Popen([sys.executable, '-m', m, '--ros-args', *a], env=env, stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.DEVNULL) for m, a in (
-            ('quad_control.position_controller_node', ['-p', 'lockstep:=true', '-p', 'use_sim_time:=true']),
-            ('quad_sim.sim_node', ['-p', 'initial_position:=[0.0, 0.0, 1.0]']))]
         executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
         executor.add_node(node)
         deadline = time.monotonic() + 200
+        procs = []
+        for m, a in (('quad_sim.sim_node', ['-p', 'initial_position:=[0.0, 0.0, 1.0]']),
+                     ('quad_control.position_controller_node', ['-p', 'lockstep:=true', '-p', 'use_sim_time:=true'])):
+            procs.append(subprocess.Popen([sys.executable, '-m', m, '--ros-args', *a], env=env,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            # the sim holds t = 0 until a controller is up: start that once the bench sees the sim's diagnostics
+            # publisher, else a fast graph can fly the whole mission before the bench is matched
+            while not node.get_publishers_info_by_topic('diagnostics') and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.1)
         while last[0] < MISSION_S + 1.0 and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.5)
         wall = last[1] - first[1]

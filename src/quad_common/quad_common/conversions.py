@@ -59,18 +59,27 @@ def state_to_odometry(state: State, stamp: Time, frame_id=WORLD_FRAME, child_fra
     msg.child_frame_id = child_frame_id
     msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = map(float, state.position)
     msg.pose.pose.orientation = to_quaternion(state.quaternion)
-    v_body = rotations.to_matrix(state.quaternion).T @ state.velocity
-    msg.twist.twist = Twist(linear=to_vector3(v_body), angular=to_vector3(state.body_rates))
+    msg.twist.twist = Twist(linear=to_vector3(body_velocity(state)), angular=to_vector3(state.body_rates))
     return msg
+
+
+def body_velocity(state: State) -> np.ndarray:
+    """The odometry twist's linear part: v_body = R^T v_world."""
+    return rotations.to_matrix(state.quaternion).T @ state.velocity
 
 
 def odometry_to_state(msg: Odometry) -> State:
     """Inverse of state_to_odometry: the body-frame twist is rotated back into the world frame."""
     p = msg.pose.pose.position
-    q = rotations.normalize(quat(msg.pose.pose.orientation))
-    v_body = vec3(msg.twist.twist.linear)
-    return State(position=np.array([p.x, p.y, p.z]), velocity=rotations.to_matrix(q) @ v_body,
-                 quaternion=q, body_rates=vec3(msg.twist.twist.angular))
+    return odometry_values_to_state((p.x, p.y, p.z), quat(msg.pose.pose.orientation), vec3(msg.twist.twist.linear),
+                                    vec3(msg.twist.twist.angular))
+
+
+def odometry_values_to_state(position, quaternion, v_body, body_rates) -> State:
+    """odometry_to_state on the fields' values (also what quad_common.cdr decodes)."""
+    q = rotations.normalize(quaternion)
+    return State(position=np.array(position, dtype=float), velocity=rotations.to_matrix(q) @ np.asarray(v_body),
+                 quaternion=q, body_rates=np.array(body_rates, dtype=float))
 
 
 # --- attitude/thrust setpoint (sensor_msgs/Imu used as a setpoint) ---------------------------
@@ -90,23 +99,31 @@ def setpoint_to_imu(sp: AttitudeSetpoint, stamp: Time, frame_id=BODY_FRAME) -> I
 
 def imu_to_setpoint(msg: Imu) -> AttitudeSetpoint:
     """Raises ValueError on a non-finite or zero quaternion or thrust, naming the field."""
-    if msg.orientation_covariance[0] == UNSET_COVARIANCE:
+    return imu_values_to_setpoint(quat(msg.orientation), msg.orientation_covariance[0], vec3(msg.angular_velocity),
+                                  msg.angular_velocity_covariance[0], msg.linear_acceleration.z,
+                                  msg.linear_acceleration_covariance[0])
+
+
+def imu_values_to_setpoint(orientation, orientation_cov0, rates, rates_cov0, specific_force_mps2,
+                           specific_force_cov0) -> AttitudeSetpoint:
+    """imu_to_setpoint on the fields' values (also what quad_common.cdr decodes); *_cov0: covariance[0]."""
+    if orientation_cov0 == UNSET_COVARIANCE:
         raise ValueError('cmd/attitude_thrust.orientation is marked unset (covariance[0] = -1)')
-    if msg.linear_acceleration_covariance[0] == UNSET_COVARIANCE:
+    if specific_force_cov0 == UNSET_COVARIANCE:
         raise ValueError('cmd/attitude_thrust.linear_acceleration is marked unset (covariance[0] = -1)')
-    f = msg.linear_acceleration.z
+    f = specific_force_mps2
     if not np.isfinite(f):
         raise ValueError(f'cmd/attitude_thrust.linear_acceleration.z must be finite, got {f}')
     try:
-        q = rotations.normalize(quat(msg.orientation))
+        q = rotations.normalize(orientation)
     except ValueError as exc:
         raise ValueError(f'cmd/attitude_thrust.orientation: {exc}') from None
-    rates = None
-    if msg.angular_velocity_covariance[0] != UNSET_COVARIANCE:
-        rates = vec3(msg.angular_velocity)
-        if not np.all(np.isfinite(rates)):
-            raise ValueError(f'cmd/attitude_thrust.angular_velocity must be finite, got {rates.tolist()}')
-    return AttitudeSetpoint(quaternion=q, specific_force_mps2=float(f), body_rates=rates)
+    body_rates = None
+    if rates_cov0 != UNSET_COVARIANCE:
+        body_rates = np.array(rates, dtype=float)
+        if not np.all(np.isfinite(body_rates)):
+            raise ValueError(f'cmd/attitude_thrust.angular_velocity must be finite, got {body_rates.tolist()}')
+    return AttitudeSetpoint(quaternion=q, specific_force_mps2=float(f), body_rates=body_rates)
 
 
 # --- trajectories ---------------------------------------------------------------------------

@@ -24,8 +24,9 @@ class State:
     body_rates: np.ndarray = _vec(3)
 
     def is_finite(self) -> bool:
-        return all(np.all(np.isfinite(v)) for v in
-                   (self.position, self.velocity, self.quaternion, self.body_rates))
+        """One numpy call, not four: every odometry message is checked."""
+        return bool(np.isfinite(np.concatenate((self.position, self.velocity, self.quaternion,
+                                                self.body_rates))).all())
 
 
 @dataclass
@@ -58,7 +59,8 @@ class AttitudeSetpoint:
     body_rates: np.ndarray | None = None
 
     def is_finite(self) -> bool:
-        vals = [self.quaternion, self.specific_force_mps2]
+        """One numpy call: the simulator checks every setpoint."""
+        vals = [self.quaternion, [self.specific_force_mps2]]
         if self.body_rates is not None:
             vals.append(self.body_rates)
-        return all(np.all(np.isfinite(v)) for v in vals)
+        return bool(np.isfinite(np.concatenate(vals)).all())

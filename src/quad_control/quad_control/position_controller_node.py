@@ -20,7 +20,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import conversions, diagnostics, rotations
+from quad_common import cdr, conversions, diagnostics, rotations
+from quad_common.hot_path import HotPathExecutor
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.types import Reference
@@ -105,7 +106,8 @@ class PositionControllerNode(Node):
         self.cmd_pub = self.create_publisher(Imu, 'cmd/attitude_thrust', reliable)
         self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, 'control/reference', reliable)
         self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', reliable)
-        self.create_subscription(Odometry, 'odom', self._on_odom, reliable)
+        self.odom_sub = self.create_subscription(Odometry, 'odom', self._on_odom, reliable, raw=True)
+        self._setpoint_packer = cdr.SetpointPacker()
         self.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_trajectory, latched)
         self.timer = self.create_timer(1.0 / self.params['rate_hz'], self._on_tick)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -113,11 +115,16 @@ class PositionControllerNode(Node):
         self.get_logger().info(f"{self.params['controller']} at {self.params['rate_hz']} Hz, "
                                f"lockstep={self.params['lockstep']}, vehicle {self.vehicle.name}")
 
+    def hot_entities(self):
+        """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom and the tick timer."""
+        return [s for s in self.subscriptions if s.topic_name == '/clock'] + [self.odom_sub], [self.timer]
+
     # --- inputs ---------------------------------------------------------------------------------
 
-    def _on_odom(self, msg: Odometry):
+    def _on_odom(self, raw: bytes):
+        """odom, serialized (quad_common.cdr: the tick's critical path)."""
         try:
-            state = conversions.odometry_to_state(msg)
+            stamp_ns, state = cdr.odometry_to_state(raw)
             if not state.is_finite():
                 raise ValueError(f'position {state.position.tolist()}, velocity {state.velocity.tolist()}, '
                                  f'body rates {state.body_rates.tolist()}')
@@ -131,7 +138,7 @@ class PositionControllerNode(Node):
         if self.odom_fault is not None:
             self.get_logger().info('odom finite again: control resumes')
             self.odom_fault = None
-        self.odom = (_stamp_ns(msg.header.stamp), self.steady.now().nanoseconds, state)
+        self.odom = (stamp_ns, self.steady.now().nanoseconds, state)
         self._run_pending_tick()
 
     def _on_trajectory(self, msg: MultiDOFJointTrajectory):
@@ -226,9 +233,8 @@ class PositionControllerNode(Node):
         self.last_control_ns = t_ns
         if not self.context.ok():  # shutting down (SIGINT/SIGTERM): publishers are gone
             return
-        stamp = _stamp(t_ns)
-        self.cmd_pub.publish(conversions.setpoint_to_imu(setpoint, stamp))
-        self.ref_pub.publish(conversions.reference_to_msg(ref, stamp))
+        self.cmd_pub.publish(self._setpoint_packer.pack(setpoint, t_ns))
+        self.ref_pub.publish(conversions.reference_to_msg(ref, _stamp(t_ns)))
         self.counts['setpoints'] += 1
         for name in ('thrust', 'tilt', 'integral'):
             self.counts[f'saturation_{name}'] += int(getattr(sat, name))
@@ -287,11 +293,14 @@ def main(args=None):
         rclpy.logging.get_logger(NODE_NAME).error(f'invalid start-up parameters: {exc}')
         rclpy.try_shutdown()
         sys.exit(2)
+    executor = HotPathExecutor(node.hot_entities)
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -17,7 +17,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -30,7 +30,8 @@ try:  # not among the PyPI ROS wheels; present on every machine with ROS 2 insta
 except ImportError:
     TFMessage = None
 
-from quad_common import conversions, diagnostics
+from quad_common import cdr, conversions, diagnostics
+from quad_common.hot_path import HotPathExecutor
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
@@ -104,11 +105,15 @@ class SimNode(Node):
         self.imu_pub = self.create_publisher(Imu, 'imu', RELIABLE_10)
         self.rotor_pub = self.create_publisher(JointState, 'rotor_speeds', RELIABLE_10)
         self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', RELIABLE_10)
-        self.create_subscription(Imu, 'cmd/attitude_thrust', self._on_setpoint, RELIABLE_10)
+        self.hot_subscriptions = [self.create_subscription(Imu, 'cmd/attitude_thrust', self._on_setpoint, RELIABLE_10,
+                                                           raw=True)]
         if p['max_tracking_error_m'] > 0:
-            self.create_subscription(MultiDOFJointTrajectory, 'control/reference', self._on_reference, RELIABLE_10)
+            self.hot_subscriptions.append(self.create_subscription(
+                MultiDOFJointTrajectory, 'control/reference', self._on_reference, RELIABLE_10))
+        self.hot_timers = []
         self.create_service(Trigger, 'reset', self._on_reset)
         self._rotor_names = [f'rotor_{i}' for i in range(4)]
+        self._odom_packer = cdr.OdometryPacker()
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
         self._sensor_period_ns = int(round(1e9 / p['sensor_rate_hz'])) if p['sensor_rate_hz'] > 0 else 0
         self._reset_bookkeeping()
@@ -133,12 +138,13 @@ class SimNode(Node):
 
     # --- inputs ------------------------------------------------------------------------------------------
 
-    def _on_setpoint(self, msg: Imu):
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    def _on_setpoint(self, raw: bytes):
+        """cmd/attitude_thrust, serialized (quad_common.cdr: the tick's critical path)."""
+        stamp_ns = cdr.header_stamp_ns(raw, Imu)
         if stamp_ns < self.setpoint_stamp_ns:
             return  # older than the one applied
         try:
-            setpoint = conversions.imu_to_setpoint(msg)
+            setpoint = cdr.imu_to_setpoint(raw)
             self.sim.set_setpoint(setpoint)
         except ValueError as exc:
             self.get_logger().warn(f'setpoint refused: {exc}', throttle_duration_sec=1.0)
@@ -168,7 +174,7 @@ class SimNode(Node):
         time, /tf, imu and rotor_speeds (after /clock: the controller's tick does not wait for them)."""
         time_ns = self.sim.time_ns
         stamp = stamp_of(time_ns)
-        self.odom_pub.publish(conversions.state_to_odometry(self.sim.odometry_state(), stamp))
+        self.odom_pub.publish(self._odom_packer.pack(self.sim.odometry_state(), time_ns))
         self.clock_pub.publish(ClockMsg(clock=stamp))
         if time_ns >= self._next_sensors_ns:
             self._next_sensors_ns = time_ns + self._sensor_period_ns
@@ -262,7 +268,7 @@ class SimNode(Node):
         period_s = 1.0 / self.params['odom_rate_hz']
         self._last_wall_s = time.monotonic()
         self._target_ns = float(self.sim.time_ns)
-        self.create_timer(period_s, self._realtime_tick, clock=self._wall)
+        self.hot_timers.append(self.create_timer(period_s, self._realtime_tick, clock=self._wall))
         self.publish_step()
 
     def _realtime_tick(self):
@@ -288,7 +294,7 @@ def main(args=None):
         print(f'[{NAME}] refused to start: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(2)
-    executor = SingleThreadedExecutor()
+    executor = HotPathExecutor(lambda: (node.hot_subscriptions, node.hot_timers))
     executor.add_node(node)
     try:
         if node.params['mode'] == 'lockstep':

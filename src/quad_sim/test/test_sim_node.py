@@ -1,4 +1,5 @@
-"""sim_node in a real rclpy graph: lockstep determinism, failsafe diagnostics, refusal of bad parameters."""
+"""sim_node in a real rclpy graph: lockstep determinism, failsafe diagnostics, the reset service, realtime mode
+with a run-time parameter change, refusal of bad parameters."""
 
 import os
 import signal
@@ -11,9 +12,12 @@ import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
+from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import conversions, rotations
@@ -81,6 +85,14 @@ class Graph:
         while not condition():
             assert time.monotonic() < deadline, 'graph hung'
             self.executor.spin_once(timeout_sec=0.5)
+
+    def call(self, srv_type, name, request):
+        """A service of the graph (served off sim_node's tick path: HotPathExecutor's slow pass)."""
+        client = self.node.create_client(srv_type, name)
+        self.spin_until(lambda: client.service_is_ready())
+        future = client.call_async(request)
+        self.spin_until(future.done)
+        return future.result()
 
     def close(self):
         self.executor.shutdown()
@@ -168,6 +180,41 @@ def test_dead_controller_lets_the_failsafe_land():
     assert failsafe and level_of(failsafe[0]) == level_of_error()
     values = {kv.key: kv.value for kv in failsafe[0].values}
     assert float(values['time_s']) == pytest.approx(0.2 + 0.5, abs=0.02)
+
+
+def test_reset_service_restarts_lockstep_time():
+    with isolated_domain() as (domain, env):
+        graph = Graph(domain)
+        sim = _start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]')
+        try:
+            graph.spin_until(lambda: graph.clock and graph.clock[-1] >= 0.5)
+            response = graph.call(Trigger, 'reset', Trigger.Request())
+            before = len(graph.clock)
+            graph.spin_until(lambda: len(graph.clock) > before + 20)
+        finally:
+            _stop(sim)
+            graph.close()
+    assert response.success, response.message
+    assert min(graph.clock[before:]) < 0.1 < max(graph.clock[:before])  # time went back to 0 and runs on
+
+
+def test_realtime_mode_publishes_and_takes_a_new_rtf():
+    """Nothing timed: realtime odometry arrives, and the rtf parameter (settable at run time) is accepted."""
+    with isolated_domain() as (domain, env):
+        graph = Graph(domain, answer_until_s=-np.inf)
+        sim = _start_sim(env, 'mode:=realtime', 'initial_position:=[0.0, 0.0, 1.0]')
+        try:
+            graph.spin_until(lambda: len(graph.odom) >= 10)
+            rtf = Parameter(name='rtf', value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=5.0))
+            result = graph.call(SetParameters, 'sim_node/set_parameters', SetParameters.Request(parameters=[rtf]))
+            count = len(graph.odom)
+            graph.spin_until(lambda: len(graph.odom) >= count + 10)
+        finally:
+            log = _stop(sim)
+            graph.close()
+    assert 'realtime: crazyflie' in log
+    assert result.results[0].successful, result.results[0].reason
+    assert np.all(np.diff(graph.odom, axis=0)[:, 0] > 0)
 
 
 def level_of_error():

@@ -1,0 +1,65 @@
+import struct
+
+import numpy as np
+import pytest
+from nav_msgs.msg import Odometry
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import Imu
+
+from quad_common import cdr
+from quad_common import conversions as conv
+from quad_common import rotations as rot
+from quad_common.types import AttitudeSetpoint, State
+
+STATE = State(position=np.array([1.5, -2.25, 3.0]), velocity=np.array([0.3, -0.7, 0.2]),
+              quaternion=rot.from_euler(0.1, -0.2, 2.5), body_rates=np.array([0.01, -0.5, 3.25]))
+TIME_NS = 12_345_678_901
+
+
+@pytest.mark.parametrize('frames', [('map', 'base_link'), ('', 'x'), ('world_frame', 'uav1/base_link')])
+def test_odometry_bytes_are_rclpys_and_decode_to_the_same_state(frames):
+    raw = cdr.OdometryPacker(*frames).pack(STATE, TIME_NS)
+    msg = conv.state_to_odometry(STATE, conv.s_to_stamp(TIME_NS * 1e-9), *frames)
+    assert len(raw) == len(serialize_message(msg)) and deserialize_message(raw, Odometry) == msg
+    stamp_ns, state = cdr.odometry_to_state(serialize_message(msg))
+    expected = conv.odometry_to_state(msg)
+    assert stamp_ns == TIME_NS
+    for name in ('position', 'velocity', 'quaternion', 'body_rates'):
+        assert np.array_equal(getattr(state, name), getattr(expected, name)), name
+
+
+@pytest.mark.parametrize('rates', [None, np.array([0.1, -0.2, 0.5])])
+def test_setpoint_bytes_are_rclpys_and_decode_to_the_same_setpoint(rates):
+    sp = AttitudeSetpoint(quaternion=rot.from_euler(0.2, 0.1, -1.0), specific_force_mps2=10.5, body_rates=rates)
+    raw = cdr.SetpointPacker().pack(sp, TIME_NS)
+    msg = conv.setpoint_to_imu(sp, conv.s_to_stamp(TIME_NS * 1e-9))
+    assert len(raw) == len(serialize_message(msg)) and deserialize_message(raw, Imu) == msg
+    assert cdr.header_stamp_ns(raw, Imu) == TIME_NS
+    back, expected = cdr.imu_to_setpoint(serialize_message(msg)), conv.imu_to_setpoint(msg)
+    assert np.array_equal(back.quaternion, expected.quaternion)
+    assert back.specific_force_mps2 == expected.specific_force_mps2
+    assert (back.body_rates is None and expected.body_rates is None) or np.array_equal(back.body_rates,
+                                                                                        expected.body_rates)
+
+
+def test_setpoint_refusals_name_the_field_as_the_message_path_does():
+    msg = Imu()
+    msg.orientation.w = 1.0
+    msg.linear_acceleration.z = float('nan')
+    with pytest.raises(ValueError, match='linear_acceleration.z'):
+        cdr.imu_to_setpoint(serialize_message(msg))
+    msg = Imu()
+    msg.orientation.w = 0.0
+    msg.linear_acceleration.z = 9.81
+    with pytest.raises(ValueError, match='orientation'):
+        cdr.imu_to_setpoint(serialize_message(msg))
+
+
+def test_other_encodings_go_to_rclpy(monkeypatch):
+    """Anything but plain CDR little endian (here a big-endian header) is not read with the struct layout."""
+    msg = conv.state_to_odometry(STATE, conv.s_to_stamp(1.5))
+    big_endian = b'\x00\x00\x00\x00' + struct.pack('>iI', 1, 500_000_000)
+    monkeypatch.setattr(cdr, 'deserialize_message', lambda raw, msg_type: msg)
+    stamp_ns, state = cdr.odometry_to_state(big_endian)
+    assert stamp_ns == 1_500_000_000 and np.array_equal(state.position, STATE.position)
+    assert cdr.header_stamp_ns(big_endian, Odometry) == 1_500_000_000
