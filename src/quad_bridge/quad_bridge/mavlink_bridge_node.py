@@ -6,16 +6,14 @@ client's lock) or wait on an event, never read the socket. docs/bridge.md descri
 """
 
 import math
-import sys
 import threading
 import time
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState, Imu
 from std_srvs.srv import SetBool, Trigger
@@ -26,6 +24,7 @@ from quad_bridge.link import LinkState, RateMeter, is_vehicle_heartbeat, load_si
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
 from quad_bridge.setpoint import check_setpoint
 from quad_common import conversions, diagnostics, rotations
+from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 from quad_common.types import State
 
@@ -466,25 +465,8 @@ class MavlinkBridge(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = MavlinkBridge()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger(NAME).error(f'{NAME}: {exc}')
-        rclpy.try_shutdown()
-        sys.exit(2)
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        if rclpy.ok():  # a signal's shutdown can surface as an RCLError inside the executor
-            raise
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(NAME, MavlinkBridge, refused=(ValueError, OSError),
+             make_executor=lambda node: MultiThreadedExecutor(num_threads=4), args=args)
 
 
 if __name__ == '__main__':

@@ -6,7 +6,6 @@ lockstep: the tick waits for the odometry stamped >= t (contract: docs/quad_cont
 Failsafe: stale or non-finite odometry -> no setpoint at all, ERROR on `diagnostics`.
 """
 
-import sys
 from collections import deque
 
 import numpy as np
@@ -14,7 +13,6 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
@@ -22,6 +20,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import cdr, conversions, diagnostics, rotations
 from quad_common.hot_path import HotPathExecutor
+from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.types import Reference
@@ -286,23 +285,8 @@ class PositionControllerNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = PositionControllerNode()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger(NODE_NAME).error(f'invalid start-up parameters: {exc}')
-        rclpy.try_shutdown()
-        sys.exit(2)
-    executor = HotPathExecutor(node.hot_entities)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(NODE_NAME, PositionControllerNode, refused=(ValueError, OSError),
+             make_executor=lambda node: HotPathExecutor(node.hot_entities), args=args)
 
 
 if __name__ == '__main__':

@@ -9,7 +9,6 @@ realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * el
 """
 
 import math
-import sys
 import time
 
 import rclpy
@@ -17,7 +16,6 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -32,6 +30,7 @@ except ImportError:
 
 from quad_common import cdr, conversions, diagnostics
 from quad_common.hot_path import HotPathExecutor
+from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
@@ -286,28 +285,18 @@ def _place(event) -> dict:
             'z': f'{event.position[2]:.3f}', **event.detail}
 
 
+def _spin(node, executor):
+    if node.params['mode'] == 'lockstep':
+        node.run_lockstep(executor)
+    else:
+        node.start_realtime()
+        executor.spin()
+
+
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = SimNode()
-    except (ValueError, SimulationStopped) as exc:
-        print(f'[{NAME}] refused to start: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    executor = HotPathExecutor(lambda: (node.hot_subscriptions, node.hot_timers))
-    executor.add_node(node)
-    try:
-        if node.params['mode'] == 'lockstep':
-            node.run_lockstep(executor)
-        else:
-            node.start_realtime()
-            executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(NAME, SimNode, refused=(ValueError, SimulationStopped),
+             make_executor=lambda node: HotPathExecutor(lambda: (node.hot_subscriptions, node.hot_timers)),
+             spin=_spin, args=args)
 
 
 if __name__ == '__main__':

@@ -6,14 +6,11 @@ ERROR diagnostics status; the previous trajectory stays published (latched) and 
 """
 
 import dataclasses
-import sys
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -22,6 +19,7 @@ from visualization_msgs.msg import MarkerArray
 
 from quad_common import diagnostics
 from quad_common.conversions import sampled_to_msg
+from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
@@ -176,20 +174,7 @@ class TrajectoryNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = TrajectoryNode()
-    except ValueError as exc:
-        rclpy.logging.get_logger('trajectory_node').error(str(exc))
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node('trajectory_node', TrajectoryNode, args=args)
 
 
 if __name__ == '__main__':

@@ -1,0 +1,32 @@
+"""The `main` every node shares: start-up refusal as exit status 2, spin until Ctrl-C/SIGTERM, clean shutdown."""
+
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+
+def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=None, args=None):
+    """Builds the node (an exception in `refused`, e.g. a bad parameter: one error line naming it, exit 2), adds
+    it to `make_executor(node)` (default a SingleThreadedExecutor) and runs `spin(node, executor)` (default
+    executor.spin()) until interrupted; then destroys the node and shuts the context down."""
+    rclpy.init(args=args)
+    try:
+        node = make_node()
+    except refused as exc:
+        rclpy.logging.get_logger(name).error(f'{name} refused to start: {exc}')
+        rclpy.try_shutdown()
+        sys.exit(2)
+    executor = make_executor(node) if make_executor else SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        spin(node, executor) if spin else executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        if rclpy.ok():  # a signal's shutdown can surface as an RCLError inside the executor
+            raise
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
