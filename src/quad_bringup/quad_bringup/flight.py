@@ -16,7 +16,7 @@ from pathlib import Path
 import yaml
 
 from quad_bringup import processes
-from quad_bringup.recorder import DEFAULT_TOPICS
+from quad_bringup.recorder import DEFAULT_TOPICS, installed
 from quad_bringup.report import Completion, write_report
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.testing import isolated_domain
@@ -210,10 +210,13 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
         monitor = FlightMonitor(domain, judge)
         try:
             recorder.start(env)  # first, so the latched plan and the first odometry are in the bag
-            for p in nodes:
-                p.start(env)
-            (run_dir / 'pids.json').write_text(json.dumps({p.name: p.pid for p in nodes + [recorder]}) + '\n')
-            reason = _watch(judge, monitor, nodes + [recorder], interrupt, options, log)
+            _write_pids(run_dir, [recorder])
+            reason = _await_recorder(monitor, recorder, interrupt, options)
+            if reason is None:
+                for p in nodes:
+                    p.start(env)
+                _write_pids(run_dir, nodes + [recorder])
+                reason = _watch(judge, monitor, nodes + [recorder], interrupt, options, log)
         finally:
             stopped = processes.stop(nodes, log=log)
             stopped.update(processes.stop([recorder], log=log))
@@ -233,8 +236,35 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
     return FlightResult(EXIT_COMPLETED if reason.ok else EXIT_FAILED, reason.reason, run_dir, metrics, pids)
 
 
+def _write_pids(run_dir: Path, started):
+    (run_dir / 'pids.json').write_text(json.dumps({p.name: p.pid for p in started}) + '\n')
+
+
 def _failure_code(interrupt):
     return EXIT_INTERRUPTED if interrupt.signum is not None else EXIT_FAILED
+
+
+def _await_recorder(monitor, recorder, interrupt, options):
+    """None once the graph shows the recorder's subscriptions on every topic it records, else the Verdict why not.
+
+    The graph starts only then: a flight of a few simulated seconds can be over in under a second of wall time,
+    before a recorder still importing its libraries would have matched the latched trajectory's publisher.
+    """
+    from quad_bringup.flight_monitor import Verdict
+
+    topics = [t for t, spec in DEFAULT_TOPICS.items() if installed(spec)]
+    deadline = time.monotonic() + options.startup_timeout_s
+    while missing := monitor.missing_readers(RECORDER, topics):
+        if interrupt.signum is not None:
+            return Verdict(False, f'interrupted by {signal.Signals(interrupt.signum).name} before the flight')
+        if (code := recorder.exit_code()) is not None:
+            return Verdict(False, f'node {RECORDER} exited with status {code} ({recorder.log_path}):\n'
+                                  f'{recorder.log_tail()}')
+        if time.monotonic() > deadline:
+            return Verdict(False, f'{RECORDER} not subscribed to {", ".join(missing)} within '
+                                  f'{options.startup_timeout_s:.0f} s')
+        monitor.spin_once(0.05)
+    return None
 
 
 def _watch(judge, monitor, children, interrupt, options, log):

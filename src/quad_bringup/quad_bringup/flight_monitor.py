@@ -116,6 +116,12 @@ class FlightMonitor:
             if level_of(st) == ERROR[0] and st.name.endswith('collision'):
                 self.judge.on_collision(conversions.stamp_to_s(msg.header.stamp), st.message)
 
+    def missing_readers(self, node_name: str, topics) -> list[str]:
+        """The topics on which the graph does not (yet) show a subscription of node `node_name`."""
+        return [t for t in topics if not any(
+            info.node_name == node_name for info in self.node.get_subscriptions_info_by_topic(
+                self.node.resolve_topic_name(t)))]
+
     def spin_once(self, timeout_s=0.1):
         self.executor.spin_once(timeout_sec=timeout_s)
 

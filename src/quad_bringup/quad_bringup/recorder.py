@@ -9,6 +9,7 @@ no MCAP footer and no metadata.yaml. `repair_bag(path)` cuts a torn last record,
 footer and writes metadata.yaml from a scan of the file; `open_bag_reader` does this on demand.
 """
 
+import importlib.util
 import os
 import struct
 from dataclasses import dataclass
@@ -58,6 +59,11 @@ DEFAULT_TOPICS = {
     '/tf': TopicSpec('tf2_msgs/msg/TFMessage'),
     'diagnostics': TopicSpec('diagnostic_msgs/msg/DiagnosticArray'),
 }
+
+
+def installed(spec: TopicSpec) -> bool:
+    """Whether the message package of `spec` can be imported here (tf2_msgs is not among the PyPI wheels)."""
+    return importlib.util.find_spec(spec.msgtype.split('/')[0]) is not None
 
 
 def offered_qos(latched: bool, depth: int) -> Qos:

@@ -1,16 +1,20 @@
-"""fly's judgement of a flight and its stopping of process groups (no ROS graph needed)."""
+"""fly's judgement of a flight, its wait for the recorder, and its stopping of process groups."""
 
 import os
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
+import rclpy
+from nav_msgs.msg import Odometry
 
 from quad_bringup import processes
-from quad_bringup.flight_monitor import FlightJudge
+from quad_bringup.flight_monitor import FlightJudge, FlightMonitor
 from quad_bringup.report import Completion
 from quad_common.sampled_trajectory import SampledTrajectory
+from quad_common.testing import isolated_domain
 
 
 def straight_plan(duration_s=2.0, length_m=1.0):
@@ -83,3 +87,25 @@ def test_stop_escalates_and_leaves_no_process_of_the_group(tmp_path):
     assert not processes.group_alive(proc.pid)
     with pytest.raises(ProcessLookupError):
         os.kill(grandchild, 0)
+
+
+def test_monitor_sees_which_topics_a_node_reads_before_the_graph_starts():
+    """fly starts the graph only once the recorder's readers are on it (else a short flight outruns the bag)."""
+    with isolated_domain() as (domain, _):
+        monitor = FlightMonitor(domain, judge_with_plan())
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        recorder = rclpy.create_node('recorder', context=ctx)
+        try:
+            assert monitor.missing_readers('recorder', ['odom', 'trajectory']) == ['odom', 'trajectory']
+            recorder.create_subscription(Odometry, 'odom', lambda msg: None, 10)
+            deadline = time.monotonic() + 30
+            while monitor.missing_readers('recorder', ['odom', 'trajectory']) != ['trajectory']:
+                assert time.monotonic() < deadline, 'the recorder subscription never showed on the graph'
+                monitor.spin_once(0.05)
+            # the monitor's own reader on trajectory is not the recorder's
+            assert monitor.missing_readers('recorder', ['/trajectory']) == ['/trajectory']
+        finally:
+            recorder.destroy_node()
+            rclpy.shutdown(context=ctx)
+            monitor.close()
