@@ -3,6 +3,7 @@ UDP listener on loopback (p50/p99), and the highest setpoint_rate_hz the bridge 
 
 import os
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -19,7 +20,17 @@ from quad_common.testing import isolated_domain  # noqa: E402
 
 HOVER_THROTTLE = 0.5
 RUN_S = 4.0
+WARM_UP_S = 1.0  # streaming before the measured window: the bridge's start-up work is not its steady state
+SO_TIMESTAMPNS = getattr(socket, 'SO_TIMESTAMPNS', 35)  # Linux
 NAMESPACE = f'/bench_bridge_{os.getpid()}'  # no cross-talk even with a stray graph in the same domain
+
+
+def _kernel_arrival_s(ancillary) -> float:
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+            sec, nsec = struct.unpack('qq', data[:16])
+            return sec + nsec * 1e-9
+    return time.time()
 
 
 class Listener:
@@ -28,6 +39,8 @@ class Listener:
     def __init__(self):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(('127.0.0.1', 0))
+        # arrival = the kernel's receive time (CLOCK_REALTIME), not when this thread got the GIL back
+        self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.sock.settimeout(0.1)
         self.port = self.sock.getsockname()[1]
         self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -47,14 +60,14 @@ class Listener:
                 self.sock.sendto(hb, self.bridge_addr)
                 last_hb = time.monotonic()
             try:
-                data, addr = self.sock.recvfrom(4096)
+                data, ancillary, _, addr = self.sock.recvmsg(4096, socket.CMSG_SPACE(16))
             except TimeoutError:
                 continue
-            now = time.monotonic()
             self.bridge_addr = addr
+            arrival_s = _kernel_arrival_s(ancillary)
             for msg in parser.parse_buffer(data) or []:
                 if msg.get_type() == 'SET_ATTITUDE_TARGET':
-                    self.arrivals.append((now, msg.thrust))
+                    self.arrivals.append((arrival_s, msg.thrust))
 
     def close(self):
         self.running = False
@@ -78,21 +91,24 @@ def run(rate_hz, publish_hz, env, domain, python_path):
     try:
         deadline = time.monotonic() + 60.0
         k = 0
-        while time.monotonic() < deadline:  # until the bridge streams (it has seen the heartbeat)
+        streaming_since = None
+        while time.monotonic() < deadline:  # until the bridge has streamed for WARM_UP_S
+            k += 1
             pub.publish(_setpoint(k))
             time.sleep(0.02)
-            if listener.arrivals:
+            if listener.arrivals and streaming_since is None:
+                streaming_since = time.monotonic()
+            if streaming_since is not None and time.monotonic() - streaming_since >= WARM_UP_S:
                 break
-        listener.arrivals.clear()
-        start = time.monotonic()
+        start = time.time()
         period = 1.0 / publish_hz
-        while time.monotonic() - start < RUN_S:
+        while time.time() - start < RUN_S:
             k += 1
-            published[k] = time.monotonic()
+            published[k] = time.time()
             pub.publish(_setpoint(k))
-            time.sleep(max(0.0, start + (len(published) * period) - time.monotonic()))
+            time.sleep(max(0.0, start + (len(published) * period) - time.time()))
         time.sleep(0.1)
-        arrivals = [(t, th) for t, th in listener.arrivals if t <= start + RUN_S]
+        arrivals = [(t, th) for t, th in listener.arrivals if start <= t <= start + RUN_S]
     finally:
         node.destroy_node()
         context.try_shutdown()

@@ -6,6 +6,7 @@ client's lock) or wait on an event, never read the socket. docs/bridge.md descri
 """
 
 import math
+import sys
 import threading
 import time
 
@@ -464,7 +465,13 @@ class MavlinkBridge(Node):
         super().destroy_node()
 
 
+# GIL hand-over interval: the stream thread must get the interpreter within ~1 ms of its deadline, not the default
+# 5 ms, while rclpy's MultiThreadedExecutor loop spins (bench/bench_bridge.py: at 200 Hz 170-180 -> 190-193 Hz sent).
+GIL_SWITCH_INTERVAL_S = 0.001
+
+
 def main(args=None):
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     run_node(NAME, MavlinkBridge, refused=(ValueError, OSError),
              make_executor=lambda node: MultiThreadedExecutor(num_threads=4), args=args)
 
