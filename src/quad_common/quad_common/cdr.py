@@ -1,5 +1,5 @@
-"""The lockstep tick's two messages as serialized bytes: `odom` (nav_msgs/Odometry) and `cmd/attitude_thrust`
-(sensor_msgs/Imu as a setpoint), packed and read with struct.
+"""The lockstep tick's messages as serialized bytes: `odom` (nav_msgs/Odometry) and `cmd/attitude_thrust`
+(sensor_msgs/Imu as a setpoint), packed and read with struct, and `control/reference` (packed).
 
 Why: building these as Python message objects and converting them to and from C cost ~0.1-0.2 ms per message
 each way on the 2-core machine, a third of a lockstep tick; Publisher.publish(bytes) and a raw subscription
@@ -14,9 +14,9 @@ from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu
 
-from quad_common import conversions
+from quad_common import conversions, rotations
 from quad_common.conversions import BODY_FRAME, UNSET_COVARIANCE, WORLD_FRAME
-from quad_common.types import AttitudeSetpoint, State
+from quad_common.types import AttitudeSetpoint, Reference, State
 
 CDR_LE = b'\x00\x01\x00\x00'  # encapsulation header: plain CDR, little endian
 _STAMP = struct.Struct('<iI')
@@ -24,11 +24,14 @@ _ODOM_FIELDS = struct.Struct('<7d288x6d')  # pose, its covariance (36 d), twist;
 _IMU_FIELDS = struct.Struct('<4dd64x3dd64x3dd')  # orientation, cov[0], rates, cov[0], acceleration, cov[0]
 
 
-def _frames(frame_ids) -> bytes:
-    """The header's strings after the stamp (body offset 8), padded to the 8-byte alignment of what follows."""
+def _constant(parts) -> bytes:
+    """The fixed bytes after the header stamp (body offset 8): strings (frame ids, names) and uint32 sequence
+    lengths, each 4-aligned, padded to the 8-byte alignment of the doubles that follow."""
     out = b''
-    for frame in frame_ids:
-        out += b'\x00' * (-len(out) % 4) + struct.pack('<I', len(frame) + 1) + frame.encode() + b'\x00'
+    for part in parts:
+        out += b'\x00' * (-len(out) % 4)
+        out += struct.pack('<I', part) if isinstance(part, int) else (
+            struct.pack('<I', len(part) + 1) + part.encode() + b'\x00')
     return out + b'\x00' * (-(8 + len(out)) % 8)
 
 
@@ -53,7 +56,7 @@ class OdometryPacker:
     """conversions.state_to_odometry as bytes (zero covariances)."""
 
     def __init__(self, frame_id=WORLD_FRAME, child_frame_id=BODY_FRAME):
-        frames = _frames((frame_id, child_frame_id))
+        frames = _constant((frame_id, child_frame_id))
         self._struct = struct.Struct(f'<4siI{len(frames)}s7d288x6d288x')
         self._frames = frames
 
@@ -77,7 +80,7 @@ class SetpointPacker:
     """conversions.setpoint_to_imu as bytes."""
 
     def __init__(self, frame_id=BODY_FRAME):
-        frames = _frames((frame_id,))
+        frames = _constant((frame_id,))
         self._struct = struct.Struct(f'<4siI{len(frames)}s4d72x3dd64x3d72x')
         self._frames = frames
 
@@ -88,6 +91,22 @@ class SetpointPacker:
         return self._struct.pack(CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._frames,
                                  *map(float, setpoint.quaternion), *map(float, rates), rates_cov0,
                                  0.0, 0.0, float(setpoint.specific_force_mps2))
+
+
+class ReferencePacker:
+    """conversions.reference_to_msg as bytes (`control/reference`: one point, one transform, velocity and
+    acceleration; time_from_start 0)."""
+
+    def __init__(self, frame_id=WORLD_FRAME, joint_name=BODY_FRAME):
+        head = _constant((frame_id, 1, joint_name, 1, 1))  # joint_names[1], points[1], transforms[1]
+        self._struct = struct.Struct(f'<4siI{len(head)}s7dI4x6dI4x6diI')
+        self._head = head
+
+    def pack(self, ref: Reference, time_ns: int) -> bytes:
+        return self._struct.pack(CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._head,
+                                 *map(float, ref.position), *rotations.from_yaw(ref.yaw).tolist(),
+                                 1, *map(float, ref.velocity), 0.0, 0.0, float(ref.yaw_rate),
+                                 1, *map(float, ref.acceleration), 0.0, 0.0, 0.0, 0, 0)
 
 
 def imu_to_setpoint(raw: bytes) -> AttitudeSetpoint:

@@ -21,7 +21,10 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 
-SLOW_PERIOD_S = 0.02  # wall time between passes over the other entities: their callbacks wait at most this
+# Wall time between passes over the other entities: their callbacks wait at most this. A pass rebuilds rclpy's
+# whole wait set (~1-2 ms of Python on the 2-core machine): every 20 ms that was ~30 % of the lockstep graph's
+# time (bench_sim graph RTF, interleaved runs: 6.5-7.1x at 20 ms, 9.6-10.0x at 100 ms).
+SLOW_PERIOD_S = 0.1
 
 
 class HotPathExecutor(SingleThreadedExecutor):

@@ -4,12 +4,19 @@ q maps body (FLU) vectors into the world (ENU) frame, v_world = R(q) v_body.
 Every function accepts a single quaternion of shape (4,) or a stack (..., 4).
 """
 
+import math
+
 import numpy as np
 
 
 def normalize(q):
     """q / |q|; raises on a zero or non-finite quaternion."""
     q = np.asarray(q, dtype=float)
+    if q.shape == (4,):  # one quaternion (every message): math.hypot, ~10x cheaper than np.linalg.norm here
+        n = math.hypot(*q.tolist())  # inf if any component is inf, nan if one is nan (and none inf)
+        if not (math.isfinite(n) and n >= 1e-12):
+            raise ValueError(f'quaternion must be finite and non-zero, got {q.tolist()}')
+        return q / n
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if not np.all(np.isfinite(q)) or np.any(n < 1e-12):
         raise ValueError(f'quaternion must be finite and non-zero, got {q.tolist()}')

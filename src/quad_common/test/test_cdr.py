@@ -5,11 +5,12 @@ import pytest
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Imu
+from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import cdr
 from quad_common import conversions as conv
 from quad_common import rotations as rot
-from quad_common.types import AttitudeSetpoint, State
+from quad_common.types import AttitudeSetpoint, Reference, State
 
 STATE = State(position=np.array([1.5, -2.25, 3.0]), velocity=np.array([0.3, -0.7, 0.2]),
               quaternion=rot.from_euler(0.1, -0.2, 2.5), body_rates=np.array([0.01, -0.5, 3.25]))
@@ -40,6 +41,15 @@ def test_setpoint_bytes_are_rclpys_and_decode_to_the_same_setpoint(rates):
     assert back.specific_force_mps2 == expected.specific_force_mps2
     assert (back.body_rates is None and expected.body_rates is None) or np.array_equal(back.body_rates,
                                                                                         expected.body_rates)
+
+
+@pytest.mark.parametrize('frame_id', ['map', '', 'world_frame'])
+def test_reference_bytes_are_rclpys(frame_id):
+    ref = Reference(position=np.array([1.5, -2.25, 3.0]), velocity=np.array([0.3, -0.7, 0.2]),
+                    acceleration=np.array([-1.0, 0.5, 9.0]), jerk=np.array([1.0, 2.0, 3.0]), yaw=2.9, yaw_rate=-0.4)
+    raw = cdr.ReferencePacker(frame_id).pack(ref, TIME_NS)
+    msg = conv.reference_to_msg(ref, conv.s_to_stamp(TIME_NS * 1e-9), frame_id)
+    assert len(raw) == len(serialize_message(msg)) and deserialize_message(raw, MultiDOFJointTrajectory) == msg
 
 
 def test_setpoint_refusals_name_the_field_as_the_message_path_does():

@@ -107,7 +107,9 @@ class PositionControllerNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', reliable)
         self.odom_sub = self.create_subscription(Odometry, 'odom', self._on_odom, reliable, raw=True)
         self._setpoint_packer = cdr.SetpointPacker()
-        self.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_trajectory, latched)
+        self._reference_packer = cdr.ReferencePacker()
+        self.trajectory_sub = self.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_trajectory,
+                                                       latched)
         self.timer = self.create_timer(1.0 / self.params['rate_hz'], self._on_tick)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=self.steady)
@@ -115,8 +117,10 @@ class PositionControllerNode(Node):
                                f"lockstep={self.params['lockstep']}, vehicle {self.vehicle.name}")
 
     def hot_entities(self):
-        """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom and the tick timer."""
-        return [s for s in self.subscriptions if s.topic_name == '/clock'] + [self.odom_sub], [self.timer]
+        """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
+        trajectory (rare, but a new plan must not wait for the executor's slow pass)."""
+        clock = [s for s in self.subscriptions if s.topic_name == '/clock']
+        return clock + [self.odom_sub, self.trajectory_sub], [self.timer]
 
     # --- inputs ---------------------------------------------------------------------------------
 
@@ -233,7 +237,7 @@ class PositionControllerNode(Node):
         if not self.context.ok():  # shutting down (SIGINT/SIGTERM): publishers are gone
             return
         self.cmd_pub.publish(self._setpoint_packer.pack(setpoint, t_ns))
-        self.ref_pub.publish(conversions.reference_to_msg(ref, _stamp(t_ns)))
+        self.ref_pub.publish(self._reference_packer.pack(ref, t_ns))
         self.counts['setpoints'] += 1
         for name in ('thrust', 'tilt', 'integral'):
             self.counts[f'saturation_{name}'] += int(getattr(sat, name))
