@@ -10,6 +10,7 @@ import datetime
 import json
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,10 +28,10 @@ CONTROLLERS = ('pd', 'pid', 'se3')
 EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 # node name -> (module, params file under config/)
-GRAPH = {
+GRAPH = {  # in start order (see STARTED_WHEN)
     'trajectory_node': ('quad_trajectory.trajectory_node', 'config/trajectory.yaml'),
-    'position_controller': ('quad_control.position_controller_node', 'config/control.yaml'),
     'sim_node': ('quad_sim.sim_node', 'config/sim.yaml'),
+    'position_controller': ('quad_control.position_controller_node', 'config/control.yaml'),
 }
 RECORDER = 'recorder'
 
@@ -207,16 +208,22 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
                             time_limit_factor=options.time_limit_factor)
-        monitor = FlightMonitor(domain, judge)
+        monitor = FlightMonitor(domain, judge, recorder_name=RECORDER)
         try:
             recorder.start(env)  # first, so the latched plan and the first odometry are in the bag
             _write_pids(run_dir, [recorder])
-            reason = _await_recorder(monitor, recorder, interrupt, options)
+            reason = _await(_recorder_readers_missing, [recorder], monitor, interrupt, options)
+            started = [recorder]
+            for node in nodes:  # one at a time, each once what it publishes reaches the judge and the bag
+                if reason is not None:
+                    break
+                node.start(env)
+                started.append(node)
+                _write_pids(run_dir, started)
+                if node.name in STARTED_WHEN:
+                    reason = _await(STARTED_WHEN[node.name], started, monitor, interrupt, options)
             if reason is None:
-                for p in nodes:
-                    p.start(env)
-                _write_pids(run_dir, nodes + [recorder])
-                reason = _watch(judge, monitor, nodes + [recorder], interrupt, options, log)
+                reason = _watch(judge, monitor, started, interrupt, options, log)
         finally:
             stopped = processes.stop(nodes, log=log)
             stopped.update(processes.stop([recorder], log=log))
@@ -244,25 +251,46 @@ def _failure_code(interrupt):
     return EXIT_INTERRUPTED if interrupt.signum is not None else EXIT_FAILED
 
 
-def _await_recorder(monitor, recorder, interrupt, options):
-    """None once the graph shows the recorder's subscriptions on every topic it records, else the Verdict why not.
+def _recorder_readers_missing(monitor) -> str | None:
+    """The recorder must read every topic before any publisher starts: a flight of a few simulated seconds can
+    be over in under a second of wall time, before a recorder still importing its libraries has subscribed."""
+    missing = monitor.missing_readers(RECORDER, [t for t, spec in DEFAULT_TOPICS.items() if installed(spec)])
+    return f'{RECORDER} not subscribed to {", ".join(missing)}' if missing else None
 
-    The graph starts only then: a flight of a few simulated seconds can be over in under a second of wall time,
-    before a recorder still importing its libraries would have matched the latched trajectory's publisher.
-    """
+
+def _first_message_missing(topic: str, at_judge) -> Callable:
+    """What a node must have delivered before the next one starts: its first `topic` message, to the judge and
+    into the bag (the recorder reports its counts on diagnostics). A sample written while a reader is still being
+    matched can wait for the writer's next heartbeat (Fast DDS: 3 s), and a lockstep flight of a few simulated
+    seconds is over in less wall time than that, so fly waits for delivery instead of racing it."""
+    def missing(monitor) -> str | None:
+        waiting = [who for who, ok in (('the flight monitor', at_judge(monitor.judge)),
+                                       (RECORDER, monitor.recorded.get(topic, 0) > 0)) if not ok]
+        return f'no {topic} at {" and ".join(waiting)}' if waiting else None
+    return missing
+
+
+# The graph starts in GRAPH order; each node named here once its condition holds: the plan (latched, published
+# once), then the simulator's odometry (it re-publishes t = 0 until a controller is up), then the controller.
+STARTED_WHEN = {
+    'trajectory_node': _first_message_missing('trajectory', lambda judge: judge.trajectory is not None),
+    'sim_node': _first_message_missing('odom', lambda judge: judge.t_s is not None),
+}
+
+
+def _await(missing, children, monitor, interrupt, options):
+    """Spin the monitor until `missing(monitor)` is None (-> None), else the Verdict why the flight cannot start."""
     from quad_bringup.flight_monitor import Verdict
 
-    topics = [t for t, spec in DEFAULT_TOPICS.items() if installed(spec)]
     deadline = time.monotonic() + options.startup_timeout_s
-    while missing := monitor.missing_readers(RECORDER, topics):
+    while (what := missing(monitor)) is not None:
         if interrupt.signum is not None:
             return Verdict(False, f'interrupted by {signal.Signals(interrupt.signum).name} before the flight')
-        if (code := recorder.exit_code()) is not None:
-            return Verdict(False, f'node {RECORDER} exited with status {code} ({recorder.log_path}):\n'
-                                  f'{recorder.log_tail()}')
+        for p in children:
+            if (code := p.exit_code()) is not None:
+                return Verdict(False, f'node {p.name} exited with status {code} ({p.log_path}):\n{p.log_tail()}')
         if time.monotonic() > deadline:
-            return Verdict(False, f'{RECORDER} not subscribed to {", ".join(missing)} within '
-                                  f'{options.startup_timeout_s:.0f} s')
+            return Verdict(False, f'{what} within {options.startup_timeout_s:.0f} s of start')
         monitor.spin_once(0.05)
     return None
 

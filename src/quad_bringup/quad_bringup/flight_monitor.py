@@ -92,8 +92,10 @@ class FlightJudge:
 class FlightMonitor:
     """An rclpy node in its own context feeding a FlightJudge."""
 
-    def __init__(self, domain_id: int, judge: FlightJudge):
+    def __init__(self, domain_id: int, judge: FlightJudge, recorder_name: str):
         self.judge = judge
+        self.recorder_name = recorder_name
+        self.recorded = {}  # topic -> messages in the bag, from the recorder's status on diagnostics
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id,
                    signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
@@ -113,6 +115,8 @@ class FlightMonitor:
 
     def _on_diagnostics(self, msg):
         for st in msg.status:
+            if st.name == self.recorder_name:
+                self.recorded = {kv.key: int(kv.value) for kv in st.values}
             if level_of(st) == ERROR[0] and st.name.endswith('collision'):
                 self.judge.on_collision(conversions.stamp_to_s(msg.header.stamp), st.message)
 

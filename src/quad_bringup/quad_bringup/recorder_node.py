@@ -4,6 +4,9 @@ Topics of DEFAULT_TOPICS are subscribed at once with the QoS their publishers us
 trajectory topics transient_local); any other topic is subscribed when it appears in the
 graph, with its type and durability taken from its publishers. Timestamps are receive times
 (system clock, as `ros2 bag record` does). SIGINT/SIGTERM close the bag cleanly.
+
+Status on `diagnostics` (name `recorder`, one value per topic: messages written) every second and when a topic
+gets its first message: how `quadflight fly` knows the latched plan is in the bag before the flight starts.
 """
 
 import importlib
@@ -12,13 +15,17 @@ import sys
 import time
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec
+from quad_common import diagnostics
 from quad_common.params import Param, ParameterSet
+
+STATUS_PERIOD_S = 1.0
 
 PARAMS = [
     Param('output_dir', '', 'bag directory to create (must not exist yet)', read_only=True),
@@ -55,8 +62,10 @@ class RecorderNode(Node):
                     self.get_logger().warning(f'not recording {topic}: {spec.msgtype} is not installed ({exc})')
             else:
                 self._pending.append(topic)
-        self.create_timer(self.params['flush_period_s'], self.bag.flush,
-                          clock=rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME))
+        steady = rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME)
+        self.create_timer(self.params['flush_period_s'], self.bag.flush, clock=steady)
+        self.status_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.create_timer(STATUS_PERIOD_S, self.publish_status, clock=steady)
         if self._pending:
             self.create_timer(0.5, self._discover,
                               clock=rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME))
@@ -71,6 +80,8 @@ class RecorderNode(Node):
 
         def on_message(data: bytes, topic=topic):
             self.bag.write(topic, time.time_ns(), data)
+            if self.bag.counts[topic] == 1:
+                self.publish_status()
 
         self._raw_subscriptions[topic] = self.create_subscription(message_class(spec.msgtype), topic, on_message, qos,
                                                               raw=True)
@@ -90,6 +101,11 @@ class RecorderNode(Node):
             except (ValueError, ImportError) as exc:
                 self.get_logger().error(str(exc))
             self._pending.remove(topic)
+
+    def publish_status(self):
+        counts = {topic: self.bag.counts.get(topic, 0) for topic in self.params['topics']}
+        self.status_pub.publish(diagnostics.array(self.get_clock().now().to_msg(), [diagnostics.status(
+            self.get_name(), diagnostics.OK, f'{self.bag.total} messages', counts)]))
 
     def close_bag(self):
         self.bag.close()

@@ -1,11 +1,13 @@
 import math
+import os
+import xml.etree.ElementTree as ET
 
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
 
 from quad_common.params import Param, ParameterSet, check_value
-from quad_common.testing import isolated_domain
+from quad_common.testing import FASTDDS_PROFILE, isolated_domain
 
 SPECS = [Param('kp', [5.0, 5.0, 20.0], 'gains', min=0.0, length=3),
          Param('rate_hz', 100.0, 'loop rate', min=1.0, max=1000.0),
@@ -48,3 +50,16 @@ def test_cross_parameter_rule(node):
     ps = ParameterSet(node, SPECS, validate=validate)
     res = node.set_parameters([Parameter('rate_hz', value=800.0)])[0]
     assert not res.successful and 'needs mode pid' in res.reason and ps['rate_hz'] == 100.0
+
+
+def test_isolated_domain_gives_children_the_fast_announcing_discovery_profile(monkeypatch):
+    for variable in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'):
+        monkeypatch.delenv(variable, raising=False)
+
+    ns = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
+    announce = ET.parse(FASTDDS_PROFILE).find('.//p:discovery_config/p:leaseAnnouncement', ns)
+    assert int(announce.find('p:sec', ns).text) + int(announce.find('p:nanosec', ns).text) * 1e-9 == 0.2
+    with isolated_domain() as (domain, env):
+        assert env['ROS_DOMAIN_ID'] == str(domain) and env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+        assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == env['FASTDDS_DEFAULT_PROFILES_FILE'] == FASTDDS_PROFILE
+        assert os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] == FASTDDS_PROFILE  # for this process's participants
