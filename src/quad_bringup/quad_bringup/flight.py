@@ -212,7 +212,8 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
         try:
             recorder.start(env)  # first, so the latched plan and the first odometry are in the bag
             _write_pids(run_dir, [recorder])
-            reason = _await(_recorder_readers_missing, [recorder], monitor, interrupt, options)
+            deadline = time.monotonic() + options.startup_timeout_s  # for every stage together
+            reason = _await(_recorder_readers_missing, [recorder], monitor, interrupt, deadline, options)
             started = [recorder]
             for node in nodes:  # one at a time, each once what it publishes reaches the judge and the bag
                 if reason is not None:
@@ -221,7 +222,7 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
                 started.append(node)
                 _write_pids(run_dir, started)
                 if node.name in STARTED_WHEN:
-                    reason = _await(STARTED_WHEN[node.name], started, monitor, interrupt, options)
+                    reason = _await(STARTED_WHEN[node.name], started, monitor, interrupt, deadline, options)
             if reason is None:
                 reason = _watch(judge, monitor, started, interrupt, options, log)
         finally:
@@ -278,17 +279,25 @@ STARTED_WHEN = {
 }
 
 
-def _await(missing, children, monitor, interrupt, options):
+def _interrupted_or_dead(children, interrupt, when: str):
+    """The Verdict for a signal to fly or a child that exited, else None (checked while starting and flying)."""
+    from quad_bringup.flight_monitor import Verdict
+
+    if interrupt.signum is not None:
+        return Verdict(False, f'interrupted by {signal.Signals(interrupt.signum).name} {when}')
+    for p in children:
+        if (code := p.exit_code()) is not None:
+            return Verdict(False, f'node {p.name} exited with status {code} ({p.log_path}):\n{p.log_tail()}')
+    return None
+
+
+def _await(missing, children, monitor, interrupt, deadline, options):
     """Spin the monitor until `missing(monitor)` is None (-> None), else the Verdict why the flight cannot start."""
     from quad_bringup.flight_monitor import Verdict
 
-    deadline = time.monotonic() + options.startup_timeout_s
     while (what := missing(monitor)) is not None:
-        if interrupt.signum is not None:
-            return Verdict(False, f'interrupted by {signal.Signals(interrupt.signum).name} before the flight')
-        for p in children:
-            if (code := p.exit_code()) is not None:
-                return Verdict(False, f'node {p.name} exited with status {code} ({p.log_path}):\n{p.log_tail()}')
+        if (ended := _interrupted_or_dead(children, interrupt, 'before the flight')) is not None:
+            return ended
         if time.monotonic() > deadline:
             return Verdict(False, f'{what} within {options.startup_timeout_s:.0f} s of start')
         monitor.spin_once(0.05)
@@ -296,28 +305,21 @@ def _await(missing, children, monitor, interrupt, options):
 
 
 def _watch(judge, monitor, children, interrupt, options, log):
-    """Spin the monitor until a verdict, a dead child, a stall or a signal."""
+    """Spin the monitor until a verdict, a dead child, a stall or a signal (the judge already has the plan and
+    odometry: the staged start waited for both)."""
     from quad_bringup.flight_monitor import Verdict
 
-    started = last_progress = time.monotonic()
-    last_t, last_change = None, time.monotonic()
+    last_progress = last_change = time.monotonic()
+    last_t = None
     while True:
         monitor.spin_once(0.05)
         now = time.monotonic()
         if judge.verdict is not None:
             return judge.verdict
-        if interrupt.signum is not None:
-            return Verdict(False, f'interrupted by {signal.Signals(interrupt.signum).name} at '
-                                  f'{judge.progress().strip()}')
-        for p in children:
-            code = p.exit_code()
-            if code is not None:
-                return Verdict(False, f'node {p.name} exited with status {code} ({p.log_path}):\n{p.log_tail()}')
+        if (ended := _interrupted_or_dead(children, interrupt, f'at {judge.progress().strip()}')) is not None:
+            return ended
         if judge.t_s != last_t:
             last_t, last_change = judge.t_s, now
-        if judge.trajectory is None or judge.t_s is None:
-            if now - started > options.startup_timeout_s:
-                return Verdict(False, f'no trajectory and odometry within {options.startup_timeout_s:.0f} s of start')
         elif now - last_change > options.stall_timeout_s:
             return Verdict(False, f'simulation stalled: no new odometry for {options.stall_timeout_s:.0f} s')
         if not options.quiet and now - last_progress >= 1.0:

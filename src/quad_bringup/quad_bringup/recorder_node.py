@@ -21,7 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec
+from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, installed
 from quad_common import diagnostics
 from quad_common.params import Param, ParameterSet
 
@@ -55,13 +55,12 @@ class RecorderNode(Node):
         self._pending = []
         for topic in self.params['topics']:
             spec = DEFAULT_TOPICS.get(topic)
-            if spec is not None:
-                try:
-                    self._subscribe(topic, spec)
-                except ImportError as exc:  # e.g. tf2_msgs is not among the PyPI ROS wheels
-                    self.get_logger().warning(f'not recording {topic}: {spec.msgtype} is not installed ({exc})')
-            else:
+            if spec is None:
                 self._pending.append(topic)
+            elif not installed(spec):  # e.g. tf2_msgs is not among the PyPI ROS wheels
+                self.get_logger().warning(f'not recording {topic}: {spec.msgtype} is not installed')
+            else:
+                self._subscribe(topic, spec)
         steady = rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME)
         self.create_timer(self.params['flush_period_s'], self.bag.flush, clock=steady)
         self.status_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
