@@ -12,7 +12,7 @@ from nav_msgs.msg import Odometry
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_bringup.report import Completion
+from quad_bringup.metrics import Completion
 from quad_common import conversions
 from quad_common.diagnostics import ERROR, level_of
 

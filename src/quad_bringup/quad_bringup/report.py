@@ -4,25 +4,25 @@ Reads any rosbag2 bag (MCAP or sqlite3, ours or `ros2 bag record`'s) with `rosba
 deserialising with its ROS 2 Jazzy typestore; the messages it yields have the rclpy field names,
 so the shared converters of quad_common.conversions read them.
 
-Times are message header stamps (simulated time in lockstep). Definitions (docs/quad_bringup.md):
-- time_planned_s: duration of the `trajectory` plan.
-- time_actual_s: from the trajectory start (its header.stamp) until completion, i.e. the first
-  odometry at which |p - p_final| <= position_tolerance_m and |v| <= speed_tolerance_mps, searched
-  from the moment the plan itself stays inside that ball (a flight cannot finish before its plan);
-  without completion, until the last odometry of the bag.
-- length_*_m: arc length of the planned samples / of the odometry positions over time_actual_s.
-- avg_velocity_mps = length_actual_m / time_actual_s (the seed's column).
-- rmse_m, max_error_m: |p_actual(t) - p_planned(t - t_start)| over that window (plan held at its ends).
-- waypoint_miss_max_m: the largest over waypoints of the closest approach of the flown path.
+Times are message header stamps (simulated time in lockstep). The metrics and their definitions are
+quad_bringup.metrics (numpy only; docs/quad_bringup.md).
 """
 
 import json
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from quad_bringup.metrics import (  # noqa: F401  (re-exported: the report's API)
+    Completion,
+    Flight,
+    arc_length,
+    closest_approach,
+    completion_time,
+    compute_metrics,
+    planned_position,
+)
 from quad_bringup.recorder import open_bag_reader, typestore
 from quad_common import conversions, rotations
 from quad_common.diagnostics import ERROR, level_of
@@ -30,47 +30,6 @@ from quad_common.diagnostics import ERROR, level_of
 ODOM, TRAJECTORY, WAYPOINTS, MARKERS = 'odom', 'trajectory', 'trajectory/waypoints', 'trajectory/markers'
 COMMAND, DIAGNOSTICS = 'cmd/attitude_thrust', 'diagnostics'
 ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from rosbags
-
-
-@dataclass(frozen=True)
-class Completion:
-    """The course simulator's completion rule (configurable): the one definition that fly's live
-    verdict and the report's time_actual_s both use."""
-    position_tolerance_m: float = 0.02
-    speed_tolerance_mps: float = 0.03
-
-    def plan_arrival_s(self, trajectory) -> float:
-        """Time since the trajectory's start after which the plan itself stays within the tolerance
-        of its final point (so a loop that passes its end early is not 'complete' at take-off)."""
-        final = trajectory.position[-1, :3]
-        outside = np.linalg.norm(trajectory.position[:, :3] - final, axis=1) > self.position_tolerance_m
-        return float(trajectory.times_s[np.nonzero(outside)[0][-1] + 1] - trajectory.times_s[0]
-                     if np.any(outside) else 0.0)
-
-    def done(self, elapsed_s, position, velocity, trajectory, arrival_s):
-        """Completion test for one sample or arrays of them (positions/velocities on the last axis)."""
-        final = trajectory.position[-1, :3]
-        return ((np.asarray(elapsed_s) >= arrival_s)
-                & (np.linalg.norm(np.asarray(position) - final, axis=-1) <= self.position_tolerance_m)
-                & (np.linalg.norm(velocity, axis=-1) <= self.speed_tolerance_mps))
-
-
-@dataclass
-class Flight:
-    """What a bag says about one flight, as arrays over header-stamp time (s)."""
-    odom_t: np.ndarray
-    position: np.ndarray          # (N, 3) map
-    velocity: np.ndarray          # (N, 3) map
-    euler: np.ndarray             # (N, 3) roll, pitch, yaw
-    traj_start_s: float | None = None
-    trajectory: object = None     # SampledTrajectory
-    waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    obstacles: list = field(default_factory=list)  # (centre (3,), size (3,))
-    cmd_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    cmd_specific_force: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    cmd_euler: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    collision_time_s: float | None = None
-    errors: list = field(default_factory=list)   # (time_s, name, message) of ERROR diagnostics
 
 
 def _namespaced(topic: str, wanted: str) -> bool:
@@ -134,80 +93,6 @@ def load_flight(bag_dir) -> Flight:
     return flight
 
 
-# --- metrics -------------------------------------------------------------------------------------
-
-def arc_length(points) -> float:
-    points = np.asarray(points)
-    return float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1))) if len(points) > 1 else 0.0
-
-
-def closest_approach(path, point) -> float:
-    """Distance from `point` to the polyline `path` (segments, not just samples)."""
-    path = np.asarray(path)
-    if len(path) == 1:
-        return float(np.linalg.norm(path[0] - point))
-    a, b = path[:-1], path[1:]
-    ab = b - a
-    s = np.clip(np.einsum('ij,ij->i', point - a, ab) / np.maximum(np.einsum('ij,ij->i', ab, ab), 1e-18), 0, 1)
-    return float(np.min(np.linalg.norm(a + s[:, None] * ab - point, axis=1)))
-
-
-def planned_position(flight: Flight, t_s) -> np.ndarray:
-    """The plan's position at absolute times t_s (held at its ends)."""
-    return flight.trajectory.evaluate(np.asarray(t_s) - flight.traj_start_s, order=0)[0][..., :3]
-
-
-def completion_time(flight: Flight, rule: Completion) -> float | None:
-    """Absolute time of completion (see module docstring), or None."""
-    arrival_s = rule.plan_arrival_s(flight.trajectory)
-    done = rule.done(flight.odom_t - flight.traj_start_s, flight.position, flight.velocity, flight.trajectory,
-                     arrival_s)
-    return float(flight.odom_t[np.argmax(done)]) if np.any(done) else None
-
-
-def compute_metrics(flight: Flight, rule: Completion = Completion()) -> dict:
-    if flight.trajectory is None:
-        raise ValueError('bag has no trajectory message (topic trajectory): nothing to compare the flight with')
-    t0 = flight.traj_start_s
-    t_done = completion_time(flight, rule)
-    t_end = t_done if t_done is not None else float(flight.odom_t[-1])
-    window = (flight.odom_t >= t0) & (flight.odom_t <= t_end)
-    if not np.any(window):
-        window = flight.odom_t <= t_end
-    p = flight.position[window]
-    err = np.linalg.norm(p - planned_position(flight, flight.odom_t[window]), axis=1)
-    time_actual = t_end - t0
-    length_actual = arc_length(p)
-    collided = flight.collision_time_s is not None
-    waypoints = flight.waypoints if len(flight.waypoints) else flight.trajectory.position[[0, -1], :3]
-    misses = [closest_approach(p, w) for w in waypoints]
-    final = flight.trajectory.position[-1, :3]
-    metrics = {
-        'time_planned_s': flight.trajectory.duration_s,
-        'time_actual_s': time_actual,
-        'time_over_s': time_actual - flight.trajectory.duration_s,
-        'length_planned_m': arc_length(flight.trajectory.position[:, :3]),
-        'length_actual_m': length_actual,
-        'avg_velocity_mps': length_actual / time_actual if time_actual > 0 else 0.0,
-        'rmse_m': float(np.sqrt(np.mean(err ** 2))),
-        'max_error_m': float(np.max(err)),
-        'waypoint_miss_max_m': float(max(misses)),
-        'completed': t_done is not None and not collided,
-        'collided': collided,
-        'collision_time_s': None if not collided else flight.collision_time_s - t0,
-        'final_error_m': float(np.linalg.norm(flight.position[-1] - final)),
-        'max_speed_mps': float(np.max(np.linalg.norm(flight.velocity[window], axis=1))),
-        'max_tilt_deg': float(np.degrees(np.max(np.arccos(np.clip(
-            np.cos(flight.euler[window, 0]) * np.cos(flight.euler[window, 1]), -1, 1))))),
-        'n_waypoints': int(len(waypoints)),
-        'n_odometry': int(np.count_nonzero(window)),
-        'errors': [f'{t - t0:.2f} s {name}: {message}' for t, name, message in flight.errors[:10]],
-        'completion_rule': {'position_tolerance_m': rule.position_tolerance_m,
-                            'speed_tolerance_mps': rule.speed_tolerance_mps},
-    }
-    return metrics
-
-
 # --- tables ---------------------------------------------------------------------------------------
 
 TABLE_COLUMNS = [
@@ -242,8 +127,9 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
     return '\n'.join(lines)
 
 
-def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion = Completion()) -> dict:
+def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion | None = None) -> dict:
     """metrics.json, report.md and figures/*.png for the bag; returns the metrics written."""
+    rule = rule or Completion()
     from quad_bringup import report_figures
 
     out_dir = Path(out_dir)

@@ -18,13 +18,13 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import cdr, conversions, diagnostics, rotations
+from quad_common import cdr, conversions, diagnostics
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
-from quad_common.types import Reference
 from quad_common.vehicle import load_vehicle
+from quad_control.loop import ControlLoop, Tick
 from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains
 
 NODE_NAME = 'position_controller'
@@ -40,6 +40,9 @@ SPECS = [
     Param('lockstep', False, 'compute the tick at t from the odometry stamped t (deferred until it arrives)'),
     Param('wait_for_trajectory', False, 'lockstep: defer the ticks (so simulated time waits) until a trajectory '
           'arrives; a late latched plan then never starts in the past'),
+    Param('max_start_step_m', 0.5, 'a plan whose reference at its first tick is farther than this from the vehicle '
+          'is refused (the controller keeps holding, ERROR on diagnostics naming the distance)',
+          min=0.0, max=1000.0),
     Param('odom_timeout_s', 0.2, 'odometry older than this stops the setpoints (failsafe) and reports ERROR',
           min=0.001, max=10.0),
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file: mass, thrust range, max tilt',
@@ -86,19 +89,16 @@ class PositionControllerNode(Node):
         self.vehicle = load_vehicle(resolve_config(self.params['vehicle']))
         self.controller = PositionController(self.params['controller'], gains_from(self.params.values), self.vehicle,
                                              Limits.of(self.vehicle, self.params['max_tilt_deg']))
-        self.odom = None            # (stamp_ns, received_steady_ns, State) of the newest finite odometry
+        self.loop = ControlLoop(self.controller, self.params['rate_hz'], lockstep=self.params['lockstep'],
+                                wait_for_trajectory=self.params['wait_for_trajectory'],
+                                max_start_step_m=self.params['max_start_step_m'], on_fault=self._fault)
+        self.odom_received_ns = None  # steady time of the newest finite odometry
         self.odom_fault = None      # reason the newest odometry was refused (non-finite), until a good one
-        self.trajectory = None      # (start_ns, SampledTrajectory)
-        self.hold = None            # Reference held before any trajectory
-        self.pending_tick_ns = None  # lockstep: tick waiting for its odometry
         self.pending_since_ns = 0
-        self.last_control_ns = None
         self.stale = False
         self.last_error = ''
         self.tick_times_ns = deque(maxlen=4096)
-        self.counts = dict.fromkeys(('setpoints', 'deferred_ticks', 'superseded_ticks', 'odom_timeouts',
-                                     'nonfinite_odom', 'rejected_trajectories', 'control_errors',
-                                     'saturation_thrust', 'saturation_tilt', 'saturation_integral'), 0)
+        self.node_counts = dict.fromkeys(('odom_timeouts', 'nonfinite_odom', 'rejected_trajectories'), 0)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -122,6 +122,20 @@ class PositionControllerNode(Node):
         clock = [s for s in self.subscriptions if s.topic_name == '/clock']
         return clock + [self.odom_sub, self.trajectory_sub], [self.timer]
 
+    @property
+    def trajectory(self):
+        """The newest accepted plan (start_ns, SampledTrajectory), started or not; None before any."""
+        return self.loop.next_plan or self.loop.trajectory
+
+    @property
+    def counts(self) -> dict:
+        """The loop's counts (setpoints, deferrals, refusals, saturations) and the node's (inputs)."""
+        return {**self.loop.counts, **self.node_counts}
+
+    @property
+    def pending_tick_ns(self):
+        return self.loop.pending_tick_ns
+
     # --- inputs ---------------------------------------------------------------------------------
 
     def _on_odom(self, raw: bytes):
@@ -132,7 +146,7 @@ class PositionControllerNode(Node):
                 raise ValueError(f'position {state.position.tolist()}, velocity {state.velocity.tolist()}, '
                                  f'body rates {state.body_rates.tolist()}')
         except ValueError as exc:
-            self.counts['nonfinite_odom'] += 1
+            self.node_counts['nonfinite_odom'] += 1
             first = self.odom_fault is None
             self.odom_fault = f'odom refused (non-finite): {exc}'
             if first:
@@ -141,107 +155,75 @@ class PositionControllerNode(Node):
         if self.odom_fault is not None:
             self.get_logger().info('odom finite again: control resumes')
             self.odom_fault = None
-        self.odom = (stamp_ns, self.steady.now().nanoseconds, state)
-        self._run_pending_tick()
+        self.odom_received_ns = self.steady.now().nanoseconds
+        self._publish(self.loop.set_odometry(stamp_ns, state))
 
     def _on_trajectory(self, msg: MultiDOFJointTrajectory):
         try:
             start_s, traj = conversions.msg_to_sampled(msg)
         except ValueError as exc:
-            self.counts['rejected_trajectories'] += 1
+            self.node_counts['rejected_trajectories'] += 1
             self._fault(f'trajectory refused, previous one kept: {exc}')
             return
-        self.trajectory = (_stamp_ns(msg.header.stamp), traj)
-        self.controller.reset()
         self.get_logger().info(f'trajectory: {len(traj.times_s)} samples, {traj.duration_s:.2f} s, '
                                f'starts at {start_s:.3f} s')
-        self._run_pending_tick()
+        self._publish(self.loop.set_trajectory(_stamp_ns(msg.header.stamp), traj))
 
     def _on_change(self, changed: dict):
         values = self.params.values
         self.controller.gains = gains_from(values)
         self.controller.limits = Limits.of(self.vehicle, values['max_tilt_deg'])
+        self.loop.max_start_step_m = values['max_start_step_m']
+        self.loop.wait_for_trajectory = values['wait_for_trajectory']
         if 'controller' in changed:
             self.controller.name = values['controller']
             self.controller.reset()
         if 'rate_hz' in changed:
+            self.loop.rate_hz = values['rate_hz']
             self.destroy_timer(self.timer)
             self.timer = self.create_timer(1.0 / values['rate_hz'], self._on_tick)
             self.tick_times_ns.clear()
         if 'lockstep' in changed:
-            self.pending_tick_ns = None
+            self.loop.lockstep = values['lockstep']
+            self.loop.clear_pending()
         self.get_logger().info(f'parameters changed: {changed}')
 
-    # --- the loop -------------------------------------------------------------------------------
+    # --- the loop (rules: quad_control.loop) ----------------------------------------------------
 
     def _on_tick(self):
         now_ns = self.get_clock().now().nanoseconds
-        if self.params['lockstep']:
-            if self.pending_tick_ns is not None:
-                self.counts['superseded_ticks'] += 1
-            else:
+        if self.loop.lockstep:
+            if self.loop.pending_tick_ns is None:
                 self.pending_since_ns = self.steady.now().nanoseconds
-            self.pending_tick_ns = now_ns
-            self._run_pending_tick()
-            if self.pending_tick_ns is not None:
-                self.counts['deferred_ticks'] += 1
+            if self.odom_fault is None:
+                self._publish(self.loop.tick(now_ns))
+            else:  # the tick waits for a finite odometry
+                self.loop.pending_tick_ns = now_ns
             return
-        if self.odom is None or self.odom_fault is not None:
+        if self.loop.odom is None or self.odom_fault is not None:
             return
-        age_s = (self.steady.now().nanoseconds - self.odom[1]) * 1e-9
+        age_s = (self.steady.now().nanoseconds - self.odom_received_ns) * 1e-9
         if age_s > self.params['odom_timeout_s']:
             if not self.stale:
                 self.stale = True
-                self.counts['odom_timeouts'] += 1
+                self.node_counts['odom_timeouts'] += 1
                 self._fault(f'odom stale ({age_s:.3f} s > odom_timeout_s {self.params["odom_timeout_s"]}): '
                             'setpoints stopped')
             return
-        self._control(now_ns, self.odom[2])
+        self._publish(self.loop.tick(now_ns))
 
-    def _run_pending_tick(self):
-        """Lockstep: the pending tick at t runs as soon as the odometry stamped >= t is here."""
-        if self.pending_tick_ns is None or self.odom is None or self.odom_fault is not None:
+    def _publish(self, tick: Tick | None):
+        if tick is None:
             return
-        if self.trajectory is None and self.params['wait_for_trajectory']:
-            return
-        if self.odom[0] < self.pending_tick_ns:
-            return
-        t_ns, self.pending_tick_ns = self.pending_tick_ns, None
-        self._control(t_ns, self.odom[2])
-
-    def _reference(self, t_ns: int, state) -> Reference:
-        if self.hold is None:
-            self.hold = Reference(position=state.position.copy(), yaw=float(rotations.to_euler(state.quaternion)[2]))
-        if self.trajectory is None or t_ns < self.trajectory[0]:
-            return self.hold
-        return self.trajectory[1].reference((t_ns - self.trajectory[0]) * 1e-9)  # after the end: the final point
-
-    def _control(self, t_ns: int, state):
-        if self.stale:
+        if self.stale:  # the hold point stays where it was anchored (quad_control.loop)
             self.stale = False
-            if self.trajectory is None:
-                self.hold = None  # the vehicle's failsafe may have moved it: hold where it is now
             self.get_logger().info('odom fresh again: control resumes')
             self.publish_diagnostics()
-        ref = self._reference(t_ns, state)
-        period_s = 1.0 / self.params['rate_hz']
-        dt_s = 0.0 if self.last_control_ns is None else min(max((t_ns - self.last_control_ns) * 1e-9, 0.0),
-                                                            2 * period_s)
-        try:
-            setpoint, sat = self.controller.update(state, ref, dt_s)
-        except ValueError as exc:
-            self.counts['control_errors'] += 1
-            self._fault(f'no setpoint at t = {t_ns * 1e-9:.3f} s: {exc}')
-            return
-        self.last_control_ns = t_ns
         if not self.context.ok():  # shutting down (SIGINT/SIGTERM): publishers are gone
             return
-        self.cmd_pub.publish(self._setpoint_packer.pack(setpoint, t_ns))
-        self.ref_pub.publish(self._reference_packer.pack(ref, t_ns))
-        self.counts['setpoints'] += 1
-        for name in ('thrust', 'tilt', 'integral'):
-            self.counts[f'saturation_{name}'] += int(getattr(sat, name))
-        self.tick_times_ns.append(t_ns)
+        self.cmd_pub.publish(self._setpoint_packer.pack(tick.setpoint, tick.t_ns))
+        self.ref_pub.publish(self._reference_packer.pack(tick.reference, tick.t_ns))
+        self.tick_times_ns.append(tick.t_ns)
 
     # --- reporting ------------------------------------------------------------------------------
 
@@ -249,14 +231,6 @@ class PositionControllerNode(Node):
         self.last_error = reason
         self.get_logger().error(reason)
         self.publish_diagnostics(fault=reason)
-
-    def _mode(self, now_ns: int) -> str:
-        if self.trajectory is None:
-            return 'hold (no trajectory)'
-        start_ns, traj = self.trajectory
-        if now_ns < start_ns:
-            return 'hold (trajectory not started)'
-        return 'tracking' if (now_ns - start_ns) * 1e-9 <= traj.duration_s else 'hold (trajectory ended)'
 
     def _loop_rate_hz(self, now_ns: int) -> float:
         window_ns = int(DIAGNOSTICS_PERIOD_S * 2e9)
@@ -269,21 +243,23 @@ class PositionControllerNode(Node):
         now_ns = self.get_clock().now().nanoseconds
         timeout_s = self.params['odom_timeout_s']
         deferred_s = (self.steady.now().nanoseconds - self.pending_since_ns) * 1e-9
-        level, message = diagnostics.OK, self._mode(now_ns)
+        level, message = diagnostics.OK, self.loop.mode(now_ns)
         if fault is not None:
             level, message = diagnostics.ERROR, fault
         elif self.odom_fault is not None:
             level, message = diagnostics.ERROR, self.odom_fault
         elif self.stale:
             level, message = diagnostics.ERROR, f'odom stale (> {timeout_s} s): no setpoints'
-        elif self.params['lockstep'] and self.pending_tick_ns is not None and deferred_s > timeout_s:
+        elif self.loop.lockstep and self.loop.pending_tick_ns is not None and deferred_s > timeout_s:
             level, message = diagnostics.ERROR, f'lockstep: no odom stamped >= tick for {deferred_s:.2f} s'
-        elif self.odom is None:
+        elif self.loop.odom is None:
             level, message = diagnostics.WARN, 'waiting for odom'
-        values = {'controller': self.controller.name, 'mode': self._mode(now_ns),
+        values = {'controller': self.controller.name, 'mode': self.loop.mode(now_ns),
                   'lockstep': self.params['lockstep'], 'rate_hz': self.params['rate_hz'],
                   'loop_rate_hz': f'{self._loop_rate_hz(now_ns):.2f}', **self.counts,
-                  'integral_m_s': np.round(self.controller.integral_m_s, 4).tolist(), 'last_error': self.last_error}
+                  'integral_m_s': np.round(self.controller.integral_m_s, 4).tolist(), 'last_error': self.last_error,
+                  'hold_position_m': None if self.loop.hold is None else self.loop.hold.position.tolist(),
+                  'start_step_m': self.loop.last_start_step_m, 'max_start_step_m': self.loop.max_start_step_m}
         self.diag_pub.publish(diagnostics.array(_stamp(now_ns), [
             diagnostics.status(f'{NODE_NAME}: cmd/attitude_thrust', level, message, values)]))
 

@@ -1,0 +1,142 @@
+"""ControlLoop: the rules between a PositionController and its inputs (no rclpy), the one loop that
+position_controller_node and the offline flight loop (quad_bringup.closed_loop) both run.
+
+- Hold before the plan: until a trajectory has started the reference is the hold point, anchored once at the
+  first odometry controlled from (its position and yaw) and never re-anchored (a stale-odometry event or a
+  refused plan does not move it).
+- A plan (start_ns, SampledTrajectory) is taken at its first tick t >= start_ns: reference(t - start_ns), after
+  its end the final point. Taking it resets the controller (pid integral, disturbance observer).
+- Start step: a plan whose reference at that first tick is farther than max_start_step_m from the vehicle is
+  refused (the loop keeps what it tracked before; a fault names the distance), never flown as a step.
+- dt = clamp(t - t_previous, 0, 2 / rate_hz), 0 at the first tick.
+- Lockstep: the tick at t runs with the odometry stamped >= t, deferred until that arrives (a newer tick
+  supersedes a pending one); wait_for_trajectory also defers it until a plan is here.
+"""
+
+import math
+from dataclasses import dataclass
+
+from quad_common import rotations
+from quad_common.types import AttitudeSetpoint, Reference, State
+from quad_control.position import PositionController, Saturation
+
+COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'refused_start_steps',
+          'saturation_thrust', 'saturation_tilt', 'saturation_integral')
+
+
+@dataclass
+class Tick:
+    """What one tick at t_ns produced (the node publishes it; the offline loop applies it)."""
+    t_ns: int
+    setpoint: AttitudeSetpoint
+    reference: Reference
+    saturation: Saturation
+
+
+class ControlLoop:
+    def __init__(self, controller: PositionController, rate_hz: float, *, lockstep: bool = False,
+                 wait_for_trajectory: bool = False, max_start_step_m: float = math.inf, on_fault=None):
+        """on_fault(reason): called with a one-line reason when a tick produces no setpoint or a plan is refused."""
+        self.controller = controller
+        self.rate_hz = float(rate_hz)
+        self.lockstep = lockstep
+        self.wait_for_trajectory = wait_for_trajectory
+        self.max_start_step_m = float(max_start_step_m)
+        self.on_fault = on_fault or (lambda reason: None)
+        self.odom = None             # (stamp_ns, State) of the newest accepted odometry
+        self.trajectory = None       # (start_ns, SampledTrajectory) being tracked (or ended)
+        self.next_plan = None        # (start_ns, SampledTrajectory) received, not started yet
+        self.hold = None             # Reference: the hold point, anchored once
+        self.pending_tick_ns = None  # lockstep: the tick waiting for its odometry
+        self.last_control_ns = None
+        self.last_start_step_m = None  # distance vehicle -> plan at the last plan start (taken or refused)
+        self.counts = dict.fromkeys(COUNTS, 0)
+
+    # --- inputs -------------------------------------------------------------------------------------
+
+    def set_odometry(self, stamp_ns: int, state: State) -> Tick | None:
+        """A finite odometry; in lockstep it may run the pending tick (returned)."""
+        self.odom = (stamp_ns, state)
+        return self.run_pending()
+
+    def set_trajectory(self, start_ns: int, trajectory) -> Tick | None:
+        """A new plan, started at its first tick at or after start_ns (see the module docstring)."""
+        self.next_plan = (start_ns, trajectory)
+        return self.run_pending()
+
+    def clear_pending(self):
+        self.pending_tick_ns = None
+
+    # --- ticks --------------------------------------------------------------------------------------
+
+    def tick(self, t_ns: int) -> Tick | None:
+        """The timer tick at t_ns: lockstep defers it until its odometry; otherwise controls at once from the
+        newest odometry (the node decides whether that odometry is fresh enough)."""
+        if not self.lockstep:
+            return None if self.odom is None else self.control(t_ns, self.odom[1])
+        if self.pending_tick_ns is not None:
+            self.counts['superseded_ticks'] += 1
+        self.pending_tick_ns = t_ns
+        out = self.run_pending()
+        if self.pending_tick_ns is not None:
+            self.counts['deferred_ticks'] += 1
+        return out
+
+    def run_pending(self) -> Tick | None:
+        """Lockstep: the pending tick at t runs as soon as the odometry stamped >= t is here."""
+        if self.pending_tick_ns is None or self.odom is None:
+            return None
+        if self.wait_for_trajectory and self.trajectory is None and self.next_plan is None:
+            return None
+        if self.odom[0] < self.pending_tick_ns:
+            return None
+        t_ns, self.pending_tick_ns = self.pending_tick_ns, None
+        return self.control(t_ns, self.odom[1])
+
+    def control(self, t_ns: int, state: State) -> Tick | None:
+        """One controller step at t_ns from `state`; None (and on_fault) if the controller refuses."""
+        ref = self.reference(t_ns, state)
+        period_s = 1.0 / self.rate_hz
+        dt_s = 0.0 if self.last_control_ns is None else min(max((t_ns - self.last_control_ns) * 1e-9, 0.0),
+                                                            2 * period_s)
+        try:
+            setpoint, sat = self.controller.update(state, ref, dt_s)
+        except ValueError as exc:
+            self.counts['control_errors'] += 1
+            self.on_fault(f'no setpoint at t = {t_ns * 1e-9:.3f} s: {exc}')
+            return None
+        self.last_control_ns = t_ns
+        self.counts['setpoints'] += 1
+        for name in ('thrust', 'tilt', 'integral'):
+            self.counts[f'saturation_{name}'] += int(getattr(sat, name))
+        return Tick(t_ns, setpoint, ref, sat)
+
+    def reference(self, t_ns: int, state: State) -> Reference:
+        if self.hold is None:
+            self.hold = Reference(position=state.position.copy(), yaw=float(rotations.to_euler(state.quaternion)[2]))
+        if self.next_plan is not None and t_ns >= self.next_plan[0]:
+            self._start_plan(t_ns, state)
+        if self.trajectory is None or t_ns < self.trajectory[0]:
+            return self.hold
+        return self.trajectory[1].reference((t_ns - self.trajectory[0]) * 1e-9)  # after the end: the final point
+
+    def _start_plan(self, t_ns: int, state: State):
+        (start_ns, traj), self.next_plan = self.next_plan, None
+        step_m = float(math.dist(traj.reference((t_ns - start_ns) * 1e-9).position, state.position))
+        self.last_start_step_m = step_m
+        if step_m > self.max_start_step_m:
+            self.counts['refused_start_steps'] += 1
+            self.on_fault(f'trajectory refused at its start (t = {t_ns * 1e-9:.3f} s): it begins {step_m:.3f} m '
+                          f'from the vehicle > max_start_step_m {self.max_start_step_m} m; '
+                          f'{"holding" if self.trajectory is None else "keeping the previous plan"}')
+            return
+        self.trajectory = (start_ns, traj)
+        self.controller.reset()
+
+    # --- status -------------------------------------------------------------------------------------
+
+    def mode(self, t_ns: int) -> str:
+        if self.trajectory is None:
+            return 'hold (trajectory not started)' if self.next_plan is not None else 'hold (no trajectory)'
+        start_ns, traj = self.trajectory
+        return 'tracking' if (t_ns - start_ns) * 1e-9 <= traj.duration_s else 'hold (trajectory ended)'
