@@ -249,3 +249,50 @@ def test_invalid_startup_parameter_exits_2_naming_it():
                                '-p', 'kp_z:=-3.0'], env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert 'kp_z' in proc.stderr + proc.stdout and '-3.0' in proc.stderr + proc.stdout
+
+
+def _line_trajectory(start_xyz, start_s):
+    """A 1 s line from start_xyz, 0.5 m along x, latched, starting at start_s."""
+    p0 = np.array([*start_xyz, 0.0])
+    p = np.array([p0, p0 + [0.5, 0.0, 0.0, 0.0]])
+    return conv.sampled_to_msg(SampledTrajectory([0.0, 1.0], p, np.zeros((2, 4)), np.zeros((2, 4))),
+                               conv.s_to_stamp(start_s))
+
+
+def test_plan_starting_away_from_the_vehicle_is_refused_and_held(graph):
+    """Issue 13.3: a plan whose start is 1.5 m from where the vehicle hovers is not flown as a step."""
+    graph.start(use_sim_time=True, lockstep=True, max_start_step_m=0.5)
+    assert np.allclose(graph.step(1.0, z=1.0), [0, 0, 1.0])
+    graph.traj_pub.publish(_line_trajectory([1.5, 0.0, 1.0], 2.0))
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    assert np.allclose(graph.step(1.5, z=1.0), [0, 0, 1.0])
+    assert np.allclose(graph.step(2.0, z=1.0), [0, 0, 1.0])   # its start: refused, still the hold point
+    assert np.allclose(graph.step(2.5, z=1.0), [0, 0, 1.0])
+    graph.spin_until(lambda: any('max_start_step_m' in _status(d).message for d in graph.diags), 'the refusal')
+    refusal = next(_status(d) for d in graph.diags if 'max_start_step_m' in _status(d).message)
+    assert refusal.level == diagnostics.ERROR and '1.500 m' in refusal.message
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert values['refused_start_steps'] == '1' and math.isclose(float(values['start_step_m']), 1.5)
+    assert values['mode'] == 'hold (no trajectory)'
+    # a plan that starts where the vehicle is, is taken
+    graph.traj_pub.publish(_line_trajectory([0.1, 0.0, 1.0], 3.0))
+    graph.spin_until(lambda: graph.node.trajectory is not None and graph.node.trajectory[0] == 3_000_000_000,
+                     'the second plan')
+    assert np.allclose(graph.step(3.5, z=1.0), [0.35, 0, 1.0])
+    assert graph.node.counts['refused_start_steps'] == 1
+
+
+def test_hold_point_is_not_re_anchored_after_stale_odometry(graph):
+    """Issue 13.3: after a stale-odometry event the hold point stays where it was anchored (it used to move to
+    wherever the vehicle had drifted)."""
+    graph.start(odom_timeout_s=0.2, rate_hz=100.0)
+    graph.publish_odom(0.0, x=0.0, z=1.0)
+    graph.spin_until(lambda: len(graph.references) > 0, 'references with fresh odom')
+    graph.spin_until(lambda: graph.node.counts['odom_timeouts'] == 1, 'stale')
+    n = len(graph.references)
+    graph.publish_odom(0.0, x=0.8, z=0.6)   # the vehicle drifted while odometry was stale
+    graph.spin_until(lambda: len(graph.references) > n + 3, 'references again')
+    for ref in graph.references:
+        assert np.allclose(conv.vec3(ref.points[0].transforms[0].translation), [0.0, 0.0, 1.0])
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert values['hold_position_m'] == '[0.0, 0.0, 1.0]'
