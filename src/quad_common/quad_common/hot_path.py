@@ -8,7 +8,7 @@ parameters, slow timers, other subscriptions) is served by the stock executor ev
 """
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 from rclpy.executors import (
     ConditionReachedException,
@@ -18,8 +18,6 @@ from rclpy.executors import (
     TimeoutException,
 )
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-from rclpy.subscription import Subscription
-from rclpy.timer import Timer
 
 # Wall time between passes over the other entities: their callbacks wait at most this. A pass rebuilds rclpy's
 # whole wait set (~1-2 ms of Python on the 2-core machine): every 20 ms that was ~30 % of the lockstep graph's
@@ -28,10 +26,10 @@ SLOW_PERIOD_S = 0.1
 
 
 class HotPathExecutor(SingleThreadedExecutor):
-    def __init__(self, hot: Callable[[], tuple[Sequence[Subscription], Sequence[Timer]]], *,
-                 slow_period_s: float = SLOW_PERIOD_S, context=None):
-        """hot() -> (subscriptions, timers) of the tick; asked before every wait, as a node may replace them.
-        Their callbacks take the message only (no MessageInfo) and are plain functions (no coroutines)."""
+    def __init__(self, hot: Callable[[], tuple], *, slow_period_s: float = SLOW_PERIOD_S, context=None):
+        """hot() -> (subscriptions, timers) or (subscriptions, timers, guard conditions) of the tick; asked before
+        every wait, as a node may replace them. Their callbacks take the message only (no MessageInfo; none for a
+        guard condition) and are plain functions (no coroutines)."""
         super().__init__(context=context)
         self._hot = hot
         self._slow_period_s = slow_period_s
@@ -47,11 +45,12 @@ class HotPathExecutor(SingleThreadedExecutor):
         if now_s >= self._next_slow_s:
             self._next_slow_s = now_s + self._slow_period_s
             self._spin_ready_others()
-        subscriptions, timers = self._hot()
+        subscriptions, timers, *guards = self._hot()
+        guards = guards[0] if guards else ()
         wait_s = self._next_slow_s - now_s
         if timeout_sec is not None and timeout_sec >= 0:
             wait_s = min(wait_s, timeout_sec)
-        wait_set = self._prepared_wait_set(subscriptions, timers)
+        wait_set = self._prepared_wait_set(subscriptions, timers, guards)
         wait_set.wait(max(int(wait_s * 1e9), 0))
         if not self._context.ok():
             raise ExternalShutdownException()
@@ -61,16 +60,22 @@ class HotPathExecutor(SingleThreadedExecutor):
                 msg_info = sub.handle.take_message(sub.msg_type, sub.raw)
                 if msg_info is not None:
                     sub.callback(msg_info[0])
+        if guards:  # a worker thread's result (e.g. a decoded trajectory)
+            ready = wait_set.get_ready_entities('guard_condition')
+            for gc in guards:
+                if gc.handle.pointer in ready:
+                    gc.callback()
         for timer in timers:  # after the subscriptions: a /clock message may just have made a sim-time timer due
             if timer.handle.is_timer_ready():
                 timer.handle.call_timer()
                 timer.callback()
 
-    def _prepared_wait_set(self, subscriptions, timers):
+    def _prepared_wait_set(self, subscriptions, timers, guards=()):
         """The wait set, re-made only when the hot entities change (rcl_wait empties it, so they are re-added)."""
-        key = (tuple(subscriptions), tuple(timers))
+        key = (tuple(subscriptions), tuple(timers), tuple(guards))
         if key != self._wait_set_key:
-            self._wait_set = _rclpy.WaitSet(len(subscriptions), 2, len(timers), 0, 0, 0, self._context.handle)
+            self._wait_set = _rclpy.WaitSet(len(subscriptions), 2 + len(guards), len(timers), 0, 0, 0,
+                                            self._context.handle)
             self._wait_set_key = key
         wait_set = self._wait_set
         wait_set.clear_entities()
@@ -80,6 +85,8 @@ class HotPathExecutor(SingleThreadedExecutor):
             wait_set.add_timer(timer.handle)
         wait_set.add_guard_condition(self._guard.handle)  # add_node / shutdown wake-ups
         wait_set.add_guard_condition(self._sigint_gc.handle)
+        for gc in guards:
+            wait_set.add_guard_condition(gc.handle)
         return wait_set
 
     def _spin_ready_others(self):

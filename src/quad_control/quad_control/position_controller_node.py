@@ -4,8 +4,13 @@ Each tick at node-clock time t samples the latched `trajectory`, runs the contro
 odometry and publishes `cmd/attitude_thrust` and `control/reference`, both stamped t.
 lockstep: the tick waits for the odometry stamped >= t (contract: docs/quad_control.md).
 Failsafe: stale or non-finite odometry -> no setpoint at all, ERROR on `diagnostics`.
+The tick never waits for a trajectory: its bytes are decoded on a thread of their own (TrajectoryDecoder) and the
+result is swapped in on the executor's thread; odometry stamped more than one period ahead of the node clock is
+refused (a node on another clock, or one that ran ahead, must not become "the newest").
 """
 
+import threading
+import time
 from collections import deque
 
 import numpy as np
@@ -18,7 +23,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import cdr, conversions, diagnostics
+from quad_common import cdr, diagnostics
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
@@ -74,8 +79,55 @@ def gains_from(values: dict) -> PositionGains:
                          disturbance_time_constant_s=float(values['disturbance_time_constant_s']))
 
 
-def _stamp_ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
+class TrajectoryDecoder:
+    """Decodes serialized trajectories (quad_common.cdr.trajectory_to_sampled) on a thread of its own.
+
+    submit(raw) returns at once; when a result is ready, on_ready() is called from the worker (it triggers a
+    guard condition) and take() hands the results, in arrival order, to the executor's thread: the plan is
+    swapped into the loop there, atomically between two ticks. A result is ('ok', start_ns, trajectory,
+    decode_s) or ('refused', reason).
+    """
+
+    def __init__(self, on_ready, decode=cdr.trajectory_to_sampled):
+        self.decode = decode
+        self._on_ready = on_ready
+        self._lock = threading.Condition()
+        self._queue, self._results, self._closed = deque(), deque(), False
+        self._thread = threading.Thread(target=self._run, name='trajectory-decoder', daemon=True)
+        self._thread.start()
+
+    def submit(self, raw: bytes):
+        with self._lock:
+            self._queue.append(raw)
+            self._lock.notify()
+
+    def take(self) -> list:
+        with self._lock:
+            results, self._results = list(self._results), deque()
+        return results
+
+    def close(self):
+        with self._lock:
+            self._closed = True
+            self._lock.notify()
+        self._thread.join(timeout=5.0)
+
+    def _run(self):
+        while True:
+            with self._lock:
+                self._lock.wait_for(lambda: self._queue or self._closed)
+                if self._closed:
+                    return
+                raw = self._queue.popleft()
+            started = time.perf_counter()
+            try:
+                start_ns, traj = self.decode(raw)
+                result = ('ok', start_ns, traj, time.perf_counter() - started)
+            except Exception as exc:  # noqa: BLE001  (any undecodable input is refused, the node goes on)
+                result = ('refused', f'{type(exc).__name__}: {exc}' if not isinstance(exc, ValueError) else str(exc))
+            with self._lock:
+                self._results.append(result)
+            self._on_ready()
 
 
 def _stamp(t_ns: int):
@@ -98,7 +150,9 @@ class PositionControllerNode(Node):
         self.stale = False
         self.last_error = ''
         self.tick_times_ns = deque(maxlen=4096)
-        self.node_counts = dict.fromkeys(('odom_timeouts', 'nonfinite_odom', 'rejected_trajectories'), 0)
+        self.node_counts = dict.fromkeys(('odom_timeouts', 'nonfinite_odom', 'future_odom', 'rejected_trajectories'),
+                                         0)
+        self.last_future_odom = ''  # 'stamp s > clock s' of the last odometry refused as from the future
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -108,8 +162,10 @@ class PositionControllerNode(Node):
         self.odom_sub = self.create_subscription(Odometry, 'odom', self._on_odom, reliable, raw=True)
         self._setpoint_packer = cdr.SetpointPacker()
         self._reference_packer = cdr.ReferencePacker()
-        self.trajectory_sub = self.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_trajectory,
-                                                       latched)
+        self.trajectory_ready = self.create_guard_condition(self._take_trajectories)
+        self.trajectory_decoder = TrajectoryDecoder(self.trajectory_ready.trigger)
+        self.trajectory_sub = self.create_subscription(MultiDOFJointTrajectory, 'trajectory',
+                                                       self.trajectory_decoder.submit, latched, raw=True)
         self.timer = self.create_timer(1.0 / self.params['rate_hz'], self._on_tick)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=self.steady)
@@ -118,9 +174,13 @@ class PositionControllerNode(Node):
 
     def hot_entities(self):
         """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
-        trajectory (rare, but a new plan must not wait for the executor's slow pass)."""
+        trajectory's bytes and its decoded result (rare, but a new plan must not wait for the slow pass)."""
         clock = [s for s in self.subscriptions if s.topic_name == '/clock']
-        return clock + [self.odom_sub, self.trajectory_sub], [self.timer]
+        return clock + [self.odom_sub, self.trajectory_sub], [self.timer], [self.trajectory_ready]
+
+    def destroy_node(self):
+        self.trajectory_decoder.close()
+        super().destroy_node()
 
     @property
     def trajectory(self):
@@ -152,22 +212,30 @@ class PositionControllerNode(Node):
             if first:
                 self._fault(self.odom_fault)
             return
+        now_ns = self.get_clock().now().nanoseconds
+        if stamp_ns > now_ns + self._period_ns:
+            self.node_counts['future_odom'] += 1
+            self.last_future_odom = f'stamp {stamp_ns * 1e-9:.6f} s > clock {now_ns * 1e-9:.6f} s + one period'
+            self.get_logger().warn(f'odom refused: {self.last_future_odom} (ahead of this node\'s clock); '
+                                   f'{self.node_counts["future_odom"]} so far', throttle_duration_sec=1.0)
+            return
         if self.odom_fault is not None:
             self.get_logger().info('odom finite again: control resumes')
             self.odom_fault = None
         self.odom_received_ns = self.steady.now().nanoseconds
         self._publish(self.loop.set_odometry(stamp_ns, state))
 
-    def _on_trajectory(self, msg: MultiDOFJointTrajectory):
-        try:
-            start_s, traj = conversions.msg_to_sampled(msg)
-        except ValueError as exc:
-            self.node_counts['rejected_trajectories'] += 1
-            self._fault(f'trajectory refused, previous one kept: {exc}')
-            return
-        self.get_logger().info(f'trajectory: {len(traj.times_s)} samples, {traj.duration_s:.2f} s, '
-                               f'starts at {start_s:.3f} s')
-        self._publish(self.loop.set_trajectory(_stamp_ns(msg.header.stamp), traj))
+    def _take_trajectories(self):
+        """The decoder's results, on the executor's thread (guard condition, and every tick)."""
+        for result in self.trajectory_decoder.take():
+            if result[0] == 'refused':
+                self.node_counts['rejected_trajectories'] += 1
+                self._fault(f'trajectory refused, previous one kept: {result[1]}')
+                continue
+            _, start_ns, traj, decode_s = result
+            self.get_logger().info(f'trajectory: {len(traj.times_s)} samples, {traj.duration_s:.2f} s, '
+                                   f'starts at {start_ns * 1e-9:.3f} s (decoded in {1e3 * decode_s:.1f} ms)')
+            self._publish(self.loop.set_trajectory(start_ns, traj))
 
     def _on_change(self, changed: dict):
         values = self.params.values
@@ -190,7 +258,12 @@ class PositionControllerNode(Node):
 
     # --- the loop (rules: quad_control.loop) ----------------------------------------------------
 
+    @property
+    def _period_ns(self) -> int:
+        return round(1e9 / self.loop.rate_hz)
+
     def _on_tick(self):
+        self._take_trajectories()
         now_ns = self.get_clock().now().nanoseconds
         if self.loop.lockstep:
             if self.loop.pending_tick_ns is None:
@@ -259,7 +332,8 @@ class PositionControllerNode(Node):
                   'loop_rate_hz': f'{self._loop_rate_hz(now_ns):.2f}', **self.counts,
                   'integral_m_s': np.round(self.controller.integral_m_s, 4).tolist(), 'last_error': self.last_error,
                   'hold_position_m': None if self.loop.hold is None else self.loop.hold.position.tolist(),
-                  'start_step_m': self.loop.last_start_step_m, 'max_start_step_m': self.loop.max_start_step_m}
+                  'start_step_m': self.loop.last_start_step_m, 'max_start_step_m': self.loop.max_start_step_m,
+                  'last_future_odom': self.last_future_odom}
         self.diag_pub.publish(diagnostics.array(_stamp(now_ns), [
             diagnostics.status(f'{NODE_NAME}: cmd/attitude_thrust', level, message, values)]))
 

@@ -6,6 +6,7 @@ Everything waits on messages or conditions, never on elapsed time.
 import math
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -296,3 +297,48 @@ def test_hold_point_is_not_re_anchored_after_stale_odometry(graph):
         assert np.allclose(conv.vec3(ref.points[0].transforms[0].translation), [0.0, 0.0, 1.0])
     values = {kv.key: kv.value for kv in graph.node_status().values}
     assert values['hold_position_m'] == '[0.0, 0.0, 1.0]'
+
+
+def test_ticks_go_on_while_a_trajectory_is_decoded(graph):
+    """Issue 13.4: the tick never waits for a trajectory. The decode is held (an Event) while the lockstep graph
+    steps on: setpoints keep coming from the hold point; once released, the plan is swapped in between ticks."""
+    graph.start(use_sim_time=True, lockstep=True)
+    release, decoding = threading.Event(), threading.Event()
+    decode = graph.node.trajectory_decoder.decode
+
+    def held_decode(raw):
+        decoding.set()
+        assert release.wait(TIMEOUT_S)
+        return decode(raw)
+
+    graph.node.trajectory_decoder.decode = held_decode
+    assert np.allclose(graph.step(1.0, z=0.9), [0, 0, 0.9])
+    graph.traj_pub.publish(_line_trajectory([0.0, 0.0, 0.9], 1.0))
+    graph.spin_until(decoding.is_set, 'the decode to begin')
+    for k in range(1, 6):  # the decode is still running: ticks are not blocked
+        assert np.allclose(graph.step(1.0 + 0.01 * k, z=0.9), [0, 0, 0.9])
+    assert graph.node.trajectory is None
+    release.set()
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'the plan swapped in')
+    assert np.allclose(graph.step(1.5, z=0.9), [0.25, 0, 0.9])
+
+
+def test_odometry_from_the_future_is_refused_and_a_later_valid_one_applied(graph):
+    """Issue 14 (same check as the simulator's): odometry stamped beyond one period ahead of the node clock is
+    refused, counted and named in diagnostics; it does not become the newest odometry a lockstep tick runs on."""
+    graph.start(use_sim_time=True, lockstep=True, rate_hz=100.0)
+    graph.step(1.0, z=1.0)
+    graph.publish_odom(5.0, z=0.5)        # a node on another clock, far ahead
+    graph.spin_until(lambda: graph.node.counts['future_odom'] == 1, 'the refusal')
+    graph.publish_clock(1.01)             # the tick at 1.01 must wait for the odometry stamped 1.01 ...
+    graph.spin_until(lambda: graph.node.pending_tick_ns == 1_010_000_000, 'the tick at 1.01 deferred')
+    graph.publish_odom(1.01, z=0.9)       # ... and run with it
+    graph.spin_until(lambda: graph.setpoints_at(1.01), 'setpoint at 1.01')
+    [sp] = graph.setpoints_at(1.01)
+    assert math.isclose(_thrust(sp), MASS_KG * (GRAVITY_MPS2 + 20.0 * 0.1), rel_tol=1e-9)
+    graph.publish_odom(1.02, z=1.0)       # one period ahead of the clock (the simulator's order): accepted
+    graph.publish_clock(1.02)
+    graph.spin_until(lambda: graph.setpoints_at(1.02), 'setpoint at 1.02')
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert values['future_odom'] == '1'
+    assert 'stamp 5.000000 s > clock 1.0' in values['last_future_odom']
