@@ -15,7 +15,7 @@ import numpy as np
 from quad_bringup.metrics import Completion, Flight, compute_metrics
 from quad_common import rotations
 from quad_common.paths import resolve_config
-from quad_control.loop import ControlLoop
+from quad_control.loop import MAX_START_STEP_M, RATE_HZ, ControlLoop
 from quad_control.position import Limits, PositionController, PositionGains
 from quad_sim.disturbances import load_profile
 from quad_sim.simulator import SimulationStopped, Simulator
@@ -32,12 +32,12 @@ class LoopOptions:
     speed_mps: float | None = None              # None: the mission's
     plan_overrides: dict | None = None          # PlanOptions fields (e.g. time_allocation='limits')
     disturbances: str = 'none'
-    rate_hz: float = 100.0
+    rate_hz: float = RATE_HZ
     physics_rate_hz: float = 1000.0
     time_limit_factor: float = 3.0
     rule: Completion = Completion()
     start_delay_s: float = 0.0                  # the plan starts this long after t = 0 (held before)
-    max_start_step_m: float = 0.5               # position_controller's max_start_step_m
+    max_start_step_m: float = MAX_START_STEP_M
 
 
 @dataclass

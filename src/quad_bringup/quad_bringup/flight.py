@@ -2,7 +2,7 @@
 
 The graph is the one sim.launch.py describes: trajectory_node, position_controller, sim_node
 (lockstep, use_sim_time) and the recorder, each a separate process in its own process group,
-in a ROS domain of their own (quad_common.testing.isolated_domain, localhost discovery).
+in a ROS domain of their own (quad_common.domains.isolated_domain, localhost discovery).
 """
 
 import dataclasses
@@ -19,12 +19,12 @@ import yaml
 from quad_bringup import processes
 from quad_bringup.recorder import DEFAULT_TOPICS, installed
 from quad_bringup.report import Completion, write_report
+from quad_common.domains import isolated_domain
 from quad_common.paths import REPO_ROOT, resolve_config
-from quad_common.testing import isolated_domain
 from quad_common.yaml_io import load_yaml
+from quad_control.position import CONTROLLERS
 from quad_trajectory.timing import ALLOCATIONS as TIME_ALLOCATIONS
 
-CONTROLLERS = ('pd', 'pid', 'se3')
 EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 # node name -> (module, params file under config/)

@@ -9,14 +9,11 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_bringup.metrics import Completion
-from quad_common import conversions
+from quad_common import contract, conversions
 from quad_common.diagnostics import ERROR, level_of
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 @dataclass
@@ -51,6 +48,7 @@ class FlightJudge:
         return None if self.trajectory is None else self.trajectory.duration_s
 
     def on_collision(self, t_s, message):
+        """t_s: the collision's own time (the contract's collision_time_s), message: the status's message."""
         if self.verdict is None:
             self.verdict = Verdict(False, f'collision at t = {self._since_start(t_s):.2f} s: {message}')
 
@@ -100,9 +98,10 @@ class FlightMonitor:
         rclpy.init(context=self.context, domain_id=domain_id,
                    signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
         self.node = rclpy.create_node('fly_monitor', context=self.context)
-        self.node.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_trajectory, LATCHED)
-        self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
-        self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diagnostics, 50)
+        c = contract
+        self.node.create_subscription(MultiDOFJointTrajectory, c.TRAJECTORY, self._on_trajectory, c.qos(c.TRAJECTORY))
+        self.node.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM))
+        self.node.create_subscription(DiagnosticArray, c.DIAGNOSTICS, self._on_diagnostics, c.qos(c.DIAGNOSTICS, 50))
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
@@ -117,8 +116,10 @@ class FlightMonitor:
         for st in msg.status:
             if st.name == self.recorder_name:
                 self.recorded = {kv.key: int(kv.value) for kv in st.values}
-            if level_of(st) == ERROR[0] and st.name.endswith('collision'):
-                self.judge.on_collision(conversions.stamp_to_s(msg.header.stamp), st.message)
+            if level_of(st) == ERROR[0]:  # an event is a key of an ERROR status, not its name or message
+                t_s = contract.event_time_s({kv.key: kv.value for kv in st.values}, contract.COLLISION_TIME_S)
+                if t_s is not None:
+                    self.judge.on_collision(t_s, st.message)
 
     def missing_readers(self, node_name: str, topics) -> list[str]:
         """The topics on which the graph does not (yet) show a subscription of node `node_name`."""

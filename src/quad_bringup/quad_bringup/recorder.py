@@ -20,6 +20,8 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.storage_mcap import McapReader
 from rosbags.typesys import Stores, get_typestore
 
+from quad_common import contract
+
 BAG_VERSION = 9
 MCAP_MAGIC = b'\x89MCAP0\r\n'
 _OP_FOOTER, _OP_DATA_END = 0x02, 0x0F
@@ -43,22 +45,9 @@ class TopicSpec:
     latched: bool = False
 
 
-# The topics `quadflight fly` records (DESIGN.md section 3 + the simulator's extra topics).
-DEFAULT_TOPICS = {
-    'trajectory': TopicSpec('trajectory_msgs/msg/MultiDOFJointTrajectory', latched=True),
-    'trajectory/path': TopicSpec('nav_msgs/msg/Path', latched=True),
-    'trajectory/markers': TopicSpec('visualization_msgs/msg/MarkerArray', latched=True),
-    'trajectory/waypoints': TopicSpec('nav_msgs/msg/Path', latched=True),
-    'waypoints': TopicSpec('nav_msgs/msg/Path'),
-    'odom': TopicSpec('nav_msgs/msg/Odometry'),
-    'cmd/attitude_thrust': TopicSpec('sensor_msgs/msg/Imu'),
-    'control/reference': TopicSpec('trajectory_msgs/msg/MultiDOFJointTrajectory'),
-    'imu': TopicSpec('sensor_msgs/msg/Imu'),
-    'rotor_speeds': TopicSpec('sensor_msgs/msg/JointState'),
-    '/clock': TopicSpec('rosgraph_msgs/msg/Clock'),
-    '/tf': TopicSpec('tf2_msgs/msg/TFMessage'),
-    'diagnostics': TopicSpec('diagnostic_msgs/msg/DiagnosticArray'),
-}
+# The topics `quadflight fly` records: the contract's (quad_common.contract), but battery (the bridge's).
+DEFAULT_TOPICS = {name: TopicSpec(t.msgtype, latched=t.latched) for name, t in contract.TOPICS.items()
+                  if name != contract.BATTERY}
 
 
 def installed(spec: TopicSpec) -> bool:

@@ -22,7 +22,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, installed
-from quad_common import diagnostics
+from quad_common import contract, diagnostics
 from quad_common.params import Param, ParameterSet
 
 STATUS_PERIOD_S = 1.0
@@ -63,7 +63,8 @@ class RecorderNode(Node):
                 self._subscribe(topic, spec)
         steady = rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME)
         self.create_timer(self.params['flush_period_s'], self.bag.flush, clock=steady)
-        self.status_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.status_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
+                                                contract.qos(contract.DIAGNOSTICS))
         self.create_timer(STATUS_PERIOD_S, self.publish_status, clock=steady)
         if self._pending:
             self.create_timer(0.5, self._discover,

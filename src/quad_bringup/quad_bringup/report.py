@@ -24,17 +24,15 @@ from quad_bringup.metrics import (  # noqa: F401  (re-exported: the report's API
     planned_position,
 )
 from quad_bringup.recorder import open_bag_reader, typestore
-from quad_common import conversions, rotations
+from quad_common import contract, conversions, rotations
+from quad_common.contract import DIAGNOSTICS, ODOM, TRAJECTORY
+from quad_common.contract import SETPOINT as COMMAND
+from quad_common.contract import TRAJECTORY_MARKERS as MARKERS
+from quad_common.contract import TRAJECTORY_WAYPOINTS as WAYPOINTS
 from quad_common.diagnostics import ERROR, level_of
 
-ODOM, TRAJECTORY, WAYPOINTS, MARKERS = 'odom', 'trajectory', 'trajectory/waypoints', 'trajectory/markers'
-COMMAND, DIAGNOSTICS = 'cmd/attitude_thrust', 'diagnostics'
 ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from rosbags
-
-
-def _namespaced(topic: str, wanted: str) -> bool:
-    """'odom' matches 'odom', '/odom' and '/uav1/odom' (a namespaced flight)."""
-    return topic.lstrip('/') == wanted or topic.endswith('/' + wanted)
+_namespaced = contract.matches
 
 
 def load_flight(bag_dir) -> Flight:
@@ -52,16 +50,20 @@ def load_flight(bag_dir) -> Flight:
             if topic == ODOM:
                 odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg)))
             elif topic == COMMAND:
-                cmds.append((conversions.stamp_to_s(msg.header.stamp), msg.linear_acceleration.z,
-                             conversions.quat(msg.orientation)))
+                try:  # the contract's one decoder; a setpoint it refuses was refused by the vehicle too
+                    setpoint = conversions.imu_to_setpoint(msg)
+                except ValueError:
+                    continue
+                cmds.append((conversions.stamp_to_s(msg.header.stamp), setpoint.specific_force_mps2,
+                             setpoint.quaternion))
             elif topic == DIAGNOSTICS:
                 for st in msg.status:
                     if level_of(st) == ERROR_LEVEL:
                         t = conversions.stamp_to_s(msg.header.stamp)
                         errors.append((t, st.name, st.message))
-                        if st.name.endswith('collision') and collision is None:
-                            values = {kv.key: kv.value for kv in st.values}
-                            collision = float(values.get('time_s', t))
+                        if collision is None:  # an event is a key, not a name or a message
+                            collision = contract.event_time_s({kv.key: kv.value for kv in st.values},
+                                                              contract.COLLISION_TIME_S)
             else:
                 latest[topic] = msg  # latched topics: the newest plan counts
     finally:

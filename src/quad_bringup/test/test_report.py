@@ -108,7 +108,7 @@ def make_bag(path, storage=StoragePlugin.MCAP, end_s=T0_S + T_S + 2.0, collision
             kv = M['diagnostic_msgs/msg/KeyValue']
             status = M['diagnostic_msgs/msg/DiagnosticStatus'](
                 level=2, name='sim_node: collision', message='hit obstacle 0', hardware_id='',
-                values=[kv(key='time_s', value=str(collision_at_s)), kv(key='x', value='1.0')])
+                values=[kv(key='collision_time_s', value=repr(collision_at_s)), kv(key='x', value='1.0')])
             write('diagnostics', collision_at_s, M['diagnostic_msgs/msg/DiagnosticArray'](
                 header=header(stamp=stamp(ts, collision_at_s), frame_id=''), status=[status]))
     return path
@@ -159,10 +159,12 @@ def test_unfinished_flight_counts_until_the_end_of_the_bag(tmp_path):
 
 
 def test_collision_from_diagnostics(tmp_path):
-    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag', collision_at_s=T0_S + 1.5)))
+    """The collision is the contract's key `collision_time_s`, read at full precision (was 1 ms)."""
+    at_s = T0_S + 1.5 + 1.234567891e-4
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag', collision_at_s=at_s)))
     assert metrics['collided'] is True
     assert metrics['completed'] is False
-    assert metrics['collision_time_s'] == pytest.approx(1.5)
+    assert metrics['collision_time_s'] == at_s - T0_S
     assert metrics['errors'] == ['1.50 s sim_node: collision: hit obstacle 0']
 
 

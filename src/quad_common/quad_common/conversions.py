@@ -1,6 +1,6 @@
 """ROS message <-> numpy conversions shared by every node (the only place they are written).
 
-Contract: DESIGN.md section 3 and docs/interfaces.md.
+Contract: quad_common.contract and docs/interfaces.md.
 """
 
 import numpy as np
@@ -11,12 +11,9 @@ from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 
 from quad_common import rotations
+from quad_common.contract import BODY_FRAME, UNSET_COVARIANCE, WORLD_FRAME  # noqa: F401  (re-exported)
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.types import AttitudeSetpoint, Reference, State
-
-WORLD_FRAME = 'map'
-BODY_FRAME = 'base_link'
-UNSET_COVARIANCE = -1.0
 
 
 def stamp_to_s(stamp) -> float:

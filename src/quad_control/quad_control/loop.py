@@ -20,6 +20,8 @@ from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, Reference, State
 from quad_control.position import PositionController, Saturation
 
+RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's default
+MAX_START_STEP_M = 0.5     # position_controller max_start_step_m and the offline loop's default
 COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'refused_start_steps',
           'saturation_thrust', 'saturation_tilt', 'saturation_integral')
 

@@ -19,17 +19,16 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import cdr, diagnostics
+from quad_common import cdr, contract, diagnostics
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
-from quad_control.loop import ControlLoop, Tick
+from quad_control.loop import MAX_START_STEP_M, RATE_HZ, ControlLoop, Tick
 from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains
 
 NODE_NAME = 'position_controller'
@@ -40,13 +39,13 @@ DIAGNOSTICS_PERIOD_S = 1.0
 SPECS = [
     Param('controller', 'pd', 'position controller: pd (the seed eq. 1-5), pid (plus integral), se3 (geometric)',
           choices=CONTROLLERS),
-    Param('rate_hz', 100.0, 'control loop rate on the node clock; in lockstep 1 / sim lockstep_period_s',
+    Param('rate_hz', RATE_HZ, 'control loop rate on the node clock; in lockstep 1 / sim lockstep_period_s',
           min=1.0, max=2000.0),
     Param('lockstep', False, 'compute the tick at t from the odometry stamped t (deferred until it arrives)'),
     Param('wait_for_trajectory', False, 'lockstep: defer the ticks (so simulated time waits) until a trajectory '
           'arrives; a late latched plan then never starts in the past'),
-    Param('max_start_step_m', 0.5, 'a plan whose reference at its first tick is farther than this from the vehicle '
-          'is refused (the controller keeps holding, ERROR on diagnostics naming the distance)',
+    Param('max_start_step_m', MAX_START_STEP_M, 'a plan whose reference at its first tick is farther than this '
+          'from the vehicle is refused (the controller keeps holding, ERROR on diagnostics naming the distance)',
           min=0.0, max=1000.0),
     Param('odom_timeout_s', 0.2, 'odometry older than this stops the setpoints (failsafe) and reports ERROR',
           min=0.001, max=10.0),
@@ -153,19 +152,17 @@ class PositionControllerNode(Node):
         self.node_counts = dict.fromkeys(('odom_timeouts', 'nonfinite_odom', 'future_odom', 'rejected_trajectories'),
                                          0)
         self.last_future_odom = ''  # 'stamp s > clock s' of the last odometry refused as from the future
-        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.cmd_pub = self.create_publisher(Imu, 'cmd/attitude_thrust', reliable)
-        self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, 'control/reference', reliable)
-        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', reliable)
-        self.odom_sub = self.create_subscription(Odometry, 'odom', self._on_odom, reliable, raw=True)
+        c = contract
+        self.cmd_pub = self.create_publisher(Imu, c.SETPOINT, c.qos(c.SETPOINT))
+        self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, c.REFERENCE, c.qos(c.REFERENCE))
+        self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, c.qos(c.DIAGNOSTICS))
+        self.odom_sub = self.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM), raw=True)
         self._setpoint_packer = cdr.SetpointPacker()
         self._reference_packer = cdr.ReferencePacker()
         self.trajectory_ready = self.create_guard_condition(self._take_trajectories)
         self.trajectory_decoder = TrajectoryDecoder(self.trajectory_ready.trigger)
-        self.trajectory_sub = self.create_subscription(MultiDOFJointTrajectory, 'trajectory',
-                                                       self.trajectory_decoder.submit, latched, raw=True)
+        self.trajectory_sub = self.create_subscription(MultiDOFJointTrajectory, c.TRAJECTORY,
+                                                       self.trajectory_decoder.submit, c.qos(c.TRAJECTORY), raw=True)
         self.timer = self.create_timer(1.0 / self.params['rate_hz'], self._on_tick)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=self.steady)
@@ -175,7 +172,7 @@ class PositionControllerNode(Node):
     def hot_entities(self):
         """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
         trajectory's bytes and its decoded result (rare, but a new plan must not wait for the slow pass)."""
-        clock = [s for s in self.subscriptions if s.topic_name == '/clock']
+        clock = [s for s in self.subscriptions if s.topic_name == contract.CLOCK]
         return clock + [self.odom_sub, self.trajectory_sub], [self.timer], [self.trajectory_ready]
 
     def destroy_node(self):
@@ -335,7 +332,7 @@ class PositionControllerNode(Node):
                   'start_step_m': self.loop.last_start_step_m, 'max_start_step_m': self.loop.max_start_step_m,
                   'last_future_odom': self.last_future_odom}
         self.diag_pub.publish(diagnostics.array(_stamp(now_ns), [
-            diagnostics.status(f'{NODE_NAME}: cmd/attitude_thrust', level, message, values)]))
+            diagnostics.status(contract.CONTROLLER_STATUS, level, message, values)]))
 
 
 def main(args=None):

@@ -17,7 +17,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
@@ -28,7 +27,7 @@ try:  # not among the PyPI ROS wheels; present on every machine with ROS 2 insta
 except ImportError:
     TFMessage = None
 
-from quad_common import cdr, conversions, diagnostics
+from quad_common import cdr, contract, conversions, diagnostics
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
@@ -44,7 +43,7 @@ STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first ste
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
-    Param('initial_position', [0.0, 0.0, 0.0], 'start position, map frame (m); hovering unless on the floor',
+    Param('initial_position', [0.0, 0.0, 1.0], 'start position, map frame (m); hovering unless on the floor',
           length=3, read_only=True),
     Param('initial_yaw', 0.0, 'start yaw (rad)', min=-math.pi, max=math.pi, read_only=True),
     Param('physics_rate_hz', 1000.0, 'RK4 and onboard autopilot rate (Hz)', min=100.0, max=100000.0,
@@ -72,7 +71,6 @@ SPECS = [
     Param('seed', 0, 'random seed of gusts and odometry noise', min=0, max=2**31 - 1, read_only=True),
 ]
 
-RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def stamp_of(time_ns: int) -> Time:
@@ -96,19 +94,20 @@ class SimNode(Node):
             self.steps_per_period = self.sim.steps_in(p['lockstep_period_s'])
         except ValueError as exc:
             raise ValueError(f'lockstep_period_s: {exc}') from None
-        self.odom_pub = self.create_publisher(Odometry, 'odom', RELIABLE_10)
-        self.clock_pub = self.create_publisher(ClockMsg, '/clock', RELIABLE_10)
-        self.tf_pub = self.create_publisher(TFMessage, '/tf', QoSProfile(depth=100)) if TFMessage else None
+        c = contract
+        self.odom_pub = self.create_publisher(Odometry, c.ODOM, c.qos(c.ODOM))
+        self.clock_pub = self.create_publisher(ClockMsg, c.CLOCK, c.qos(c.CLOCK))
+        self.tf_pub = self.create_publisher(TFMessage, c.TF, c.qos(c.TF)) if TFMessage else None
         if TFMessage is None:
             self.get_logger().warn('tf2_msgs is not installed here: /tf is not published (odom carries the pose)')
-        self.imu_pub = self.create_publisher(Imu, 'imu', RELIABLE_10)
-        self.rotor_pub = self.create_publisher(JointState, 'rotor_speeds', RELIABLE_10)
-        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', RELIABLE_10)
-        self.hot_subscriptions = [self.create_subscription(Imu, 'cmd/attitude_thrust', self._on_setpoint, RELIABLE_10,
+        self.imu_pub = self.create_publisher(Imu, c.IMU, c.qos(c.IMU))
+        self.rotor_pub = self.create_publisher(JointState, c.ROTOR_SPEEDS, c.qos(c.ROTOR_SPEEDS))
+        self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, c.qos(c.DIAGNOSTICS))
+        self.hot_subscriptions = [self.create_subscription(Imu, c.SETPOINT, self._on_setpoint, c.qos(c.SETPOINT),
                                                            raw=True)]
         if p['max_tracking_error_m'] > 0:
             self.hot_subscriptions.append(self.create_subscription(
-                MultiDOFJointTrajectory, 'control/reference', self._on_reference, RELIABLE_10))
+                MultiDOFJointTrajectory, c.REFERENCE, self._on_reference, c.qos(c.REFERENCE)))
         self.hot_timers = []
         self.create_service(Trigger, 'reset', self._on_reset)
         self._rotor_names = [f'rotor_{i}' for i in range(4)]
@@ -199,25 +198,28 @@ class SimNode(Node):
         collisions = [e for e in sim.events if e.kind == 'collision']
         if collisions:
             e = collisions[-1]
-            statuses.append(diagnostics.status(f'{NAME}: collision', diagnostics.ERROR,
+            statuses.append(diagnostics.status(contract.SIM_STATUS.format('collision'), diagnostics.ERROR,
                                                f'collision {len(collisions)}: within {sim.robot_radius_m} m '
-                                               'of an obstacle', _place(e)))
+                                               'of an obstacle', {contract.COLLISION_TIME_S: repr(collisions[0].time_s),
+                                                                   'collisions': len(collisions), **_place(e)}))
         failsafe = [e for e in sim.events if e.kind in ('failsafe', 'failsafe_cleared', 'disarmed')]
         if sim.failsafe_active or any(e.kind == 'failsafe' for e in new_events):
             e = failsafe[-1]
-            statuses.append(diagnostics.status(f'{NAME}: failsafe', diagnostics.ERROR,
-                                               f'setpoint lost: landing failsafe ({e.kind})', _place(e)))
+            statuses.append(diagnostics.status(contract.SIM_STATUS.format('failsafe'), diagnostics.ERROR,
+                                               f'setpoint lost: landing failsafe ({e.kind})',
+                                               {contract.FAILSAFE_TIME_S: repr(e.time_s), **_place(e)}))
         saturated = sim.saturation or any(e.kind == 'saturation' for e in new_events)
         statuses.append(diagnostics.status(
-            f'{NAME}: saturation', diagnostics.WARN if saturated else diagnostics.OK,
+            contract.SIM_STATUS.format('saturation'), diagnostics.WARN if saturated else diagnostics.OK,
             f'rotor limits reduced {", ".join(sim.saturation) or "the command"}' if saturated else 'within limits',
             {'saturated_steps': sim.saturated_steps}))
         if sim.stopped is not None:
-            statuses.append(diagnostics.status(f'{NAME}: stopped', diagnostics.ERROR, str(sim.stopped),
-                                               {'reason': sim.stopped.reason, 'time_s': sim.stopped.time_s}))
+            statuses.append(diagnostics.status(contract.SIM_STATUS.format('stopped'), diagnostics.ERROR,
+                                               str(sim.stopped), {'reason': sim.stopped.reason,
+                                                                  contract.STOP_TIME_S: repr(sim.stopped.time_s)}))
         rtf = self.real_time_factor()
-        statuses.append(diagnostics.status(f'{NAME}: real_time_factor', diagnostics.OK, f'{rtf:.2f}x',
-                                           {'rtf': f'{rtf:.3f}'}))
+        statuses.append(diagnostics.status(contract.SIM_STATUS.format('real_time_factor'), diagnostics.OK,
+                                           f'{rtf:.2f}x', {'rtf': f'{rtf:.3f}'}))
         self.diag_pub.publish(diagnostics.array(stamp_of(sim.time_ns), statuses))
 
     def real_time_factor(self) -> float:
@@ -260,8 +262,8 @@ class SimNode(Node):
 
     def _controller_present(self) -> bool:
         """A setpoint publisher that also listens to odom and /clock is on the graph (it may not tick at t = 0)."""
-        return (self.count_publishers('cmd/attitude_thrust') > 0 and self.count_subscribers('odom') > 0
-                and self.count_subscribers('/clock') > 0)
+        return (self.count_publishers(contract.SETPOINT) > 0 and self.count_subscribers(contract.ODOM) > 0
+                and self.count_subscribers(contract.CLOCK) > 0)
 
     def start_realtime(self):
         period_s = 1.0 / self.params['odom_rate_hz']
@@ -281,7 +283,8 @@ class SimNode(Node):
 
 
 def _place(event) -> dict:
-    return {'time_s': f'{event.time_s:.3f}', 'x': f'{event.position[0]:.3f}', 'y': f'{event.position[1]:.3f}',
+    """Where an event happened (its time is the contract's *_time_s key, at full precision)."""
+    return {'x': f'{event.position[0]:.3f}', 'y': f'{event.position[1]:.3f}',
             'z': f'{event.position[2]:.3f}', **event.detail}
 
 

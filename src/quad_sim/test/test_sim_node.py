@@ -20,7 +20,7 @@ from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import conversions, rotations
+from quad_common import contract, conversions, rotations
 from quad_common.diagnostics import ERROR, level_of
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.testing import isolated_domain
@@ -179,7 +179,7 @@ def test_dead_controller_lets_the_failsafe_land():
             graph.close()
     assert failsafe and level_of(failsafe[0]) == level_of_error()
     values = {kv.key: kv.value for kv in failsafe[0].values}
-    assert float(values['time_s']) == pytest.approx(0.2 + 0.5, abs=0.02)
+    assert float(values[contract.FAILSAFE_TIME_S]) == pytest.approx(0.2 + 0.5, abs=0.02)
 
 
 def test_reset_service_restarts_lockstep_time():

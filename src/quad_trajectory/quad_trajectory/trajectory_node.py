@@ -13,11 +13,10 @@ from nav_msgs.msg import Path
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-from quad_common import diagnostics
+from quad_common import contract, diagnostics
 from quad_common.conversions import sampled_to_msg
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
@@ -26,8 +25,6 @@ from quad_common.world import load_world
 from quad_trajectory import messages, planner, solver, timing
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SEED_CONTROL_POINTS, load_mission
 
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 PATH_RATE_HZ = 20.0   # trajectory/path and the marker line: for viewing, not for control
 DIAG_NAME = 'trajectory_node: trajectory'
 
@@ -72,12 +69,13 @@ class TrajectoryNode(Node):
             self.vehicle = load_vehicle(self.params['vehicle_file'] or DEFAULT_VEHICLE_PATH)
             self.world = load_world(self.params['world_file']) if self.params['world_file'] else None
         planner.validate_options(self._options(), self.vehicle)
-        self.traj_pub = self.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
-        self.path_pub = self.create_publisher(Path, 'trajectory/path', LATCHED)
-        self.waypoints_pub = self.create_publisher(Path, 'trajectory/waypoints', LATCHED)
-        self.markers_pub = self.create_publisher(MarkerArray, 'trajectory/markers', LATCHED)
-        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', RELIABLE)
-        self.create_subscription(Path, 'waypoints', self._on_waypoints, RELIABLE)
+        c = contract
+        self.traj_pub = self.create_publisher(MultiDOFJointTrajectory, c.TRAJECTORY, c.qos(c.TRAJECTORY))
+        self.path_pub = self.create_publisher(Path, c.TRAJECTORY_PATH, c.qos(c.TRAJECTORY_PATH))
+        self.waypoints_pub = self.create_publisher(Path, c.TRAJECTORY_WAYPOINTS, c.qos(c.TRAJECTORY_WAYPOINTS))
+        self.markers_pub = self.create_publisher(MarkerArray, c.TRAJECTORY_MARKERS, c.qos(c.TRAJECTORY_MARKERS))
+        self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, c.qos(c.DIAGNOSTICS))
+        self.create_subscription(Path, c.WAYPOINTS, self._on_waypoints, c.qos(c.WAYPOINTS))
         self.result = None          # the plan in force
         self.request = None         # (waypoints, yaw) of the plan in force
         self.last_status = diagnostics.status(DIAG_NAME, diagnostics.WARN, 'no trajectory yet')

@@ -1,0 +1,92 @@
+"""The interface contract between the processes, in one place (docs/interfaces.md): topic names, their message
+types and QoS, the diagnostic status names and keys that carry events, and the `cmd/attitude_thrust` encoding.
+
+No rclpy here (the report and the offline tools read it too); `qos(topic)` builds the rclpy profile on demand.
+"""
+
+from dataclasses import dataclass
+
+# --- topics (relative names: a namespace prefixes them; /clock and /tf are global) --------------------------
+ODOM = 'odom'
+TRAJECTORY = 'trajectory'
+TRAJECTORY_PATH = 'trajectory/path'
+TRAJECTORY_MARKERS = 'trajectory/markers'
+TRAJECTORY_WAYPOINTS = 'trajectory/waypoints'
+WAYPOINTS = 'waypoints'
+SETPOINT = 'cmd/attitude_thrust'
+REFERENCE = 'control/reference'
+IMU = 'imu'
+ROTOR_SPEEDS = 'rotor_speeds'
+BATTERY = 'battery'
+CLOCK = '/clock'
+TF = '/tf'
+DIAGNOSTICS = 'diagnostics'
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic of the contract: its ROS type name, and its QoS (always RELIABLE, KEEP_LAST depth; latched =
+    TRANSIENT_LOCAL, so a late subscriber gets the last message)."""
+    name: str
+    msgtype: str
+    latched: bool = False
+    depth: int = 10
+
+
+TOPICS = {t.name: t for t in (
+    Topic(TRAJECTORY, 'trajectory_msgs/msg/MultiDOFJointTrajectory', latched=True, depth=1),
+    Topic(TRAJECTORY_PATH, 'nav_msgs/msg/Path', latched=True, depth=1),
+    Topic(TRAJECTORY_MARKERS, 'visualization_msgs/msg/MarkerArray', latched=True, depth=1),
+    Topic(TRAJECTORY_WAYPOINTS, 'nav_msgs/msg/Path', latched=True, depth=1),
+    Topic(WAYPOINTS, 'nav_msgs/msg/Path'),
+    Topic(ODOM, 'nav_msgs/msg/Odometry'),
+    Topic(SETPOINT, 'sensor_msgs/msg/Imu'),
+    Topic(REFERENCE, 'trajectory_msgs/msg/MultiDOFJointTrajectory'),
+    Topic(IMU, 'sensor_msgs/msg/Imu'),
+    Topic(ROTOR_SPEEDS, 'sensor_msgs/msg/JointState'),
+    Topic(BATTERY, 'sensor_msgs/msg/BatteryState'),
+    Topic(CLOCK, 'rosgraph_msgs/msg/Clock'),
+    Topic(TF, 'tf2_msgs/msg/TFMessage', depth=100),
+    Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray'),
+)}
+
+
+def qos(topic: str, depth: int | None = None):
+    """The rclpy QoSProfile of a contract topic (depth: override, e.g. a subscriber that must not drop)."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    spec = TOPICS[topic]
+    return QoSProfile(depth=depth or spec.depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if spec.latched else DurabilityPolicy.VOLATILE)
+
+
+def matches(topic: str, wanted: str) -> bool:
+    """'odom' matches 'odom', '/odom' and '/uav1/odom' (a namespaced graph)."""
+    return topic.lstrip('/') == wanted.lstrip('/') or topic.endswith('/' + wanted.lstrip('/'))
+
+
+# --- frames and the setpoint encoding (cmd/attitude_thrust: sensor_msgs/Imu used as a setpoint) -----------
+WORLD_FRAME = 'map'        # ENU
+BODY_FRAME = 'base_link'   # FLU
+# orientation = the attitude setpoint (map <- base_link); linear_acceleration.z = the collective specific force
+# (thrust / mass, m/s^2) along body z; angular_velocity = body-rate feed-forward (rad/s), unset when
+# angular_velocity_covariance[0] == UNSET_COVARIANCE (as REP-145 marks an absent field); an orientation or
+# linear_acceleration so marked makes the setpoint invalid. Written by conversions.setpoint_to_imu and
+# cdr.SetpointPacker, read by conversions.imu_to_setpoint and cdr.imu_to_setpoint (tested equal).
+UNSET_COVARIANCE = -1.0
+
+# --- diagnostics: status names and the keys that carry events ---------------------------------------------
+# An event is a key of an ERROR status, never parsed from its message: the value is the event's simulated time
+# in seconds, written with repr() (full double precision).
+COLLISION_TIME_S = 'collision_time_s'
+FAILSAFE_TIME_S = 'failsafe_time_s'
+STOP_TIME_S = 'stop_time_s'
+SIM_STATUS = 'sim_node: {}'        # .format('collision' | 'failsafe' | 'saturation' | 'stopped' | ...)
+CONTROLLER_STATUS = 'position_controller: cmd/attitude_thrust'
+RECORDER_STATUS = 'recorder'       # one value per topic: messages written to the bag
+
+
+def event_time_s(values: dict, key: str) -> float | None:
+    """The event time carried under `key` in a status's key/values (dict), or None when it is not there."""
+    value = values.get(key)
+    return None if value is None else float(value)

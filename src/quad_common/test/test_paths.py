@@ -1,0 +1,51 @@
+"""Config files are found through the installed share directory (ament index), then a checkout's source tree."""
+
+from pathlib import Path
+
+import pytest
+
+from quad_common import paths
+
+
+def _install(prefix: Path, files: dict) -> Path:
+    """A minimal installed quad_bringup under `prefix`: its ament index marker and share/quad_bringup/..."""
+    (prefix / 'share/ament_index/resource_index/packages').mkdir(parents=True)
+    (prefix / 'share/ament_index/resource_index/packages/quad_bringup').write_text('')
+    for name, text in files.items():
+        (prefix / 'share/quad_bringup' / name).parent.mkdir(parents=True, exist_ok=True)
+        (prefix / 'share/quad_bringup' / name).write_text(text)
+    return prefix
+
+
+def test_installed_share_directory_is_used_without_a_checkout(tmp_path, monkeypatch):
+    prefix = _install(tmp_path / 'install', {'config/vehicles/x.yaml': 'name: x\n'})
+    monkeypatch.setenv('AMENT_PREFIX_PATH', str(prefix))
+    monkeypatch.setattr(paths, 'REPO_ROOT', tmp_path / 'no_checkout')
+    monkeypatch.chdir(tmp_path)
+    assert paths.resolve_config('config/vehicles/x.yaml') == prefix / 'share/quad_bringup/config/vehicles/x.yaml'
+    with pytest.raises(FileNotFoundError, match=r'config/missing\.yaml: no such file \(looked in .*share'):
+        paths.resolve_config('config/missing.yaml')
+
+
+def test_checkout_source_tree_after_the_share_directory(tmp_path, monkeypatch):
+    prefix = _install(tmp_path / 'install', {'config/a.yaml': 'installed\n'})
+    checkout = tmp_path / 'checkout'
+    for name in ('config/a.yaml', 'config/b.yaml'):
+        (checkout / name).parent.mkdir(parents=True, exist_ok=True)
+        (checkout / name).write_text('checkout\n')
+    monkeypatch.setenv('AMENT_PREFIX_PATH', str(prefix))
+    monkeypatch.setattr(paths, 'REPO_ROOT', checkout)
+    monkeypatch.chdir(tmp_path)
+    assert paths.resolve_config('config/a.yaml').read_text() == 'installed\n'
+    assert paths.resolve_config('config/b.yaml').read_text() == 'checkout\n'
+    monkeypatch.delenv('AMENT_PREFIX_PATH')          # ./quadflight without a sourced workspace
+    assert paths.resolve_config('config/a.yaml').read_text() == 'checkout\n'
+
+
+def test_this_workspace_installs_every_config_file():
+    """quad_bringup's setup.py installs config/ (all of it) into its share directory."""
+    share = paths.share_dir()
+    if share is None:
+        pytest.fail('quad_bringup is not installed (source install/setup.bash): its share directory is missing')
+    source = sorted(p.relative_to(paths.REPO_ROOT) for p in (paths.REPO_ROOT / 'config').rglob('*.*'))
+    assert source and all((share / p).is_file() for p in source)

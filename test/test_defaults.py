@@ -1,0 +1,45 @@
+"""Defaults are written once: each node's parameter table (Param) takes them from the core's dataclass or
+constants, and the node's YAML under config/ lists every parameter with exactly that default."""
+
+import dataclasses
+import importlib
+
+import numpy as np
+import pytest
+
+from quad_bringup.closed_loop import LoopOptions
+from quad_common.paths import resolve_config
+from quad_common.yaml_io import load_yaml
+from quad_control.position import PositionGains
+
+NODES = [  # (module, parameter table, node name, its YAML)
+    ('quad_control.position_controller_node', 'SPECS', 'position_controller', 'config/control.yaml'),
+    ('quad_sim.sim_node', 'SPECS', 'sim_node', 'config/sim.yaml'),
+    ('quad_trajectory.trajectory_node', 'PARAMS', 'trajectory_node', 'config/trajectory.yaml'),
+]
+
+
+@pytest.mark.parametrize(('module', 'table', 'node', 'config'), NODES)
+def test_yaml_lists_every_parameter_with_its_default(module, table, node, config):
+    specs = {p.name: p for p in getattr(importlib.import_module(module), table)}
+    values = load_yaml(resolve_config(config))[node]['ros__parameters']
+    assert not set(values) - set(specs), f'{config}: not parameters of {node}: {set(values) - set(specs)}'
+    with_default = {name for name, p in specs.items() if isinstance(p.default, (bool, int, float, str, list))}
+    assert with_default <= set(values), f'{config} leaves out {sorted(with_default - set(values))}'
+    for name in with_default:
+        assert values[name] == specs[name].default, f'{config}: {name} = {values[name]!r}, ' \
+                                                    f'the node default is {specs[name].default!r}'
+
+
+def test_controller_parameters_default_to_the_dataclass():
+    from quad_control.position_controller_node import SPECS
+    specs = {p.name: p.default for p in SPECS}
+    gains = PositionGains()
+    for field in dataclasses.fields(PositionGains):
+        value = getattr(gains, field.name)
+        if isinstance(value, np.ndarray):
+            assert [specs[f'{field.name}_{a}'] for a in 'xyz'] == value.tolist(), field.name
+        else:
+            assert specs[field.name] == value, field.name
+    options = LoopOptions()
+    assert (specs['rate_hz'], specs['max_start_step_m']) == (options.rate_hz, options.max_start_step_m)
