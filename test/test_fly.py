@@ -1,6 +1,5 @@
 """Graph tests: `./quadflight fly` flies a short mission end to end in the lockstep simulator."""
 
-import importlib.util
 import json
 import os
 import signal
@@ -16,8 +15,6 @@ from quad_bringup.report import metrics_table, write_report
 ROOT = Path(__file__).resolve().parents[1]
 QUADFLIGHT = str(ROOT / 'quadflight')
 TIMEOUT_S = 540
-needs_graph = pytest.mark.skipif(importlib.util.find_spec('quad_trajectory.trajectory_node') is None,
-                                 reason='trajectory_node is not merged yet')
 
 
 def mission(tmp_path, waypoints, speed=0.5, extra=''):
@@ -37,7 +34,6 @@ def alive(pid):
     return True
 
 
-@needs_graph
 def test_fly_short_mission_end_to_end(tmp_path, ros_env):
     run_dir = tmp_path / 'run'
     path = mission(tmp_path, [[0, 0, 1], [0.8, 0.4, 1.2], [1.5, 0, 1]])
@@ -74,7 +70,6 @@ def test_fly_short_mission_end_to_end(tmp_path, ros_env):
     assert not any(alive(pid) for pid in pids.values())
 
 
-@needs_graph
 def test_sigint_mid_flight_stops_everything_and_keeps_a_readable_bag(tmp_path, ros_env):
     run_dir = tmp_path / 'run'
     path = mission(tmp_path, [[0, 0, 1], [2, 0, 1], [2, 2, 1], [0, 2, 1], [0, 0, 1]], speed=0.5)

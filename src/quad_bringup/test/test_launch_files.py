@@ -50,16 +50,13 @@ def test_launch_file_names_existing_executables_and_params(path):
     tree = ast.parse(path.read_text(), filename=str(path))
     nodes = list(launched_nodes(tree))
     assert nodes, f'{path.name}: starts no Node'
-    unmerged = []
     for package, executable in nodes:
         assert package and executable, f'{path.name}: Node package/executable must be literals'
         assert (SRC / package / 'setup.py').exists(), f'{path.name}: package {package} does not exist'
         scripts = console_scripts(package)
         assert executable in scripts, f'{path.name}: {package} has no executable {executable} (setup.py)'
-        if not scripts[executable].exists():
-            unmerged.append(f'{package}/{executable}')
-    if unmerged:  # declared in setup.py but the node module is not in this tree yet
-        pytest.skip(f'{path.name}: node modules not merged yet: {", ".join(unmerged)}')
+        assert scripts[executable].exists(), \
+            f'{path.name}: {package}/{executable} names {scripts[executable]}, which does not exist'
     for name in yaml_literals(tree):
         assert (CONFIG / name).is_file(), f'{path.name}: params file config/{name} does not exist'
 

@@ -8,6 +8,7 @@ each way on the 2-core machine, a third of a lockstep tick; Publisher.publish(by
 skip both. The bytes deserialize to exactly what quad_common.conversions builds, and rclpy's bytes decode to
 exactly its values (tested; only the padding, which rclpy leaves uninitialised, differs). Input in any
 encoding but little-endian plain CDR (another host's byte order, XCDR2) is deserialized the ordinary way.
+The layouts were checked against rclpy hot_path.CHECKED_RCLPY_VERSION (test_rclpy_pin.py).
 """
 
 import struct

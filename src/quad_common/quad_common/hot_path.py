@@ -19,6 +19,28 @@ from rclpy.executors import (
 )
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
+# The rclpy release whose internals this module uses (rclpy_implementation.WaitSet, Executor._guard and
+# _sigint_gc, a subscription handle's take_message, wait_for_ready_callbacks) and against which quad_common.cdr's
+# hand-packed layouts were checked; src/quad_common/test/test_rclpy_pin.py fails, naming both versions, when the
+# installed rclpy is another one or a layout no longer matches: re-check both there, then move the pin.
+CHECKED_RCLPY_VERSION = '7.1.5'
+
+
+def installed_rclpy_version() -> str:
+    """The installed rclpy's release: its Python distribution's version (PyPI wheels), else the <version> of its
+    package.xml in the ament index (a ROS install)."""
+    import importlib.metadata
+    import re
+
+    try:
+        return importlib.metadata.version('rclpy')
+    except importlib.metadata.PackageNotFoundError:
+        from ament_index_python.packages import get_package_share_directory
+
+        xml = open(f'{get_package_share_directory("rclpy")}/package.xml').read()
+        return re.search(r'<version>\s*([^<\s]+)', xml).group(1)
+
+
 # Wall time between passes over the other entities: their callbacks wait at most this. A pass rebuilds rclpy's
 # whole wait set (~1-2 ms of Python on the 2-core machine): every 20 ms that was ~30 % of the lockstep graph's
 # time (bench_sim graph RTF, interleaved runs: 6.5-7.1x at 20 ms, 9.6-10.0x at 100 ms).

@@ -9,6 +9,7 @@ import pytest
 from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 from quad_common.world import World
+from quad_sim import simulator as simulator_module
 from quad_sim.disturbances import load_profile, profile_from_dict
 from quad_sim.simulator import SPEED_LIMIT, SimulationStopped, Simulator
 from quad_sim.stability import attitude_damping, attitude_loop_poles, damping_ratio
@@ -175,10 +176,20 @@ def test_unknown_profile_named():
         profile_from_dict({'wind_mps': [1, 2]}, 'p')
 
 
-def test_quiet_step_runs_equal_step_by_step_physics(crazyflie):
+def test_quiet_step_runs_equal_step_by_step_physics(crazyflie, monkeypatch):
     """advance() runs uneventful steps in one compiled call; stepping one at a time gives the same bits,
-    through saturation, a collision, the failsafe and a landing."""
+    through saturation, a collision, the failsafe and a landing. The compiled path must really have run most of
+    the steps (else this compares the step-by-step path with itself: a quiet_steps that does nothing passes)."""
     world = World([-5, 5, -5, 5, 0, 4], [[1.0, 2.0, -1.0, 1.0, 0.0, 3.0]])
+    quiet = simulator_module.quiet_steps
+    quiet_done = []
+
+    def counted_quiet_steps(*args):
+        done = quiet(*args)
+        quiet_done.append(done)
+        return done
+
+    monkeypatch.setattr(simulator_module, 'quiet_steps', counted_quiet_steps)
     runs = []
     for one_at_a_time in (False, True):
         sim = Simulator(crazyflie, initial_position=(0, 0, 1), world=world, setpoint_timeout_s=0.3)
@@ -193,6 +204,8 @@ def test_quiet_step_runs_equal_step_by_step_physics(crazyflie):
                 sim.advance(0.01)
         runs.append((sim.state, sim.rotor_speeds_radps, [(e.kind, e.time_s) for e in sim.events], sim.time_ns))
     (a, wa, ea, ta), (b, wb, eb, tb) = runs
+    steps = 220 * Simulator(crazyflie).steps_in(0.01)
+    assert sum(quiet_done) > steps // 2, f'the compiled path ran {sum(quiet_done)} of {steps} steps'
     assert {'saturation', 'collision', 'failsafe'} <= {kind for kind, _ in ea}
     assert ea == eb and ta == tb and np.array_equal(wa, wb)
     for name in ('position', 'velocity', 'quaternion', 'body_rates'):
