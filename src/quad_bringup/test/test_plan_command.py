@@ -1,4 +1,4 @@
-"""`quadflight plan`: the JSON layout of DESIGN.md section 6, the CSV samples, the summary, and bad input."""
+"""`quadflight plan`: the plan JSON layout of docs/design.md, the CSV samples, the summary, and bad input."""
 
 import json
 import os

@@ -1,6 +1,6 @@
 """A trajectory known only at dense samples, evaluated by quintic Hermite interpolation.
 
-This is how a consumer reads the `trajectory` topic (DESIGN.md section 3): each interval
+This is how a consumer reads the `trajectory` topic (docs/design.md, docs/interfaces.md): each interval
 [t_k, t_k+1] is the unique quintic matching position, velocity and acceleration at both ends,
 so position is C2 across samples and jerk is available between them. Axes are (x, y, z, yaw);
 yaw is stored unwrapped.

@@ -1,6 +1,6 @@
 """The three values that cross package boundaries, as plain numpy dataclasses.
 
-Frames (DESIGN.md section 2): world `map` ENU, body `base_link` FLU, SI units, quaternions (x, y, z, w).
+Frames (docs/design.md, docs/interfaces.md): world `map` ENU, body `base_link` FLU, SI units, quaternions (x, y, z, w).
 """
 
 from dataclasses import dataclass, field

@@ -68,7 +68,7 @@ class PlanResult:
                 'max_acceleration_mps2': t.max_acceleration(), 'max_jerk_mps3': t.max_jerk()}
 
     def to_dict(self) -> dict:
-        """The JSON layout of DESIGN.md section 6 (waypoints, segments) plus what else the plan knows."""
+        """The plan JSON layout of docs/design.md (waypoints, segments) plus what else the plan knows."""
         o = self.options
         return {'waypoints': self.waypoints.tolist(), **self.trajectory.to_dict(),
                 'yaw': self.yaw.tolist(), 'points': self.points.tolist(), 'is_waypoint': self.is_waypoint.tolist(),

@@ -1,7 +1,7 @@
 """Piecewise-polynomial trajectory over the axes (x, y, z, yaw).
 
 Segment i lasts durations_s[i]; on it each axis is sum_k c[i, axis, k] * tau^k with tau the local
-time in [0, durations_s[i]] (ascending powers, the JSON layout of DESIGN.md section 6).
+time in [0, durations_s[i]] (ascending powers, the plan JSON layout of docs/design.md).
 """
 
 import numpy as np

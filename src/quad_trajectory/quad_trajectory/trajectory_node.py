@@ -1,4 +1,4 @@
-"""trajectory_node: plans a trajectory through waypoints and publishes it (DESIGN.md section 3).
+"""trajectory_node: plans a trajectory through waypoints and publishes it (docs/design.md, docs/interfaces.md).
 
 Plans at start from `mission_file` or the flat `waypoints` parameter, and again on every
 nav_msgs/Path on `waypoints`. A request that cannot be planned is refused with a logged error and an

@@ -1,6 +1,6 @@
 """`quadflight plan MISSION.yaml --out traj.json [--csv RATE]`: plan only, no flight.
 
-The JSON is DESIGN.md section 6's layout ({"waypoints", "segments": [{"duration", "coefficients": {x, y, z, yaw}}]},
+The JSON is docs/design.md's plan layout ({"waypoints", "segments": [{"duration", "coefficients": {x, y, z, yaw}}]},
 coefficients in ascending powers of local time) plus the plan's options, merges and summary.
 """
 
