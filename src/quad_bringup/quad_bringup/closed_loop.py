@@ -21,7 +21,7 @@ from quad_sim.disturbances import load_profile
 from quad_sim.simulator import SimulationStopped, Simulator
 from quad_trajectory.mission import load_mission, plan_mission
 
-DISTURBANCES_FILE = 'config/disturbances.yaml'
+DISTURBANCES_FILE = resolve_config('config/disturbances.yaml')  # installed share, else the checkout
 SAMPLE_RATE_HZ = 100.0   # config/trajectory.yaml sample_rate_hz
 
 
@@ -65,7 +65,7 @@ def plan_offline(mission_path, options: LoopOptions | None = None):
 
 def make_simulator(mission, trajectory, options: LoopOptions) -> Simulator:
     """The simulator as fly starts it: at the mission's initial position, facing the plan's first yaw."""
-    profile = load_profile(resolve_config(DISTURBANCES_FILE), options.disturbances)
+    profile = load_profile(DISTURBANCES_FILE, options.disturbances)
     return Simulator(mission.vehicle, options.physics_rate_hz, initial_position=mission.initial_position,
                      initial_yaw=float(trajectory.position[0, 3]), disturbances=profile, world=mission.world,
                      robot_radius_m=mission.options.robot_radius_m)
