@@ -1,5 +1,6 @@
 """Defaults are written once: each node's parameter table (Param) takes them from the core's dataclass or
-constants, and the node's YAML under config/ lists every parameter with exactly that default."""
+constants, and the node's YAML under config/ lists every parameter with exactly that default; config/ is
+installed into quad_bringup's share directory."""
 
 import dataclasses
 import importlib
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 
 from quad_bringup.closed_loop import LoopOptions
+from quad_common import paths
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 from quad_control.position import PositionGains
@@ -43,3 +45,12 @@ def test_controller_parameters_default_to_the_dataclass():
             assert specs[field.name] == value, field.name
     options = LoopOptions()
     assert (specs['rate_hz'], specs['max_start_step_m']) == (options.rate_hz, options.max_start_step_m)
+
+
+def test_this_workspace_installs_every_config_file():
+    """quad_bringup's setup.py installs config/ (all of it) into its share directory."""
+    share = paths.share_dir()
+    if share is None:
+        pytest.fail('quad_bringup is not installed (source install/setup.bash): its share directory is missing')
+    source = sorted(p.relative_to(paths.REPO_ROOT) for p in (paths.REPO_ROOT / 'config').rglob('*.*'))
+    assert source and all((share / p).is_file() for p in source)

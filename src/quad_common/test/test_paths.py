@@ -41,11 +41,3 @@ def test_checkout_source_tree_after_the_share_directory(tmp_path, monkeypatch):
     monkeypatch.delenv('AMENT_PREFIX_PATH')          # ./quadflight without a sourced workspace
     assert paths.resolve_config('config/a.yaml').read_text() == 'checkout\n'
 
-
-def test_this_workspace_installs_every_config_file():
-    """quad_bringup's setup.py installs config/ (all of it) into its share directory."""
-    share = paths.share_dir()
-    if share is None:
-        pytest.fail('quad_bringup is not installed (source install/setup.bash): its share directory is missing')
-    source = sorted(p.relative_to(paths.REPO_ROOT) for p in (paths.REPO_ROOT / 'config').rglob('*.*'))
-    assert source and all((share / p).is_file() for p in source)
