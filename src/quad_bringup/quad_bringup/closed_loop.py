@@ -13,6 +13,7 @@ import numpy as np
 
 from quad_bringup.report import Completion, Flight, compute_metrics
 from quad_common import rotations
+from quad_common.vehicle import load_vehicle
 from quad_control.position import Limits, PositionController, PositionGains
 from quad_sim.disturbances import load_profile
 from quad_sim.simulator import SimulationStopped, Simulator
@@ -30,6 +31,8 @@ class LoopOptions:
     speed_mps: float | None = None              # None: the mission's
     plan_overrides: dict | None = None          # PlanOptions fields (e.g. time_allocation='limits')
     disturbances: str = 'none'
+    plant: str | dict | None = None             # a plant family member (name or overrides) for the simulator only
+    vehicle_path: str | None = None             # None: the mission's vehicle file
     rate_hz: float = 100.0
     physics_rate_hz: float = 1000.0
     time_limit_factor: float = 3.0
@@ -43,11 +46,14 @@ def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
     plan = plan_mission(mission, speed_mps=options.speed_mps, **(options.plan_overrides or {}))
     trajectory = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
     profile = load_profile(DISTURBANCES_FILE, options.disturbances)
-    sim = Simulator(mission.vehicle, options.physics_rate_hz, initial_position=mission.initial_position,
+    vehicle = load_vehicle(options.vehicle_path) if options.vehicle_path else mission.vehicle
+    plant_vehicle = load_vehicle(options.vehicle_path or mission.vehicle_path, plant=options.plant) \
+        if options.plant else vehicle
+    sim = Simulator(plant_vehicle, options.physics_rate_hz, initial_position=mission.initial_position,
                     initial_yaw=float(trajectory.position[0, 3]), disturbances=profile, world=mission.world,
                     robot_radius_m=mission.options.robot_radius_m)
-    controller = PositionController(options.controller, options.gains or PositionGains(), mission.vehicle,
-                                    Limits.of(mission.vehicle))
+    controller = PositionController(options.controller, options.gains or PositionGains(), vehicle,
+                                    Limits.of(vehicle))
     period_s = 1.0 / options.rate_hz
     arrival_s = options.rule.plan_arrival_s(trajectory)
     end_s = options.time_limit_factor * trajectory.duration_s + 10.0
