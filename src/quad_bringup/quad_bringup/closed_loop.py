@@ -13,8 +13,10 @@ import numpy as np
 
 from quad_bringup.report import Completion, Flight, compute_metrics
 from quad_common import rotations
+from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
-from quad_control.position import Limits, PositionController, PositionGains
+from quad_common.yaml_io import load_yaml
+from quad_control.position import Limits, PositionController, PositionGains, gains_from_parameters
 from quad_sim.disturbances import load_profile
 from quad_sim.simulator import SimulationStopped, Simulator
 from quad_trajectory.mission import load_mission, plan_mission
@@ -37,6 +39,12 @@ class LoopOptions:
     physics_rate_hz: float = 1000.0
     time_limit_factor: float = 3.0
     rule: Completion = Completion()
+
+
+def load_control_profile(path) -> tuple[str, PositionGains]:
+    """(controller, gains) of a position_controller params file (config/control*.yaml) over the seed's."""
+    values = (load_yaml(resolve_config(path)) or {}).get('position_controller', {}).get('ros__parameters', {})
+    return values.get('controller', 'pd'), gains_from_parameters(values)
 
 
 def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
