@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from quad_bringup.closed_loop import LoopOptions, fly_offline
+from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile
 from quad_bringup.flight import FlightOptions, MissionRefused, validate, with_profile_controller, write_flown_mission
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
@@ -57,3 +57,14 @@ def test_flown_mission_carries_the_time_allocation_and_plans_the_same(tmp_path):
 def test_unknown_time_allocation_refused_naming_it():
     with pytest.raises(MissionRefused, match="--time-allocation 'fastest'"):
         validate(FlightOptions(MAZE, controller='pd', time_allocation='fastest'))
+
+
+def test_72ms_motors_on_long_100_at_2_mps_do_not_spin():
+    """The mixer's priority (yaw limited and last, roll/pitch kept): with the old one, where yaw took no share,
+    this flight reached 24 rad/s of yaw rate and a 5.5 m RMSE."""
+    controller, gains = load_control_profile(resolve_config('config/control_se3.yaml'))
+    m = fly_offline(resolve_config('config/missions/long_100.yaml'),
+                    LoopOptions(controller=controller, gains=gains, speed_mps=2.0, plant='slow_motors_72ms',
+                                plan_overrides={'time_allocation': 'limits'}))
+    assert m['completed'] and 'stopped' not in m
+    assert m['max_yaw_rate_radps'] < 10.0 and m['rmse_m'] < 0.05
