@@ -40,8 +40,9 @@ def run(args) -> int:
               f'{a["blocks"]} parts) = tau {a["tau_s"]:.3f} s + dead time {a["delay_s"]:.3f} s; '
               f'bandwidth {a["bandwidth_hz"]:.2f} Hz; gain {a["gain"]:.3f}; fit R^2 {a["fit_r2"]:.3f}')
     t = result['thrust']
-    print(f'thrust: scale {t["thrust_scale"]:.4f} (95 % {t["thrust_scale_ci95"][0]:.4f}-{t["thrust_scale_ci95"][1]:.4f})'
-          f'; hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 commanded; equivalent mass error '
+    low, high = t['thrust_scale_ci95']
+    print(f'thrust: scale {t["thrust_scale"]:.4f} (95 % {low:.4f}-{high:.4f}); '
+          f'hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 commanded; equivalent mass error '
           f'{100 * t["mass_error_equivalent"]:+.1f} %')
     print(f'profile: {out} (attitude_lead_s {written["position_controller"]["ros__parameters"]["attitude_lead_s"]}, '
           f'thrust_scale {written["position_controller"]["ros__parameters"]["thrust_scale"]})')
