@@ -33,6 +33,7 @@ from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noq
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
 HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
 EARTH_RADIUS_M = 6378137.0
+DEFAULT_ATTITUDE_TAU_S = 0.08                          # see attitude.py
 DEFAULT_LATENCY_S = {'px4': 0.02, 'ardupilot': 0.05}   # ArduCopter SITL measured ~50 ms (issue 13)
 DEFAULT_BURST_S = {'px4': 0.0, 'ardupilot': 0.04}      # ArduPilot SITL telemetry arrived 0.5-65 ms apart
 
@@ -97,10 +98,7 @@ class MavlinkVehicle:
         if not self.sim.landed:  # starts in the air: armed, holding position
             self.ap.armed = True
             self.ap.mode = 'AUTO.LOITER' if self.flavour == 'px4' else 'LOITER'
-        tau_s = (1.0 / self.ap.params['MC_ROLL_P'] if self.flavour == 'px4' else self.ap.params['ATC_INPUT_TC'])
-        if args.attitude_tau_s is not None:
-            tau_s = args.attitude_tau_s
-        self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion)
+        self.shaper = AttitudeResponse(args.attitude_tau_s, self.sim.state.quaternion)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
         self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
@@ -395,8 +393,9 @@ def build_parser():
     ap.add_argument('--guid-options', type=int, default=None, help='ArduPilot: = --param GUID_OPTIONS=N')
     ap.add_argument('--offboard-loss-s', type=float, default=None, help='PX4: = --param COM_OF_LOSS_T=S')
     ap.add_argument('--guided-timeout-s', type=float, default=None, help='ArduPilot: = --param GUID_TIMEOUT=S')
-    ap.add_argument('--attitude-tau-s', type=float, default=None,
-                    help='attitude response time constant (default ATC_INPUT_TC / 1/MC_ROLL_P)')
+    ap.add_argument('--attitude-tau-s', type=float, default=DEFAULT_ATTITUDE_TAU_S,
+                    help='attitude shaping time constant; 0.08 s: a 10 deg roll step reaches 63 %% in 0.19 s with '
+                    'px4_quad.yaml, as ArduCopter SITL did (0.17-0.21 s)')
     ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.05')
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')
