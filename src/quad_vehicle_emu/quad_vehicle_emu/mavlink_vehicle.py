@@ -90,15 +90,20 @@ class MavlinkVehicle:
     def __init__(self, args):
         self.args = args
         self.flavour = args.autopilot
-        self.sim = Simulator(load_vehicle(args.vehicle), physics_rate_hz=args.physics_rate_hz,
+        self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))  # bad parameters: first
+        vehicle = load_vehicle(args.vehicle)
+        self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
                              setpoint_timeout_s=1e6)
         self.sim.warm_up()  # before the first heartbeat: compiling mid-flight would stall the link for seconds
-        self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))
         if not self.sim.landed:  # starts in the air: armed, holding position
             self.ap.armed = True
             self.ap.mode = 'AUTO.LOITER' if self.flavour == 'px4' else 'LOITER'
-        self.shaper = AttitudeResponse(args.attitude_tau_s, self.sim.state.quaternion)
+        tau_s = args.attitude_tau_s
+        if tau_s is None:   # a vehicle file that already gives quad_sim an autopilot-like loop needs no shaping
+            loop = getattr(getattr(vehicle, 'attitude_loop', None), 'type', 'eq6')
+            tau_s = DEFAULT_ATTITUDE_TAU_S if loop == 'eq6' else 0.0
+        self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
         self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
@@ -393,9 +398,10 @@ def build_parser():
     ap.add_argument('--guid-options', type=int, default=None, help='ArduPilot: = --param GUID_OPTIONS=N')
     ap.add_argument('--offboard-loss-s', type=float, default=None, help='PX4: = --param COM_OF_LOSS_T=S')
     ap.add_argument('--guided-timeout-s', type=float, default=None, help='ArduPilot: = --param GUID_TIMEOUT=S')
-    ap.add_argument('--attitude-tau-s', type=float, default=DEFAULT_ATTITUDE_TAU_S,
-                    help='attitude shaping time constant; 0.08 s: a 10 deg roll step reaches 63 %% in 0.19 s with '
-                    'px4_quad.yaml, as ArduCopter SITL did (0.17-0.21 s)')
+    ap.add_argument('--attitude-tau-s', type=float, default=None,
+                    help='attitude shaping time constant; default 0.08 s (a 10 deg roll step reaches 63 %% in 0.19 s '
+                    "with px4_quad.yaml, as ArduCopter SITL did), 0 when the vehicle file sets quad_sim's "
+                    'attitude_loop to an autopilot-like one (so3_pd, lag)')
     ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.05')
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')
