@@ -169,6 +169,9 @@ def test_px4_sys_status_sets_only_the_prearm_health_bit_and_default_streams(vehi
     assert status.onboard_control_sensors_health & PREARM               # AUTO.LOITER can arm
     for kind in ('HIGHRES_IMU', 'ODOMETRY', 'ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED'):
         v.wait_message(kind, since)                                      # onboard-mode defaults, unasked
+    odom, pos = v.last('ODOMETRY'), v.last('LOCAL_POSITION_NED')
+    assert (odom.frame_id, odom.child_frame_id) == (1, 1)                # LOCAL_NED pose, NED velocity (EKF2)
+    assert odom.z == pytest.approx(pos.z, abs=0.05) and odom.z == pytest.approx(-1.0, abs=0.1)
     assert v.param('MPC_THR_HOVER').param_value == pytest.approx(0.42)
     assert v.param('COM_OF_LOSS_T').param_value == pytest.approx(1.0)
     action = v.param('COM_OBL_RC_ACT')

@@ -39,6 +39,7 @@ class AttitudeTargetMsg:
     q_wxyz: tuple
     rates_frd: tuple
     thrust: float
+    thrust_body: tuple = (0.0, 0.0, 0.0)   # MAVLink 2 extension: FRD thrust, used by PX4 with THRUST_BODY_SET
 
 
 class RateMeter:
@@ -218,7 +219,11 @@ class Px4(Autopilot):
             if not (math.isfinite(norm) and norm > 1e-6):
                 raise ValueError(f'SET_ATTITUDE_TARGET q = {list(msg.q_wxyz)} is not a rotation')
             q = ned.attitude_from_ned_wxyz(msg.q_wxyz)
-        self.setpoint = (q, float(np.clip(msg.thrust, 0.0, 1.0)), rates)
+        # THRUST_BODY_SET: thrust_body (FRD, -z is up) instead of thrust (mavlink_receiver.cpp)
+        thrust = -float(msg.thrust_body[2]) if mask & p.TYPEMASK_THRUST_BODY_SET else float(msg.thrust)
+        if not math.isfinite(thrust):
+            raise ValueError(f'SET_ATTITUDE_TARGET thrust_body {list(msg.thrust_body)} not finite')
+        self.setpoint = (q, float(np.clip(thrust, 0.0, 1.0)), rates)
         self.setpoint_time_s = now_s
         self.setpoints.tick(now_s)
 

@@ -21,7 +21,6 @@ import numpy as np
 os.environ.setdefault('MAVLINK20', '1')
 from pymavlink import mavutil  # noqa: E402
 
-from quad_common import rotations  # noqa: E402
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
 from quad_common.vehicle import load_vehicle  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
@@ -183,7 +182,8 @@ class MavlinkVehicle:
         now = self.now_s()
         if kind == 'SET_ATTITUDE_TARGET':
             self.ap.on_attitude_target(AttitudeTargetMsg(msg.type_mask, tuple(msg.q), (
-                msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate), msg.thrust), now)
+                msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate), msg.thrust,
+                tuple(getattr(msg, 'thrust_body', (0.0, 0.0, 0.0)))), now)
         elif kind == 'COMMAND_LONG':
             self.on_command(msg, now)
         elif kind == 'TIMESYNC' and msg.tc1 == 0:
@@ -308,13 +308,13 @@ class MavlinkVehicle:
             msg = m.MAVLink_attitude_quaternion_message(boot_ms, *q, *rates, [0.0, 0.0, 0.0, 0.0])
         elif name == 'LOCAL_POSITION_NED':
             msg = m.MAVLink_local_position_ned_message(boot_ms, *map(float, pos), *map(float, vel))
-        elif name == 'ODOMETRY':   # PX4 ODOMETRY.hpp: local NED pose, body FRD velocity
-            R_ned_frd = ned.P_NED_ENU @ rotations.to_matrix(state.quaternion) @ ned.B_FLU_FRD
-            vel_body = R_ned_frd.T @ vel
+        elif name == 'ODOMETRY':
+            # PX4 v1.14+ mavlink/streams/ODOMETRY.hpp: frame_id LOCAL_NED, child_frame_id from the estimator's
+            # velocity_frame, which EKF2 publishes as VELOCITY_FRAME_NED: velocity in local NED, not body
             nan21 = [float('nan')] * 21
-            msg = m.MAVLink_odometry_message(boot_us, p.MAV_FRAME_LOCAL_NED, p.MAV_FRAME_BODY_FRD,
-                                             *map(float, pos), q, *map(float, vel_body), *rates, nan21, nan21,
-                                             0, 0, 100)
+            msg = m.MAVLink_odometry_message(boot_us, p.MAV_FRAME_LOCAL_NED, p.MAV_FRAME_LOCAL_NED,
+                                             *map(float, pos), q, *map(float, vel), *rates, nan21, nan21,
+                                             0, p.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100)
         elif name == 'GLOBAL_POSITION_INT':
             msg = m.MAVLink_global_position_int_message(boot_ms, int(lat * 1e7), int(lon * 1e7), int(alt_m * 1000),
                                                         int(-pos[2] * 1000), *(int(v * 100) for v in vel),
