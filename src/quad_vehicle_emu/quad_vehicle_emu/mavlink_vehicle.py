@@ -21,6 +21,7 @@ import numpy as np
 os.environ.setdefault('MAVLINK20', '1')
 from pymavlink import mavutil  # noqa: E402
 
+from quad_common import rotations  # noqa: E402
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
 from quad_common.vehicle import load_vehicle  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
@@ -121,6 +122,7 @@ class MavlinkVehicle:
         self.t0 = time.monotonic()
         self.log_index = 0
         self.last_update_s = 0.0
+        self._snap = None
 
     # --- clocks -----------------------------------------------------------------------------------------
 
@@ -279,6 +281,22 @@ class MavlinkVehicle:
         else:
             self.mav.send(msg)
 
+    def _snapshot(self, t_sample, state, f_body):
+        """Everything the messages say about one telemetry sample, in MAVLink frames (computed once a sample)."""
+        if self._snap is not None and self._snap[0] == t_sample:
+            return self._snap[1]
+        pos, vel = ned.enu_to_ned(state.position), ned.enu_to_ned(state.velocity)
+        q = ned.attitude_to_ned_wxyz(state.quaternion)
+        w, x, y, z = q
+        roll, pitch, yaw = (float(a) for a in rotations.to_euler(np.array([x, y, z, w])))
+        snap = dict(pos=pos, vel=vel, q=q, rates=[float(v) for v in ned.flu_to_frd(state.body_rates)],
+                    acc=[float(v) for v in ned.flu_to_frd(f_body)], roll=roll, pitch=pitch, yaw=yaw,
+                    lat=HOME_LAT_DEG + math.degrees(pos[0] / EARTH_RADIUS_M),
+                    lon=HOME_LON_DEG + math.degrees(pos[1] / (EARTH_RADIUS_M * math.cos(math.radians(HOME_LAT_DEG)))),
+                    alt_m=HOME_ALT_M - pos[2])
+        self._snap = (t_sample, snap)
+        return snap
+
     def send_message(self, name, now):
         sample = self.telemetry.read(now)
         if sample is None:
@@ -287,17 +305,13 @@ class MavlinkVehicle:
         boot_ms = int(self.boot_s(t_sample) * 1000) & 0xFFFFFFFF
         boot_us = int(self.boot_s(t_sample) * 1e6)
         m = mavutil.mavlink
-        pos, vel = ned.enu_to_ned(state.position), ned.enu_to_ned(state.velocity)
-        q = ned.attitude_to_ned_wxyz(state.quaternion)
-        rates = [float(v) for v in ned.flu_to_frd(state.body_rates)]
-        acc = [float(v) for v in ned.flu_to_frd(f_body)]
-        roll, pitch, yaw = ned.euler_ned(state.quaternion)
+        snap = self._snapshot(t_sample, state, f_body)
+        pos, vel, q, rates, acc = snap['pos'], snap['vel'], snap['q'], snap['rates'], snap['acc']
+        roll, pitch, yaw = snap['roll'], snap['pitch'], snap['yaw']
+        lat, lon, alt_m = snap['lat'], snap['lon'], snap['alt_m']
         voltage_v = 16.8 - 0.002 * now
         remaining = int(max(0.0, 100.0 - 0.02 * now))
         current_ca = 1500 if self.ap.armed else 50
-        lat = HOME_LAT_DEG + math.degrees(pos[0] / EARTH_RADIUS_M)
-        lon = HOME_LON_DEG + math.degrees(pos[1] / (EARTH_RADIUS_M * math.cos(math.radians(HOME_LAT_DEG))))
-        alt_m = HOME_ALT_M - pos[2]
         if name == 'HEARTBEAT':
             status = p.MAV_STATE_ACTIVE if self.ap.armed else p.MAV_STATE_STANDBY
             msg = m.MAVLink_heartbeat_message(p.MAV_TYPE_QUADROTOR, self.ap.autopilot_id, self.ap.base_mode,
