@@ -180,15 +180,15 @@ class Px4(Autopilot):
                 | (p.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0))
 
     def offboard_signal(self, now_s) -> bool:
-        """offboardCheck.cpp: setpoints younger than COM_OF_LOSS_T; the user guide: streamed at > 2 Hz."""
-        return (now_s - self.setpoint_time_s < self.params['COM_OF_LOSS_T']
-                and self.setpoints.rate_hz(now_s) > p.PX4_OFFBOARD_MIN_RATE_HZ)
+        """offboardCheck.cpp: the last setpoint is younger than COM_OF_LOSS_T (what the failsafe watches)."""
+        return now_s - self.setpoint_time_s < self.params['COM_OF_LOSS_T']
 
     def can_run(self, mode, now_s) -> bool:
+        """Entering OFFBOARD (switch or arm) also needs the stream at > 2 Hz, as the user guide requires."""
         if mode in p.PX4_NEEDS_MANUAL_CONTROL:
             return False
         if mode == 'OFFBOARD':
-            return self.offboard_signal(now_s)
+            return self.offboard_signal(now_s) and self.setpoints.rate_hz(now_s) > p.PX4_OFFBOARD_MIN_RATE_HZ
         return True
 
     def can_arm(self, now_s) -> bool:

@@ -42,3 +42,16 @@ def test_arducopter_resets_the_guided_target_on_an_ill_defined_message(mask, q):
     with pytest.raises(ValueError):
         apm.on_attitude_target(AttitudeTargetMsg(mask, q, (0, 0, 0), 0.5), 0.2)
     assert apm.angle[0] is None, 'init(true): back to level, climb rate 0'
+
+
+def test_px4_failsafe_waits_for_com_of_loss_t_not_for_the_stream_rate():
+    px4 = Px4(hover_throttle=0.5, params={'COM_OF_LOSS_T': 3.0})
+    px4.armed = True
+    msg = AttitudeTargetMsg(p.TYPEMASK_RATES_IGNORE, LEVEL, (0, 0, 0), 0.5)
+    for k in range(30):
+        px4.on_attitude_target(msg, k * 0.02)
+    assert px4.command(p.MAV_CMD_DO_SET_MODE, [1, 6, 0], False, 0.6) == p.MAV_RESULT_ACCEPTED
+    px4.update(HOVERING, False, 2.0)          # a 1.4 s gap: the rate is 0 Hz, but COM_OF_LOSS_T is 3 s
+    assert px4.mode == 'OFFBOARD'
+    px4.update(HOVERING, False, 3.7)
+    assert px4.mode == 'AUTO.LOITER'
