@@ -142,7 +142,7 @@ def test_px4_offboard_needs_a_setpoint_stream_first_and_fails_safe_to_hold(vehic
     changed = v.wait_for(lambda: next((t for t, m in v.of_type('HEARTBEAT', stopped)
                                        if m.custom_mode != PX4_MODES['OFFBOARD']), None), 'the failsafe')
     assert v.mode() == PX4_MODES['AUTO.LOITER'], 'COM_OBL_RC_ACT 0 without RC falls through to Hold'
-    assert 0.9 < changed - stopped < 2.0, 'after COM_OF_LOSS_T = 1 s'
+    assert 0.9 < changed - stopped < 3.0, 'after COM_OF_LOSS_T = 1 s (a busy machine adds up to ~1 s)'
 
 
 def test_px4_returns_to_offboard_after_land_and_arms_into_the_stream(vehicles):
