@@ -17,7 +17,10 @@ from quad_trajectory.polynomial import PiecewisePolynomial
 MERGE_DISTANCE_M = 1e-3
 MAX_REPLANS = 12
 _LIMIT_TARGET = 0.97   # plan to 97 % of v_max / a_max so that samples between ours stay inside too
-_LIMIT_ITERATIONS = 10
+_LIMIT_ITERATIONS = 8
+MAX_LIMITS_LENGTH_RATIO = 1.5   # limits: a faster shape is taken only while its path stays this short
+ABSURD_LENGTH_RATIO = 10.0      # no plan longer than this x the polyline through its points is returned
+MAX_PLAN_DURATION_S = 86400.0   # nor one longer than a day
 
 
 @dataclass
@@ -177,17 +180,61 @@ def solve(points, durations_s, method='minsnap', mode='continuity') -> Piecewise
     return PiecewisePolynomial(durations_s, solver.solve_banded_coefficients(durations_s, points, r, mode))
 
 
+def _limit_shape(points, durations, o: PlanOptions, v_max, a_max):
+    """Solve with `durations` and return (trajectory, per-segment ratio k_i, k = max k_i) where
+    k_i = max(peak speed_i / v_max, sqrt(peak acceleration_i / a_max))."""
+    traj = solve(points, durations, o.method, o.waypoint_constraint)
+    k_i = np.maximum(traj.segment_peaks(1) / v_max, np.sqrt(traj.segment_peaks(2) / a_max))
+    return traj, k_i, float(k_i.max())
+
+
 def _limit_times(points, durations, o: PlanOptions, v_max, a_max):
-    """Rescale segment times until peak speed / acceleration per segment sit at the limits, then scale all
-    times by one factor so that the whole trajectory meets them (time scaling by k divides speed by k and
-    acceleration by k^2, and keeps a rest-to-rest optimum optimal)."""
-    T = durations.copy()
-    for _ in range(_LIMIT_ITERATIONS):
-        traj = solve(points, T, o.method, o.waypoint_constraint)
-        k = np.maximum(traj.segment_peaks(1) / v_max, np.sqrt(traj.segment_peaks(2) / a_max))
-        T = T * np.sqrt(np.maximum(k, 1e-3))
-    traj = solve(points, T, o.method, o.waypoint_constraint)
-    return T * max(traj.max_speed() / v_max, np.sqrt(traj.max_acceleration() / a_max))
+    """Segment times that meet v_max and a_max, as fast as a bounded search finds, never an absurd plan.
+
+    Uniform time scaling is exact: the problem with times k T (same points and constraints) is solved by
+    p(t / k), because every constraint row is invariant and the cost scales by k^(1 - 2r) for all candidates
+    alike. Speed then divides by k and acceleration by k^2, so for any shape T (times up to a common factor)
+    k = max_i k_i makes the plan meet both limits with the binding one reached, in one solve.
+
+    The search is over shapes only: from the seed's sqrt shape T0, slack segments (k_i < k) are shortened by
+    (k_i / k)^(1/2), at most a factor 2 per step, and every shape stays within a factor 4 of T0 (after
+    removing the common scale). Each of the _LIMIT_ITERATIONS + 1 shapes is a candidate, scaled by its own k.
+    Bounds, by construction rather than by convergence of the iteration:
+    - termination: exactly _LIMIT_ITERATIONS + 1 solves;
+    - limits: every candidate meets them at its 128 samples per segment (the 0.97 target covers the rest);
+    - length: scaling does not change the path, so the returned one is the fastest candidate whose length
+      is <= MAX_LIMITS_LENGTH_RATIO x the polyline, else the shortest candidate (the sqrt shape is one);
+    - duration: <= that of the sqrt shape scaled to the limits (it is a candidate).
+    The old per-segment rescaling (T_i *= sqrt k_i, repeated) had no such bound: a stretched segment
+    drifts further at its neighbours' joint speed, is stretched again, and ran away to 1e11 s and 1e11 m.
+    """
+    poly = float(timing.segment_lengths(points).sum())
+    T0 = np.asarray(durations, dtype=float)
+    T, best, shortest = T0.copy(), None, None
+    for _ in range(_LIMIT_ITERATIONS + 1):
+        traj, k_i, k = _limit_shape(points, T, o, v_max, a_max)
+        candidate = (T * k, traj.arc_length())
+        if candidate[1] <= MAX_LIMITS_LENGTH_RATIO * poly and (best is None or candidate[0].sum() < best[0].sum()):
+            best = candidate
+        if shortest is None or candidate[1] < shortest[1]:
+            shortest = candidate
+        shape = T * np.clip(k_i / k, 0.5, 1.0) ** 0.5 / T0
+        shape = shape / np.exp(np.mean(np.log(shape)))
+        T = T0 * np.clip(shape, 0.25, 4.0)
+    return (best or shortest)[0]
+
+
+def check_sane(trajectory: PiecewisePolynomial, points, o: PlanOptions) -> PiecewisePolynomial:
+    """Refuse a plan whose length or duration is absurd (ValueError naming both), whatever produced it."""
+    poly = float(timing.segment_lengths(points).sum())
+    length = trajectory.arc_length()
+    if not (np.isfinite(length) and length <= ABSURD_LENGTH_RATIO * poly) or \
+            not trajectory.duration_s <= MAX_PLAN_DURATION_S:
+        raise ValueError(f'the planned trajectory is absurd: {length:.6g} m long ({length / poly:.3g} x the '
+                         f'{poly:.3f} m polyline; at most {ABSURD_LENGTH_RATIO:g} x) and {trajectory.duration_s:.6g} s '
+                         f'(at most {MAX_PLAN_DURATION_S:g} s) with time_allocation = {o.time_allocation}, '
+                         f'speed = {o.speed_mps} m/s')
+    return trajectory
 
 
 def _optimal_times(points, durations, o: PlanOptions):
@@ -243,7 +290,8 @@ def plan(waypoints, yaw=None, options: PlanOptions | None = None, world: World |
                              f'no trajectory through these waypoints can be collision-free')
     inserted = 0
     for attempt in range(MAX_REPLANS + 1):
-        traj = solve(points, allocate_times(points, o, vehicle), o.method, o.waypoint_constraint)
+        traj = check_sane(solve(points, allocate_times(points, o, vehicle), o.method, o.waypoint_constraint),
+                          points, o)
         if world is None:
             break
         segments, times = collision.trajectory_collisions(world, traj, o.robot_radius_m)
