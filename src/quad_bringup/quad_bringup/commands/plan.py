@@ -4,7 +4,6 @@ The JSON is DESIGN.md section 6's layout ({"waypoints", "segments": [{"duration"
 coefficients in ascending powers of local time) plus the plan's options, merges and summary.
 """
 
-import json
 import sys
 from pathlib import Path
 
@@ -57,7 +56,7 @@ def run(args) -> int:
     print(summary_table(result))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({'mission': str(args.mission), **result.to_dict()}))
+        args.out.write_text(result.to_json(mission=str(args.mission)))
         print(f'wrote {args.out}')
         if args.csv is not None:
             csv_path = args.out.with_suffix('.csv')
