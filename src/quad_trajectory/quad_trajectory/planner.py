@@ -248,8 +248,8 @@ def check_sane(trajectory: PiecewisePolynomial, points, o: PlanOptions) -> Piece
             not trajectory.duration_s <= max_duration_s:
         raise ValueError(f'the planned trajectory is absurd: {length:.6g} m long ({length / poly:.3g} x the '
                          f'{poly:.3f} m polyline; at most {ABSURD_LENGTH_RATIO:g} x) and {trajectory.duration_s:.6g} s '
-                         f'(at most {max_duration_s:.6g} s: {MIN_MEAN_SPEED_MPS * 1000:g} mm/s on average) with time_allocation = {o.time_allocation}, '
-                         f'speed = {o.speed_mps} m/s')
+                         f'(at most {max_duration_s:.6g} s: {MIN_MEAN_SPEED_MPS * 1000:g} mm/s on average) with '
+                         f'time_allocation = {o.time_allocation}, speed = {o.speed_mps} m/s')
     return trajectory
 
 
