@@ -56,6 +56,7 @@ class FlightOptions:
     stall_timeout_s: float = 60.0         # wall clock without new odometry
     divergence_m: float = 1.0
     quiet: bool = False
+    fly_anyway: bool = False              # fly a plan that fails the vehicle's feasibility check
 
 
 @dataclass
@@ -93,6 +94,29 @@ def validate(options: FlightOptions):
     except (ValueError, KeyError, TypeError, OSError) as exc:
         raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
     return mission
+
+
+def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptions:
+    """Check the plan on the vehicle before anything starts (quad_trajectory.feasibility) and say how it does;
+    an infeasible one is refused (MissionRefused) unless fly_anyway, or replaced by the limits allocation when
+    that fits and the mission asks for it (trajectory.if_infeasible: limits)."""
+    from quad_common.vehicle import load_vehicle
+    from quad_trajectory.feasibility import preflight
+    from quad_trajectory.mission import plan_mission
+
+    vehicle = load_vehicle(options.vehicle) if options.vehicle is not None else mission.vehicle
+    if vehicle is None:
+        return options
+    report = preflight(mission, plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options)),
+                       vehicle, options.speed_mps)
+    for line in report.lines():
+        log(line)
+    if report.ok or options.fly_anyway:
+        return options
+    if report.fits is not None and mission.if_infeasible == report.fits:
+        log(f'flying time_allocation {report.fits}, as the mission asks (trajectory.if_infeasible)')
+        return dataclasses.replace(options, time_allocation=report.fits)
+    raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above); --fly-anyway flies it all the same')
 
 
 def plan_overrides(options: FlightOptions) -> dict:
@@ -181,6 +205,7 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
     try:
         options = with_profile_controller(options)
         mission = validate(options)
+        options = preflight_options(options, mission, log)
     except (MissionRefused, ValueError) as exc:
         return FlightResult(EXIT_REFUSED, str(exc))
     run_dir = Path(options.out) if options.out else default_run_dir(mission.name, options.controller)

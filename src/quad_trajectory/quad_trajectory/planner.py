@@ -11,13 +11,14 @@ import numpy as np
 
 from quad_common.vehicle import Vehicle
 from quad_common.world import World
-from quad_trajectory import collision, solver, timing
+from quad_trajectory import collision, feasibility, solver, timing
 from quad_trajectory.polynomial import PiecewisePolynomial
 
 MERGE_DISTANCE_M = 1e-3
 MAX_REPLANS = 12
 _LIMIT_TARGET = 0.97   # plan to 97 % of v_max / a_max so that samples between ours stay inside too
 _LIMIT_ITERATIONS = 8
+_FIT_STEPS = 30                 # limits with a vehicle: at most 1.1^30 = 17x slower to pass its feasibility check
 MAX_LIMITS_LENGTH_RATIO = 1.5   # limits: a faster shape is taken only while its path stays this short
 ABSURD_LENGTH_RATIO = 10.0      # no plan longer than this x the polyline through its points is returned
 MIN_MEAN_SPEED_MPS = 1e-3       # nor one slower on average along that polyline (the 2.1e11 s plan: 1e-10 m/s)
@@ -203,6 +204,18 @@ def _limit_shape(points, durations, o: PlanOptions, v_max, a_max):
     return traj, k_i, float(k_i.max())
 
 
+def _fit_vehicle(points, durations, o: PlanOptions, vehicle):
+    """Slow the plan down uniformly (x1.1 a step, at most _FIT_STEPS) until it passes the vehicle's feasibility
+    check (tilt, thrust, rotors, the attitude loop's lag; quad_trajectory.feasibility). Uniform scaling is exact
+    (see _limit_times) and tends to hover as it grows, so this ends wherever hover itself is feasible."""
+    T = durations
+    for _ in range(_FIT_STEPS):
+        if feasibility.check(solve(points, T, o.method, o.waypoint_constraint), vehicle).ok:
+            break
+        T = T * 1.1
+    return T
+
+
 def _limit_times(points, durations, o: PlanOptions, v_max, a_max):
     """Segment times that meet v_max and a_max, as fast as a bounded search finds, never an absurd plan.
 
@@ -286,7 +299,8 @@ def allocate_times(points, o: PlanOptions, vehicle: Vehicle | None = None) -> np
             a_max = _LIMIT_TARGET * timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
         else:
             raise ValueError('time_allocation = limits needs limits.a_max_mps2 or a vehicle')
-        return _limit_times(points, T, o, v_max, a_max)
+        T = _limit_times(points, T, o, v_max, a_max)
+        return T if vehicle is None else _fit_vehicle(points, T, o, vehicle)
     if o.time_allocation == 'optimal':
         return _optimal_times(points, T, o)
     return T

@@ -7,7 +7,7 @@ import pytest
 
 from quad_common.vehicle import load_vehicle
 from quad_common.world import World
-from quad_trajectory import collision, planner, timing
+from quad_trajectory import collision, feasibility, planner, timing
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH
 from quad_trajectory.planner import PlanOptions, plan
 from quad_trajectory.polynomial import PiecewisePolynomial
@@ -87,15 +87,22 @@ def test_limits_allocation_converges_on_random_dense_missions(seed):
     speed = np.linalg.norm(traj.evaluate(t, 1)[:, :3], axis=1).max()
     accel = np.linalg.norm(traj.evaluate(t, 2)[:, :3], axis=1).max()
     assert speed <= 1.05 * timing.DEFAULT_V_MAX_MPS and accel <= 1.05 * a_max
-    assert max(speed / timing.DEFAULT_V_MAX_MPS, accel / a_max) > 0.95   # and not needlessly slow
+    assert feasibility.check(traj, vehicle).ok   # and the vehicle can fly it (tilt, thrust, rotors, lag)
+    faster = time_scaled(traj, 1 / 1.1)          # not needlessly slow: a limit or the vehicle binds
+    assert max(speed / timing.DEFAULT_V_MAX_MPS, accel / a_max) > 0.95 or not feasibility.check(faster, vehicle).ok
+
+
+def time_scaled(traj, k):
+    """The same path flown k times slower: p(t / k)."""
+    n = traj.coefficients.shape[2]
+    return PiecewisePolynomial(traj.durations_s * k, traj.coefficients / k ** np.arange(n))
 
 
 def test_limits_allocation_is_never_slower_than_the_scaled_sqrt_shape():
-    vehicle = load_vehicle(DEFAULT_VEHICLE_PATH)
     waypoints, _ = random_dense_mission(11)
-    limits = plan(waypoints, options=PlanOptions(time_allocation='limits'), vehicle=vehicle).trajectory
+    limits = plan(waypoints, options=PlanOptions(time_allocation='limits', a_max_mps2=4.0)).trajectory
     sqrt = plan(waypoints, options=PlanOptions(speed_mps=1.0)).trajectory
-    v_max, a_max = 0.97 * timing.DEFAULT_V_MAX_MPS, 0.97 * timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
+    v_max, a_max = 0.97 * timing.DEFAULT_V_MAX_MPS, 0.97 * 4.0
     k = max(sqrt.max_speed() / v_max, np.sqrt(sqrt.max_acceleration() / a_max))
     assert limits.duration_s <= k * sqrt.duration_s * (1 + 1e-9)
 

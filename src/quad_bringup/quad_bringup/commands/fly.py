@@ -26,6 +26,9 @@ def add_arguments(parser):
                         help='completion: distance to the final waypoint (default %(default)s m)')
     parser.add_argument('--speed-tolerance', type=float, default=Completion.speed_tolerance_mps, metavar='V',
                         help='completion: speed (default %(default)s m/s)')
+    parser.add_argument('--fly-anyway', action='store_true',
+                        help='fly a plan that fails the feasibility check on the vehicle (tilt, thrust, rotors, '
+                             'attitude lag); without it such a plan is refused (exit 2)')
     parser.add_argument('--quiet', action='store_true', help='no progress lines')
 
 
@@ -34,7 +37,7 @@ def options_from(args) -> FlightOptions:
                          time_allocation=args.time_allocation,
                          vehicle=args.vehicle, disturbances=args.disturbances, control_profile=args.control_profile,
                          rule=Completion(args.position_tolerance, args.speed_tolerance),
-                         time_limit_factor=args.time_limit_factor, quiet=args.quiet)
+                         time_limit_factor=args.time_limit_factor, quiet=args.quiet, fly_anyway=args.fly_anyway)
 
 
 def run(args) -> int:
