@@ -6,8 +6,16 @@ import numpy as np
 import pytest
 
 from quad_bringup.closed_loop import LoopOptions, fly_offline
-from quad_bringup.flight import (EXIT_REFUSED, FlightOptions, MissionRefused, fly, preflight_options, validate,
-                                 with_profile_controller, write_flown_mission)
+from quad_bringup.flight import (
+    EXIT_REFUSED,
+    FlightOptions,
+    MissionRefused,
+    fly,
+    preflight_options,
+    validate,
+    with_profile_controller,
+    write_flown_mission,
+)
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 from quad_control.position_controller_node import SPECS, gains_from

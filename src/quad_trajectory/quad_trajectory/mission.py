@@ -102,7 +102,8 @@ def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
         raise ValueError(f'{path}: {exc}') from None
     if_infeasible = traj.get('if_infeasible', 'refuse')
     if if_infeasible not in IF_INFEASIBLE:
-        raise ValueError(f'{path}: trajectory.if_infeasible = {if_infeasible!r} must be one of {", ".join(IF_INFEASIBLE)}')
+        raise ValueError(f'{path}: trajectory.if_infeasible = {if_infeasible!r} must be one of '
+                         f'{", ".join(IF_INFEASIBLE)}')
     known = {'name', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m'}
     return Mission(path=path, name=str(data.get('name', os.path.splitext(os.path.basename(path))[0])),
                    waypoints=waypoints, yaw=yaw, options=options, vehicle=vehicle, vehicle_path=vehicle_path,
