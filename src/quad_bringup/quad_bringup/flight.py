@@ -50,7 +50,8 @@ class FlightOptions:
     vehicle: Path | None = None
     disturbances: str | None = None
     control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
-    rule: Completion = field(default_factory=Completion)
+    rule: Completion | None = None        # None: the vehicle's completion rule (its YAML), with `completion` over it
+    completion: dict = field(default_factory=dict)   # Completion field -> value given on the command line
     time_limit_factor: float = 3.0
     startup_timeout_s: float = 180.0      # wall clock until the first trajectory and odometry
     stall_timeout_s: float = 60.0         # wall clock without new odometry
@@ -96,15 +97,24 @@ def validate(options: FlightOptions):
     return mission
 
 
-def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptions:
-    """Check the plan on the vehicle before anything starts (quad_trajectory.feasibility) and say how it does;
-    an infeasible one is refused (MissionRefused) unless fly_anyway, or replaced by the limits allocation when
-    that fits and the mission asks for it (trajectory.if_infeasible: limits)."""
+def flight_vehicle(options: FlightOptions, mission):
+    """The vehicle the controller flies: --vehicle, else the mission's."""
     from quad_common.vehicle import load_vehicle
+
+    return load_vehicle(options.vehicle) if options.vehicle is not None else mission.vehicle
+
+
+def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptions:
+    """What the vehicle decides before anything starts: the completion rule (its YAML's `completion:` under the
+    command line's values, unless a rule was given) and the plan's feasibility (quad_trajectory.feasibility),
+    logged; an infeasible plan is refused (MissionRefused) unless fly_anyway, or replaced by the limits
+    allocation when that fits and the mission asks for it (trajectory.if_infeasible: limits)."""
     from quad_trajectory.feasibility import preflight
     from quad_trajectory.mission import plan_mission
 
-    vehicle = load_vehicle(options.vehicle) if options.vehicle is not None else mission.vehicle
+    vehicle = flight_vehicle(options, mission)
+    if options.rule is None:
+        options = dataclasses.replace(options, rule=Completion.for_vehicle(vehicle, **options.completion))
     if vehicle is None:
         return options
     report = preflight(mission, plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options)),

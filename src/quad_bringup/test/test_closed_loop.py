@@ -87,11 +87,12 @@ def test_fly_refuses_an_infeasible_plan_before_starting_anything(tmp_path):
 def test_fly_anyway_and_the_missions_own_choice(tmp_path):
     mission = validate(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0))
     anyway = FlightOptions(FIGURE8, controller='se3', speed_mps=2.0, fly_anyway=True)
-    assert preflight_options(anyway, mission, log=lambda line: None) is anyway
+    flown = preflight_options(anyway, mission, log=lambda line: None)
+    assert flown.time_allocation is None and flown.rule.source == 'vehicle crazyflie'  # its completion: rule
     asks = dataclasses.replace(mission, if_infeasible='limits')
     lines = []
     chosen = preflight_options(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0), asks, log=lines.append)
     assert chosen.time_allocation == 'limits' and 'as the mission asks' in lines[-1]
     feasible = FlightOptions(MAZE, controller='pd', speed_mps=0.5)
-    assert preflight_options(feasible, validate(feasible), log=lines.append) is feasible
+    assert preflight_options(feasible, validate(feasible), log=lines.append).time_allocation is None
     assert lines[-1].startswith('feasible on crazyflie: tilt 2.1')
