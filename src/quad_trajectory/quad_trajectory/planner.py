@@ -231,8 +231,10 @@ def _limit_times(points, durations, o: PlanOptions, v_max, a_max):
     - termination: exactly _LIMIT_ITERATIONS + 1 solves;
     - limits: every candidate meets them at its 128 samples per segment (the 0.97 target covers the rest);
     - length: scaling does not change the path, so the returned one is the fastest candidate whose length
-      is <= MAX_LIMITS_LENGTH_RATIO x the polyline, else the shortest candidate (the sqrt shape is one);
-    - duration: <= that of the sqrt shape scaled to the limits (it is a candidate).
+      is <= MAX_LIMITS_LENGTH_RATIO x the polyline, else the shortest candidate (the sqrt shape is one; on
+      random 30-leg missions of 0.4-1.2 m legs its path is <= 1.3x the polyline, the returned <= 1.43x);
+    - duration: <= that of the sqrt shape scaled to the limits whenever that shape meets the length bound.
+    check_sane then refuses any plan that is still absurd.
     The old per-segment rescaling (T_i *= sqrt k_i, repeated) had no such bound: a stretched segment
     drifts further at its neighbours' joint speed, is stretched again, and ran away to 1e11 s and 1e11 m.
     """
