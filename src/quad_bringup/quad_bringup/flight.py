@@ -48,14 +48,17 @@ class FlightOptions:
     time_allocation: str | None = None    # overrides the mission's trajectory.time_allocation (e.g. limits)
     out: Path | None = None
     vehicle: Path | None = None
+    plant: str | None = None              # a plant family member for the simulated vehicle (config/plant_family.yaml)
     disturbances: str | None = None
     control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
-    rule: Completion = field(default_factory=Completion)
+    rule: Completion | None = None        # None: the vehicle's completion rule (its YAML), with `completion` over it
+    completion: dict = field(default_factory=dict)   # Completion field -> value given on the command line
     time_limit_factor: float = 3.0
     startup_timeout_s: float = 180.0      # wall clock until the first trajectory and odometry
     stall_timeout_s: float = 60.0         # wall clock without new odometry
     divergence_m: float = 1.0
     quiet: bool = False
+    fly_anyway: bool = False              # fly a plan that fails the vehicle's feasibility check
 
 
 @dataclass
@@ -87,6 +90,14 @@ def validate(options: FlightOptions):
     for name, value in (('--vehicle', options.vehicle), ('--control-profile', options.control_profile)):
         if value is not None and not Path(value).is_file():
             raise MissionRefused(f'{name} {value}: no such file')
+    if options.plant:
+        from quad_common.vehicle import load_plant_family
+        try:
+            family = load_plant_family()
+        except (ValueError, OSError) as exc:
+            raise MissionRefused(f'--plant {options.plant!r} refused: {exc}') from None
+        if options.plant not in family:
+            raise MissionRefused(f'--plant {options.plant!r} refused: must be one of {", ".join(family)}')
     try:
         mission = mission_module.load_mission(path)
         mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
@@ -95,13 +106,51 @@ def validate(options: FlightOptions):
     return mission
 
 
+def flight_vehicle(options: FlightOptions, mission):
+    """The vehicle the controller flies: --vehicle, else the mission's."""
+    from quad_common.vehicle import load_vehicle
+
+    return load_vehicle(options.vehicle) if options.vehicle is not None else mission.vehicle
+
+
+def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptions:
+    """What the vehicle decides before anything starts: the completion rule (its YAML's `completion:` under the
+    command line's values, unless a rule was given) and the plan's feasibility (quad_trajectory.feasibility),
+    logged; an infeasible plan is refused (MissionRefused) unless fly_anyway, or replaced by the limits
+    allocation when that fits and the mission asks for it (trajectory.if_infeasible: limits)."""
+    from quad_trajectory.feasibility import preflight
+    from quad_trajectory.mission import plan_mission
+
+    vehicle = flight_vehicle(options, mission)
+    if options.rule is None:
+        options = dataclasses.replace(options, rule=Completion.for_vehicle(vehicle, **options.completion))
+    if vehicle is None:
+        return options
+    report = preflight(mission, plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options)),
+                       vehicle, options.speed_mps)
+    for line in report.lines():
+        log(line)
+    if report.ok or options.fly_anyway:
+        return options
+    if report.fits is not None and mission.if_infeasible == report.fits:
+        log(f'flying time_allocation {report.fits}, as the mission asks (trajectory.if_infeasible)')
+        return dataclasses.replace(options, time_allocation=report.fits)
+    raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above); --fly-anyway flies it all the same')
+
+
 def plan_overrides(options: FlightOptions) -> dict:
     return {} if options.time_allocation is None else {'time_allocation': options.time_allocation}
 
 
+DEFAULT_PROFILES = {'se3': 'config/control_se3.yaml'}  # a controller flown without --control-profile gets this
+
+
 def with_profile_controller(options: FlightOptions) -> FlightOptions:
-    """--controller if given, else the control profile's `controller`, else pd."""
+    """--controller if given, else the control profile's `controller`, else pd; a controller named without a
+    profile flies its default profile (se3: the robust config/control_se3.yaml; pd and pid: the seed's gains)."""
     if options.controller is not None:
+        if options.control_profile is None and options.controller in DEFAULT_PROFILES:
+            return dataclasses.replace(options, control_profile=resolve_config(DEFAULT_PROFILES[options.controller]))
         return options
     controller = 'pd'
     if options.control_profile is not None and Path(options.control_profile).is_file():
@@ -145,6 +194,8 @@ def node_parameters(options: FlightOptions, mission) -> dict:
         params['sim_node']['vehicle'] = vehicle
     if options.disturbances is not None:
         params['sim_node']['disturbances'] = options.disturbances
+    if options.plant:
+        params['sim_node']['plant'] = options.plant
     for p in params.values():  # files named in config/ are relative to the repository
         for key in ('vehicle', 'disturbances_file'):
             if p.get(key) and not Path(p[key]).is_absolute():
@@ -181,6 +232,7 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
     try:
         options = with_profile_controller(options)
         mission = validate(options)
+        options = preflight_options(options, mission, log)
     except (MissionRefused, ValueError) as exc:
         return FlightResult(EXIT_REFUSED, str(exc))
     run_dir = Path(options.out) if options.out else default_run_dir(mission.name, options.controller)
