@@ -4,8 +4,8 @@ Reads any rosbag2 bag (MCAP or sqlite3, ours or `ros2 bag record`'s) with `rosba
 deserialising with its ROS 2 Jazzy typestore; the messages it yields have the rclpy field names,
 so the shared converters of quad_common.conversions read them.
 
-Times are message header stamps (simulated time in lockstep). The metrics and their definitions are
-quad_bringup.metrics (numpy only; docs/quad_bringup.md).
+Times are message header stamps (simulated time in lockstep). The metrics and their definitions (the scored
+window, completion per vehicle) are quad_bringup.metrics (numpy only; docs/quad_bringup.md).
 """
 
 import json
@@ -32,6 +32,8 @@ from quad_common.contract import TRAJECTORY_WAYPOINTS as WAYPOINTS
 from quad_common.diagnostics import ERROR, level_of
 
 ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from rosbags
+
+
 _namespaced = contract.matches
 
 
@@ -120,13 +122,23 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
     lines += [f'- {k}: {v}' for k, v in info.items()]
     lines += ['', '## Table (the seed\'s Table 1/2 columns and errors)', '', metrics_table(metrics), '',
               f'Completion: within {metrics["completion_rule"]["position_tolerance_m"]} m of the final waypoint at '
-              f'speed <= {metrics["completion_rule"]["speed_tolerance_mps"]} m/s. Time actual - planned: '
+              f'speed <= {metrics["completion_rule"]["speed_tolerance_mps"]} m/s '
+              f'({metrics["completion_rule"].get("source", "built-in defaults")}). '
+              f'{_scored_text(metrics)} Time actual - planned: '
               f'{metrics["time_over_s"]:.3f} s; final error {metrics["final_error_m"]:.4f} m; max speed '
               f'{metrics["max_speed_mps"]:.2f} m/s; max tilt {metrics["max_tilt_deg"]:.1f} deg.', '']
     if metrics['errors']:
         lines += ['## Errors reported on diagnostics', ''] + [f'- {e}' for e in metrics['errors']] + ['']
     lines += ['## Figures', ''] + [f'![{Path(f).stem}]({f})' for f in figures] + ['']
     return '\n'.join(lines)
+
+
+def _scored_text(metrics: dict) -> str:
+    w = metrics.get('scored_window')
+    if not w:
+        return ''
+    return (f'Scored window (RMSE, max error, lengths): the plan\'s start to {w["end_s"]:.2f} s, ending at '
+            f'{w["ends_at"]}; the bag runs to {w["bag_end_s"]:.2f} s.')
 
 
 def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion | None = None) -> dict:
