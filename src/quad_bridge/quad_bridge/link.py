@@ -4,7 +4,8 @@ setpoints go out. Times are plain seconds from a monotonic clock passed in by th
 import collections
 import hashlib
 
-from quad_bridge.autopilot import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4
+from quad_bridge.ardupilot import MAV_AUTOPILOT_ARDUPILOTMEGA
+from quad_bridge.px4 import MAV_AUTOPILOT_PX4
 
 MAV_AUTOPILOT_INVALID = 8
 # MAV_TYPE values that are not a vehicle: GCS 6, onboard controller 18, gimbal 26, ADS-B 27, camera 30,
