@@ -16,6 +16,7 @@ from quad_bridge.backend import (
     tilt_cos,
 )
 from quad_bridge.px4 import MAV_AUTOPILOT_PX4
+from quad_bridge.px4 import custom_mode as px4_custom_mode
 
 
 def mode_name(autopilot: int, custom_mode: int) -> str:

@@ -585,7 +585,8 @@ class MavlinkBridge(Node):
         setpoints = diagnostics.status(f'{NAME}: setpoints', sp_level, reason, {
             'handover': phase, 'target_mode': target, 'handovers_ended': ended,
             'streaming': phase != 'idle' and self.may_stream(), 'rate_hz': f'{st.rate_hz():.1f}',
-            'sent': st.sent_total, 'keepalives': st.keepalives, 'superseded': st.superseded, **counts,
+            'received': st.received, 'sent': st.sent_total, 'keepalives': st.keepalives,
+            'superseded': st.superseded, **counts,
             'geofence_breached': self.geofence.breached})
         self.diag_pub.publish(diagnostics.array(_stamp(time.time_ns()), [link, setpoints]))
 

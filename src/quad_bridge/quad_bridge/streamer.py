@@ -27,7 +27,7 @@ class SetpointStreamer:
         self.sent_s = -math.inf       # when the last one went out
         self.reported_sent_s = -math.inf  # the last send whose silence was reported
         self.sent = RateMeter()
-        self.sent_total = self.superseded = self.keepalives = 0
+        self.received = self.sent_total = self.superseded = self.keepalives = 0
         self._unsent = False          # the newest setpoint has not been on the wire
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -49,6 +49,7 @@ class SetpointStreamer:
         """A new valid setpoint: on the wire now if the hand-over allows it."""
         with self.lock:
             now = self.clock()
+            self.received += 1
             if self._unsent:
                 self.superseded += 1
             self.setpoint, self.received_s, self._unsent = sp, now, True

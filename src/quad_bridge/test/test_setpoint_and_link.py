@@ -24,7 +24,7 @@ def test_non_finite_setpoints_are_refused_naming_the_field(field, sp):
 
 def test_tilt_within_limit_passes_unchanged():
     q = rotations.from_euler(0.2, -0.1, 1.0)
-    sp, clamped = check_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=12.0), math.radians(35.0))
+    sp, clamped, _ = check_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=12.0), math.radians(35.0))
     assert not clamped
     np.testing.assert_allclose(sp.quaternion, q)
     assert sp.specific_force_mps2 == 12.0
