@@ -30,7 +30,7 @@ def _start_hovering_vehicle_in_offboard(procs, observer, flavour):
     # vehicle's COM_OF_LOSS_T, the bridge's stale-setpoint and the controller's stale-odometry limits.
     port = free_udp_port()
     procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=WAYPOINTS[0], extra=('--offboard-loss-s', '3.0'))
-    procs.bridge(f'udpin:127.0.0.1:{port}', autopilot='auto', setpoint_timeout_s=1.0, vehicle_params='ignore')
+    procs.bridge(f'udpin:127.0.0.1:{port}', autopilot='auto', setpoint_timeout_s=1.0)
     procs.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
                                '-p', f'vehicle:={VEHICLE_FILE}', '-p', 'rate_hz:=50.0', '-p', 'odom_timeout_s:=1.0'])
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
