@@ -76,7 +76,7 @@ class Processes:
         return (self.log_dir / f'{name}.log').read_text()
 
     def vehicle(self, flavour, url, position=(0.0, 0.0, 1.0), name='vehicle', extra=()):
-        return self.start(name, ['-m', 'quad_sim.mavlink_vehicle', '--autopilot', flavour, '--url', url,
+        return self.start(name, ['-m', 'quad_vehicle_emu.mavlink_vehicle', '--autopilot', flavour, '--url', url,
                                  '--vehicle', VEHICLE_FILE, '--initial-position', ','.join(map(str, position)),
                                  *extra])
 

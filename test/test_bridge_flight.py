@@ -29,7 +29,10 @@ def _start_hovering_vehicle_in_offboard(procs, observer, flavour):
     # Timeouts well above a busy 2-core machine's scheduling stalls (the defaults suit a real vehicle): the
     # vehicle's COM_OF_LOSS_T, the bridge's stale-setpoint and the controller's stale-odometry limits.
     port = free_udp_port()
-    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=WAYPOINTS[0], extra=('--offboard-loss-s', '3.0'))
+    # ArduPilot's GUID_OPTIONS defaults to 0 (thrust field = climb rate); the bridge's default
+    # ardupilot_thrust_mode is thrust, which docs/bridge.md says needs GUID_OPTIONS = 8 on the vehicle.
+    extra = ('--offboard-loss-s', '3.0') if flavour == 'px4' else ('--param', 'GUID_OPTIONS=8')
+    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=WAYPOINTS[0], extra=extra)
     procs.bridge(f'udpin:127.0.0.1:{port}', autopilot='auto', setpoint_timeout_s=1.0)
     procs.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
                                '-p', f'vehicle:={VEHICLE_FILE}', '-p', 'rate_hz:=50.0', '-p', 'odom_timeout_s:=1.0'])

@@ -15,12 +15,11 @@ setup(
     zip_safe=True,
     maintainer='quadflight developers',
     maintainer_email='dev@quadflight.invalid',
-    description='6-DOF quadrotor plant with rotors, onboard attitude loop, disturbances and a lockstep /clock; sim_node and the MAVLink vehicle simulator.',
+    description='6-DOF quadrotor plant with rotors, onboard attitude loop, disturbances and a lockstep /clock.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'sim_node = quad_sim.sim_node:main',
-            'mavlink_vehicle = quad_sim.mavlink_vehicle:main',
         ],
     },
 )

@@ -1,0 +1,432 @@
+"""mavlink_vehicle: quad_sim's plant behind a real MAVLink endpoint, behaving like PX4 or ArduPilot Copter.
+
+The protocol (modes, type_mask, thrust, parameters, streams, SYS_STATUS) is the emulator's own reading of the
+autopilots' source (quad_vehicle_emu.protocol, .params, .autopilots), independent of quad_bridge. Physics:
+quad_sim's Simulator in real time, behind a first-order attitude response (quad_vehicle_emu.attitude) and a
+telemetry delay line; every message's time field is the vehicle's own boot clock at the sample it carries.
+
+    python -m quad_vehicle_emu.mavlink_vehicle --autopilot px4 --url udpout:127.0.0.1:14540
+"""
+
+import argparse
+import hashlib
+import math
+import os
+import random
+import sys
+import time
+
+import numpy as np
+
+os.environ.setdefault('MAVLINK20', '1')
+from pymavlink import mavutil  # noqa: E402
+
+from quad_common import rotations  # noqa: E402
+from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
+from quad_common.vehicle import load_vehicle  # noqa: E402
+from quad_sim.simulator import Simulator  # noqa: E402
+from quad_vehicle_emu import ned  # noqa: E402
+from quad_vehicle_emu import protocol as p  # noqa: E402
+from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine  # noqa: E402
+from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
+
+DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
+HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
+EARTH_RADIUS_M = 6378137.0
+DEFAULT_ATTITUDE_TAU_S = 0.08                          # see attitude.py
+DEFAULT_LATENCY_S = {'px4': 0.02, 'ardupilot': 0.05}   # ArduCopter SITL measured ~50 ms (issue 13)
+DEFAULT_BURST_S = {'px4': 0.0, 'ardupilot': 0.04}      # ArduPilot SITL telemetry arrived 0.5-65 ms apart
+
+
+def load_signing_key(path: str) -> bytes:
+    """32-byte MAVLink 2 key: 64 hex characters, else SHA-256 of the text (MAVProxy `signing setup` convention)."""
+    with open(path, 'rb') as f:
+        data = f.read().strip()
+    if not data:
+        raise ValueError(f'signing key file {path!r} is empty')
+    try:
+        key = bytes.fromhex(data.decode('ascii'))
+        if len(key) == 32:
+            return key
+    except (ValueError, UnicodeDecodeError):
+        pass
+    return hashlib.sha256(data).digest()
+
+
+class Streams:
+    """Message rates and their schedule. ArduPilot sends messages that share an interval as one bucket
+    (libraries/GCS_MAVLink/GCS_Common.cpp, deferred_message_bucket), so they leave together."""
+
+    def __init__(self, defaults_hz, streamable):
+        self.streamable = streamable
+        self.defaults_hz = dict(defaults_hz)
+        self.rates_hz = dict(defaults_hz)
+        self.next_due_s = {}
+
+    def set_rate(self, name, rate_hz):
+        if rate_hz > 0:
+            self.rates_hz[name] = float(rate_hz)
+        else:
+            self.rates_hz.pop(name, None)
+
+    def due(self, now_s, bucketed: bool) -> list[str]:
+        out = []
+        keys = {}
+        for name, rate in self.rates_hz.items():
+            key = round(1000.0 / rate) if bucketed else name   # interval_ms groups a bucket
+            keys.setdefault(key, []).append((name, rate))
+        for key, members in keys.items():
+            interval = 1.0 / members[0][1]
+            due_s = self.next_due_s.get(key, 0.0)
+            if now_s >= due_s:
+                self.next_due_s[key] = max(due_s + interval, now_s - interval)
+                out.extend(name for name, _ in members)
+        return out
+
+
+class MavlinkVehicle:
+    """Socket, clocks and telemetry around a Simulator and an emulated autopilot."""
+
+    def __init__(self, args):
+        self.args = args
+        self.flavour = args.autopilot
+        self.sim = Simulator(load_vehicle(args.vehicle), physics_rate_hz=args.physics_rate_hz,
+                             initial_position=args.initial_position, initial_yaw=args.initial_yaw,
+                             setpoint_timeout_s=1e6)
+        self.sim.warm_up()  # before the first heartbeat: compiling mid-flight would stall the link for seconds
+        self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))
+        if not self.sim.landed:  # starts in the air: armed, holding position
+            self.ap.armed = True
+            self.ap.mode = 'AUTO.LOITER' if self.flavour == 'px4' else 'LOITER'
+        self.shaper = AttitudeResponse(args.attitude_tau_s, self.sim.state.quaternion)
+        latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
+        self.telemetry = DelayLine(latency)
+        self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
+        self.rng = random.Random(args.seed)
+        self.queue = []              # ArduPilot: packed messages waiting for the next burst
+        self.next_burst_s = 0.0
+        if self.flavour == 'px4':
+            self.streams = Streams(p.PX4_ONBOARD_DEFAULT_RATES_HZ, p.PX4_STREAMABLE)
+        else:
+            self.streams = Streams(p.COPTER_DEFAULT_RATES_HZ, p.COPTER_STREAMABLE)
+        self.conn = mavutil.mavlink_connection(args.url, source_system=args.system_id, source_component=1,
+                                               autoreconnect=True, robust_parsing=True)
+        if args.signing_key_file:  # signs what it sends and accepts only messages signed with the same key
+            self.conn.setup_signing(load_signing_key(args.signing_key_file), sign_outgoing=True)
+        self.mav = self.conn.mav
+        self.t0 = time.monotonic()
+        self.log_index = 0
+        self.last_update_s = 0.0
+
+    # --- clocks -----------------------------------------------------------------------------------------
+
+    def now_s(self):
+        return time.monotonic() - self.t0
+
+    def boot_s(self, t_s):
+        """The vehicle's boot clock (time_boot_ms / time_usec / TIMESYNC) at emulator time t_s."""
+        return t_s + self.args.boot_offset_s
+
+    # --- loop -------------------------------------------------------------------------------------------
+
+    def run(self):
+        tick_s = 1.0 / self.args.loop_rate_hz
+        steps_per_tick = self.sim.steps_in(round(tick_s * self.args.physics_rate_hz) / self.args.physics_rate_hz)
+        while self.args.duration_s <= 0 or self.now_s() < self.args.duration_s:
+            self.receive()
+            now = self.now_s()
+            self.control(now)
+            lag_steps = int((now - self.sim.time_s) * self.args.physics_rate_hz)
+            self.sim.advance_steps(min(max(lag_steps, 0), 5 * steps_per_tick))
+            self.telemetry.push(now, (self.sim.state, self.sim.specific_force_body_mps2.copy()))
+            self.send_telemetry(now)
+            self.send_log()
+            sleep_s = self.sim.time_s + tick_s - self.now_s()
+            if sleep_s > 0:
+                time.sleep(sleep_s)
+
+    def control(self, now):
+        dt = min(max(now - self.last_update_s, 0.0), 0.1)
+        self.last_update_s = now
+        state = self.sim.state
+        target = self.ap.update(state, self.sim.landed, now, dt)
+        self.sim.armed = target is not None
+        if target is None:
+            self.shaper.reset(state.quaternion)
+            return
+        q_cmd, w_cmd = self.shaper.step(target.quaternion, dt, target.body_rates)
+        self.sim.set_setpoint(AttitudeSetpoint(quaternion=q_cmd, specific_force_mps2=target.specific_force_mps2,
+                                               body_rates=w_cmd))
+
+    def receive(self):
+        for _ in range(200):
+            try:
+                msg = self.conn.recv_match(blocking=False)
+            except Exception:
+                continue
+            if msg is None:
+                return
+            kind = msg.get_type()
+            if kind == 'BAD_DATA' or getattr(msg, 'target_system', self.args.system_id) not in (0, self.args.system_id):
+                continue
+            try:
+                self.handle(msg, kind)
+            except (ValueError, TypeError, OverflowError, KeyError) as exc:  # malformed fields
+                print(f'mavlink_vehicle: {kind} ignored: {exc}', flush=True)
+
+    def handle(self, msg, kind):
+        now = self.now_s()
+        if kind == 'SET_ATTITUDE_TARGET':
+            self.ap.on_attitude_target(AttitudeTargetMsg(msg.type_mask, tuple(msg.q), (
+                msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate), msg.thrust), now)
+        elif kind == 'COMMAND_LONG':
+            self.on_command(msg, now)
+        elif kind == 'TIMESYNC' and msg.tc1 == 0:
+            # both answer with their own boot clock in ns (PX4 src/modules/mavlink/mavlink_timesync.cpp,
+            # ArduPilot GCS_Common.cpp handle_timesync: tc1 = now_ns, ts1 echoed)
+            self.mav.timesync_send(int(self.boot_s(now) * 1e9), msg.ts1)
+        elif kind == 'REQUEST_DATA_STREAM' and self.flavour == 'ardupilot':
+            self.on_request_data_stream(msg)
+        elif kind == 'PARAM_REQUEST_READ':
+            name = msg.param_id.rstrip('\x00') if isinstance(msg.param_id, str) else msg.param_id
+            if msg.param_index >= 0:
+                if msg.param_index < len(self.ap.params.order):
+                    self.send_param(self.ap.params.order[msg.param_index])
+            elif name in self.ap.params.specs:
+                self.send_param(name)
+        elif kind == 'PARAM_REQUEST_LIST':
+            for name in self.ap.params.order:
+                self.send_param(name)
+        elif kind == 'PARAM_SET':
+            self.on_param_set(msg, now)
+
+    def on_command(self, msg, now):
+        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+        if msg.command == p.MAV_CMD_SET_MESSAGE_INTERVAL:
+            result = self.set_interval(int(params[0]), params[1], now)
+        elif msg.command == p.MAV_CMD_REQUEST_MESSAGE:
+            entry = mavutil.mavlink.mavlink_map.get(int(params[0]))
+            ok = entry is not None and entry.msgname in self.streams.streamable
+            if ok:
+                self.send_message(entry.msgname, now)
+            result = p.MAV_RESULT_ACCEPTED if ok else p.MAV_RESULT_FAILED
+        else:
+            result = self.ap.command(msg.command, params, self.sim.landed, now)
+        self.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+
+    def set_interval(self, msg_id, interval_us, now) -> int:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: -1 stops, 0 restores the default, else 1e6 / interval Hz."""
+        entry = mavutil.mavlink.mavlink_map.get(msg_id)
+        name = entry.msgname if entry is not None else None
+        if name not in self.streams.streamable:
+            if self.flavour == 'ardupilot':   # GCS_Common.cpp set_mavlink_message_id_interval
+                self.ap.say(now, f'No ap_message for mavlink id ({msg_id})')
+            return p.MAV_RESULT_FAILED
+        if interval_us < 0:
+            self.streams.set_rate(name, 0.0)
+        elif interval_us == 0:
+            self.streams.set_rate(name, self.streams.defaults_hz.get(name, 0.0))
+        else:
+            self.streams.set_rate(name, 1e6 / max(interval_us, 1000.0))
+        return p.MAV_RESULT_ACCEPTED
+
+    def on_request_data_stream(self, msg):
+        """ArduPilot GCS_MAVLINK::handle_request_data_stream: sets the rate of every message of the group."""
+        groups = p.COPTER_DATA_STREAMS if msg.req_stream_id == p.MAV_DATA_STREAM_ALL else {
+            msg.req_stream_id: p.COPTER_DATA_STREAMS.get(msg.req_stream_id, ())}
+        rate = float(msg.req_message_rate) if msg.start_stop else 0.0
+        for names in groups.values():
+            for name in names:
+                self.streams.set_rate(name, rate)
+
+    def send_param(self, name):
+        value, mav_type = self.ap.params.encode(name)
+        self.mav.param_value_send(name.encode(), value, mav_type, len(self.ap.params.order),
+                                  self.ap.params.index(name))
+
+    def on_param_set(self, msg, now):
+        name = msg.param_id.rstrip('\x00') if isinstance(msg.param_id, str) else msg.param_id
+        if name not in self.ap.params.specs:
+            self.ap.say(now, f'PARAM_SET: {name} unknown')
+            return
+        try:
+            self.ap.params.set(name, self.ap.params.decode(name, msg.param_value, msg.param_type))
+        except ValueError as exc:
+            self.ap.say(now, f'PARAM_SET refused: {exc}')
+        self.send_param(name)   # the new value, or the unchanged one when refused (parameter protocol)
+
+    # --- telemetry ----------------------------------------------------------------------------------------
+
+    def send_telemetry(self, now):
+        bucketed = self.flavour == 'ardupilot'
+        for name in self.streams.due(now, bucketed):
+            self.send_message(name, now)
+        if bucketed and self.queue and now >= self.next_burst_s:
+            for packed in self.queue:
+                self.conn.write(packed)
+            self.queue.clear()
+            self.next_burst_s = now + self.rng.uniform(0.0, self.burst_s)
+
+    def _emit(self, msg):
+        if self.flavour == 'ardupilot' and self.burst_s > 0:
+            self.queue.append(msg.pack(self.mav))
+            self.mav.seq = (self.mav.seq + 1) % 256
+        else:
+            self.mav.send(msg)
+
+    def send_message(self, name, now):
+        sample = self.telemetry.read(now)
+        if sample is None:
+            return
+        t_sample, (state, f_body) = sample
+        boot_ms = int(self.boot_s(t_sample) * 1000) & 0xFFFFFFFF
+        boot_us = int(self.boot_s(t_sample) * 1e6)
+        m = mavutil.mavlink
+        pos, vel = ned.enu_to_ned(state.position), ned.enu_to_ned(state.velocity)
+        q = ned.attitude_to_ned_wxyz(state.quaternion)
+        rates = [float(v) for v in ned.flu_to_frd(state.body_rates)]
+        acc = [float(v) for v in ned.flu_to_frd(f_body)]
+        roll, pitch, yaw = ned.euler_ned(state.quaternion)
+        voltage_v = 16.8 - 0.002 * now
+        remaining = int(max(0.0, 100.0 - 0.02 * now))
+        current_ca = 1500 if self.ap.armed else 50
+        lat = HOME_LAT_DEG + math.degrees(pos[0] / EARTH_RADIUS_M)
+        lon = HOME_LON_DEG + math.degrees(pos[1] / (EARTH_RADIUS_M * math.cos(math.radians(HOME_LAT_DEG))))
+        alt_m = HOME_ALT_M - pos[2]
+        if name == 'HEARTBEAT':
+            status = p.MAV_STATE_ACTIVE if self.ap.armed else p.MAV_STATE_STANDBY
+            msg = m.MAVLink_heartbeat_message(p.MAV_TYPE_QUADROTOR, self.ap.autopilot_id, self.ap.base_mode,
+                                              self.ap.custom_mode, status, 3)
+        elif name == 'ATTITUDE':
+            msg = m.MAVLink_attitude_message(boot_ms, roll, pitch, yaw, *rates)
+        elif name == 'ATTITUDE_QUATERNION':
+            msg = m.MAVLink_attitude_quaternion_message(boot_ms, *q, *rates, [0.0, 0.0, 0.0, 0.0])
+        elif name == 'LOCAL_POSITION_NED':
+            msg = m.MAVLink_local_position_ned_message(boot_ms, *map(float, pos), *map(float, vel))
+        elif name == 'ODOMETRY':   # PX4 ODOMETRY.hpp: local NED pose, body FRD velocity
+            R_ned_frd = ned.P_NED_ENU @ rotations.to_matrix(state.quaternion) @ ned.B_FLU_FRD
+            vel_body = R_ned_frd.T @ vel
+            nan21 = [float('nan')] * 21
+            msg = m.MAVLink_odometry_message(boot_us, p.MAV_FRAME_LOCAL_NED, p.MAV_FRAME_BODY_FRD,
+                                             *map(float, pos), q, *map(float, vel_body), *rates, nan21, nan21,
+                                             0, 0, 100)
+        elif name == 'GLOBAL_POSITION_INT':
+            msg = m.MAVLink_global_position_int_message(boot_ms, int(lat * 1e7), int(lon * 1e7), int(alt_m * 1000),
+                                                        int(-pos[2] * 1000), *(int(v * 100) for v in vel),
+                                                        int(math.degrees(yaw) % 360 * 100))
+        elif name == 'HIGHRES_IMU':
+            msg = m.MAVLink_highres_imu_message(boot_us, *acc, *rates, 0.2, 0.0, 0.4, 1013.0, 0.0,
+                                                float(alt_m), 20.0, 0x1FFF, 0)
+        elif name in ('RAW_IMU', 'SCALED_IMU', 'SCALED_IMU2'):   # milli-g, milli-rad/s, milli-gauss
+            mg = [int(np.clip(a / GRAVITY_MPS2 * 1000.0, -32767, 32767)) for a in acc]
+            mrad = [int(np.clip(r * 1000.0, -32767, 32767)) for r in rates]
+            if name == 'RAW_IMU':
+                msg = m.MAVLink_raw_imu_message(boot_us, *mg, *mrad, 200, 0, 400, 0, 2000)
+            else:
+                cls = m.MAVLink_scaled_imu_message if name == 'SCALED_IMU' else m.MAVLink_scaled_imu2_message
+                msg = cls(boot_ms, *mg, *mrad, 200, 0, 400, 2000)
+        elif name == 'SYS_STATUS':
+            present, enabled, health = self.ap.sys_status_bits(now)
+            msg = m.MAVLink_sys_status_message(present, enabled, health, 200, int(voltage_v * 1000), current_ca,
+                                               remaining, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+        elif name == 'BATTERY_STATUS':
+            cells = [int(voltage_v * 250)] * 4 + [0xFFFF] * 6
+            msg = m.MAVLink_battery_status_message(0, 0, 3, 2500, cells, current_ca, -1, -1, remaining, 0, 0,
+                                                   [0, 0, 0, 0], 0, 0)
+        elif name == 'TIMESYNC':   # PX4 onboard mode asks for the companion's time (mavlink_timesync.cpp)
+            msg = m.MAVLink_timesync_message(0, int(self.boot_s(now) * 1e9))
+        elif name == 'VFR_HUD':
+            msg = m.MAVLink_vfr_hud_message(0.0, float(np.linalg.norm(vel[:2])), int(math.degrees(yaw) % 360),
+                                            int(100 * self.ap.armed), float(alt_m), float(-vel[2]))
+        elif name == 'SYSTEM_TIME':
+            msg = m.MAVLink_system_time_message(int(time.time() * 1e6), boot_ms)
+        elif name == 'SCALED_PRESSURE':
+            msg = m.MAVLink_scaled_pressure_message(boot_ms, 1013.25 - 0.12 * float(-pos[2]), 0.0, 2000)
+        elif name == 'AHRS2':
+            msg = m.MAVLink_ahrs2_message(roll, pitch, yaw, float(alt_m), int(lat * 1e7), int(lon * 1e7))
+        elif name == 'POWER_STATUS':
+            msg = m.MAVLink_power_status_message(5000, 5000, 0)
+        elif name == 'MEMINFO':
+            msg = m.MAVLink_meminfo_message(0, 65535)
+        elif name == 'VIBRATION':
+            msg = m.MAVLink_vibration_message(boot_us, 0.1, 0.1, 0.1, 0, 0, 0)
+        else:
+            return
+        self._emit(msg)
+
+    def send_log(self):
+        for _, text in self.ap.log[self.log_index:]:
+            self.mav.statustext_send(6, text.encode()[:50])   # MAV_SEVERITY_INFO
+            print(f'mavlink_vehicle: {text}', flush=True)
+        self.log_index = len(self.ap.log)
+
+
+def _triple(text):
+    values = [float(v) for v in text.split(',')]
+    if len(values) != 3 or not all(map(math.isfinite, values)):
+        raise argparse.ArgumentTypeError(f'needs 3 finite numbers x,y,z, got {text!r}')
+    return values
+
+
+def _param(text):
+    name, sep, value = text.partition('=')
+    try:
+        return name.strip().upper(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'--param needs NAME=NUMBER, got {text!r}') from None
+
+
+def build_parser():
+    ap = argparse.ArgumentParser(prog='mavlink_vehicle', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--autopilot', choices=('px4', 'ardupilot'), default='px4')
+    ap.add_argument('--url', default=None, help='pymavlink connection (default: px4 udpout:127.0.0.1:14540, '
+                    'ardupilot tcpin:127.0.0.1:5760)')
+    ap.add_argument('--system-id', type=int, default=1)
+    ap.add_argument('--vehicle', default=DEFAULT_VEHICLE, help='vehicle YAML (quad_common.vehicle)')
+    ap.add_argument('--initial-position', type=_triple, default=[0.0, 0.0, 0.0],
+                    help='x,y,z in map (ENU), m; above the floor: starts armed, holding (AUTO.LOITER / LOITER)')
+    ap.add_argument('--initial-yaw', type=float, default=0.0, help='rad, ENU')
+    ap.add_argument('--hover-throttle', type=float, default=0.5,
+                    help="the vehicle's true hover thrust (MPC_THR_HOVER / MOT_THST_HOVER start equal to it)")
+    ap.add_argument('--param', type=_param, action='append', default=[], metavar='NAME=VALUE',
+                    help='onboard parameter at boot, e.g. GUID_OPTIONS=8, COM_OF_LOSS_T=3 (repeatable)')
+    ap.add_argument('--guid-options', type=int, default=None, help='ArduPilot: = --param GUID_OPTIONS=N')
+    ap.add_argument('--offboard-loss-s', type=float, default=None, help='PX4: = --param COM_OF_LOSS_T=S')
+    ap.add_argument('--guided-timeout-s', type=float, default=None, help='ArduPilot: = --param GUID_TIMEOUT=S')
+    ap.add_argument('--attitude-tau-s', type=float, default=DEFAULT_ATTITUDE_TAU_S,
+                    help='attitude shaping time constant; 0.08 s: a 10 deg roll step reaches 63 %% in 0.19 s with '
+                    'px4_quad.yaml, as ArduCopter SITL did (0.17-0.21 s)')
+    ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.05')
+    ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
+                    'this far apart (0.04); 0 sends each message at once')
+    ap.add_argument('--boot-offset-s', type=float, default=37.0, help='the vehicle booted this long before us')
+    ap.add_argument('--seed', type=int, default=0)
+    ap.add_argument('--physics-rate-hz', type=float, default=500.0)
+    ap.add_argument('--loop-rate-hz', type=float, default=100.0)
+    ap.add_argument('--signing-key-file', default='', help='MAVLink 2 signing key; empty: unsigned')
+    ap.add_argument('--duration-s', type=float, default=0.0, help='stop after this long (0: run until killed)')
+    return ap
+
+
+def main(args=None):
+    args = build_parser().parse_args(args)
+    if args.url is None:
+        args.url = 'udpout:127.0.0.1:14540' if args.autopilot == 'px4' else 'tcpin:127.0.0.1:5760'
+    legacy = ({'COM_OF_LOSS_T': args.offboard_loss_s} if args.autopilot == 'px4' else
+              {'GUID_OPTIONS': args.guid_options, 'GUID_TIMEOUT': args.guided_timeout_s})
+    args.param += [(k, v) for k, v in legacy.items() if v is not None]
+    try:
+        vehicle = MavlinkVehicle(args)
+    except (ValueError, OSError) as exc:
+        print(f'mavlink_vehicle: {exc}', file=sys.stderr)
+        return 2
+    print(f'mavlink_vehicle: {args.autopilot} on {args.url}', flush=True)
+    try:
+        vehicle.run()
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
