@@ -1,5 +1,6 @@
 """Helpers of the bridge graph tests: processes on loopback ports, and an in-process observer node."""
 
+import collections
 import itertools
 import os
 import select
@@ -27,8 +28,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 VEHICLE_FILE = str(ROOT / 'config' / 'vehicles' / 'px4_quad.yaml')
 WAIT_S = 90.0  # generous: a busy 2-core machine
-# quad_sim.mavlink_vehicle answers no PARAM_REQUEST_READ: the bridge flies on its configuration
-BRIDGE_DEFAULTS = {'vehicle_params': 'ignore'}
+BRIDGE_DEFAULTS = {}  # parameters every bridge of the graph tests gets unless a test says otherwise
 _GRAPHS = itertools.count()
 
 
@@ -109,6 +109,9 @@ class Tap:
         self.gcs = mavlink.MAVLink(None, srcSystem=self.GCS_SYSTEM, srcComponent=190)
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
+        self._vehicle_parser = mavlink.MAVLink(None)
+        self._vehicle_parser.robust_parsing = True
+        self.from_vehicle = collections.Counter()   # message type -> count, of what the vehicle sent
         self._held, self._released_s = [], time.monotonic()
         self.running = True
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -123,6 +126,7 @@ class Tap:
                     self.vehicle_addr = addr
                     if self.cut.is_set():
                         continue
+                    self._count(data)
                     if self.burst_s > 0:
                         self._held.append(data)
                     else:
@@ -135,6 +139,14 @@ class Tap:
                     self.bridge_side.sendto(data, self.bridge_addr)
                 self._held.clear()
                 self._released_s = time.monotonic()
+
+    def _count(self, data):
+        try:
+            msgs = self._vehicle_parser.parse_buffer(data) or []
+        except Exception:
+            return
+        with self.lock:
+            self.from_vehicle.update(m.get_type() for m in msgs)
 
     def _record(self, data):
         try:

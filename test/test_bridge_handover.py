@@ -28,8 +28,10 @@ def graph(tmp_path):
             bridge_port = free_udp_port()
             tap = Tap(bridge_port)
             taps.append(tap)
+            # a busy machine's stalls must not trip PX4's COM_OF_LOSS_T; ArduPilot flies thrust (GUID_OPTIONS = 8)
+            own = ('--offboard-loss-s', '3.0') if flavour == 'px4' else ('--param', 'GUID_OPTIONS=8')
             procs.vehicle(flavour, f'udpout:127.0.0.1:{tap.port}', position=position,
-                          extra=('--offboard-loss-s', '3.0', '--hover-throttle', str(HOVER), *extra))
+                          extra=(*own, '--hover-throttle', str(HOVER), *extra))
             procs.bridge(f'udpin:127.0.0.1:{bridge_port}', hover_throttle=HOVER, **bridge_params)
             observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
             return tap
@@ -158,10 +160,12 @@ def test_the_over_tilt_clamp_keeps_the_vertical_acceleration(graph):
 
 
 def test_odometry_keeps_the_autopilot_time_through_a_bursty_link(graph):
-    """The link releases the vehicle's 50 Hz telemetry in bursts every 60 ms: stamps stay 20 ms apart (point 9)."""
+    """The link releases the vehicle's 50 Hz telemetry in bursts every 150 ms (7 or 8 messages at once): stamps
+    stay 20 ms apart (point 9). Stamped on arrival ~85 % of the gaps are below 5 ms; the bound leaves room for
+    the emulator's own stalls on a busy machine (it then sends late messages with their true, close times)."""
     procs, observer, start = graph
     tap = start('px4')
-    tap.burst_s = 0.06
+    tap.burst_s = 0.15
     with observer.lock:
         n0 = len(observer.odom)
     observer.wait_for(lambda: len(observer.odom) > n0 + 150, '150 odometry messages through the bursty link')
@@ -169,7 +173,7 @@ def test_odometry_keeps_the_autopilot_time_through_a_bursty_link(graph):
         stamps = np.array([t for t, _ in observer.odom[n0 + 50:]])
     gaps_ms = np.diff(stamps) * 1e3
     print(f'odometry stamp gaps: median {np.median(gaps_ms):.1f} ms, {np.mean(gaps_ms < 5.0):.0%} below 5 ms')
-    assert np.mean(gaps_ms < 5.0) < 0.1, 'odometry stamped on arrival (bursts)'
+    assert np.mean(gaps_ms < 5.0) < 0.4, 'odometry stamped on arrival (bursts)'
     assert 15.0 < np.median(gaps_ms) < 25.0
     values = observer.link()[1]
     assert values['clock'] in ('timesync', 'arrival minimum filter')
