@@ -130,6 +130,7 @@ class MavlinkBridge(Node):
                                    setpoint_timeout_s=p['setpoint_timeout_s'])
         self.flying_config = self.config   # after the vehicle's parameters were checked / adopted
         self.param_check = None
+        self.param_read_lock = threading.Lock()
         self.vehicle = Vehicle(confirm_timeout_s=p['command_timeout_s'])
         if p['target_system']:
             self.vehicle.status.system = p['target_system']
@@ -320,7 +321,12 @@ class MavlinkBridge(Node):
         self.read_vehicle_params()
 
     def read_vehicle_params(self):
-        """PARAM_REQUEST_READ of the backend's semantic parameters; the check decides whether offboard may run."""
+        """PARAM_REQUEST_READ of the backend's semantic parameters; the check decides whether offboard may run.
+        One read at a time (on connect and from `offboard` may overlap; their PARAM_VALUE waiters would collide)."""
+        with self.param_read_lock:
+            return self._read_vehicle_params()
+
+    def _read_vehicle_params(self):
         s = self.vehicle.status
         values = {}
         if self.params['vehicle_params'] != 'ignore':
