@@ -48,6 +48,7 @@ def climb_rate_command(specific_force_mps2, quaternion, vertical_velocity_mps, l
 
 class ArduPilot(Backend):
     autopilot = MAV_AUTOPILOT_ARDUPILOTMEGA
+    key = 'ardupilot'
     name = 'ArduPilot'
     offboard_mode = 'GUIDED_NOGPS'
     obeying_modes = frozenset({'GUIDED', 'GUIDED_NOGPS'})

@@ -4,8 +4,8 @@ A backend says how a mode is encoded, which mode `offboard` asks for and which m
 SET_ATTITUDE_TARGET at all, which modes land / hold, how a specific force becomes the message's thrust
 field, what it requires before arming, which vehicle parameters decide those semantics (and when they
 contradict the bridge's configuration), and which telemetry the autopilot really streams.
-quad_bridge.px4 and quad_bridge.ardupilot implement it; backend_for() picks one. Adding an autopilot
-flavour is one new file registered in BACKENDS. No rclpy here.
+quad_bridge.px4 and quad_bridge.ardupilot implement it; quad_bridge.backends registers them. Adding an
+autopilot flavour is one new file and one entry there. No rclpy here.
 """
 
 import math
@@ -64,6 +64,7 @@ class Backend:
     """Base class; subclasses fill in the class attributes and override what differs."""
 
     autopilot = -1             # HEARTBEAT.autopilot (MAV_AUTOPILOT)
+    key = ''                   # its name in the `autopilot` parameter
     name = '?'
     offboard_mode = ''         # the mode `offboard` asks for
     obeying_modes = frozenset()  # every mode in which the vehicle flies SET_ATTITUDE_TARGET
@@ -143,16 +144,6 @@ class Backend:
             problems.append(f'{param} = {vehicle:.3f} on the vehicle but hover_throttle = {config.hover_throttle:.3f} '
                             f'(tolerance {config.hover_tolerance}): set hover_throttle to {vehicle:.3f}')
         return config
-
-
-def backend_for(autopilot: int) -> Backend:
-    """The backend of a MAV_AUTOPILOT value; ValueError naming it when there is none."""
-    from quad_bridge import ardupilot, px4  # the flavours import this module
-    backends = {b.autopilot: b for b in (px4.Px4(), ardupilot.ArduPilot())}
-    if autopilot not in backends:
-        names = ', '.join(f'{b.name} ({k})' for k, b in backends.items())
-        raise ValueError(f'autopilot {autopilot} has no backend: one of {names}')
-    return backends[autopilot]
 
 
 def rate_interval_us(rate_hz: float) -> float:

@@ -8,39 +8,29 @@ ardupilot); a supervisor thread for the link, heartbeats, stream fall-backs and 
 the node's own single-threaded executor.
 """
 
-import math
 import sys
 import threading
 import time
 
 import numpy as np
-import rclpy
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
-from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from sensor_msgs.msg import BatteryState, Imu
 from std_srvs.srv import SetBool, Trigger
 
-from quad_bridge import frames
 from quad_bridge.backend import (
     MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
     MAV_MODE_FLAG_SAFETY_ARMED,
     ThrustConfig,
-    backend_for,
     rate_interval_us,
 )
-from quad_bridge.clock import ClockMapper
-from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key, resolve_autopilot
+from quad_bridge.backends import BACKENDS, resolve
+from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
 from quad_bridge.safety import Geofence
-from quad_bridge.setpoint import check_setpoint
-from quad_bridge.streamer import SetpointStreamer
-from quad_bridge.streams import StreamSelector
-from quad_bridge.telemetry import imu_flu, state_from_local_position, state_from_odometry, time_us
+from quad_bridge.setpoint_path import SetpointPath
+from quad_bridge.telemetry_publisher import TelemetryPublisher, stamp
 from quad_bridge.vehicle import Vehicle
-from quad_common import cdr, conversions, diagnostics
-from quad_common.hot_path import HotPathExecutor
+from quad_common import diagnostics
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 
@@ -49,8 +39,8 @@ PARAMS = [
     Param('fcu_url', 'udpin:0.0.0.0:14540', 'pymavlink connection: udpin:/udpout:/tcp:HOST:PORT or serial device',
           read_only=True),
     Param('baud', 57600, 'serial baud rate (serial fcu_url only)', min=1200, max=4000000, read_only=True),
-    Param('autopilot', 'auto', 'auto (from HEARTBEAT.autopilot) | px4 | ardupilot',
-          choices=('auto', 'px4', 'ardupilot'), read_only=True),
+    Param('autopilot', 'auto', f'auto (from HEARTBEAT.autopilot) | {" | ".join(BACKENDS)}',
+          choices=('auto', *BACKENDS), read_only=True),
     Param('target_system', 0, 'vehicle system id; 0 = the first vehicle heartbeat', min=0, max=255, read_only=True),
     Param('target_component', 1, 'vehicle component id (autopilot)', min=0, max=255, read_only=True),
     Param('source_system', 1, 'our MAVLink system id', min=1, max=255, read_only=True),
@@ -95,14 +85,6 @@ PARAMS = [
 OFFBOARD_MIN_STREAM_HZ = 5.0  # sent before asking PX4 for OFFBOARD (it needs > 2 Hz)
 PRESTREAM_WAIT_S = 2.0
 SUPERVISOR_PERIOD_S = 0.05
-# DDS keeps this many setpoints for us while the interpreter is busy elsewhere (its reader thread is not held by
-# the GIL): a 0.1 s stall at 500 Hz loses none (bench/bench_bridge.py; depth 10 lost 3-5 % at 100-500 Hz).
-SETPOINT_QUEUE_DEPTH = 100
-ATTITUDE_RATES_IGNORE = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
-                         | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
-                         | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)
-TIMESTAMPED = ('ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED', 'ODOMETRY', 'HIGHRES_IMU', 'SCALED_IMU', 'RAW_IMU')
-
 
 def _validate(values):
     reason = check_fcu_url(values['fcu_url'])
@@ -111,10 +93,6 @@ def _validate(values):
     if any(lo >= hi for lo, hi in zip(values['geofence_min_m'], values['geofence_max_m'])):
         raise ValueError(f'geofence_min_m = {values["geofence_min_m"]} must be below geofence_max_m = '
                          f'{values["geofence_max_m"]} on every axis')
-
-
-def _stamp(ns: int) -> Time:
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
 class MavlinkBridge(Node):
@@ -136,24 +114,10 @@ class MavlinkBridge(Node):
             self.vehicle.status.system = p['target_system']
         self.link = LinkState(p['link_timeout_s'])
         self.geofence = Geofence(p['geofence_enabled'], p['geofence_min_m'], p['geofence_max_m'])
-        self.clock = ClockMapper()
-        self.streams = None                # StreamSelector once the backend is known
         self.t0 = time.monotonic()
-        self.counts_lock = threading.Lock()
-        self.refused = self.clamped = self.clamp_short = self.stale_events = 0
-        self.timesync_ts1 = None
+        self.stale_events = 0
         self.stopping = threading.Event()
-        self.handlers = {'ATTITUDE_QUATERNION': self.on_attitude_quaternion,
-                         'LOCAL_POSITION_NED': self.on_local_position_ned, 'ODOMETRY': self.on_odometry,
-                         'HIGHRES_IMU': self.on_imu, 'SCALED_IMU': self.on_imu, 'RAW_IMU': self.on_imu,
-                         'SYS_STATUS': self.on_sys_status, 'BATTERY_STATUS': self.on_battery_status,
-                         'TIMESYNC': self.on_timesync, 'STATUSTEXT': self.on_statustext}
-
         qos = 10
-        self.odom_pub = self.create_publisher(Odometry, 'odom', qos)
-        self.odom_packer = cdr.OdometryPacker()
-        self.imu_pub = self.create_publisher(Imu, 'imu', qos)
-        self.battery_pub = self.create_publisher(BatteryState, 'battery', qos)
         self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', qos)
         self.create_service(SetBool, 'arm', self.srv_arm)
         self.create_service(SetBool, 'offboard', self.srv_offboard)
@@ -161,22 +125,13 @@ class MavlinkBridge(Node):
 
         self.client = MavlinkClient(p['fcu_url'], p['source_system'], p['source_component'], self.on_mavlink,
                                     baud=p['baud'], signing_key=key)
-        self.streamer = SetpointStreamer(self.send_setpoint, self.may_stream, p['setpoint_rate_hz'],
-                                         p['setpoint_timeout_s'], self.on_stream_quiet, on_error=self._stream_error)
-        # The setpoint path has a node and an executor thread of its own: services waiting for an ACK never
-        # delay a setpoint, and a setpoint never waits for the services.
-        self.setpoint_node = rclpy.create_node(f'{NAME}_setpoints', namespace=self.get_namespace(),
-                                               context=self.context, start_parameter_services=False)
-        self.setpoint_sub = self.setpoint_node.create_subscription(Imu, 'cmd/attitude_thrust', self.on_setpoint,
-                                                                   SETPOINT_QUEUE_DEPTH, raw=True)
-        self.setpoint_executor = HotPathExecutor(lambda: ([self.setpoint_sub], []), context=self.context)
-        self.setpoint_executor.add_node(self.setpoint_node)
-        self.setpoint_thread = threading.Thread(target=self._spin_setpoints, name='setpoint-rx', daemon=True)
+        self.telemetry = TelemetryPublisher(self, self.vehicle, self.client, self.on_state, p['stream_grace_s'], qos)
+        self.setpoints = SetpointPath(self, self.may_stream, self.on_stream_quiet)
+        self.streamer = self.setpoints.streamer
         self.supervisor = threading.Thread(target=self._supervise, name='supervisor', daemon=True)
 
         self.client.start()
-        self.streamer.start()
-        self.setpoint_thread.start()
+        self.setpoints.start()
         self.supervisor.start()
         self.get_logger().info(f'{NAME}: {p["fcu_url"]}, autopilot {p["autopilot"]}, keep-alive '
                                f'{p["setpoint_rate_hz"]} Hz')
@@ -184,54 +139,10 @@ class MavlinkBridge(Node):
     def now_s(self) -> float:
         return time.monotonic() - self.t0
 
-    # --- setpoint path (setpoint-rx thread, keep-alive thread) ------------------------------------
-
-    def _spin_setpoints(self):
-        while self.context.ok() and not self.stopping.is_set():
-            try:
-                self.setpoint_executor.spin_once(timeout_sec=0.2)
-            except Exception:
-                if self.context.ok() and not self.stopping.is_set():
-                    raise
-
-    def on_setpoint(self, raw: bytes):
-        """A serialized cmd/attitude_thrust (quad_common.cdr: no Python message object on the hot path)."""
-        with self.vehicle.lock:
-            backend = self.vehicle.status.backend
-        f_max = backend.max_specific_force(self.flying_config) if backend else math.inf
-        try:
-            sp, clamped, kept = check_setpoint(cdr.imu_to_setpoint(raw), math.radians(self.params['max_tilt_deg']),
-                                               f_max)
-        except ValueError as exc:
-            with self.counts_lock:
-                self.refused += 1
-            self.get_logger().warn(f'setpoint refused ({self.refused} so far): {exc}', throttle_duration_sec=1.0)
-            return
-        if clamped:
-            with self.counts_lock:
-                self.clamped += 1
-                self.clamp_short += not kept
-            self.get_logger().warn(f'setpoint tilt clamped to {self.params["max_tilt_deg"]} deg ({self.clamped} so '
-                                   f'far){"" if kept else ": vertical acceleration NOT kept, thrust at its limit"}',
-                                   throttle_duration_sec=1.0)
-        self.streamer.submit(sp)
+    # --- setpoint path (quad_bridge.setpoint_path): may it stream, what a quiet wire commands ----------
 
     def may_stream(self) -> bool:
         return self.link.state == LinkState.UP and not self.geofence.breached and self.vehicle.may_stream()
-
-    def send_setpoint(self, sp):
-        """One SET_ATTITUDE_TARGET (NED/FRD, the backend's thrust semantics)."""
-        with self.vehicle.lock:
-            s = self.vehicle.status
-            vz = s.state.velocity[2] if s.state is not None else 0.0
-            system, thrust = s.system, s.backend.thrust(sp, self.flying_config, vz)
-        if sp.body_rates is None:
-            mask, rates = ATTITUDE_RATES_IGNORE, (0.0, 0.0, 0.0)
-        else:
-            mask, rates = 0, tuple(map(float, frames.body_flu_frd(sp.body_rates)))
-        q = frames.to_mavlink_quaternion(frames.quaternion_enu_to_ned(sp.quaternion))
-        self.client.send('set_attitude_target', int(self.now_s() * 1000) & 0xFFFFFFFF, system,
-                         self.params['target_component'], mask, q, *rates, thrust)
 
     def on_stream_quiet(self, wire_age_s, input_age_s):
         """Nothing went out for setpoint_timeout_s: a vehicle in a mode that obeys SET_ATTITUDE_TARGET keeps flying
@@ -254,9 +165,6 @@ class MavlinkBridge(Node):
         (self.get_logger().error if stale or obeying else self.get_logger().info)(f'{what}: {action}')
         self.publish_diagnostics()
 
-    def _stream_error(self, exc):
-        self.get_logger().error(f'setpoint keep-alive: {exc!r}', throttle_duration_sec=1.0)
-
     # --- supervisor thread: link, heartbeats, telemetry fall-backs, diagnostics --------------------
 
     def _supervise(self):
@@ -269,11 +177,12 @@ class MavlinkBridge(Node):
                         self.vehicle.handover.end('link lost')
                     self.get_logger().error(f'vehicle heartbeat lost (none for {self.params["link_timeout_s"]} s)')
                     self.publish_diagnostics()
-                if self.streams is not None and self.link.state == LinkState.UP:
+                streams = self.telemetry.streams
+                if streams is not None and self.link.state == LinkState.UP:
                     with self.vehicle.lock:
-                        fallbacks = self.streams.update(now)
+                        fallbacks = streams.update(now)
                     for group, messages in fallbacks:
-                        self.get_logger().warn(self.streams.notes[-1])
+                        self.get_logger().warn(streams.notes[-1])
                         self.request_messages(messages, self.group_rate_hz(group))
                 if now >= next_beat:
                     next_beat = now + 1.0
@@ -285,8 +194,7 @@ class MavlinkBridge(Node):
         self.client.send('heartbeat', mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
                          mavlink.MAV_STATE_ACTIVE)
         if self.vehicle.status.system is not None:
-            self.timesync_ts1 = time.time_ns()
-            self.client.send('timesync', 0, self.timesync_ts1)
+            self.telemetry.send_timesync()
         self.publish_diagnostics()
 
     def set_mode(self, name, wait=True):
@@ -314,10 +222,11 @@ class MavlinkBridge(Node):
 
     def on_connect(self):
         s = self.vehicle.status
+        streams = self.telemetry.streams
         with self.vehicle.lock:
-            self.streams.reset(self.now_s())
+            streams.reset(self.now_s())
         for group in s.backend.telemetry:
-            self.request_messages(self.streams.current(group.name), self.group_rate_hz(group.name))
+            self.request_messages(streams.current(group.name), self.group_rate_hz(group.name))
         self.read_vehicle_params()
 
     def read_vehicle_params(self):
@@ -430,23 +339,10 @@ class MavlinkBridge(Node):
     # --- vehicle -> ROS (receive thread: decodes and publishes itself, never waits on the executor) ----
 
     def on_mavlink(self, msg):
-        kind = msg.get_type()
-        if kind == 'HEARTBEAT':
+        if msg.get_type() == 'HEARTBEAT':
             self.on_heartbeat(msg)
-            return
-        s = self.vehicle.status
-        if msg.get_srcSystem() != s.system or s.backend is None:
-            return  # only our vehicle's telemetry is used
-        handler = self.handlers.get(kind)
-        if handler is None:
-            return
-        arrival_ns = time.time_ns()
-        t_us = time_us(msg) if kind in TIMESTAMPED else None
-        if t_us:
-            self.clock.observe(t_us, arrival_ns)
-        if self.streams is not None:
-            self.streams.arrived(kind, self.now_s())
-        handler(msg, self.clock.to_local_ns(t_us, arrival_ns) if t_us else arrival_ns)
+        elif msg.get_srcSystem() == self.vehicle.status.system:  # only our vehicle's telemetry is used
+            self.telemetry.handle(msg, self.now_s())
 
     def on_heartbeat(self, msg):
         s = self.vehicle.status
@@ -459,11 +355,11 @@ class MavlinkBridge(Node):
                 return
             if s.backend is None:
                 try:
-                    s.backend = backend_for(resolve_autopilot(self.params['autopilot'], msg.autopilot))
+                    s.backend = resolve(self.params['autopilot'], msg.autopilot)
                 except ValueError as exc:
                     self.get_logger().error(str(exc), throttle_duration_sec=5.0)
                     return
-                self.streams = StreamSelector(s.backend.telemetry, self.params['stream_grace_s'])
+                self.telemetry.start(s.backend)
             change, ended = self.vehicle.heartbeat(msg.custom_mode, bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED),
                                                    self.now_s())
         event = self.link.heartbeat(self.now_s())
@@ -476,89 +372,14 @@ class MavlinkBridge(Node):
             self.get_logger().info(f'vehicle {s.system} {event}: {s.backend.name}, mode {s.mode}')
             threading.Thread(target=self.on_connect, name='on-connect', daemon=True).start()
 
-    def on_attitude_quaternion(self, msg, stamp_ns):
-        with self.vehicle.lock:
-            self.vehicle.status.q_ned = frames.from_mavlink_quaternion([msg.q1, msg.q2, msg.q3, msg.q4])
-            self.vehicle.status.rates_frd = np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
-
-    def on_local_position_ned(self, msg, stamp_ns):
-        with self.vehicle.lock:
-            q, rates = self.vehicle.status.q_ned, self.vehicle.status.rates_frd
-        if self.streams.uses('odometry', 'LOCAL_POSITION_NED') and q is not None:
-            self.publish_state(state_from_local_position(msg, q, rates), stamp_ns)
-
-    def on_odometry(self, msg, stamp_ns):
-        if self.streams.uses('odometry', 'ODOMETRY'):
-            state = state_from_odometry(msg)
-            if state is not None:
-                self.publish_state(state, stamp_ns)
-
-    def publish_state(self, state, stamp_ns):
-        if not state.is_finite():
-            return
-        with self.vehicle.lock:
-            self.vehicle.status.state = state
-            armed = self.vehicle.status.armed
-        self.odom_pub.publish(self.odom_packer.pack(state, stamp_ns))  # serialized: ~10x cheaper than Odometry()
-        if self.geofence.check(state.position, armed):
+    def on_state(self, state):
+        """Every odometry state: the geofence."""
+        if self.geofence.check(state.position, self.vehicle.status.armed):
             with self.vehicle.lock:
                 self.vehicle.handover.end('geofence left')
             self.get_logger().error(f'geofence left at {np.round(state.position, 2).tolist()}: streaming stopped, '
                                     'landing')
             self.set_mode(self.vehicle.status.backend.land_mode, wait=False)
-
-    def on_imu(self, msg, stamp_ns):
-        if not self.streams.uses('imu', msg.get_type()):
-            return
-        acc, gyro = imu_flu(msg)
-        imu = Imu()
-        imu.header.stamp = _stamp(stamp_ns)
-        imu.header.frame_id = conversions.BODY_FRAME
-        state = self.vehicle.status.state
-        if state is not None:
-            imu.orientation = conversions.to_quaternion(state.quaternion)
-        else:
-            imu.orientation_covariance[0] = -1.0
-        imu.angular_velocity = conversions.to_vector3(gyro)
-        imu.linear_acceleration = conversions.to_vector3(acc)
-        self.imu_pub.publish(imu)
-
-    def on_sys_status(self, msg, stamp_ns):
-        s = self.vehicle.status
-        with self.vehicle.lock:
-            s.prearm_ready = s.backend.prearm_ready(msg.onboard_control_sensors_present,
-                                                    msg.onboard_control_sensors_enabled,
-                                                    msg.onboard_control_sensors_health)
-        if msg.voltage_battery != 0xFFFF:
-            self.publish_battery(stamp_ns, msg.voltage_battery / 1000.0, msg.current_battery / 100.0,
-                                 msg.battery_remaining)
-
-    def on_battery_status(self, msg, stamp_ns):
-        cells = [c for c in msg.voltages if c != 0xFFFF]
-        self.publish_battery(stamp_ns, sum(cells) / 1000.0 if cells else float('nan'), msg.current_battery / 100.0,
-                             msg.battery_remaining, [c / 1000.0 for c in cells])
-
-    def publish_battery(self, stamp_ns, voltage_v, current_a, remaining_pct, cells_v=()):
-        b = BatteryState()
-        b.header.stamp = _stamp(stamp_ns)
-        b.voltage = float(voltage_v)
-        b.current = -float(current_a) if current_a >= 0 else float('nan')  # ROS: negative = discharging
-        b.percentage = remaining_pct / 100.0 if remaining_pct >= 0 else float('nan')
-        b.cell_voltage = list(map(float, cells_v))
-        b.present = True
-        b.power_supply_technology = BatteryState.POWER_SUPPLY_TECHNOLOGY_LIPO
-        self.battery_pub.publish(b)
-
-    def on_timesync(self, msg, arrival_ns):
-        if msg.tc1 == 0:  # a request from the vehicle: answer it
-            self.client.send('timesync', time.time_ns(), msg.ts1)
-        elif msg.ts1 == self.timesync_ts1:
-            self.clock.timesync(msg.ts1, msg.tc1, arrival_ns)
-            with self.vehicle.lock:
-                self.vehicle.status.rtt_ms = (arrival_ns - msg.ts1) / 1e6
-
-    def on_statustext(self, msg, stamp_ns):
-        self.get_logger().info(f'vehicle: {msg.text}')
 
     # --- diagnostics -------------------------------------------------------------------------------
 
@@ -567,22 +388,16 @@ class MavlinkBridge(Node):
         with self.vehicle.lock:
             s, h = self.vehicle.snapshot(), self.vehicle.handover
             phase, target, reason, ended = h.phase, h.target or '', h.reason, h.ended
-            streams = self.streams
-            odom_source = '+'.join(streams.current('odometry')) if streams else ''
-            imu_source = '+'.join(streams.current('imu')) if streams else ''
-            missing = streams.missing(now) if streams else []
-            fallbacks = list(streams.notes) if streams else []
+            telemetry = self.telemetry.info(now)
             check = self.param_check
         level = {LinkState.UP: diagnostics.OK, LinkState.WAITING: diagnostics.WARN}.get(self.link.state,
                                                                                         diagnostics.ERROR)
-        if level == diagnostics.OK and (missing or (check and check.problems)):
+        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems)):
             level = diagnostics.WARN
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
             'target_system': s.system, 'autopilot': s.backend.name if s.backend else '?', 'mode': s.mode,
             'armed': s.armed, 'prearm_ready': '' if s.prearm_ready is None else s.prearm_ready,
-            'rtt_ms': f'{s.rtt_ms:.2f}', 'clock': self.clock.source,
-            'clock_offset_jitter_ms': f'{self.clock.jitter_ms():.3f}', 'odometry_source': odom_source,
-            'imu_source': imu_source, 'missing_streams': ','.join(missing), 'stream_fallbacks': '; '.join(fallbacks),
+            'rtt_ms': f'{s.rtt_ms:.2f}', **telemetry,
             'vehicle_params': ', '.join(f'{k}={v:g}' for k, v in sorted(s.params.items())),
             'param_problems': '; '.join(check.problems) if check else '',
             'param_notes': '; '.join(check.notes) if check else '',
@@ -590,9 +405,7 @@ class MavlinkBridge(Node):
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
             'handler_errors': self.client.handler_errors})
         st = self.streamer
-        with self.counts_lock:
-            counts = {'refused': self.refused, 'clamped': self.clamped, 'clamp_vertical_not_kept': self.clamp_short,
-                      'stale_events': self.stale_events}
+        counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
         sp_level = diagnostics.WARN if self.stale_events or self.geofence.breached else diagnostics.OK
         setpoints = diagnostics.status(f'{NAME}: setpoints', sp_level, reason, {
             'handover': phase, 'target_mode': target, 'handovers_ended': ended,
@@ -600,16 +413,13 @@ class MavlinkBridge(Node):
             'received': st.received, 'sent': st.sent_total, 'keepalives': st.keepalives,
             'superseded': st.superseded, **counts,
             'geofence_breached': self.geofence.breached})
-        self.diag_pub.publish(diagnostics.array(_stamp(time.time_ns()), [link, setpoints]))
+        self.diag_pub.publish(diagnostics.array(stamp(time.time_ns()), [link, setpoints]))
 
     def destroy_node(self):
         self.stopping.set()
-        self.streamer.stop()
+        self.setpoints.stop()
         self.supervisor.join(timeout=2.0)
         self.client.close()
-        self.setpoint_thread.join(timeout=2.0)
-        self.setpoint_executor.shutdown()
-        self.setpoint_node.destroy_node()
         super().destroy_node()
 
 

@@ -35,6 +35,7 @@ def decode(custom_mode_word: int) -> tuple[int, int]:
 
 class Px4(Backend):
     autopilot = MAV_AUTOPILOT_PX4
+    key = 'px4'
     name = 'PX4'
     offboard_mode = 'OFFBOARD'
     obeying_modes = frozenset({'OFFBOARD'})

@@ -8,7 +8,8 @@ import pytest
 
 from quad_bridge import ardupilot, px4
 from quad_bridge.backend import MAV_SYS_STATUS_PREARM_CHECK as PREARM
-from quad_bridge.backend import ThrustConfig, backend_for
+from quad_bridge.backend import ThrustConfig
+from quad_bridge.backends import BACKENDS, backend_for, resolve
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint
 
@@ -20,6 +21,10 @@ def test_backend_for_picks_by_heartbeat_autopilot_and_names_the_unknown():
     assert backend_for(12).name == 'PX4' and backend_for(3).name == 'ArduPilot'
     with pytest.raises(ValueError, match='autopilot 8 has no backend'):
         backend_for(8)
+    assert resolve('auto', 12).name == 'PX4' and resolve('auto', 3).name == 'ArduPilot'
+    assert resolve('px4', 3).name == 'PX4' and set(BACKENDS) == {'px4', 'ardupilot'}
+    with pytest.raises(ValueError, match='autopilot = auto: autopilot 8 has no backend.*px4, ardupilot'):
+        resolve('auto', 8)
 
 
 def test_px4_custom_mode_packs_main_in_bits_16_23_and_sub_in_24_31():
