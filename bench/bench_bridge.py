@@ -249,7 +249,8 @@ def main():
           're-sends only in gaps. CPU = the process\'s user + system time over the window. Lost = published, '
           'never on the wire. Odom gap = the longest gap between `odom` messages (the listener sends 50 Hz '
           'telemetry) while setpoints flow. Floor: `bench/bridge_echo.py`, a minimal rclpy + pymavlink echo of '
-          f'the same message, in the same run. {os.cpu_count()} cores.\n')
+          f'the same message, in the same run. {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the '
+          'end (p99 on a shared machine is the machine\'s stalls as much as ours: compare with the echo).\n')
     print('| published Hz | bridge p50 ms | p99 ms | CPU % | lost | odom gap ms '
           '| echo p50 ms | p99 ms | CPU % | lost |')
     print('|---|---|---|---|---|---|---|---|---|---|')
