@@ -2,6 +2,7 @@
 behaviour of docs/emulator.md's table, with the numbers PX4's and ArduPilot's source give."""
 
 import math
+import struct
 import time
 
 import numpy as np
@@ -168,6 +169,9 @@ def test_px4_sys_status_sets_only_the_prearm_health_bit_and_default_streams(vehi
     assert status.onboard_control_sensors_health & PREARM               # AUTO.LOITER can arm
     for kind in ('HIGHRES_IMU', 'ODOMETRY', 'ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED'):
         v.wait_message(kind, since)                                      # onboard-mode defaults, unasked
+    odom, pos = v.last('ODOMETRY'), v.last('LOCAL_POSITION_NED')
+    assert (odom.frame_id, odom.child_frame_id) == (1, 1)                # LOCAL_NED pose, NED velocity (EKF2)
+    assert odom.z == pytest.approx(pos.z, abs=0.05) and odom.z == pytest.approx(-1.0, abs=0.1)
     assert v.param('MPC_THR_HOVER').param_value == pytest.approx(0.42)
     assert v.param('COM_OF_LOSS_T').param_value == pytest.approx(1.0)
     action = v.param('COM_OBL_RC_ACT')
@@ -177,3 +181,36 @@ def test_px4_sys_status_sets_only_the_prearm_health_bit_and_default_streams(vehi
     since = time.monotonic()
     status = v.wait_message('SYS_STATUS', since + 0.1)
     assert not status.onboard_control_sensors_health & PREARM
+
+
+def test_ardupilot_telemetry_leaves_in_bursts_stamped_with_its_sample_time(vehicles):
+    v = vehicles('ardupilot')
+    v.set_interval(ATTITUDE, 50.0)
+    v.set_interval(LOCAL_POSITION_NED, 50.0)
+    since = time.monotonic() + 0.5
+    v.wait_for(lambda: len(v.of_type('LOCAL_POSITION_NED', since)) > 100, '2 s of 50 Hz telemetry')
+    arrivals = np.sort([t for kind in ('ATTITUDE', 'LOCAL_POSITION_NED') for t, _ in v.of_type(kind, since)])
+    gaps = np.diff(arrivals)
+    assert np.mean(gaps < 0.002) > 0.5, 'most messages leave together with others (buckets, bursts)'
+    assert gaps.max() > 0.03, 'with pauses between bursts'
+    stamps = np.diff([m.time_boot_ms for _, m in v.of_type('LOCAL_POSITION_NED', since)])
+    assert np.median(stamps) == pytest.approx(20.0, abs=3.0), 'the time field keeps the 20 ms sample spacing'
+
+
+def test_ardupilot_stays_in_land_after_landing_and_refuses_to_arm_there(vehicles):
+    v = vehicles('ardupilot', '--param', 'LAND_SPEED=100')
+    assert v.command(21) == 0                                            # MAV_CMD_NAV_LAND
+    v.wait_for(lambda: not v.armed(), 'landed and disarmed', 30.0)
+    assert v.mode() == 9, 'ArduCopter stays in LAND (no return to a user mode, unlike PX4)'
+    assert v.command(400, 1) == 4, 'LAND does not allow arming: MAV_RESULT_FAILED'
+
+
+def test_px4_offboard_loss_action_is_a_parameter_sent_bytewise(vehicles):
+    v = vehicles('px4')
+    v.set_interval(0, 20.0)
+    land = struct.unpack('<f', struct.pack('<i', 4))[0]                 # COM_OBL_RC_ACT 4 = Land, int32 bytewise
+    assert v.param('COM_OBL_RC_ACT', land, 6).param_value == land
+    v.start_stream(20.0, level_q_wxyz(), 0.5)
+    v.wait_for(lambda: v.set_mode(6) == 0, 'OFFBOARD', 10.0)
+    v.stop_stream()
+    v.wait_for(lambda: v.mode() == PX4_MODES['AUTO.LAND'], 'the offboard-loss failsafe to land')

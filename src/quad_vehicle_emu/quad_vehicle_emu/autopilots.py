@@ -39,6 +39,7 @@ class AttitudeTargetMsg:
     q_wxyz: tuple
     rates_frd: tuple
     thrust: float
+    thrust_body: tuple = (0.0, 0.0, 0.0)   # MAVLink 2 extension: FRD thrust, used by PX4 with THRUST_BODY_SET
 
 
 class RateMeter:
@@ -179,15 +180,15 @@ class Px4(Autopilot):
                 | (p.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0))
 
     def offboard_signal(self, now_s) -> bool:
-        """offboardCheck.cpp: setpoints younger than COM_OF_LOSS_T; the user guide: streamed at > 2 Hz."""
-        return (now_s - self.setpoint_time_s < self.params['COM_OF_LOSS_T']
-                and self.setpoints.rate_hz(now_s) > p.PX4_OFFBOARD_MIN_RATE_HZ)
+        """offboardCheck.cpp: the last setpoint is younger than COM_OF_LOSS_T (what the failsafe watches)."""
+        return now_s - self.setpoint_time_s < self.params['COM_OF_LOSS_T']
 
     def can_run(self, mode, now_s) -> bool:
+        """Entering OFFBOARD (switch or arm) also needs the stream at > 2 Hz, as the user guide requires."""
         if mode in p.PX4_NEEDS_MANUAL_CONTROL:
             return False
         if mode == 'OFFBOARD':
-            return self.offboard_signal(now_s)
+            return self.offboard_signal(now_s) and self.setpoints.rate_hz(now_s) > p.PX4_OFFBOARD_MIN_RATE_HZ
         return True
 
     def can_arm(self, now_s) -> bool:
@@ -218,7 +219,11 @@ class Px4(Autopilot):
             if not (math.isfinite(norm) and norm > 1e-6):
                 raise ValueError(f'SET_ATTITUDE_TARGET q = {list(msg.q_wxyz)} is not a rotation')
             q = ned.attitude_from_ned_wxyz(msg.q_wxyz)
-        self.setpoint = (q, float(np.clip(msg.thrust, 0.0, 1.0)), rates)
+        # THRUST_BODY_SET: thrust_body (FRD, -z is up) instead of thrust (mavlink_receiver.cpp)
+        thrust = -float(msg.thrust_body[2]) if mask & p.TYPEMASK_THRUST_BODY_SET else float(msg.thrust)
+        if not math.isfinite(thrust):
+            raise ValueError(f'SET_ATTITUDE_TARGET thrust_body {list(msg.thrust_body)} not finite')
+        self.setpoint = (q, float(np.clip(thrust, 0.0, 1.0)), rates)
         self.setpoint_time_s = now_s
         self.setpoints.tick(now_s)
 

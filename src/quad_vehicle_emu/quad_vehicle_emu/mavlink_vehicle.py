@@ -90,15 +90,20 @@ class MavlinkVehicle:
     def __init__(self, args):
         self.args = args
         self.flavour = args.autopilot
-        self.sim = Simulator(load_vehicle(args.vehicle), physics_rate_hz=args.physics_rate_hz,
+        self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))  # bad parameters: first
+        vehicle = load_vehicle(args.vehicle)
+        self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
                              setpoint_timeout_s=1e6)
         self.sim.warm_up()  # before the first heartbeat: compiling mid-flight would stall the link for seconds
-        self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))
         if not self.sim.landed:  # starts in the air: armed, holding position
             self.ap.armed = True
             self.ap.mode = 'AUTO.LOITER' if self.flavour == 'px4' else 'LOITER'
-        self.shaper = AttitudeResponse(args.attitude_tau_s, self.sim.state.quaternion)
+        tau_s = args.attitude_tau_s
+        if tau_s is None:   # a vehicle file that already gives quad_sim an autopilot-like loop needs no shaping
+            loop = getattr(getattr(vehicle, 'attitude_loop', None), 'type', 'eq6')
+            tau_s = DEFAULT_ATTITUDE_TAU_S if loop == 'eq6' else 0.0
+        self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
         self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
@@ -117,6 +122,7 @@ class MavlinkVehicle:
         self.t0 = time.monotonic()
         self.log_index = 0
         self.last_update_s = 0.0
+        self._snap = None
 
     # --- clocks -----------------------------------------------------------------------------------------
 
@@ -178,7 +184,8 @@ class MavlinkVehicle:
         now = self.now_s()
         if kind == 'SET_ATTITUDE_TARGET':
             self.ap.on_attitude_target(AttitudeTargetMsg(msg.type_mask, tuple(msg.q), (
-                msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate), msg.thrust), now)
+                msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate), msg.thrust,
+                tuple(getattr(msg, 'thrust_body', (0.0, 0.0, 0.0)))), now)
         elif kind == 'COMMAND_LONG':
             self.on_command(msg, now)
         elif kind == 'TIMESYNC' and msg.tc1 == 0:
@@ -274,6 +281,22 @@ class MavlinkVehicle:
         else:
             self.mav.send(msg)
 
+    def _snapshot(self, t_sample, state, f_body):
+        """Everything the messages say about one telemetry sample, in MAVLink frames (computed once a sample)."""
+        if self._snap is not None and self._snap[0] == t_sample:
+            return self._snap[1]
+        pos, vel = ned.enu_to_ned(state.position), ned.enu_to_ned(state.velocity)
+        q = ned.attitude_to_ned_wxyz(state.quaternion)
+        w, x, y, z = q
+        roll, pitch, yaw = (float(a) for a in rotations.to_euler(np.array([x, y, z, w])))
+        snap = dict(pos=pos, vel=vel, q=q, rates=[float(v) for v in ned.flu_to_frd(state.body_rates)],
+                    acc=[float(v) for v in ned.flu_to_frd(f_body)], roll=roll, pitch=pitch, yaw=yaw,
+                    lat=HOME_LAT_DEG + math.degrees(pos[0] / EARTH_RADIUS_M),
+                    lon=HOME_LON_DEG + math.degrees(pos[1] / (EARTH_RADIUS_M * math.cos(math.radians(HOME_LAT_DEG)))),
+                    alt_m=HOME_ALT_M - pos[2])
+        self._snap = (t_sample, snap)
+        return snap
+
     def send_message(self, name, now):
         sample = self.telemetry.read(now)
         if sample is None:
@@ -282,17 +305,13 @@ class MavlinkVehicle:
         boot_ms = int(self.boot_s(t_sample) * 1000) & 0xFFFFFFFF
         boot_us = int(self.boot_s(t_sample) * 1e6)
         m = mavutil.mavlink
-        pos, vel = ned.enu_to_ned(state.position), ned.enu_to_ned(state.velocity)
-        q = ned.attitude_to_ned_wxyz(state.quaternion)
-        rates = [float(v) for v in ned.flu_to_frd(state.body_rates)]
-        acc = [float(v) for v in ned.flu_to_frd(f_body)]
-        roll, pitch, yaw = ned.euler_ned(state.quaternion)
+        snap = self._snapshot(t_sample, state, f_body)
+        pos, vel, q, rates, acc = snap['pos'], snap['vel'], snap['q'], snap['rates'], snap['acc']
+        roll, pitch, yaw = snap['roll'], snap['pitch'], snap['yaw']
+        lat, lon, alt_m = snap['lat'], snap['lon'], snap['alt_m']
         voltage_v = 16.8 - 0.002 * now
         remaining = int(max(0.0, 100.0 - 0.02 * now))
         current_ca = 1500 if self.ap.armed else 50
-        lat = HOME_LAT_DEG + math.degrees(pos[0] / EARTH_RADIUS_M)
-        lon = HOME_LON_DEG + math.degrees(pos[1] / (EARTH_RADIUS_M * math.cos(math.radians(HOME_LAT_DEG))))
-        alt_m = HOME_ALT_M - pos[2]
         if name == 'HEARTBEAT':
             status = p.MAV_STATE_ACTIVE if self.ap.armed else p.MAV_STATE_STANDBY
             msg = m.MAVLink_heartbeat_message(p.MAV_TYPE_QUADROTOR, self.ap.autopilot_id, self.ap.base_mode,
@@ -303,13 +322,13 @@ class MavlinkVehicle:
             msg = m.MAVLink_attitude_quaternion_message(boot_ms, *q, *rates, [0.0, 0.0, 0.0, 0.0])
         elif name == 'LOCAL_POSITION_NED':
             msg = m.MAVLink_local_position_ned_message(boot_ms, *map(float, pos), *map(float, vel))
-        elif name == 'ODOMETRY':   # PX4 ODOMETRY.hpp: local NED pose, body FRD velocity
-            R_ned_frd = ned.P_NED_ENU @ rotations.to_matrix(state.quaternion) @ ned.B_FLU_FRD
-            vel_body = R_ned_frd.T @ vel
+        elif name == 'ODOMETRY':
+            # PX4 v1.14+ mavlink/streams/ODOMETRY.hpp: frame_id LOCAL_NED, child_frame_id from the estimator's
+            # velocity_frame, which EKF2 publishes as VELOCITY_FRAME_NED: velocity in local NED, not body
             nan21 = [float('nan')] * 21
-            msg = m.MAVLink_odometry_message(boot_us, p.MAV_FRAME_LOCAL_NED, p.MAV_FRAME_BODY_FRD,
-                                             *map(float, pos), q, *map(float, vel_body), *rates, nan21, nan21,
-                                             0, 0, 100)
+            msg = m.MAVLink_odometry_message(boot_us, p.MAV_FRAME_LOCAL_NED, p.MAV_FRAME_LOCAL_NED,
+                                             *map(float, pos), q, *map(float, vel), *rates, nan21, nan21,
+                                             0, p.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100)
         elif name == 'GLOBAL_POSITION_INT':
             msg = m.MAVLink_global_position_int_message(boot_ms, int(lat * 1e7), int(lon * 1e7), int(alt_m * 1000),
                                                         int(-pos[2] * 1000), *(int(v * 100) for v in vel),
@@ -393,9 +412,10 @@ def build_parser():
     ap.add_argument('--guid-options', type=int, default=None, help='ArduPilot: = --param GUID_OPTIONS=N')
     ap.add_argument('--offboard-loss-s', type=float, default=None, help='PX4: = --param COM_OF_LOSS_T=S')
     ap.add_argument('--guided-timeout-s', type=float, default=None, help='ArduPilot: = --param GUID_TIMEOUT=S')
-    ap.add_argument('--attitude-tau-s', type=float, default=DEFAULT_ATTITUDE_TAU_S,
-                    help='attitude shaping time constant; 0.08 s: a 10 deg roll step reaches 63 %% in 0.19 s with '
-                    'px4_quad.yaml, as ArduCopter SITL did (0.17-0.21 s)')
+    ap.add_argument('--attitude-tau-s', type=float, default=None,
+                    help='attitude shaping time constant; default 0.08 s (a 10 deg roll step reaches 63 %% in 0.19 s '
+                    "with px4_quad.yaml, as ArduCopter SITL did), 0 when the vehicle file sets quad_sim's "
+                    'attitude_loop to an autopilot-like one (so3_pd, lag)')
     ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.05')
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')

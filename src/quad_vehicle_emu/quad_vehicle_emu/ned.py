@@ -41,9 +41,3 @@ def attitude_from_ned_wxyz(q_wxyz) -> np.ndarray:
     R_ned = rotations.to_matrix(rotations.normalize(np.array([x, y, z, w])))
     return rotations.from_matrix(P_NED_ENU @ R_ned @ B_FLU_FRD)
 
-
-def euler_ned(q_enu_flu_xyzw) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) of the NED/FRD attitude, rad (ATTITUDE message)."""
-    w, x, y, z = attitude_to_ned_wxyz(q_enu_flu_xyzw)
-    r, pch, yw = rotations.to_euler(np.array([x, y, z, w]))
-    return float(r), float(pch), float(yw)

@@ -72,6 +72,7 @@ MAV_DATA_STREAM_EXTRA3 = 12
 # MAV_FRAME
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_FRD = 12
+MAV_ESTIMATOR_TYPE_AUTOPILOT = 1
 
 # --- PX4 -----------------------------------------------------------------------------------------------
 # custom_mode = union px4_custom_mode {uint16 reserved; uint8 main_mode; uint8 sub_mode}, little endian:

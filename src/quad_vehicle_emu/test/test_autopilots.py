@@ -1,0 +1,57 @@
+"""The autopilot cores without sockets: type_mask rules that the graph tests do not reach."""
+
+import math
+
+import numpy as np
+import pytest
+
+from quad_common.types import GRAVITY_MPS2, State
+from quad_vehicle_emu import protocol as p
+from quad_vehicle_emu.autopilots import ArduCopter, AttitudeTargetMsg, Px4
+
+LEVEL = (1.0, 0.0, 0.0, 0.0)
+HOVERING = State(position=np.array([0.0, 0.0, 1.0]))
+
+
+def _offboard_px4(msg):
+    px4 = Px4(hover_throttle=0.5)
+    px4.armed = True
+    for k in range(30):
+        px4.on_attitude_target(msg, k * 0.02)
+    assert px4.command(p.MAV_CMD_DO_SET_MODE, [1, 6, 0], False, 0.6) == p.MAV_RESULT_ACCEPTED
+    return px4.update(HOVERING, False, 0.6)
+
+
+def test_px4_thrust_body_set_uses_thrust_body_z():
+    sp = _offboard_px4(AttitudeTargetMsg(p.TYPEMASK_RATES_IGNORE | p.TYPEMASK_THRUST_BODY_SET, LEVEL, (0, 0, 0),
+                                         0.9, (0.0, 0.0, -0.5)))
+    assert sp.specific_force_mps2 == pytest.approx(GRAVITY_MPS2)     # 0.5 = hover, not the 0.9 in thrust
+    sp = _offboard_px4(AttitudeTargetMsg(p.TYPEMASK_RATES_IGNORE, LEVEL, (0, 0, 0), 0.6))
+    assert sp.specific_force_mps2 == pytest.approx(0.6 * GRAVITY_MPS2 / 0.5)
+
+
+@pytest.mark.parametrize('mask, q', [(p.TYPEMASK_THROTTLE_IGNORE | 7, LEVEL), (7, (1.01, 0.0, 0.0, 0.0)),
+                                     (p.TYPEMASK_BODY_ROLL_RATE_IGNORE, LEVEL)])
+def test_arducopter_resets_the_guided_target_on_an_ill_defined_message(mask, q):
+    apm = ArduCopter(hover_throttle=0.5)
+    apm.armed = True
+    apm.command(p.MAV_CMD_DO_SET_MODE, [1, 20, 0], False, 0.0)
+    tilted = (math.cos(0.1), math.sin(0.1), 0.0, 0.0)
+    apm.on_attitude_target(AttitudeTargetMsg(7, tilted, (0, 0, 0), 0.5), 0.1)
+    assert apm.angle[0] is not None
+    with pytest.raises(ValueError):
+        apm.on_attitude_target(AttitudeTargetMsg(mask, q, (0, 0, 0), 0.5), 0.2)
+    assert apm.angle[0] is None, 'init(true): back to level, climb rate 0'
+
+
+def test_px4_failsafe_waits_for_com_of_loss_t_not_for_the_stream_rate():
+    px4 = Px4(hover_throttle=0.5, params={'COM_OF_LOSS_T': 3.0})
+    px4.armed = True
+    msg = AttitudeTargetMsg(p.TYPEMASK_RATES_IGNORE, LEVEL, (0, 0, 0), 0.5)
+    for k in range(30):
+        px4.on_attitude_target(msg, k * 0.02)
+    assert px4.command(p.MAV_CMD_DO_SET_MODE, [1, 6, 0], False, 0.6) == p.MAV_RESULT_ACCEPTED
+    px4.update(HOVERING, False, 2.0)          # a 1.4 s gap: the rate is 0 Hz, but COM_OF_LOSS_T is 3 s
+    assert px4.mode == 'OFFBOARD'
+    px4.update(HOVERING, False, 3.7)
+    assert px4.mode == 'AUTO.LOITER'
