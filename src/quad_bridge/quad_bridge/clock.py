@@ -16,17 +16,22 @@ import math
 
 import numpy as np
 
+# TIMESYNC is dropped when the message times put it this much before the earliest arrival: far above the
+# telemetry latency and ArduPilot's bursts (20-65 ms), far below an unrelated clock (seconds). At 50 ms the choice
+# flipped with ArduPilot's 50 ms latency, and each flip moved odometry stamps back (out-of-order odometry).
+MAX_DISAGREEMENT_S = 0.25
 ONE_MS_NS = 1_000_000  # TIMESYNC may put a stamp this much after the earliest arrival (rounding, scheduling)
 
 
 class ClockMapper:
-    def __init__(self, window_s: float = 10.0, max_disagreement_s: float = 0.05):
+    def __init__(self, window_s: float = 10.0, max_disagreement_s: float = MAX_DISAGREEMENT_S):
         self.window_ns = int(window_s * 1e9)
         self.max_disagreement_ns = int(max_disagreement_s * 1e9)
         self._oneway = collections.deque()   # (local arrival ns, arrival - remote ns)
         self._minima = collections.deque()   # monotone deque for the sliding minimum
         self._sync = collections.deque()     # (local ns, rtt ns, offset ns)
         self.source = 'none'
+        self._last = (-1, -1)                # (remote us, local ns) of the last mapping
 
     def observe(self, remote_us: int, arrival_ns: int):
         """A message stamped remote_us (autopilot boot time, us) arrived at local arrival_ns."""
@@ -64,11 +69,14 @@ class ClockMapper:
         return floor
 
     def to_local_ns(self, remote_us: int, arrival_ns: int) -> int:
-        """Local time of a message stamped remote_us, never after its arrival."""
+        """Local time of a message stamped remote_us, never after its arrival and never before the stamp of an
+        earlier-measured message (an offset update must not put odometry out of order)."""
         offset = self.offset_ns()
-        if offset is None:
-            return arrival_ns
-        return min(int(remote_us) * 1000 + offset, arrival_ns)
+        local = arrival_ns if offset is None else min(int(remote_us) * 1000 + offset, arrival_ns)
+        if remote_us >= self._last[0] and local < self._last[1]:
+            local = min(self._last[1], arrival_ns)
+        self._last = (int(remote_us), local)
+        return local
 
     def jitter_ms(self) -> float:
         samples = [s[2] for s in self._sync] if self.source == 'timesync' else [s[1] for s in self._oneway]

@@ -43,7 +43,7 @@ def test_timesync_is_used_while_it_agrees_and_dropped_when_it_does_not():
     wrong = ClockMapper()
     for k in range(20):
         wrong.observe(20_000 * k, offset + 20_000_000 * k + 2 * MS)
-    wrong.timesync(0, 10_000 * MS, MS)   # a TIMESYNC clock unrelated to the message times
+    wrong.timesync(0, 10_000 * MS, MS)   # a TIMESYNC clock unrelated to the message times (seconds off)
     assert wrong.offset_ns() == offset + 2 * MS and wrong.source == 'arrival minimum filter'
 
 
@@ -123,3 +123,14 @@ def test_the_clamp_says_when_the_thrust_limit_cuts_the_vertical_acceleration():
     sp, clamped, kept = check_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=60.0),
                                        math.radians(35.0), max_specific_force_mps2=19.62)
     assert clamped and not kept and sp.specific_force_mps2 == 19.62
+
+
+def test_stamps_never_go_back_when_the_offset_estimate_improves():
+    """The filter's offset (50 ms of delay in it) gives way to TIMESYNC's (1 ms): the next stamp may not jump back."""
+    clock = ClockMapper()
+    clock.observe(0, 50 * MS)
+    first = clock.to_local_ns(20_000, 75 * MS)      # 20 + 50 = 70 ms
+    clock.timesync(ts1_local_ns=80 * MS, tc1_remote_ns=79 * MS, reply_local_ns=80 * MS)   # offset 1 ms
+    second = clock.to_local_ns(40_000, 95 * MS)     # 40 + 1 = 41 ms < 70 ms
+    assert clock.source == 'timesync' and first == 70 * MS and second == first
+    assert clock.to_local_ns(120_000, 125 * MS) == 121 * MS   # and later ones follow the better offset
