@@ -1,7 +1,9 @@
 """Helpers of the bridge graph tests: processes on loopback ports, and an in-process observer node."""
 
+import collections
 import itertools
 import os
+import select
 import socket
 import subprocess
 import sys
@@ -20,9 +22,13 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from quad_common.conversions import stamp_to_s
 from quad_common.testing import isolated_domain
 
+os.environ['MAVLINK20'] = '1'
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
 VEHICLE_FILE = str(ROOT / 'config' / 'vehicles' / 'px4_quad.yaml')
 WAIT_S = 90.0  # generous: a busy 2-core machine
+BRIDGE_DEFAULTS = {}  # parameters every bridge of the graph tests gets unless a test says otherwise
 _GRAPHS = itertools.count()
 
 
@@ -76,9 +82,130 @@ class Processes:
 
     def bridge(self, url, **params):
         args = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', f'fcu_url:={url}']
-        for k, v in params.items():
+        for k, v in {**BRIDGE_DEFAULTS, **params}.items():
             args += ['-p', f'{k}:={v}']
         return self.start('bridge', args)
+
+
+class Tap:
+    """UDP relay vehicle <-> bridge on loopback that sees the wire: it records what the bridge sends
+    (SET_ATTITUDE_TARGET, COMMAND_LONG, in order), injects a ground station's commands to the vehicle, can
+    cut the link, and can hold the vehicle's datagrams back and release them in bursts (as a real link does)."""
+
+    GCS_SYSTEM = 255
+
+    def __init__(self, bridge_port):
+        self.vehicle_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.vehicle_side.bind(('127.0.0.1', 0))
+        self.port = self.vehicle_side.getsockname()[1]
+        self.bridge_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.bridge_side.bind(('127.0.0.1', 0))
+        self.bridge_addr = ('127.0.0.1', bridge_port)
+        self.vehicle_addr = None
+        self.cut = threading.Event()
+        self.burst_s = 0.0
+        self.lock = threading.Lock()
+        self.sent = []          # (monotonic time, message) of what the bridge sent, in order
+        self.gcs = mavlink.MAVLink(None, srcSystem=self.GCS_SYSTEM, srcComponent=190)
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True
+        self._vehicle_parser = mavlink.MAVLink(None)
+        self._vehicle_parser.robust_parsing = True
+        self.from_vehicle = collections.Counter()   # message type -> count, of what the vehicle sent
+        self._held, self._released_s = [], time.monotonic()
+        self.running = True
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while self.running:
+            ready, _, _ = select.select([self.vehicle_side, self.bridge_side], [], [], 0.005)
+            for sock in ready:
+                data, addr = sock.recvfrom(65536)
+                if sock is self.vehicle_side:
+                    self.vehicle_addr = addr
+                    if self.cut.is_set():
+                        continue
+                    self._count(data)
+                    if self.burst_s > 0:
+                        self._held.append(data)
+                    else:
+                        self.bridge_side.sendto(data, self.bridge_addr)
+                elif self.vehicle_addr and not self.cut.is_set():
+                    self._record(data)
+                    self.vehicle_side.sendto(data, self.vehicle_addr)
+            if self._held and time.monotonic() - self._released_s >= self.burst_s:
+                for data in self._held:
+                    self.bridge_side.sendto(data, self.bridge_addr)
+                self._held.clear()
+                self._released_s = time.monotonic()
+
+    def _count(self, data):
+        try:
+            msgs = self._vehicle_parser.parse_buffer(data) or []
+        except Exception:
+            return
+        with self.lock:
+            self.from_vehicle.update(m.get_type() for m in msgs)
+
+    def _record(self, data):
+        try:
+            msgs = self._parser.parse_buffer(data) or []
+        except Exception:
+            return
+        now = time.monotonic()
+        with self.lock:
+            self.sent += [(now, m) for m in msgs if m.get_type() in ('SET_ATTITUDE_TARGET', 'COMMAND_LONG')]
+
+    def setpoints(self, since_s=0.0):
+        with self.lock:
+            return [(t, m) for t, m in self.sent if m.get_type() == 'SET_ATTITUDE_TARGET' and t >= since_s]
+
+    def commands(self):
+        with self.lock:
+            return [(t, m) for t, m in self.sent if m.get_type() == 'COMMAND_LONG']
+
+    def set_mode_as_gcs(self, main_mode, sub_mode=0):
+        """A ground station (system 255) switches the vehicle's mode: MAV_CMD_DO_SET_MODE, custom mode."""
+        msg = mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, main_mode, sub_mode,
+                                                   0, 0, 0, 0)
+        self.vehicle_side.sendto(msg.pack(self.gcs), self.vehicle_addr)
+
+    def close(self):
+        self.running = False
+        self.thread.join(timeout=2)
+        self.vehicle_side.close()
+        self.bridge_side.close()
+
+
+class SetpointPublisher:
+    """Publishes cmd/attitude_thrust at rate_hz from a thread (a running controller); attitude(q) and force can
+    be changed while it runs."""
+
+    def __init__(self, observer, rate_hz=50.0, quaternion=(0.0, 0.0, 0.0, 1.0), force_mps2=9.81):
+        from sensor_msgs.msg import Imu
+
+        from quad_common.conversions import to_quaternion
+        self._to_q, self._imu = to_quaternion, Imu
+        self.pub = observer.node.create_publisher(Imu, 'cmd/attitude_thrust', 10)
+        self.period_s, self.quaternion, self.force_mps2 = 1.0 / rate_hz, quaternion, force_mps2
+        self.count = 0
+        self.stop_event = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while not self.stop_event.wait(self.period_s):
+            msg = self._imu()
+            msg.orientation = self._to_q(self.quaternion)
+            msg.linear_acceleration.z = self.force_mps2
+            msg.angular_velocity_covariance[0] = -1.0
+            self.pub.publish(msg)
+            self.count += 1
+
+    def stop(self):
+        self.stop_event.set()
+        self.thread.join(timeout=2)
 
 
 class Observer:
@@ -129,8 +256,15 @@ class Observer:
 
     def link(self):
         """(message, values) of the newest `mavlink_bridge: link` status, or (None, {})."""
+        return self.status('mavlink_bridge: link')
+
+    def setpoints(self):
+        """(message, values) of the newest `mavlink_bridge: setpoints` status, or (None, {})."""
+        return self.status('mavlink_bridge: setpoints')
+
+    def status(self, name):
         with self.lock:
-            entries = self.diagnostics.get('mavlink_bridge: link')
+            entries = self.diagnostics.get(name)
             return entries[-1][1:] if entries else (None, {})
 
     def position(self):

@@ -3,12 +3,10 @@
 import math
 import os
 import random
-import select
 import socket
-import threading
 
 import pytest
-from bridge_graph import free_udp_port, running_graph
+from bridge_graph import Tap, free_udp_port, running_graph
 from std_srvs.srv import SetBool, Trigger
 
 os.environ['MAVLINK20'] = '1'
@@ -21,45 +19,10 @@ def graph(tmp_path):
         yield g
 
 
-class Relay:
-    """UDP relay vehicle <-> bridge on loopback that can be cut (drops everything while cut)."""
-
-    def __init__(self, bridge_port):
-        self.vehicle_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.vehicle_side.bind(('127.0.0.1', 0))
-        self.port = self.vehicle_side.getsockname()[1]
-        self.bridge_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.bridge_side.bind(('127.0.0.1', 0))
-        self.bridge_addr = ('127.0.0.1', bridge_port)
-        self.vehicle_addr = None
-        self.cut = threading.Event()
-        self.running = True
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self):
-        while self.running:
-            ready, _, _ = select.select([self.vehicle_side, self.bridge_side], [], [], 0.1)
-            for sock in ready:
-                data, addr = sock.recvfrom(65536)
-                if sock is self.vehicle_side:
-                    self.vehicle_addr = addr
-                    if not self.cut.is_set():
-                        self.bridge_side.sendto(data, self.bridge_addr)
-                elif self.vehicle_addr and not self.cut.is_set():
-                    self.vehicle_side.sendto(data, self.vehicle_addr)
-
-    def close(self):
-        self.running = False
-        self.thread.join(timeout=2)
-        self.vehicle_side.close()
-        self.bridge_side.close()
-
-
 def test_link_loss_is_reported_and_recovered(graph):
     procs, observer = graph
     bridge_port = free_udp_port()
-    relay = Relay(bridge_port)
+    relay = Tap(bridge_port)
     try:
         procs.vehicle('px4', f'udpout:127.0.0.1:{relay.port}')
         procs.bridge(f'udpin:127.0.0.1:{bridge_port}', link_timeout_s=2.5)  # 1 Hz heartbeats, jittery machine

@@ -8,7 +8,6 @@ ROS quaternions are (x, y, z, w); MAVLink quaternions are (w, x, y, z).
 
 import numpy as np
 
-from quad_common import rotations
 from quad_common.types import State
 
 _S = np.sqrt(0.5)
@@ -29,16 +28,19 @@ def body_flu_frd(v):
 
 
 def quaternion_enu_to_ned(q_enu_flu):
-    """Attitude body FLU -> world ENU, (x,y,z,w), to attitude body FRD -> world NED, (x,y,z,w), w >= 0."""
-    q = rotations.multiply(Q_NED_ENU, rotations.multiply(q_enu_flu, Q_FLU_FRD))
-    return np.where(q[..., 3:4] < 0, -q, q)
+    """Attitude body FLU -> world ENU, (x,y,z,w), to attitude body FRD -> world NED, (x,y,z,w), w >= 0:
+    q_NED_ENU * q * q_FLU_FRD, which multiplied out is s (-x - y, y - x, z - w, -w - z), s = sqrt(1/2).
+    Both fixed rotations are 180 degree turns, so the map is its own inverse (with w >= 0)."""
+    q = np.asarray(q_enu_flu, dtype=float)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    out = _S * np.stack([-x - y, y - x, z - w, -w - z], axis=-1) if q.ndim > 1 else \
+        np.array([_S * (-x - y), _S * (y - x), _S * (z - w), _S * (-w - z)])
+    return np.where(out[..., 3:4] < 0, -out, out)
 
 
 def quaternion_ned_to_enu(q_ned_frd):
-    """Inverse of quaternion_enu_to_ned."""
-    q = rotations.multiply(rotations.conjugate(Q_NED_ENU),
-                           rotations.multiply(q_ned_frd, rotations.conjugate(Q_FLU_FRD)))
-    return np.where(q[..., 3:4] < 0, -q, q)
+    """Inverse of quaternion_enu_to_ned: conj(q_NED_ENU) * q * conj(q_FLU_FRD) multiplies out to the same map."""
+    return quaternion_enu_to_ned(q_ned_frd)
 
 
 def state_to_ned(state: State) -> State:

@@ -4,8 +4,6 @@ setpoints go out. Times are plain seconds from a monotonic clock passed in by th
 import collections
 import hashlib
 
-from quad_bridge.autopilot import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4
-
 MAV_AUTOPILOT_INVALID = 8
 # MAV_TYPE values that are not a vehicle: GCS 6, onboard controller 18, gimbal 26, ADS-B 27, camera 30,
 # charging station 31, FLARM 32, servo 33, ODID 34, battery 36, parachute 37, log 38, OSD 39, IMU 40,
@@ -15,18 +13,6 @@ NON_VEHICLE_TYPES = frozenset({6, 18, 26, 27, 30, 31, 32, 33, 34, 36, 37, 38, 39
 
 def is_vehicle_heartbeat(mav_type: int, autopilot: int) -> bool:
     return autopilot != MAV_AUTOPILOT_INVALID and mav_type not in NON_VEHICLE_TYPES
-
-
-def resolve_autopilot(setting: str, heartbeat_autopilot: int) -> int:
-    """'px4' | 'ardupilot' force the flavour; 'auto' takes it from HEARTBEAT.autopilot (12 PX4, 3 ArduPilot)."""
-    if setting == 'px4':
-        return MAV_AUTOPILOT_PX4
-    if setting == 'ardupilot':
-        return MAV_AUTOPILOT_ARDUPILOTMEGA
-    if heartbeat_autopilot in (MAV_AUTOPILOT_PX4, MAV_AUTOPILOT_ARDUPILOTMEGA):
-        return heartbeat_autopilot
-    raise ValueError(f'autopilot = auto: heartbeat autopilot {heartbeat_autopilot} is neither PX4 (12) nor '
-                     f'ArduPilot (3); set autopilot to px4 or ardupilot')
 
 
 class LinkState:

@@ -49,6 +49,7 @@ class MavlinkClient:
         self._send_lock = threading.Lock()
         self._acks = {}           # (target system, command id) -> [event, result]
         self._acks_lock = threading.Lock()
+        self._params = {}         # (target system, parameter name) -> [event, (value, type)]
         self._running = False
         self._thread = None
         self.bad_data = 0         # unparsable bytes / failed CRC
@@ -96,6 +97,29 @@ class MavlinkClient:
                 if self._acks.get(key) is waiter:
                     del self._acks[key]
 
+    def read_params(self, target_system, target_component, names, timeout_s) -> dict:
+        """PARAM_REQUEST_READ of each name (by name, index -1), resent once halfway; returns {name: (value,
+        param_type)} of those answered by PARAM_VALUE within timeout_s."""
+        waiters = {name: [threading.Event(), None] for name in names}
+        with self._acks_lock:
+            for name, waiter in waiters.items():
+                self._params[(target_system, name)] = waiter
+        try:
+            deadline = time.monotonic() + timeout_s
+            for attempt in (0, 1):
+                for name, waiter in waiters.items():
+                    if not waiter[0].is_set():
+                        self.send('param_request_read', target_system, target_component, name.encode(), -1)
+                until = deadline - (timeout_s / 2 if attempt == 0 else 0.0)
+                for waiter in waiters.values():
+                    waiter[0].wait(max(until - time.monotonic(), 0.0))
+            return {name: w[1] for name, w in waiters.items() if w[0].is_set()}
+        finally:
+            with self._acks_lock:
+                for name, waiter in waiters.items():
+                    if self._params.get((target_system, name)) is waiter:
+                        del self._params[(target_system, name)]
+
     def _receive_loop(self):
         while self._running:
             try:
@@ -114,6 +138,13 @@ class MavlinkClient:
                     waiter = self._acks.get((msg.get_srcSystem(), msg.command))
                 if waiter is not None:
                     waiter[1] = msg.result
+                    waiter[0].set()
+            elif msg.get_type() == 'PARAM_VALUE':
+                name = msg.param_id.rstrip('\x00') if isinstance(msg.param_id, str) else msg.param_id
+                with self._acks_lock:
+                    waiter = self._params.get((msg.get_srcSystem(), name))
+                if waiter is not None:
+                    waiter[1] = (msg.param_value, msg.param_type)
                     waiter[0].set()
             try:
                 self._on_message(msg)

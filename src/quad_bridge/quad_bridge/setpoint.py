@@ -32,9 +32,14 @@ def clamp_tilt(quaternion, max_tilt_rad: float) -> tuple[np.ndarray, bool]:
     return rotations.normalize(rotations.multiply(_axis_angle(axis, max_tilt_rad), q_yaw)), True
 
 
-def check_setpoint(sp: AttitudeSetpoint, max_tilt_rad: float) -> tuple[AttitudeSetpoint, bool]:
-    """(safe setpoint, tilt was clamped). Raises ValueError naming the field on NaN/inf or a zero
-    quaternion, or a negative thrust."""
+def check_setpoint(sp: AttitudeSetpoint, max_tilt_rad: float,
+                   max_specific_force_mps2: float = math.inf) -> tuple[AttitudeSetpoint, bool, bool]:
+    """(safe setpoint, tilt was clamped, vertical acceleration kept). Raises ValueError naming the field on
+    NaN/inf or a zero quaternion, or a negative thrust.
+
+    A clamped setpoint keeps its vertical acceleration: it asked for the vertical specific force f cos(tilt);
+    at the clamped tilt t_c that needs f' = f cos(tilt) / cos(t_c) (the 1/cos relation), limited to
+    max_specific_force_mps2 (the thrust the vehicle can make); `kept` is False when that limit cut it."""
     if not np.all(np.isfinite(sp.quaternion)):
         raise ValueError(f'setpoint quaternion must be finite, got {np.asarray(sp.quaternion).tolist()}')
     if not math.isfinite(sp.specific_force_mps2) or sp.specific_force_mps2 < 0.0:
@@ -42,5 +47,10 @@ def check_setpoint(sp: AttitudeSetpoint, max_tilt_rad: float) -> tuple[AttitudeS
     if sp.body_rates is not None and not np.all(np.isfinite(sp.body_rates)):
         raise ValueError(f'setpoint body_rates must be finite, got {np.asarray(sp.body_rates).tolist()}')
     q, clamped = clamp_tilt(sp.quaternion, max_tilt_rad)
-    return AttitudeSetpoint(quaternion=q, specific_force_mps2=float(sp.specific_force_mps2),
-                            body_rates=None if sp.body_rates is None else np.asarray(sp.body_rates, float)), clamped
+    f, kept = float(sp.specific_force_mps2), True
+    if clamped:
+        f_vertical = f * float(rotations.to_matrix(rotations.normalize(sp.quaternion))[2, 2])
+        needed = max(f_vertical, 0.0) / math.cos(max_tilt_rad)
+        f, kept = min(needed, max_specific_force_mps2), needed <= max_specific_force_mps2 * (1 + 1e-9)
+    rates = None if sp.body_rates is None else np.asarray(sp.body_rates, float)
+    return AttitudeSetpoint(quaternion=q, specific_force_mps2=f, body_rates=rates), clamped, kept

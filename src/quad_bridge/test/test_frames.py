@@ -71,3 +71,11 @@ def test_state_pair_round_trips():
 def test_mavlink_quaternion_order():
     assert frames.to_mavlink_quaternion([0.1, 0.2, 0.3, 0.9]) == [0.9, 0.1, 0.2, 0.3]
     np.testing.assert_allclose(frames.from_mavlink_quaternion([0.9, 0.1, 0.2, 0.3]), [0.1, 0.2, 0.3, 0.9])
+
+
+def test_the_closed_form_equals_the_product_of_the_two_fixed_rotations():
+    rng = np.random.default_rng(5)
+    for q in rotations.normalize(rng.standard_normal((50, 4))):
+        product = rotations.multiply(frames.Q_NED_ENU, rotations.multiply(q, frames.Q_FLU_FRD))
+        assert abs(abs(np.dot(product, frames.quaternion_enu_to_ned(q))) - 1.0) < 1e-12
+        assert frames.quaternion_enu_to_ned(q)[3] >= 0.0

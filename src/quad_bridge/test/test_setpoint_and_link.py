@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_bridge.link import LinkState, RateMeter, is_vehicle_heartbeat, load_signing_key, resolve_autopilot
+from quad_bridge.link import LinkState, RateMeter, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.setpoint import check_setpoint, clamp_tilt, tilt_rad
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint
@@ -24,7 +24,7 @@ def test_non_finite_setpoints_are_refused_naming_the_field(field, sp):
 
 def test_tilt_within_limit_passes_unchanged():
     q = rotations.from_euler(0.2, -0.1, 1.0)
-    sp, clamped = check_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=12.0), math.radians(35.0))
+    sp, clamped, _ = check_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=12.0), math.radians(35.0))
     assert not clamped
     np.testing.assert_allclose(sp.quaternion, q)
     assert sp.specific_force_mps2 == 12.0
@@ -63,11 +63,6 @@ def test_vehicle_heartbeats_and_autopilot_choice():
     assert not is_vehicle_heartbeat(6, 8)                 # GCS
     assert not is_vehicle_heartbeat(18, 8)                # onboard controller
     assert not is_vehicle_heartbeat(26, 3)                # gimbal
-    assert resolve_autopilot('auto', 12) == 12
-    assert resolve_autopilot('auto', 3) == 3
-    assert resolve_autopilot('px4', 3) == 12
-    with pytest.raises(ValueError, match='autopilot 8'):
-        resolve_autopilot('auto', 8)
 
 
 def test_rate_meter():

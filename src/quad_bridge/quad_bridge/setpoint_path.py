@@ -1,0 +1,107 @@
+"""The setpoint half of mavlink_bridge (rclpy): `cmd/attitude_thrust` through a node and an executor thread of its
+own (services waiting for an ACK never delay a setpoint, a setpoint never waits for them), checked, and put on
+the wire at once by quad_bridge.streamer when the hand-over allows it."""
+
+import math
+import threading
+
+import rclpy
+from sensor_msgs.msg import Imu
+
+from quad_bridge import frames
+from quad_bridge.mavlink_client import mavlink
+from quad_bridge.setpoint import check_setpoint
+from quad_bridge.streamer import SetpointStreamer
+from quad_common import cdr
+from quad_common.hot_path import HotPathExecutor
+
+# DDS keeps this many setpoints for us while the interpreter is busy elsewhere (its reader thread is not held by
+# the GIL): a 0.1 s stall at 500 Hz loses none (bench/bench_bridge.py; depth 10 lost 3-5 % at 100-500 Hz).
+SETPOINT_QUEUE_DEPTH = 100
+ATTITUDE_RATES_IGNORE = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+                         | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
+                         | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)
+
+
+class SetpointPath:
+    def __init__(self, bridge, may_stream, on_quiet):
+        """bridge: the MavlinkBridge (params, vehicle, client, flying_config, now_s); may_stream() -> bool;
+        on_quiet(wire_age_s, input_age_s): see SetpointStreamer."""
+        self.bridge, self.params, self.log = bridge, bridge.params, bridge.get_logger()
+        self.counts_lock = threading.Lock()
+        self.refused = self.clamped = self.clamp_short = 0
+        self.streamer = SetpointStreamer(self.send, may_stream, self.params['setpoint_rate_hz'],
+                                         self.params['setpoint_timeout_s'], on_quiet, on_error=self._error)
+        self.node = rclpy.create_node(f'{bridge.get_name()}_setpoints', namespace=bridge.get_namespace(),
+                                      context=bridge.context, start_parameter_services=False)
+        self.sub = self.node.create_subscription(Imu, 'cmd/attitude_thrust', self.on_setpoint, SETPOINT_QUEUE_DEPTH,
+                                                 raw=True)
+        self.executor = HotPathExecutor(lambda: ([self.sub], []), context=bridge.context)
+        self.executor.add_node(self.node)
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._spin, name='setpoint-rx', daemon=True)
+
+    def start(self):
+        self.streamer.start()
+        self.thread.start()
+
+    def stop(self):
+        self.stopping.set()
+        self.streamer.stop()
+        self.thread.join(timeout=2.0)
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+    def counts(self) -> dict:
+        with self.counts_lock:
+            return {'refused': self.refused, 'clamped': self.clamped, 'clamp_vertical_not_kept': self.clamp_short}
+
+    def _spin(self):
+        context = self.bridge.context
+        while context.ok() and not self.stopping.is_set():
+            try:
+                self.executor.spin_once(timeout_sec=0.2)
+            except Exception:
+                if context.ok() and not self.stopping.is_set():
+                    raise
+
+    def on_setpoint(self, raw: bytes):
+        """A serialized cmd/attitude_thrust (quad_common.cdr: no Python message object on the hot path)."""
+        vehicle = self.bridge.vehicle
+        with vehicle.lock:
+            backend = vehicle.status.backend
+        f_max = backend.max_specific_force(self.bridge.flying_config) if backend else math.inf
+        try:
+            sp, clamped, kept = check_setpoint(cdr.imu_to_setpoint(raw), math.radians(self.params['max_tilt_deg']),
+                                               f_max)
+        except ValueError as exc:
+            with self.counts_lock:
+                self.refused += 1
+            self.log.warn(f'setpoint refused ({self.refused} so far): {exc}', throttle_duration_sec=1.0)
+            return
+        if clamped:
+            with self.counts_lock:
+                self.clamped += 1
+                self.clamp_short += not kept
+            self.log.warn(f'setpoint tilt clamped to {self.params["max_tilt_deg"]} deg ({self.clamped} so far)'
+                          f'{"" if kept else ": vertical acceleration NOT kept, thrust at its limit"}',
+                          throttle_duration_sec=1.0)
+        self.streamer.submit(sp)
+
+    def send(self, sp):
+        """One SET_ATTITUDE_TARGET (NED/FRD, the backend's thrust semantics)."""
+        vehicle = self.bridge.vehicle
+        with vehicle.lock:
+            s = vehicle.status
+            vz = s.state.velocity[2] if s.state is not None else 0.0
+            system, thrust = s.system, s.backend.thrust(sp, self.bridge.flying_config, vz)
+        if sp.body_rates is None:
+            mask, rates = ATTITUDE_RATES_IGNORE, (0.0, 0.0, 0.0)
+        else:
+            mask, rates = 0, tuple(map(float, frames.body_flu_frd(sp.body_rates)))
+        q = frames.to_mavlink_quaternion(frames.quaternion_enu_to_ned(sp.quaternion))
+        self.bridge.client.send('set_attitude_target', int(self.bridge.now_s() * 1000) & 0xFFFFFFFF, system,
+                                self.params['target_component'], mask, q, *rates, thrust)
+
+    def _error(self, exc):
+        self.log.error(f'setpoint keep-alive: {exc!r}', throttle_duration_sec=1.0)

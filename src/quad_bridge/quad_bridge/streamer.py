@@ -1,0 +1,104 @@
+"""The setpoint path: a new setpoint goes on the wire at once; a keep-alive thread re-sends the newest one
+only when none went out for a whole period (the stream autopilots need to stay in offboard), and watches for a
+stale stream. No rclpy: the caller hands in what to send and whether it may.
+
+    submit(sp) -> [may_send?] -> send(sp)                  (the subscriber's thread, no waiting)
+    keep-alive thread: every period without a send -> send(newest); nothing sent for timeout_s -> on_stale()
+"""
+
+import math
+import threading
+import time
+
+from quad_bridge.link import RateMeter
+
+
+class SetpointStreamer:
+    def __init__(self, send, may_send, rate_hz: float, timeout_s: float, on_stale, on_error=None,
+                 clock=time.monotonic):
+        """send(sp): puts one setpoint on the wire; may_send() -> bool: the hand-over allows it now;
+        on_stale(wire_age_s, input_age_s): nothing went out for timeout_s after a send (called once per quiet
+        spell); input_age_s > timeout_s says the setpoints themselves stopped."""
+        self._send, self._may_send, self._on_stale, self._on_error = send, may_send, on_stale, on_error
+        self.period_s, self.timeout_s, self.clock = 1.0 / rate_hz, timeout_s, clock
+        self.lock = threading.Lock()  # one sender at a time, and the fields below
+        self.setpoint = None
+        self.received_s = -math.inf   # when the newest setpoint arrived
+        self.sent_s = -math.inf       # when the last one went out
+        self.reported_sent_s = -math.inf  # the last send whose silence was reported
+        self.sent = RateMeter()
+        self.received = self.sent_total = self.superseded = self.keepalives = 0
+        self._unsent = False          # the newest setpoint has not been on the wire
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='setpoint-keepalive', daemon=True)
+
+    def start(self):
+        self._thread.start()
+
+    def stop(self):
+        self._stop.set()
+        self._wake.set()
+        self._thread.join(timeout=2.0)
+
+    def fresh(self, now_s=None) -> bool:
+        now_s = self.clock() if now_s is None else now_s
+        return self.setpoint is not None and now_s - self.received_s <= self.timeout_s
+
+    def submit(self, sp):
+        """A new valid setpoint: on the wire now if the hand-over allows it."""
+        with self.lock:
+            now = self.clock()
+            self.received += 1
+            if self._unsent:
+                self.superseded += 1
+            self.setpoint, self.received_s, self._unsent = sp, now, True
+            if self._may_send():
+                self._emit(now)
+
+    def kick(self):
+        """The hand-over began: send the newest fresh setpoint now and keep the stream alive from here."""
+        with self.lock:
+            if self.fresh() and self._may_send():
+                self._emit(self.clock())
+        self._wake.set()
+
+    def _emit(self, now):
+        self._send(self.setpoint)
+        self.sent_s, self._unsent = now, False
+        self.sent_total += 1
+        self.sent.tick(now)
+
+    def rate_hz(self) -> float:
+        with self.lock:
+            return self.sent.rate_hz(self.clock())
+
+    def _run(self):
+        while not self._stop.is_set():
+            try:
+                delay_s = self._tick()
+            except Exception as exc:  # the keep-alive must not die silently
+                if self._on_error:
+                    self._on_error(exc)
+                delay_s = self.period_s
+            self._wake.wait(max(delay_s, 0.0005))
+            self._wake.clear()
+
+    def _tick(self) -> float:
+        """Re-send when a period passed without a send; report once when the wire goes quiet for timeout_s (the
+        vehicle keeps flying the last setpoint meanwhile). Returns the next wait."""
+        report = None
+        with self.lock:
+            now = self.clock()
+            input_age = now - self.received_s
+            if input_age <= self.timeout_s and now - self.sent_s >= self.period_s and self._may_send():
+                self._emit(now)
+                self.keepalives += 1
+            wire_age = now - self.sent_s
+            if wire_age > self.timeout_s and self.sent_s > self.reported_sent_s:
+                self.reported_sent_s, report = self.sent_s, (wire_age, input_age)
+            next_send = self.sent_s + self.period_s - now
+            next_quiet = self.sent_s + self.timeout_s - now if self.sent_s > self.reported_sent_s else self.period_s
+        if report is not None:
+            self._on_stale(*report)
+        return min(next_send if next_send > 0 else self.period_s, next_quiet + 1e-4, self.period_s)

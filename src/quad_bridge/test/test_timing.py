@@ -1,0 +1,136 @@
+"""Telemetry clock mapping, stream fall-backs, the event-driven setpoint streamer and the clamp that keeps the
+vertical acceleration."""
+
+import math
+import threading
+
+import pytest
+
+from quad_bridge.backend import StreamGroup
+from quad_bridge.clock import ClockMapper
+from quad_bridge.setpoint import check_setpoint
+from quad_bridge.streamer import SetpointStreamer
+from quad_bridge.streams import StreamSelector
+from quad_common import rotations
+from quad_common.types import AttitudeSetpoint
+
+MS = 1_000_000
+
+
+def test_burst_arrivals_are_stamped_with_the_autopilot_time():
+    """Messages every 20 ms of autopilot time arriving in bursts of three (delays 5..45 ms) keep 20 ms spacing."""
+    clock = ClockMapper()
+    offset = 1_000_000 * MS
+    stamps = []
+    for k in range(60):
+        remote_us = 20_000 * k
+        arrival = offset + remote_us * 1000 + (5 + 20 * (2 - k % 3)) * MS   # released together every third
+        clock.observe(remote_us, arrival)
+        stamps.append(clock.to_local_ns(remote_us, arrival))
+    gaps = [(b - a) / MS for a, b in zip(stamps[10:], stamps[11:])]
+    assert all(g == pytest.approx(20.0, abs=1e-6) for g in gaps)
+    assert clock.source == 'arrival minimum filter' and clock.jitter_ms() > 10.0
+    assert all(s <= offset + 20_000_000 * k + 45 * MS for k, s in enumerate(stamps))   # never after arrival
+
+
+def test_timesync_is_used_while_it_agrees_and_dropped_when_it_does_not():
+    clock = ClockMapper()
+    offset = 500 * MS
+    for k in range(20):
+        clock.observe(20_000 * k, offset + 20_000_000 * k + 2 * MS)
+    clock.timesync(ts1_local_ns=offset + 100 * MS, tc1_remote_ns=100 * MS + MS // 2, reply_local_ns=offset + 101 * MS)
+    assert clock.offset_ns() == offset and clock.source == 'timesync'
+    wrong = ClockMapper()
+    for k in range(20):
+        wrong.observe(20_000 * k, offset + 20_000_000 * k + 2 * MS)
+    wrong.timesync(0, 10_000 * MS, MS)   # a TIMESYNC clock unrelated to the message times (seconds off)
+    assert wrong.offset_ns() == offset + 2 * MS and wrong.source == 'arrival minimum filter'
+
+
+def test_stream_fall_back_and_missing_report():
+    groups = (StreamGroup('imu', (('HIGHRES_IMU',), ('SCALED_IMU',))),
+              StreamGroup('odometry', (('LOCAL_POSITION_NED', 'ATTITUDE_QUATERNION'), ('ODOMETRY',))))
+    sel = StreamSelector(groups, grace_s=3.0)
+    sel.reset(0.0)
+    sel.arrived('LOCAL_POSITION_NED', 0.5)
+    sel.arrived('ATTITUDE_QUATERNION', 0.5)
+    sel.arrived('ODOMETRY', 0.5)                   # sent unasked: not used while the first set arrives
+    assert sel.update(1.0) == [] and sel.uses('odometry', 'LOCAL_POSITION_NED') and not sel.uses('odometry', 'ODOMETRY')
+    assert sel.update(3.5) == [('imu', ('SCALED_IMU',))] and 'HIGHRES_IMU never arrived' in sel.notes[0]
+    assert sel.missing(4.0) == []
+    assert sel.missing(6.6) == ['SCALED_IMU']      # the fall-back never came either: reported
+    assert sel.update(7.0) == []                   # nothing left to fall back to
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_a_new_setpoint_goes_out_at_once_and_the_keep_alive_only_fills_gaps():
+    clock, sent, quiet = FakeClock(), [], []
+    allowed = threading.Event()
+    s = SetpointStreamer(sent.append, allowed.is_set, rate_hz=50.0, timeout_s=0.5,
+                         on_stale=lambda *a: quiet.append(a), clock=clock)
+    s.submit('a')
+    assert sent == []                              # no hand-over: nothing on the wire
+    allowed.set()
+    for k in range(5):                             # 200 Hz input: each one sent on arrival, none lost
+        clock.t = 0.005 * k
+        s.submit(k)
+        assert s._tick() > 0
+    assert sent == [0, 1, 2, 3, 4] and s.superseded == 1 and s.keepalives == 0
+    clock.t = 0.02 + 0.021                         # a period without a new one: the keep-alive re-sends
+    s._tick()
+    assert sent[-1] == 4 and s.keepalives == 1
+    clock.t = 0.8                                  # input stale: no re-send of an old setpoint, reported once
+    s._tick()
+    s._tick()
+    assert s.keepalives == 1 and len(quiet) == 1 and quiet[0][1] > 0.5
+
+
+def test_a_stopped_hand_over_with_fresh_input_is_reported_as_a_quiet_wire():
+    clock, quiet = FakeClock(), []
+    allowed = threading.Event()
+    allowed.set()
+    s = SetpointStreamer(lambda sp: None, allowed.is_set, 50.0, 0.5, lambda *a: quiet.append(a), clock=clock)
+    s.submit('x')
+    allowed.clear()                                # e.g. the pilot switched mode
+    for k in range(1, 40):
+        clock.t = 0.02 * k
+        s.submit('x')
+        s._tick()
+    assert len(quiet) == 1 and quiet[0][1] < 0.5   # wire quiet, input fresh
+
+
+@pytest.mark.parametrize('tilt_deg, f, expected_f', [
+    (60.0, 2 * 9.81, 9.81 / math.cos(math.radians(35.0))),   # level flight at 60 deg -> level at 35 deg
+    (45.0, 9.81, 9.81 * math.cos(math.radians(45.0)) / math.cos(math.radians(35.0))),
+])
+def test_the_clamp_keeps_the_vertical_acceleration(tilt_deg, f, expected_f):
+    q = rotations.from_euler(math.radians(tilt_deg), 0.0, 0.0)
+    sp, clamped, kept = check_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=f), math.radians(35.0))
+    assert clamped and kept and sp.specific_force_mps2 == pytest.approx(expected_f)
+    vertical = sp.specific_force_mps2 * rotations.to_matrix(sp.quaternion)[2, 2]
+    assert vertical == pytest.approx(f * math.cos(math.radians(tilt_deg)))
+
+
+def test_the_clamp_says_when_the_thrust_limit_cuts_the_vertical_acceleration():
+    q = rotations.from_euler(math.radians(70.0), 0.0, 0.0)
+    sp, clamped, kept = check_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=60.0),
+                                       math.radians(35.0), max_specific_force_mps2=19.62)
+    assert clamped and not kept and sp.specific_force_mps2 == 19.62
+
+
+def test_stamps_never_go_back_when_the_offset_estimate_improves():
+    """The filter's offset (50 ms of delay in it) gives way to TIMESYNC's (1 ms): the next stamp may not jump back."""
+    clock = ClockMapper()
+    clock.observe(0, 50 * MS)
+    first = clock.to_local_ns(20_000, 75 * MS)      # 20 + 50 = 70 ms
+    clock.timesync(ts1_local_ns=80 * MS, tc1_remote_ns=79 * MS, reply_local_ns=80 * MS)   # offset 1 ms
+    second = clock.to_local_ns(40_000, 95 * MS)     # 40 + 1 = 41 ms < 70 ms
+    assert clock.source == 'timesync' and first == 70 * MS and second == first
+    assert clock.to_local_ns(120_000, 125 * MS) == 121 * MS   # and later ones follow the better offset
