@@ -14,9 +14,11 @@ import numpy as np
 from quad_bringup.report import Completion, Flight, compute_metrics
 from quad_common import rotations
 from quad_control.position import Limits, PositionController, PositionGains
-from quad_sim.disturbances import load_profile
+from quad_common.paths import resolve_config
+from quad_common.vehicle import load_vehicle
+from quad_sim.disturbances import load_profile, profile_from_dict
 from quad_sim.simulator import SimulationStopped, Simulator
-from quad_trajectory.mission import load_mission, plan_mission
+from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, plan_mission
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
 DISTURBANCES_FILE = REPO_ROOT / 'config' / 'disturbances.yaml'
@@ -29,7 +31,11 @@ class LoopOptions:
     gains: PositionGains | None = None          # None: the seed's
     speed_mps: float | None = None              # None: the mission's
     plan_overrides: dict | None = None          # PlanOptions fields (e.g. time_allocation='limits')
-    disturbances: str = 'none'
+    disturbances: str | dict = 'none'           # a profile of config/disturbances.yaml, or one as a mapping
+    vehicle: str | None = None                  # vehicle YAML of controller and plant (None: the mission's)
+    plant: dict | None = None                   # vehicle keys only the simulated plant has (mass, motor lag...):
+    #                                             the controller keeps the nominal vehicle, as with a real airframe
+    seed: int = 0                               # the simulator's (gusts, odometry noise)
     rate_hz: float = 100.0
     physics_rate_hz: float = 1000.0
     time_limit_factor: float = 3.0
@@ -42,28 +48,35 @@ def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
     mission = load_mission(mission_path)
     plan = plan_mission(mission, speed_mps=options.speed_mps, **(options.plan_overrides or {}))
     trajectory = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
-    profile = load_profile(DISTURBANCES_FILE, options.disturbances)
-    sim = Simulator(mission.vehicle, options.physics_rate_hz, initial_position=mission.initial_position,
+    profile = (profile_from_dict({k: v for k, v in options.disturbances.items() if k != 'name'},
+                                 options.disturbances.get('name', 'inline'))
+               if isinstance(options.disturbances, dict) else load_profile(DISTURBANCES_FILE, options.disturbances))
+    vehicle_path = resolve_config(options.vehicle) if options.vehicle else mission.vehicle_path
+    vehicle = load_vehicle(vehicle_path) if options.vehicle else mission.vehicle
+    plant = load_vehicle(vehicle_path or DEFAULT_VEHICLE_PATH, options.plant) if options.plant else vehicle
+    sim = Simulator(plant, options.physics_rate_hz, seed=options.seed, initial_position=mission.initial_position,
                     initial_yaw=float(trajectory.position[0, 3]), disturbances=profile, world=mission.world,
                     robot_radius_m=mission.options.robot_radius_m)
-    controller = PositionController(options.controller, options.gains or PositionGains(), mission.vehicle,
-                                    Limits.of(mission.vehicle))
+    controller = PositionController(options.controller, options.gains or PositionGains(), vehicle,
+                                    Limits.of(vehicle))
     period_s = 1.0 / options.rate_hz
     arrival_s = options.rule.plan_arrival_s(trajectory)
     end_s = options.time_limit_factor * trajectory.duration_s + 10.0
-    times, positions, velocities, eulers = [], [], [], []
+    times, positions, velocities, quaternions = [], [], [], []
     stopped = None
+    saturated_ticks = 0
     for k in range(int(end_s * options.rate_hz) + 1):
         t_s = k * period_s
         truth = sim.state
         times.append(t_s)
         positions.append(truth.position)
         velocities.append(truth.velocity)
-        eulers.append(rotations.to_euler(truth.quaternion))
-        if options.rule.done(t_s, truth.position, truth.velocity, trajectory, arrival_s):
+        quaternions.append(truth.quaternion)
+        if t_s >= arrival_s and options.rule.done(t_s, truth.position, truth.velocity, trajectory, arrival_s):
             break
         ref = trajectory.reference(min(t_s, trajectory.duration_s))
-        setpoint, _ = controller.update(sim.odometry_state(), ref, period_s if k else 0.0)
+        setpoint, saturation = controller.update(sim.odometry_state(), ref, period_s if k else 0.0)
+        saturated_ticks += saturation.thrust or saturation.tilt
         sim.set_setpoint(setpoint)
         try:
             sim.advance(period_s)
@@ -72,9 +85,10 @@ def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
             break
     collision = next((e.time_s for e in sim.events if e.kind == 'collision'), None)
     flight = Flight(odom_t=np.array(times), position=np.array(positions), velocity=np.array(velocities),
-                    euler=np.array(eulers), traj_start_s=0.0, trajectory=trajectory, waypoints=plan.waypoints,
+                    euler=rotations.to_euler(np.array(quaternions)), traj_start_s=0.0, trajectory=trajectory, waypoints=plan.waypoints,
                     collision_time_s=collision)
     metrics = compute_metrics(flight, options.rule)
+    metrics['saturated_fraction'] = saturated_ticks / max(len(times) - 1, 1)  # ticks with thrust or tilt clamped
     if stopped:
         metrics['stopped'] = stopped
     return metrics

@@ -50,6 +50,7 @@ class FlightOptions:
     vehicle: Path | None = None
     disturbances: str | None = None
     control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
+    sim_parameters: dict | None = None    # sim_node parameters set last (sweep: seed, a plant-only vehicle file)
     rule: Completion = field(default_factory=Completion)
     time_limit_factor: float = 3.0
     startup_timeout_s: float = 180.0      # wall clock until the first trajectory and odometry
@@ -145,6 +146,7 @@ def node_parameters(options: FlightOptions, mission) -> dict:
         params['sim_node']['vehicle'] = vehicle
     if options.disturbances is not None:
         params['sim_node']['disturbances'] = options.disturbances
+    params['sim_node'].update(options.sim_parameters or {})
     for p in params.values():  # files named in config/ are relative to the repository
         for key in ('vehicle', 'disturbances_file'):
             if p.get(key) and not Path(p[key]).is_absolute():

@@ -120,5 +120,17 @@ def vehicle_from_dict(data: dict, path='vehicle') -> Vehicle:
     return v
 
 
-def load_vehicle(path) -> Vehicle:
-    return vehicle_from_dict(load_yaml(path), str(path))
+def load_vehicle(path, overrides: dict | None = None) -> Vehicle:
+    """The vehicle file, with `overrides` (top-level keys; mappings such as attitude_gains merged one level
+    deep) applied before the checks, so a bad override is named like a bad file entry."""
+    data = load_yaml(path)
+    where = str(path)
+    if overrides:
+        if not isinstance(overrides, dict):
+            raise ValueError(f'{path}: overrides = {overrides!r} must be a mapping of vehicle keys')
+        data = dict(data)
+        for key, value in overrides.items():
+            both_maps = isinstance(value, dict) and isinstance(data.get(key), dict)
+            data[key] = {**data[key], **value} if both_maps else value
+        where = f'{path} with {overrides}'
+    return vehicle_from_dict(data, where)
