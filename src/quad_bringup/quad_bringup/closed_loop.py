@@ -13,9 +13,9 @@ import numpy as np
 
 from quad_bringup.report import Completion, Flight, compute_metrics
 from quad_common import rotations
-from quad_control.position import Limits, PositionController, PositionGains
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
+from quad_control.position import Limits, PositionController, PositionGains
 from quad_sim.disturbances import load_profile, profile_from_dict
 from quad_sim.simulator import SimulationStopped, Simulator
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, plan_mission
@@ -85,8 +85,8 @@ def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
             break
     collision = next((e.time_s for e in sim.events if e.kind == 'collision'), None)
     flight = Flight(odom_t=np.array(times), position=np.array(positions), velocity=np.array(velocities),
-                    euler=rotations.to_euler(np.array(quaternions)), traj_start_s=0.0, trajectory=trajectory, waypoints=plan.waypoints,
-                    collision_time_s=collision)
+                    euler=rotations.to_euler(np.array(quaternions)), traj_start_s=0.0, trajectory=trajectory,
+                    waypoints=plan.waypoints, collision_time_s=collision)
     metrics = compute_metrics(flight, options.rule)
     metrics['saturated_fraction'] = saturated_ticks / max(len(times) - 1, 1)  # ticks with thrust or tilt clamped
     if stopped:

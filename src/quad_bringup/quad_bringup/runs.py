@@ -11,7 +11,6 @@ import functools
 import hashlib
 import importlib.metadata
 import json
-import math
 import platform
 import subprocess
 import tempfile
@@ -92,7 +91,7 @@ def check_gain(name: str, value, where: str):
         raise SpecError(f'{where}: unknown controller key {name!r}; known: {", ".join(GAIN_KEYS)}')
     spec = specs[name]
     kind = bool if isinstance(spec.default, bool) else str if isinstance(spec.default, str) else (int, float)
-    if not isinstance(value, kind) or (kind != bool and isinstance(value, bool)):
+    if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
         raise SpecError(f'{where}: {name} = {value!r} refused: must be a {type(spec.default).__name__}')
     if (reason := check_value(spec, value)) is not None:
         raise SpecError(f'{where}: {reason}')

@@ -4,7 +4,6 @@ import sys
 from pathlib import Path
 
 
-
 def add_arguments(parser):
     parser.add_argument('spec', type=Path, help='sweep spec YAML (missions, controllers, vehicles, disturbances, '
                                                 'seeds; docs/quad_bringup.md "Many flights")')
