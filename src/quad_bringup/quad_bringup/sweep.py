@@ -226,12 +226,17 @@ def draw_figures(out_dir, rows: list[dict]) -> list[Path]:
     fig.savefig(paths[-1], dpi=110)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4))
-    for n in names:
-        ax.scatter([r['wind_speed_mps'] for r in ok[n]], [r['rmse_m'] for r in ok[n]], label=n, s=14, alpha=0.7)
+    span = max([r['wind_speed_mps'] for r in rows] + [1.0])
+    for i, n in enumerate(names):  # side by side at each wind speed; failed runs as crosses
+        dx = (i - (len(names) - 1) / 2) * 0.025 * span
+        for failed, marker in ((False, 'o'), (True, 'x')):
+            mine = [r for r in ok[n] if bool(r['failed']) == failed]
+            ax.scatter([r['wind_speed_mps'] + dx for r in mine], [r['rmse_m'] for r in mine], s=14, alpha=0.7,
+                       marker=marker, color=f'C{i}', label=n if not failed else None)
     ax.set_xlabel('wind speed |wind_mps| (m/s)')
     ax.set_ylabel('RMSE (m)')
     ax.set_yscale('log')
-    ax.set_title('Tracking error vs wind speed')
+    ax.set_title('Tracking error vs wind speed (x: failed runs)')
     ax.grid(True, which='both', alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
