@@ -34,7 +34,8 @@ METRIC_COLUMNS = ('time_planned_s', 'time_actual_s', 'length_planned_m', 'length
                   'max_tilt_deg', 'saturated_fraction', 'completed', 'collided')
 LABEL_COLUMNS = ('key', 'mode', 'mission', 'speed_mps', 'controller_name', 'controller', 'vehicle_name',
                  'disturbance_name', 'wind_speed_mps', 'seed')
-ROW_COLUMNS = LABEL_COLUMNS + METRIC_COLUMNS + ('failed', 'failure', 'wall_s', 'git_commit', 'versions', 'params')
+ROW_COLUMNS = LABEL_COLUMNS + METRIC_COLUMNS + ('failed', 'failure', 'wall_s', 'cpu_s', 'git_commit', 'versions',
+                                                 'params')
 
 
 class SpecError(ValueError):
@@ -319,7 +320,7 @@ def run_one(params: dict, graph_dir: str | None = None) -> dict:
     A run that raises is a failed row naming the error, never a lost one."""
     import numpy as np
 
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     metrics, failure = None, None
     try:
         if params['mode'] == 'graph':
@@ -348,5 +349,6 @@ def run_one(params: dict, graph_dir: str | None = None) -> dict:
         value = metrics.get(column)
         row[column] = float(value) if isinstance(value, (float, np.floating)) else value
     row.update(failed=failure is not None, failure=failure, wall_s=round(time.perf_counter() - start, 4),
+               cpu_s=round(time.process_time() - cpu, 4),  # this process only (graph: not its nodes)
                git_commit=v['git_commit'], versions=v, params=params)
     return row
