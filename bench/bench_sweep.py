@@ -186,8 +186,8 @@ def main():
           'seeds 0..249; wall time from the command to the written table and summary (pool start-up included).\n')
     print(f'#### Tune of the se3 fast profile over the plant family\n\n`quadflight tune '
           f'{TUNE_SPEC.relative_to(ROOT)}`: {tuned["aggregate"]} of the per-run cost (RMSE plus tilt and saturation '
-          f'penalties, 1 m for a failed run) over 2 missions at 2 m/s x 3 plant members (nominal, motor lag 30 ms, '
-          f'a softer onboard attitude loop) x 2 disturbances (none, drag + 1 m/s wind); scipy differential '
+          f'penalties, 1 m for a failed run) over 2 missions at 2 m/s x 4 plant family members (nominal, '
+          f'20 % heavier, hover thrust 6 % low, an ArduPilot-like lagged attitude target) x 2 disturbances (none, drag + 1 m/s wind); scipy differential '
           f'evolution, {tuned["evaluations"]} profiles evaluated ({tuned["runs"]} flights) in '
           f'{tuned["wall_s"]:.0f} s.\n')
     print('| | cost (m) | ' + ' | '.join(name for name, _ in _tuned_keys(tuned)) + ' |')

@@ -15,7 +15,8 @@ from quad_bringup.report import Completion, Flight, compute_metrics
 from quad_common import rotations
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
-from quad_control.position import Limits, PositionController, PositionGains
+from quad_common.yaml_io import load_yaml
+from quad_control.position import Limits, PositionController, PositionGains, gains_from_parameters
 from quad_sim.disturbances import load_profile, profile_from_dict
 from quad_sim.simulator import SimulationStopped, Simulator
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, plan_mission
@@ -32,14 +33,19 @@ class LoopOptions:
     speed_mps: float | None = None              # None: the mission's
     plan_overrides: dict | None = None          # PlanOptions fields (e.g. time_allocation='limits')
     disturbances: str | dict = 'none'           # a profile of config/disturbances.yaml, or one as a mapping
-    vehicle: str | None = None                  # vehicle YAML of controller and plant (None: the mission's)
-    plant: dict | None = None                   # vehicle keys only the simulated plant has (mass, motor lag...):
-    #                                             the controller keeps the nominal vehicle, as with a real airframe
+    plant: str | dict | None = None             # a plant family member (name or overrides) for the simulator only
+    vehicle_path: str | None = None             # None: the mission's vehicle file
     seed: int = 0                               # the simulator's (gusts, odometry noise)
     rate_hz: float = 100.0
     physics_rate_hz: float = 1000.0
     time_limit_factor: float = 3.0
     rule: Completion = Completion()
+
+
+def load_control_profile(path) -> tuple[str, PositionGains]:
+    """(controller, gains) of a position_controller params file (config/control*.yaml) over the seed's."""
+    values = (load_yaml(resolve_config(path)) or {}).get('position_controller', {}).get('ros__parameters', {})
+    return values.get('controller', 'pd'), gains_from_parameters(values)
 
 
 def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
@@ -51,12 +57,13 @@ def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
     profile = (profile_from_dict({k: v for k, v in options.disturbances.items() if k != 'name'},
                                  options.disturbances.get('name', 'inline'))
                if isinstance(options.disturbances, dict) else load_profile(DISTURBANCES_FILE, options.disturbances))
-    vehicle_path = resolve_config(options.vehicle) if options.vehicle else mission.vehicle_path
-    vehicle = load_vehicle(vehicle_path) if options.vehicle else mission.vehicle
-    plant = load_vehicle(vehicle_path or DEFAULT_VEHICLE_PATH, options.plant) if options.plant else vehicle
-    sim = Simulator(plant, options.physics_rate_hz, seed=options.seed, initial_position=mission.initial_position,
+    vehicle = load_vehicle(resolve_config(options.vehicle_path)) if options.vehicle_path else mission.vehicle
+    plant_vehicle = load_vehicle(resolve_config(options.vehicle_path) if options.vehicle_path else
+                                 mission.vehicle_path or DEFAULT_VEHICLE_PATH, plant=options.plant) \
+        if options.plant else vehicle
+    sim = Simulator(plant_vehicle, options.physics_rate_hz, initial_position=mission.initial_position,
                     initial_yaw=float(trajectory.position[0, 3]), disturbances=profile, world=mission.world,
-                    robot_radius_m=mission.options.robot_radius_m)
+                    robot_radius_m=mission.options.robot_radius_m, seed=options.seed)
     controller = PositionController(options.controller, options.gains or PositionGains(), vehicle,
                                     Limits.of(vehicle))
     period_s = 1.0 / options.rate_hz

@@ -48,6 +48,7 @@ class FlightOptions:
     time_allocation: str | None = None    # overrides the mission's trajectory.time_allocation (e.g. limits)
     out: Path | None = None
     vehicle: Path | None = None
+    plant: str | None = None              # a plant family member for the simulated vehicle (config/plant_family.yaml)
     disturbances: str | None = None
     control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
     sim_parameters: dict | None = None    # sim_node parameters set last (sweep: seed, a plant-only vehicle file)
@@ -88,6 +89,14 @@ def validate(options: FlightOptions):
     for name, value in (('--vehicle', options.vehicle), ('--control-profile', options.control_profile)):
         if value is not None and not Path(value).is_file():
             raise MissionRefused(f'{name} {value}: no such file')
+    if options.plant:
+        from quad_common.vehicle import load_plant_family
+        try:
+            family = load_plant_family()
+        except (ValueError, OSError) as exc:
+            raise MissionRefused(f'--plant {options.plant!r} refused: {exc}') from None
+        if options.plant not in family:
+            raise MissionRefused(f'--plant {options.plant!r} refused: must be one of {", ".join(family)}')
     try:
         mission = mission_module.load_mission(path)
         mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
@@ -146,6 +155,8 @@ def node_parameters(options: FlightOptions, mission) -> dict:
         params['sim_node']['vehicle'] = vehicle
     if options.disturbances is not None:
         params['sim_node']['disturbances'] = options.disturbances
+    if options.plant:
+        params['sim_node']['plant'] = options.plant
     params['sim_node'].update(options.sim_parameters or {})
     for p in params.values():  # files named in config/ are relative to the repository
         for key in ('vehicle', 'disturbances_file'):

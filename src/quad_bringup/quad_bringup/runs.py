@@ -127,29 +127,34 @@ def controller_entry(entry, where: str) -> tuple[str, dict]:
 
 
 def vehicle_entry(entry, where: str) -> tuple[str, str | None, dict]:
-    """(name, nominal vehicle file or None for the mission's, plant-only overrides) of a vehicle entry."""
-    from quad_common.vehicle import load_vehicle
+    """(name, nominal vehicle file or None for the mission's, plant overrides) of a vehicle entry: a plant family
+    member's name (config/plant_family.yaml), a vehicle file, or {name, file, plant: MEMBER | {fields}}. The
+    overrides are stored resolved, so a run's key changes when its member is edited."""
+    from quad_common.vehicle import load_plant_family, load_vehicle, plant_overrides
     from quad_trajectory.mission import DEFAULT_VEHICLE_PATH
 
-    if entry is None or isinstance(entry, str):
-        entry = {'file': entry} if entry else {}
+    if isinstance(entry, str):
+        entry = {'name': entry, 'plant': entry} if entry in load_plant_family() else {'file': entry}
+    if entry is None:
+        entry = {}
     if not isinstance(entry, dict):
-        raise SpecError(f'{where} = {entry!r} must be a vehicle file or a mapping (name, file, plant)')
+        raise SpecError(f'{where} = {entry!r} must be a plant family member, a vehicle file or a mapping '
+                        '(name, file, plant)')
     unknown = set(entry) - {'name', 'file', 'plant'}
     if unknown:
         raise SpecError(f'{where}: unknown key(s) {sorted(unknown)}; known: name, file, plant')
     file = repo_relative(entry['file']) if entry.get('file') else None
     plant = entry.get('plant') or {}
-    if not isinstance(plant, dict):
-        raise SpecError(f'{where}.plant = {plant!r} must be a mapping of vehicle keys (mass_kg, '
-                        'motor_time_constant_s, ...)')
+    if not isinstance(plant, (str, dict)):
+        raise SpecError(f'{where}.plant = {plant!r} must be a plant family member or a mapping of plant fields')
     try:
-        load_vehicle(resolve_config(file or DEFAULT_VEHICLE_PATH), plant)
+        overrides = plant_overrides(plant)
+        load_vehicle(resolve_config(file or DEFAULT_VEHICLE_PATH), plant=overrides)
     except ValueError as exc:
         raise SpecError(f'{where}.plant: {exc}') from None
-    name = entry.get('name') or (Path(file).stem if file else 'mission') + (
-        ''.join(f' {k}={v}' for k, v in plant.items()))
-    return str(name), file, plant
+    default = plant if isinstance(plant, str) else (Path(file).stem if file else 'mission') + ''.join(
+        f' {k}={v}' for k, v in plant.items())
+    return str(entry.get('name') or default), file, dict(overrides)
 
 
 def disturbance_entry(entry, where: str) -> tuple[str, dict]:
@@ -275,7 +280,7 @@ def loop_options_of(params: dict):
                        plan_overrides=plan, disturbances=params['disturbances'], rate_hz=o['rate_hz'],
                        physics_rate_hz=o['physics_rate_hz'], time_limit_factor=o['time_limit_factor'],
                        rule=Completion(o['position_tolerance_m'], o['speed_tolerance_mps']),
-                       vehicle=params['vehicle'], plant=params['plant'] or None, seed=params['seed'])
+                       vehicle_path=params['vehicle'], plant=params['plant'] or None, seed=params['seed'])
 
 
 def _fly_graph(params: dict, out_dir: Path) -> tuple[dict | None, str | None]:
@@ -294,12 +299,9 @@ def _fly_graph(params: dict, out_dir: Path) -> tuple[dict | None, str | None]:
     sim = {'seed': params['seed'], 'disturbances_file': str(disturbances.resolve()),
            'physics_rate_hz': params['options']['physics_rate_hz']}
     nominal = params['vehicle'] or load_mission(resolve_config(params['mission'])).vehicle_path or DEFAULT_VEHICLE_PATH
-    if params['plant']:
-        load_vehicle(resolve_config(nominal), params['plant'])  # checked before anything starts
-        data = load_yaml(resolve_config(nominal))
-        for key, value in params['plant'].items():
-            data[key] = {**data[key], **value} if isinstance(value, dict) and isinstance(data.get(key), dict) \
-                else value
+    if params['plant']:  # the plant-only fields into the simulator's vehicle file; the controller keeps nominal
+        load_vehicle(resolve_config(nominal), plant=params['plant'])  # checked before anything starts
+        data = {**load_yaml(resolve_config(nominal)), **params['plant']}
         plant = out_dir / 'plant_vehicle.yaml'
         plant.write_text(yaml.safe_dump(data))
         sim['vehicle'] = str(plant.resolve())

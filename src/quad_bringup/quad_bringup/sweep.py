@@ -39,6 +39,10 @@ def expand(spec: dict, mode: str = 'offline', where: str = 'spec') -> list[dict]
     unknown = set(spec) - set(SPEC_KEYS)
     if unknown:
         raise SpecError(f'{where}: unknown key(s) {sorted(unknown)}; known: {", ".join(SPEC_KEYS)}')
+    if spec.get('vehicles') == 'plant_family':  # every member of config/plant_family.yaml
+        from quad_common.vehicle import load_plant_family
+
+        spec = {**spec, 'vehicles': list(load_plant_family())}
     axes = [runs.entries(spec, 'missions', runs.mission_entry, None),
             runs.entries(spec, 'controllers', runs.controller_entry, ['pd']),
             runs.entries(spec, 'vehicles', runs.vehicle_entry, [None]),

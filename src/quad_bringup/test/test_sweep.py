@@ -55,7 +55,9 @@ def test_grid_is_the_product_of_the_axes_and_random_samples_it_reproducibly():
     ({'controllers': [{'controller': 'se3', 'gains': {'kp_x': -1.0}}]}, 'kp_x = -1.0 refused'),
     ({'controllers': [{'controller': 'lqr'}]}, "controller = 'lqr' refused"),
     ({'controllers': [{'gains': {'kp_w': 1.0}}]}, "unknown controller key 'kp_w'"),
-    ({'vehicles': [{'plant': {'mass_kg': -0.03}}]}, 'mass_kg = -0.03'),
+    ({'vehicles': [{'plant': {'motor_time_constant_s': -0.03}}]}, 'motor_time_constant_s = -0.03'),
+    ({'vehicles': [{'plant': {'mass_kg': 0.03}}]}, "plant sets \\['mass_kg'\\]"),
+    ({'vehicles': ['no_such_member']}, 'no_such_member'),
     ({'disturbances': [{'base': 'hurricane'}]}, "base = 'hurricane'"),
     ({'disturbances': [{'name': 'w', 'wind_mps': [1.0, 0.0]}]}, 'wind_mps'),
     ({'missions': ['config/missions/nowhere.yaml']}, 'nowhere.yaml'),
@@ -73,7 +75,7 @@ def test_the_key_covers_every_parameter():
     params = sweep.expand(SPEC)[0]
     key = runs.run_key(params)
     assert runs.run_key(json.loads(json.dumps(params))) == key  # survives the table's JSON
-    for change in ({'seed': 7}, {'speed_mps': 1.0}, {'plant': {'mass_kg': 0.031}}, {'mode': 'graph'},
+    for change in ({'seed': 7}, {'speed_mps': 1.0}, {'plant': {'mass_error': 0.1}}, {'mode': 'graph'},
                    {'gains': {**params['gains'], 'kd_z': 11.0}}, {'options': {**params['options'], 'rate_hz': 200}},
                    {'mission_sha': '0' * 16}):
         assert runs.run_key({**params, **change}) != key, change
@@ -115,6 +117,20 @@ def test_plant_overrides_change_the_plant():
     lagged = runs.run_one({**base, 'plant': {'motor_time_constant_s': 0.05}})  # 15 ms nominal
     assert not lagged['failed'] and lagged['rmse_m'] > nominal['rmse_m'] * 1.02
     assert runs.run_one({**base, 'plant': {}})['rmse_m'] == nominal['rmse_m']
+    heavy = runs.run_one({**base, 'plant': {'mass_error': 0.2}})  # the controller still believes the file's mass
+    assert heavy['rmse_m'] > nominal['rmse_m'] * 1.5
+
+
+def test_the_plant_family_by_name():
+    grid = sweep.expand({**SPEC, 'vehicles': 'plant_family', 'controllers': ['pd'], 'disturbances': ['none'],
+                         'seeds': 1})
+    names = [p['vehicle_name'] for p in grid]
+    assert 'nominal' in names and 'heavy_20pct' in names and len(names) >= 5
+    heavy = next(p for p in grid if p['vehicle_name'] == 'heavy_20pct')
+    assert heavy['plant'] == {'mass_error': 0.2}
+    (member,) = sweep.expand({**SPEC, 'vehicles': ['autopilot_so3'], 'controllers': ['pd'],
+                              'disturbances': ['none'], 'seeds': 1})
+    assert member['plant']['attitude_loop']['type'] == 'so3_pd'
 
 
 def test_failed_and_raising_runs_are_rows_not_losses():

@@ -25,7 +25,7 @@ from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.types import Reference
 from quad_common.vehicle import load_vehicle
-from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains
+from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains, gains_from_parameters
 
 NODE_NAME = 'position_controller'
 AXES = ('x', 'y', 'z')
@@ -61,14 +61,7 @@ SPECS = [
 ]
 
 
-def gains_from(values: dict) -> PositionGains:
-    return PositionGains(kp=np.array([values[f'kp_{a}'] for a in AXES], dtype=float),
-                         kd=np.array([values[f'kd_{a}'] for a in AXES], dtype=float),
-                         ki=np.array([values[f'ki_{a}'] for a in AXES], dtype=float),
-                         integral_limit_mps2=float(values['integral_limit_mps2']),
-                         use_feedforward=bool(values['use_feedforward']),
-                         attitude_lead_s=float(values['attitude_lead_s']),
-                         disturbance_time_constant_s=float(values['disturbance_time_constant_s']))
+gains_from = gains_from_parameters
 
 
 def _stamp_ns(stamp) -> int:

@@ -44,6 +44,8 @@ STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first ste
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
+    Param('plant', '', 'plant family member (config/plant_family.yaml) applied to the vehicle; empty: none',
+          read_only=True),
     Param('initial_position', [0.0, 0.0, 0.0], 'start position, map frame (m); hovering unless on the floor',
           length=3, read_only=True),
     Param('initial_yaw', 0.0, 'start yaw (rad)', min=-math.pi, max=math.pi, read_only=True),
@@ -84,7 +86,7 @@ class SimNode(Node):
         super().__init__(NAME, **kwargs)
         self.params = ParameterSet(self, SPECS)
         p = self.params
-        vehicle = load_vehicle(self._config(p['vehicle'], 'vehicle'))
+        vehicle = load_vehicle(self._config(p['vehicle'], 'vehicle'), plant=p['plant'] or None)
         world = load_world(self._config(p['world'], 'world')) if p['world'] else None
         profile = load_profile(self._config(p['disturbances_file'], 'disturbances_file'), p['disturbances'])
         self.sim = Simulator(vehicle, physics_rate_hz=p['physics_rate_hz'], initial_position=p['initial_position'],

@@ -28,10 +28,12 @@ def damping_ratio(poles) -> float:
 
 
 def attitude_damping(vehicle) -> float:
-    """The worst damping ratio over the vehicle's three attitude axes."""
-    g = vehicle.attitude_gains
+    """The worst damping ratio over the vehicle's three attitude axes, for its own onboard loop (eq. 6, the SO(3)
+    cascade as kp = angle_p rate_p, kd = rate_p, or the lag loop's inner eq. 6; the lag's filter is a stable
+    first-order pole in series) and its own motor lag."""
+    kps, kds = vehicle.effective_attitude_gains()
     return min(damping_ratio(attitude_loop_poles(kp, kd, vehicle.motor_time_constant_s))
-               for kp, kd in zip(g.kp, g.kd))
+               for kp, kd in zip(kps, kds))
 
 
 def largest_time_constant(kp: float, kd: float, min_damping: float = MIN_DAMPING_RATIO) -> float:
