@@ -187,7 +187,8 @@ def main():
     print(f'#### Tune of the se3 fast profile over the plant family\n\n`quadflight tune '
           f'{TUNE_SPEC.relative_to(ROOT)}`: {tuned["aggregate"]} of the per-run cost (RMSE plus tilt and saturation '
           f'penalties, 1 m for a failed run) over 2 missions at 2 m/s x 4 plant family members (nominal, '
-          f'20 % heavier, hover thrust 6 % low, an ArduPilot-like lagged attitude target) x 2 disturbances (none, drag + 1 m/s wind); scipy differential '
+          f'20 % heavier, hover thrust 6 % low, an ArduPilot-like lagged attitude target) x drag with 1 m/s wind; '
+          f'scipy differential '
           f'evolution, {tuned["evaluations"]} profiles evaluated ({tuned["runs"]} flights) in '
           f'{tuned["wall_s"]:.0f} s.\n')
     print('| | cost (m) | ' + ' | '.join(name for name, _ in _tuned_keys(tuned)) + ' |')
@@ -196,8 +197,8 @@ def main():
                                ('tuned', tuned['best_gains'], tuned['cost_after_m'])):
         print(f'| {label} | {cost:.4f} | ' + ' | '.join(fmt(gains[k], '.3g') for _, k in _tuned_keys(tuned)) + ' |')
     if tuned.get('verify'):
-        print('\nThe tuned profile through the ROS graph (`fly`, nominal vehicle, no disturbance) beside the offline '
-              'loop:\n')
+        print('\nThe tuned profile through the ROS graph (`fly`; the spec\'s first plant member and disturbance: '
+              'nominal, drag with 1 m/s wind) beside the offline loop:\n')
         print('| mission | RMSE offline (m) | RMSE graph (m) | graph |\n|---|---:|---:|---|')
         for r in tuned['verify']:
             print(f'| {r["mission"]} | {fmt(r["offline_rmse_m"], ".4f")} | {fmt(r["graph_rmse_m"], ".4f")} | '
