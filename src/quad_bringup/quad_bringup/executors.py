@@ -20,8 +20,13 @@ class LocalExecutor:
     """concurrent.futures.ProcessPoolExecutor with one worker per core (or `workers`)."""
 
     def __init__(self, workers: int | None = None):
+        import multiprocessing
+
         self.workers = workers or os.cpu_count() or 1
-        self._pool = concurrent.futures.ProcessPoolExecutor(self.workers, initializer=_ignore_sigint)
+        # forkserver, not fork: a parent that has run rclpy (Fast DDS threads) would hand its children a
+        # half-copied middleware, and a `--graph` run in such a child hangs at its first ROS call
+        self._pool = concurrent.futures.ProcessPoolExecutor(self.workers, initializer=_ignore_sigint,
+                                                            mp_context=multiprocessing.get_context('forkserver'))
         self.description = f'local process pool, {self.workers} workers'
 
     def map_unordered(self, fn: Callable, items: Iterable, *args) -> Iterator:

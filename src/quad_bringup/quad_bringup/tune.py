@@ -104,8 +104,8 @@ class Tuning:
     def gains_of(self, x) -> dict:
         gains = dict(self.base)
         for (_, keys, _, _), value in zip(self.parameters, x):
-            for key in keys:
-                gains[key] = float(value)
+            for key in keys:  # 12 digits: the optimiser's unscaling (0.05 -> 0.049999999999999996) keeps one key
+                gains[key] = float(f'{float(value):.12g}')
         return gains
 
     def x0(self) -> np.ndarray:
