@@ -14,6 +14,7 @@ import numpy as np
 from quad_bringup.report import Completion, Flight, compute_metrics
 from quad_common import rotations
 from quad_common.paths import resolve_config
+from quad_common.types import Reference
 from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 from quad_control.position import Limits, PositionController, PositionGains, gains_from_parameters
@@ -35,11 +36,103 @@ class LoopOptions:
     disturbances: str | dict = 'none'           # a profile of config/disturbances.yaml, or one as a mapping
     plant: str | dict | None = None             # a plant family member (name or overrides) for the simulator only
     vehicle_path: str | None = None             # None: the mission's vehicle file
+    bag_dir: Path | None = None                 # also write odom and cmd/attitude_thrust as a rosbag2 bag here
+    odom_latency_s: float = 0.0                 # the controller sees the state this much old (telemetry delay)
     seed: int = 0                               # the simulator's (gusts, odometry noise)
     rate_hz: float = 100.0
     physics_rate_hz: float = 1000.0
     time_limit_factor: float = 3.0
     rule: Completion = Completion()
+
+
+class _Delay:
+    """The state as seen latency_s (a whole number of periods) late; the first one until then."""
+
+    def __init__(self, latency_s, period_s):
+        self.steps = int(round(latency_s / period_s))
+        self.queue = []
+
+    def __call__(self, state):
+        self.queue.append(state)
+        if len(self.queue) > self.steps + 1:
+            self.queue.pop(0)
+        return self.queue[0]
+
+
+class FlightBag:
+    """odom (nav_msgs/Odometry, body-frame twist) and cmd/attitude_thrust (sensor_msgs/Imu as a setpoint) as
+    the graph records them, written with rosbags (quad_bringup.recorder.BagRecorder): a real rosbag2 bag."""
+
+    def __init__(self, path):
+        from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, typestore
+        self.ts = typestore()
+        self.writer = BagRecorder(path)
+        for topic in ('odom', 'cmd/attitude_thrust'):
+            self.writer.add_topic(topic, DEFAULT_TOPICS[topic])
+
+    def _header(self, t_s, frame):
+        T = self.ts.types
+        ns = int(round(t_s * 1e9))
+        return T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9),
+                                        frame_id=frame)
+
+    def write(self, t_s, state, setpoint):
+        T = self.ts.types
+        vec = T['geometry_msgs/msg/Vector3']
+        quat = T['geometry_msgs/msg/Quaternion']
+        q = state.quaternion
+        v_body = rotations.to_matrix(q).T @ state.velocity
+        odom = T['nav_msgs/msg/Odometry'](
+            header=self._header(t_s, 'map'), child_frame_id='base_link',
+            pose=T['geometry_msgs/msg/PoseWithCovariance'](
+                pose=T['geometry_msgs/msg/Pose'](position=T['geometry_msgs/msg/Point'](*map(float, state.position)),
+                                                 orientation=quat(*map(float, q))), covariance=np.zeros(36)),
+            twist=T['geometry_msgs/msg/TwistWithCovariance'](
+                twist=T['geometry_msgs/msg/Twist'](linear=vec(*map(float, v_body)),
+                                                   angular=vec(*map(float, state.body_rates))),
+                covariance=np.zeros(36)))
+        rates = setpoint.body_rates if setpoint.body_rates is not None else np.zeros(3)
+        rates_cov = np.zeros(9)
+        if setpoint.body_rates is None:
+            rates_cov[0] = -1.0
+        imu = T['sensor_msgs/msg/Imu'](
+            header=self._header(t_s, 'base_link'), orientation=quat(*map(float, setpoint.quaternion)),
+            orientation_covariance=np.zeros(9), angular_velocity=vec(*map(float, rates)),
+            angular_velocity_covariance=rates_cov,
+            linear_acceleration=vec(0.0, 0.0, float(setpoint.specific_force_mps2)),
+            linear_acceleration_covariance=np.zeros(9))
+        ns = int(round(t_s * 1e9))
+        self.writer.write('odom', ns, self.ts.serialize_cdr(odom, 'nav_msgs/msg/Odometry'))
+        self.writer.write('cmd/attitude_thrust', ns, self.ts.serialize_cdr(imu, 'sensor_msgs/msg/Imu'))
+
+    def close(self):
+        self.writer.close()
+
+
+def hold_offline(vehicle_path, controller: str, gains: PositionGains, plant=None, start_offset_m=(0.5, 0.0, 0.0),
+                 duration_s: float = 20.0, odom_latency_s: float = 0.0, rate_hz: float = 100.0) -> dict:
+    """Hold a point from a start offset: the position loop against the vehicle's (plant's) attitude response
+    and a telemetry delay. Returns the final offset (mean over the last quarter, m), the largest tilt over the
+    last quarter (deg: a sustained oscillation keeps it large) and over the whole hold."""
+    nominal = load_vehicle(vehicle_path)
+    vehicle = load_vehicle(vehicle_path, plant=plant) if plant else nominal
+    target = np.array([0.0, 0.0, 2.0])
+    sim = Simulator(vehicle, initial_position=target + np.asarray(start_offset_m, dtype=float))
+    control = PositionController(controller, gains, nominal, Limits.of(nominal))
+    ref = Reference(position=target, velocity=np.zeros(3), acceleration=np.zeros(3), jerk=np.zeros(3), yaw=0.0,
+                    yaw_rate=0.0)
+    delayed, period_s = _Delay(odom_latency_s, 1.0 / rate_hz), 1.0 / rate_hz
+    positions, tilts = [], []
+    for k in range(int(round(duration_s * rate_hz))):
+        setpoint, _ = control.update(delayed(sim.odometry_state()), ref, period_s if k else 0.0)
+        sim.set_setpoint(setpoint)
+        sim.advance(period_s)
+        positions.append(sim.state.position)
+        roll, pitch, _ = rotations.to_euler(sim.state.quaternion)
+        tilts.append(np.degrees(np.hypot(roll, pitch)))
+    last = len(positions) * 3 // 4
+    return {'offset_m': float(np.linalg.norm(np.mean(positions[last:], axis=0) - target)),
+            'late_tilt_deg': float(np.max(tilts[last:])), 'peak_tilt_deg': float(np.max(tilts))}
 
 
 def load_control_profile(path) -> tuple[str, PositionGains]:
@@ -70,8 +163,11 @@ def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
     arrival_s = options.rule.plan_arrival_s(trajectory)
     end_s = options.time_limit_factor * trajectory.duration_s + 10.0
     times, positions, velocities, quaternions = [], [], [], []
+    max_yaw_rate = 0.0
     stopped = None
     saturated_ticks = 0
+    bag = FlightBag(options.bag_dir) if options.bag_dir else None
+    delayed = _Delay(options.odom_latency_s, period_s)
     for k in range(int(end_s * options.rate_hz) + 1):
         t_s = k * period_s
         truth = sim.state
@@ -79,22 +175,30 @@ def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:
         positions.append(truth.position)
         velocities.append(truth.velocity)
         quaternions.append(truth.quaternion)
+        max_yaw_rate = max(max_yaw_rate, abs(float(truth.body_rates[2])))
         if t_s >= arrival_s and options.rule.done(t_s, truth.position, truth.velocity, trajectory, arrival_s):
             break
         ref = trajectory.reference(min(t_s, trajectory.duration_s))
-        setpoint, saturation = controller.update(sim.odometry_state(), ref, period_s if k else 0.0)
+        seen = delayed(sim.odometry_state())
+        setpoint, saturation = controller.update(seen, ref, period_s if k else 0.0)
         saturated_ticks += saturation.thrust or saturation.tilt
         sim.set_setpoint(setpoint)
+        if bag:
+            bag.write(t_s, seen, setpoint)
         try:
             sim.advance(period_s)
         except SimulationStopped as exc:
             stopped = str(exc)
             break
+    if bag:
+        bag.close()
     collision = next((e.time_s for e in sim.events if e.kind == 'collision'), None)
     flight = Flight(odom_t=np.array(times), position=np.array(positions), velocity=np.array(velocities),
                     euler=rotations.to_euler(np.array(quaternions)), traj_start_s=0.0, trajectory=trajectory,
                     waypoints=plan.waypoints, collision_time_s=collision)
     metrics = compute_metrics(flight, options.rule)
+    metrics['max_yaw_rate_radps'] = max_yaw_rate
+    metrics['saturated_s'] = sim.saturated_steps * sim.step_s  # physics steps the mixer reduced an axis in
     metrics['saturated_fraction'] = saturated_ticks / max(len(times) - 1, 1)  # ticks with thrust or tilt clamped
     if stopped:
         metrics['stopped'] = stopped

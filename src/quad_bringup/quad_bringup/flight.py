@@ -109,9 +109,15 @@ def plan_overrides(options: FlightOptions) -> dict:
     return {} if options.time_allocation is None else {'time_allocation': options.time_allocation}
 
 
+DEFAULT_PROFILES = {'se3': 'config/control_se3.yaml'}  # a controller flown without --control-profile gets this
+
+
 def with_profile_controller(options: FlightOptions) -> FlightOptions:
-    """--controller if given, else the control profile's `controller`, else pd."""
+    """--controller if given, else the control profile's `controller`, else pd; a controller named without a
+    profile flies its default profile (se3: the robust config/control_se3.yaml; pd and pid: the seed's gains)."""
     if options.controller is not None:
+        if options.control_profile is None and options.controller in DEFAULT_PROFILES:
+            return dataclasses.replace(options, control_profile=resolve_config(DEFAULT_PROFILES[options.controller]))
         return options
     controller = 'pd'
     if options.control_profile is not None and Path(options.control_profile).is_file():

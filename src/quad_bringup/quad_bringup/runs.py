@@ -25,13 +25,13 @@ from quad_common.yaml_io import load_yaml
 MODES = ('offline', 'graph')
 # controller profile keys a run carries (position_controller parameters that shape the control law)
 GAIN_KEYS = ('controller', *(f'{g}_{a}' for g in ('kp', 'kd', 'ki') for a in 'xyz'), 'integral_limit_mps2',
-             'use_feedforward', 'attitude_lead_s', 'disturbance_time_constant_s')
+             'use_feedforward', 'attitude_lead_s', 'disturbance_time_constant_s', 'thrust_scale')
 LOOP_DEFAULTS = {'rate_hz': 100.0, 'physics_rate_hz': 1000.0, 'time_limit_factor': 3.0,
                  'position_tolerance_m': 0.02, 'speed_tolerance_mps': 0.03}
 # the seed's Table 1/2 columns, the errors, and what a failure needs explained
 METRIC_COLUMNS = ('time_planned_s', 'time_actual_s', 'length_planned_m', 'length_actual_m', 'avg_velocity_mps',
                   'rmse_m', 'max_error_m', 'waypoint_miss_max_m', 'final_error_m', 'time_over_s', 'max_speed_mps',
-                  'max_tilt_deg', 'saturated_fraction', 'completed', 'collided')
+                  'max_tilt_deg', 'saturated_fraction', 'saturated_s', 'max_yaw_rate_radps', 'completed', 'collided')
 LABEL_COLUMNS = ('key', 'mode', 'mission', 'speed_mps', 'controller_name', 'controller', 'vehicle_name',
                  'disturbance_name', 'wind_speed_mps', 'seed')
 ROW_COLUMNS = LABEL_COLUMNS + METRIC_COLUMNS + ('failed', 'failure', 'wall_s', 'cpu_s', 'git_commit', 'versions',
@@ -271,10 +271,10 @@ def versions() -> dict:
 def loop_options_of(params: dict):
     from quad_bringup.closed_loop import LoopOptions
     from quad_bringup.report import Completion
-    from quad_control.position_controller_node import gains_from
+    from quad_control.position import gains_from_parameters
 
     o = params['options']
-    gains = gains_from(params['gains'])
+    gains = gains_from_parameters(params['gains'])
     plan = {'time_allocation': params['time_allocation']} if params.get('time_allocation') else None
     return LoopOptions(controller=params['gains']['controller'], gains=gains, speed_mps=params['speed_mps'],
                        plan_overrides=plan, disturbances=params['disturbances'], rate_hz=o['rate_hz'],

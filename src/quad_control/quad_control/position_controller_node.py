@@ -56,6 +56,8 @@ SPECS = [
     Param('use_feedforward', True, 'reference acceleration in eq. 1 and jerk-based body rates in se3'),
     Param('attitude_lead_s', SEED.attitude_lead_s, 'attitude from a_des + lead * reference jerk, cancelling the '
           'onboard attitude loop lag (about kd/kp of eq. 6 = 0.1 s); 0 = off (the seed)', min=0.0, max=1.0),
+    Param('thrust_scale', SEED.thrust_scale, 'delivered / commanded specific force of the vehicle (quadflight '
+          'identify); the thrust command is divided by it; 1 = the seed', min=0.5, max=2.0),
     Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '
           'external acceleration (drag, wind) subtracted from a_des; 0 = off (the seed)', min=0.0, max=10.0),
 ]

@@ -36,6 +36,19 @@ def attitude_damping(vehicle) -> float:
                for kp, kd in zip(kps, kds))
 
 
+def attitude_lag_s(vehicle, axis: int = 0) -> float:
+    """Mean delay -G'(0) / G(0) of the onboard loop's attitude response G to an attitude setpoint without
+    roll/pitch rate feed-forward: what a first-order-plus-dead-time fit calls tau + dead time.
+    eq6: G = kp / (tau_m s^3 + s^2 + kd s + kp), mean delay kd / kp (the motor lag adds none);
+    so3_pd: the same with kp = angle_p rate_p, kd = rate_p: 1 / angle_p;
+    lag: the target's first order (time_constant_s), tracked with its own rate fed forward (no further delay)."""
+    loop = vehicle.attitude_loop
+    if loop.type == 'lag':
+        return float(loop.time_constant_s)
+    kp, kd = vehicle.effective_attitude_gains()
+    return float(kd[axis] / kp[axis])
+
+
 def largest_time_constant(kp: float, kd: float, min_damping: float = MIN_DAMPING_RATIO) -> float:
     """The largest tau_m (s) keeping the attitude loop's damping ratio >= min_damping (bisection)."""
     lo, hi = 0.0, kd / kp  # at kd / kp the loop is marginally stable
