@@ -56,7 +56,8 @@ def run_case(mission, controller, speed, disturbances, profile, out_root):
     start = time.monotonic()
     result = fly(FlightOptions(mission=mission, controller=controller, speed_mps=speed, out=out,
                                disturbances=disturbances, control_profile=profile, time_allocation=allocation,
-                               quiet=True), log=lambda line: None)
+                               quiet=True, fly_anyway=True),  # measure what an infeasible plan does too
+                 log=lambda line: None)
     wall_s = time.monotonic() - start
     m = result.metrics or {}
     return {'mission': mission.stem, 'controller': label, 'speed': speed, 'disturbances': disturbances or 'none',

@@ -11,7 +11,7 @@ import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
-from quad_bringup.report import metrics_table, write_report
+from quad_bringup.report import Completion, metrics_table, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 QUADFLIGHT = str(ROOT / 'quadflight')
@@ -54,7 +54,9 @@ def test_fly_short_mission_end_to_end(tmp_path, ros_env):
     assert metrics_table(metrics) in done.stdout
     # the report of the bag, computed again, equals what fly wrote and printed
     again = write_report(run_dir / 'bag', tmp_path / 'again', {k: metrics[k] for k in
-                                                                 ('mission', 'controller', 'speed_mps', 'outcome')})
+                                                                 ('mission', 'controller', 'speed_mps', 'outcome')},
+                         Completion(**metrics['completion_rule']))   # the vehicle's rule, as fly used it
+    assert metrics['completion_rule']['source'] == 'vehicle crazyflie'
     assert again == metrics
     # the bag, read with rosbags alone
     ts = get_typestore(Stores.ROS2_JAZZY)

@@ -52,12 +52,14 @@ class FlightOptions:
     disturbances: str | None = None
     control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
     sim_parameters: dict | None = None    # sim_node parameters set last (sweep: seed, a plant-only vehicle file)
-    rule: Completion = field(default_factory=Completion)
+    rule: Completion | None = None        # None: the vehicle's completion rule (its YAML), with `completion` over it
+    completion: dict = field(default_factory=dict)   # Completion field -> value given on the command line
     time_limit_factor: float = 3.0
     startup_timeout_s: float = 180.0      # wall clock until the first trajectory and odometry
     stall_timeout_s: float = 60.0         # wall clock without new odometry
     divergence_m: float = 1.0
     quiet: bool = False
+    fly_anyway: bool = False              # fly a plan that fails the vehicle's feasibility check
 
 
 @dataclass
@@ -103,6 +105,38 @@ def validate(options: FlightOptions):
     except (ValueError, KeyError, TypeError, OSError) as exc:
         raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
     return mission
+
+
+def flight_vehicle(options: FlightOptions, mission):
+    """The vehicle the controller flies: --vehicle, else the mission's."""
+    from quad_common.vehicle import load_vehicle
+
+    return load_vehicle(options.vehicle) if options.vehicle is not None else mission.vehicle
+
+
+def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptions:
+    """What the vehicle decides before anything starts: the completion rule (its YAML's `completion:` under the
+    command line's values, unless a rule was given) and the plan's feasibility (quad_trajectory.feasibility),
+    logged; an infeasible plan is refused (MissionRefused) unless fly_anyway, or replaced by the limits
+    allocation when that fits and the mission asks for it (trajectory.if_infeasible: limits)."""
+    from quad_trajectory.feasibility import preflight
+    from quad_trajectory.mission import plan_mission
+
+    vehicle = flight_vehicle(options, mission)
+    if options.rule is None:
+        options = dataclasses.replace(options, rule=Completion.for_vehicle(vehicle, **options.completion))
+    if vehicle is None:
+        return options
+    report = preflight(mission, plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options)),
+                       vehicle, options.speed_mps)
+    for line in report.lines():
+        log(line)
+    if report.ok or options.fly_anyway:
+        return options
+    if report.fits is not None and mission.if_infeasible == report.fits:
+        log(f'flying time_allocation {report.fits}, as the mission asks (trajectory.if_infeasible)')
+        return dataclasses.replace(options, time_allocation=report.fits)
+    raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above); --fly-anyway flies it all the same')
 
 
 def plan_overrides(options: FlightOptions) -> dict:
@@ -200,6 +234,7 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
     try:
         options = with_profile_controller(options)
         mission = validate(options)
+        options = preflight_options(options, mission, log)
     except (MissionRefused, ValueError) as exc:
         return FlightResult(EXIT_REFUSED, str(exc))
     run_dir = Path(options.out) if options.out else default_run_dir(mission.name, options.controller)

@@ -9,7 +9,11 @@ Times are message header stamps (simulated time in lockstep). Definitions (docs/
 - time_actual_s: from the trajectory start (its header.stamp) until completion, i.e. the first
   odometry at which |p - p_final| <= position_tolerance_m and |v| <= speed_tolerance_mps, searched
   from the moment the plan itself stays inside that ball (a flight cannot finish before its plan);
-  without completion, until the last odometry of the bag.
+  without completion, until the plan's end plus settle_s (or the bag's last odometry, if earlier):
+  a real estimator may never meet a simulator's tolerance, and the window must not run into the
+  landing. This is the scored window; metrics.json `scored_window` and report.md say which end it had.
+- The tolerances and settle_s: the vehicle's `completion:` in its YAML (Completion.for_vehicle), else
+  the course simulator's 2 cm / 0.03 m/s; a command-line value overrides either.
 - length_*_m: arc length of the planned samples / of the odometry positions over time_actual_s.
 - avg_velocity_mps = length_actual_m / time_actual_s (the seed's column).
 - rmse_m, max_error_m: |p_actual(t) - p_planned(t - t_start)| over that window (plan held at its ends).
@@ -34,10 +38,44 @@ ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from r
 
 @dataclass(frozen=True)
 class Completion:
-    """The course simulator's completion rule (configurable): the one definition that fly's live
-    verdict and the report's time_actual_s both use."""
+    """The course simulator's completion rule (configurable, per vehicle): the one definition that fly's
+    live verdict and the report's time_actual_s both use."""
     position_tolerance_m: float = 0.02
     speed_tolerance_mps: float = 0.03
+    settle_s: float = 3.0             # without completion the scored window ends at the plan's end + this
+    source: str = 'built-in defaults'
+
+    FIELDS = ('position_tolerance_m', 'speed_tolerance_mps', 'settle_s')
+
+    @classmethod
+    def for_vehicle(cls, vehicle=None, **overrides) -> 'Completion':
+        """The vehicle's `completion:` (vehicle YAML; fields FIELDS) over the defaults, then the overrides that
+        are not None (command-line values). Raises ValueError naming the vehicle, the field and the value."""
+        values, sources = {}, []
+        given = (getattr(vehicle, 'extra', None) or {}).get('completion') if vehicle is not None else None
+        if given is not None:
+            if not isinstance(given, dict) or set(given) - set(cls.FIELDS):
+                raise ValueError(f'vehicle {vehicle.name}: completion = {given!r} may only hold '
+                                 f'{", ".join(cls.FIELDS)}')
+            values.update(given)
+            sources.append(f'vehicle {vehicle.name}')
+        chosen = {k: v for k, v in overrides.items() if v is not None}
+        if set(chosen) - set(cls.FIELDS):
+            raise ValueError(f'completion: unknown field {sorted(set(chosen) - set(cls.FIELDS))[0]!r}')
+        values.update(chosen)
+        if chosen:
+            sources.append('command line')
+        for key, value in values.items():
+            where = f'vehicle {vehicle.name}: completion.{key}' if key not in chosen else key
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or value < 0 or (value == 0 and key != 'settle_s'):
+                raise ValueError(f'{where} = {value!r} must be a finite number > 0' +
+                                 (' (>= 0 for settle_s)' if key == 'settle_s' else ''))
+        return cls(**{k: float(v) for k, v in values.items()}, source=' + '.join(sources) or 'built-in defaults')
+
+    def describe(self) -> dict:
+        return {'position_tolerance_m': self.position_tolerance_m, 'speed_tolerance_mps': self.speed_tolerance_mps,
+                'settle_s': self.settle_s, 'source': self.source}
 
     def plan_arrival_s(self, trajectory) -> float:
         """Time since the trajectory's start after which the plan itself stays within the tolerance
@@ -170,7 +208,13 @@ def compute_metrics(flight: Flight, rule: Completion = Completion()) -> dict:
         raise ValueError('bag has no trajectory message (topic trajectory): nothing to compare the flight with')
     t0 = flight.traj_start_s
     t_done = completion_time(flight, rule)
-    t_end = t_done if t_done is not None else float(flight.odom_t[-1])
+    settled = t0 + flight.trajectory.duration_s + rule.settle_s
+    if t_done is not None:
+        t_end, ends_at = t_done, 'completion'
+    elif settled <= flight.odom_t[-1]:
+        t_end, ends_at = settled, f"the plan's end + settle_s {rule.settle_s:g} s (no completion)"
+    else:
+        t_end, ends_at = float(flight.odom_t[-1]), "the bag's last odometry (no completion)"
     window = (flight.odom_t >= t0) & (flight.odom_t <= t_end)
     if not np.any(window):
         window = flight.odom_t <= t_end
@@ -202,8 +246,9 @@ def compute_metrics(flight: Flight, rule: Completion = Completion()) -> dict:
         'n_waypoints': int(len(waypoints)),
         'n_odometry': int(np.count_nonzero(window)),
         'errors': [f'{t - t0:.2f} s {name}: {message}' for t, name, message in flight.errors[:10]],
-        'completion_rule': {'position_tolerance_m': rule.position_tolerance_m,
-                            'speed_tolerance_mps': rule.speed_tolerance_mps},
+        'completion_rule': rule.describe(),
+        'scored_window': {'start_s': 0.0, 'end_s': t_end - t0, 'ends_at': ends_at,
+                          'bag_end_s': float(flight.odom_t[-1]) - t0},
     }
     return metrics
 
@@ -233,13 +278,23 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
     lines += [f'- {k}: {v}' for k, v in info.items()]
     lines += ['', '## Table (the seed\'s Table 1/2 columns and errors)', '', metrics_table(metrics), '',
               f'Completion: within {metrics["completion_rule"]["position_tolerance_m"]} m of the final waypoint at '
-              f'speed <= {metrics["completion_rule"]["speed_tolerance_mps"]} m/s. Time actual - planned: '
+              f'speed <= {metrics["completion_rule"]["speed_tolerance_mps"]} m/s '
+              f'({metrics["completion_rule"].get("source", "built-in defaults")}). '
+              f'{_scored_text(metrics)} Time actual - planned: '
               f'{metrics["time_over_s"]:.3f} s; final error {metrics["final_error_m"]:.4f} m; max speed '
               f'{metrics["max_speed_mps"]:.2f} m/s; max tilt {metrics["max_tilt_deg"]:.1f} deg.', '']
     if metrics['errors']:
         lines += ['## Errors reported on diagnostics', ''] + [f'- {e}' for e in metrics['errors']] + ['']
     lines += ['## Figures', ''] + [f'![{Path(f).stem}]({f})' for f in figures] + ['']
     return '\n'.join(lines)
+
+
+def _scored_text(metrics: dict) -> str:
+    w = metrics.get('scored_window')
+    if not w:
+        return ''
+    return (f'Scored window (RMSE, max error, lengths): the plan\'s start to {w["end_s"]:.2f} s, ending at '
+            f'{w["ends_at"]}; the bag runs to {w["bag_end_s"]:.2f} s.')
 
 
 def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion = Completion()) -> dict:

@@ -1,10 +1,21 @@
 """The ROS-free flight loop used for tuning, the fast profile it produced, and fly's profile/timing options."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile
-from quad_bringup.flight import FlightOptions, MissionRefused, validate, with_profile_controller, write_flown_mission
+from quad_bringup.flight import (
+    EXIT_REFUSED,
+    FlightOptions,
+    MissionRefused,
+    fly,
+    preflight_options,
+    validate,
+    with_profile_controller,
+    write_flown_mission,
+)
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 from quad_control.position_controller_node import SPECS, gains_from
@@ -91,3 +102,31 @@ def test_node_parameters_carry_the_plant_to_sim_node():
     params = node_parameters(with_profile_controller(options), validate(options))
     assert params['sim_node']['ros__parameters']['plant'] == 'autopilot_so3'
     assert params['position_controller']['ros__parameters']['attitude_lead_s'] == 0.12
+
+
+# --- feasibility before flight ------------------------------------------------------------------
+
+FIGURE8 = resolve_config('config/missions/figure8.yaml')
+
+
+def test_fly_refuses_an_infeasible_plan_before_starting_anything(tmp_path):
+    lines = []
+    result = fly(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0, out=tmp_path / 'run'), log=lines.append)
+    assert result.exit_code == EXIT_REFUSED and 'not feasible on crazyflie' in result.reason
+    assert '--fly-anyway' in result.reason and not (tmp_path / 'run').exists()   # no graph, no run directory
+    text = '\n'.join(lines)
+    assert 'tilt: needs 48' in text and 'time_allocation: limits fits' in text
+
+
+def test_fly_anyway_and_the_missions_own_choice(tmp_path):
+    mission = validate(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0))
+    anyway = FlightOptions(FIGURE8, controller='se3', speed_mps=2.0, fly_anyway=True)
+    flown = preflight_options(anyway, mission, log=lambda line: None)
+    assert flown.time_allocation is None and flown.rule.source == 'vehicle crazyflie'  # its completion: rule
+    asks = dataclasses.replace(mission, if_infeasible='limits')
+    lines = []
+    chosen = preflight_options(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0), asks, log=lines.append)
+    assert chosen.time_allocation == 'limits' and 'as the mission asks' in lines[-1]
+    feasible = FlightOptions(MAZE, controller='pd', speed_mps=0.5)
+    assert preflight_options(feasible, validate(feasible), log=lines.append).time_allocation is None
+    assert lines[-1].startswith('feasible on crazyflie: tilt 2.1')

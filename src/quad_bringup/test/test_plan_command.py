@@ -55,3 +55,46 @@ def test_bad_plan_requests_exit_2_with_the_reason(tmp_path, capsys, args, words)
 def test_missing_mission_file(tmp_path, capsys):
     assert main(['plan', str(tmp_path / 'none.yaml')]) == 2
     assert 'none.yaml: file not found' in capsys.readouterr().err
+
+
+# --- what the plan command costs (issue: 1 s of a 1.3 s plan was imports; 10,001 waypoints took 505 MiB) ------
+
+def test_plan_imports_neither_ros_nor_scipy_for_a_small_plan(tmp_path):
+    """Lazy imports: the CLI imports only the plan subcommand's module (timed in bench/bench_plan.py)."""
+    import subprocess
+    import sys
+
+    code = ('import sys; from quad_bringup.cli import main; '
+            f'assert main(["plan", {DEFAULT_MISSION_PATH!r}, "--out", {str(tmp_path / "t.json")!r}]) == 0; '
+            'heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("rclpy", "scipy", "rosbags", "matplotlib") '
+            'or m == "numpy.ma"); print("HEAVY", heavy)')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, env=os.environ, check=True)
+    assert 'HEAVY []' in done.stdout, done.stdout
+
+
+def test_plan_json_is_exactly_json_dumps_of_the_plan(tmp_path):
+    """The JSON is written per axis by json's C encoder, not per value; the text is the same as json.dumps."""
+    from quad_trajectory.mission import load_mission, plan_mission
+
+    long = DEFAULT_MISSION_PATH.replace('maze.yaml', 'long_100.yaml')
+    for path in (DEFAULT_MISSION_PATH, long):
+        result = plan_mission(load_mission(path))
+        assert result.to_json(mission='a "quoted" path') == json.dumps({'mission': 'a "quoted" path',
+                                                                      **result.to_dict()})
+
+
+def test_many_waypoints_plan_end_to_end(tmp_path):
+    """10,001 waypoints through the command: YAML (C loader + numbers fast path) to JSON."""
+    rng = np.random.default_rng(3)
+    steps = rng.uniform(0.4, 1.2, (10000, 1)) * np.column_stack([np.cos(np.arange(10000) * 0.7),
+                                                                  np.sin(np.arange(10000) * 0.7), np.zeros(10000)])
+    w = np.vstack([[0, 0, 1], np.cumsum(steps, axis=0) + [0, 0, 1]])
+    mission = tmp_path / 'survey.yaml'
+    mission.write_text('waypoints:\n' + ''.join(f'  - [{x:.4f}, {y:.4f}, {z:.4f}]\n' for x, y, z in w))
+    out = tmp_path / 'survey.json'
+    assert main(['plan', str(mission), '--out', str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert len(data['segments']) == 10000 and data['summary']['segments'] == 10000
+    np.testing.assert_allclose(data['waypoints'], np.round(w, 4))
+    traj = PiecewisePolynomial.from_dict(data)
+    np.testing.assert_allclose(traj.evaluate(traj.breaks_s)[:, :3], np.round(w, 4), atol=1e-6)

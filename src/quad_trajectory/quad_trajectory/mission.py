@@ -21,7 +21,8 @@ _REPO_CONFIG = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '
 DEFAULT_VEHICLE_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'vehicles', 'crazyflie.yaml'))
 DEFAULT_MISSION_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'missions', 'maze.yaml'))
 _TRAJECTORY_KEYS = {'method', 'waypoint_constraint', 'speed', 'time_allocation', 'control_points', 'limits',
-                    'avoid_collisions', 'rho'}
+                    'avoid_collisions', 'rho', 'if_infeasible'}
+IF_INFEASIBLE = ('refuse', 'limits')   # what fly does with a plan the vehicle cannot fly (quad_trajectory.feasibility)
 _LIMIT_KEYS = {'v_max_mps', 'a_max_mps2'}
 
 
@@ -37,6 +38,7 @@ class Mission:
     world: World | None = None
     world_path: str | None = None
     extra: dict = field(default_factory=dict)   # top-level keys owned by other tools (fly, sim)
+    if_infeasible: str = 'refuse'               # trajectory.if_infeasible: refuse, or fly the limits allocation
 
     @property
     def initial_position(self) -> np.ndarray:
@@ -98,10 +100,15 @@ def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
         world = load_world(world_path) if world_path else None
     except ValueError as exc:
         raise ValueError(f'{path}: {exc}') from None
+    if_infeasible = traj.get('if_infeasible', 'refuse')
+    if if_infeasible not in IF_INFEASIBLE:
+        raise ValueError(f'{path}: trajectory.if_infeasible = {if_infeasible!r} must be one of '
+                         f'{", ".join(IF_INFEASIBLE)}')
     known = {'name', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m'}
     return Mission(path=path, name=str(data.get('name', os.path.splitext(os.path.basename(path))[0])),
                    waypoints=waypoints, yaw=yaw, options=options, vehicle=vehicle, vehicle_path=vehicle_path,
-                   world=world, world_path=world_path, extra={k: v for k, v in data.items() if k not in known})
+                   world=world, world_path=world_path, extra={k: v for k, v in data.items() if k not in known},
+                   if_infeasible=if_infeasible)
 
 
 def load_mission(path) -> Mission:

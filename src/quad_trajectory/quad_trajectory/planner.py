@@ -4,20 +4,24 @@ times, solve (solver.py), and, in a world, replan until collision-free.
 Bad input raises ValueError naming the field and the value.
 """
 
+import json
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize
 
 from quad_common.vehicle import Vehicle
 from quad_common.world import World
-from quad_trajectory import collision, solver, timing
+from quad_trajectory import collision, feasibility, solver, timing
 from quad_trajectory.polynomial import PiecewisePolynomial
 
 MERGE_DISTANCE_M = 1e-3
 MAX_REPLANS = 12
 _LIMIT_TARGET = 0.97   # plan to 97 % of v_max / a_max so that samples between ours stay inside too
-_LIMIT_ITERATIONS = 10
+_LIMIT_ITERATIONS = 8
+_FIT_STEPS = 30                 # limits with a vehicle: at most 1.1^30 = 17x slower to pass its feasibility check
+MAX_LIMITS_LENGTH_RATIO = 1.5   # limits: a faster shape is taken only while its path stays this short
+ABSURD_LENGTH_RATIO = 10.0      # no plan longer than this x the polyline through its points is returned
+MIN_MEAN_SPEED_MPS = 1e-3       # nor one slower on average along that polyline (the 2.1e11 s plan: 1e-10 m/s)
 
 
 @dataclass
@@ -56,26 +60,41 @@ class PlanResult:
     merged: list = field(default_factory=list)
     inserted_points: int = 0     # points added by collision replanning
     world: World | None = None
+    _summary: dict | None = field(default=None, repr=False)
 
     def waypoint_times_s(self) -> np.ndarray:
         return self.trajectory.breaks_s[self.is_waypoint]
 
     def summary(self) -> dict:
+        """Counts and peaks (computed once: each peak is a pass over 128 samples of every segment)."""
+        if self._summary is None:
+            self._summary = self._compute_summary()
+        return dict(self._summary)
+
+    def _compute_summary(self) -> dict:
         t = self.trajectory
         return {'segments': t.n_segments, 'waypoints': len(self.waypoints), 'merged_waypoints': len(self.merged),
                 'inserted_points': self.inserted_points, 'time_planned_s': t.duration_s,
                 'length_planned_m': t.arc_length(), 'max_speed_mps': t.max_speed(),
                 'max_acceleration_mps2': t.max_acceleration(), 'max_jerk_mps3': t.max_jerk()}
 
-    def to_dict(self) -> dict:
+    def to_dict(self, segments=True) -> dict:
         """The JSON layout of DESIGN.md section 6 (waypoints, segments) plus what else the plan knows."""
         o = self.options
-        return {'waypoints': self.waypoints.tolist(), **self.trajectory.to_dict(),
+        return {'waypoints': self.waypoints.tolist(), 'segments': self.trajectory.to_dict()['segments'] if segments
+                else None,
                 'yaw': self.yaw.tolist(), 'points': self.points.tolist(), 'is_waypoint': self.is_waypoint.tolist(),
                 'method': o.method, 'waypoint_constraint': o.waypoint_constraint, 'speed_mps': o.speed_mps,
                 'time_allocation': o.time_allocation, 'control_points': list(o.control_points),
                 'robot_radius_m': o.robot_radius_m, 'merged': [m.__dict__ for m in self.merged],
                 'summary': self.summary()}
+
+    def to_json(self, **head) -> str:
+        """json.dumps({**head, **self.to_dict()}) with the segments written by segments_json (no per-value
+        Python loop; a 100k-segment plan in a fraction of a second)."""
+        text = json.dumps({**head, **self.to_dict(segments=False)})
+        # the key is unique: a quote inside any string value is escaped, so '"segments": null' is only the key
+        return text.replace('"segments": null', '"segments": ' + self.trajectory.segments_json(), 1)
 
 
 # --- validation -----------------------------------------------------------------------------
@@ -177,17 +196,76 @@ def solve(points, durations_s, method='minsnap', mode='continuity') -> Piecewise
     return PiecewisePolynomial(durations_s, solver.solve_banded_coefficients(durations_s, points, r, mode))
 
 
+def _limit_shape(points, durations, o: PlanOptions, v_max, a_max):
+    """Solve with `durations` and return (trajectory, per-segment ratio k_i, k = max k_i) where
+    k_i = max(peak speed_i / v_max, sqrt(peak acceleration_i / a_max))."""
+    traj = solve(points, durations, o.method, o.waypoint_constraint)
+    k_i = np.maximum(traj.segment_peaks(1) / v_max, np.sqrt(traj.segment_peaks(2) / a_max))
+    return traj, k_i, float(k_i.max())
+
+
+def _fit_vehicle(points, durations, o: PlanOptions, vehicle):
+    """Slow the plan down uniformly (x1.1 a step, at most _FIT_STEPS) until it passes the vehicle's feasibility
+    check (tilt, thrust, rotors, the attitude loop's lag; quad_trajectory.feasibility). Uniform scaling is exact
+    (see _limit_times) and tends to hover as it grows, so this ends wherever hover itself is feasible."""
+    T = durations
+    for _ in range(_FIT_STEPS):
+        if feasibility.check(solve(points, T, o.method, o.waypoint_constraint), vehicle).ok:
+            break
+        T = T * 1.1
+    return T
+
+
 def _limit_times(points, durations, o: PlanOptions, v_max, a_max):
-    """Rescale segment times until peak speed / acceleration per segment sit at the limits, then scale all
-    times by one factor so that the whole trajectory meets them (time scaling by k divides speed by k and
-    acceleration by k^2, and keeps a rest-to-rest optimum optimal)."""
-    T = durations.copy()
-    for _ in range(_LIMIT_ITERATIONS):
-        traj = solve(points, T, o.method, o.waypoint_constraint)
-        k = np.maximum(traj.segment_peaks(1) / v_max, np.sqrt(traj.segment_peaks(2) / a_max))
-        T = T * np.sqrt(np.maximum(k, 1e-3))
-    traj = solve(points, T, o.method, o.waypoint_constraint)
-    return T * max(traj.max_speed() / v_max, np.sqrt(traj.max_acceleration() / a_max))
+    """Segment times that meet v_max and a_max, as fast as a bounded search finds, never an absurd plan.
+
+    Uniform time scaling is exact: the problem with times k T (same points and constraints) is solved by
+    p(t / k), because every constraint row is invariant and the cost scales by k^(1 - 2r) for all candidates
+    alike. Speed then divides by k and acceleration by k^2, so for any shape T (times up to a common factor)
+    k = max_i k_i makes the plan meet both limits with the binding one reached, in one solve.
+
+    The search is over shapes only: from the seed's sqrt shape T0, slack segments (k_i < k) are shortened by
+    (k_i / k)^(1/2), at most a factor 2 per step, and every shape stays within a factor 4 of T0 (after
+    removing the common scale). Each of the _LIMIT_ITERATIONS + 1 shapes is a candidate, scaled by its own k.
+    Bounds, by construction rather than by convergence of the iteration:
+    - termination: exactly _LIMIT_ITERATIONS + 1 solves;
+    - limits: every candidate meets them at its 128 samples per segment (the 0.97 target covers the rest);
+    - length: scaling does not change the path, so the returned one is the fastest candidate whose length
+      is <= MAX_LIMITS_LENGTH_RATIO x the polyline, else the shortest candidate (the sqrt shape is one; on
+      random 30-leg missions of 0.4-1.2 m legs its path is <= 1.3x the polyline, the returned <= 1.43x);
+    - duration: <= that of the sqrt shape scaled to the limits whenever that shape meets the length bound.
+    check_sane then refuses any plan that is still absurd.
+    The old per-segment rescaling (T_i *= sqrt k_i, repeated) had no such bound: a stretched segment
+    drifts further at its neighbours' joint speed, is stretched again, and ran away to 1e11 s and 1e11 m.
+    """
+    poly = float(timing.segment_lengths(points).sum())
+    T0 = np.asarray(durations, dtype=float)
+    T, best, shortest = T0.copy(), None, None
+    for _ in range(_LIMIT_ITERATIONS + 1):
+        traj, k_i, k = _limit_shape(points, T, o, v_max, a_max)
+        candidate = (T * k, traj.arc_length())
+        if candidate[1] <= MAX_LIMITS_LENGTH_RATIO * poly and (best is None or candidate[0].sum() < best[0].sum()):
+            best = candidate
+        if shortest is None or candidate[1] < shortest[1]:
+            shortest = candidate
+        shape = T * np.clip(k_i / k, 0.5, 1.0) ** 0.5 / T0
+        shape = shape / np.exp(np.mean(np.log(shape)))
+        T = T0 * np.clip(shape, 0.25, 4.0)
+    return (best or shortest)[0]
+
+
+def check_sane(trajectory: PiecewisePolynomial, points, o: PlanOptions) -> PiecewisePolynomial:
+    """Refuse a plan whose length or duration is absurd (ValueError naming both), whatever produced it."""
+    poly = float(timing.segment_lengths(points).sum())
+    length = trajectory.arc_length()
+    max_duration_s = poly / MIN_MEAN_SPEED_MPS
+    if not (np.isfinite(length) and length <= ABSURD_LENGTH_RATIO * poly) or \
+            not trajectory.duration_s <= max_duration_s:
+        raise ValueError(f'the planned trajectory is absurd: {length:.6g} m long ({length / poly:.3g} x the '
+                         f'{poly:.3f} m polyline; at most {ABSURD_LENGTH_RATIO:g} x) and {trajectory.duration_s:.6g} s '
+                         f'(at most {max_duration_s:.6g} s: {MIN_MEAN_SPEED_MPS * 1000:g} mm/s on average) with '
+                         f'time_allocation = {o.time_allocation}, speed = {o.speed_mps} m/s')
+    return trajectory
 
 
 def _optimal_times(points, durations, o: PlanOptions):
@@ -196,6 +274,8 @@ def _optimal_times(points, durations, o: PlanOptions):
     With rho = 2r - 1 (default) the optimum along uniform scaling is T0 itself, so the seed's total
     time L / speed is kept near while the split between segments is optimised.
     """
+    from scipy.optimize import minimize  # only this allocation needs it (0.5 s of import)
+
     r = solver.ORDERS[o.method]
     rho = o.rho if o.rho is not None else 2 * r - 1.0
 
@@ -221,7 +301,8 @@ def allocate_times(points, o: PlanOptions, vehicle: Vehicle | None = None) -> np
             a_max = _LIMIT_TARGET * timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
         else:
             raise ValueError('time_allocation = limits needs limits.a_max_mps2 or a vehicle')
-        return _limit_times(points, T, o, v_max, a_max)
+        T = _limit_times(points, T, o, v_max, a_max)
+        return T if vehicle is None else _fit_vehicle(points, T, o, vehicle)
     if o.time_allocation == 'optimal':
         return _optimal_times(points, T, o)
     return T
@@ -243,7 +324,8 @@ def plan(waypoints, yaw=None, options: PlanOptions | None = None, world: World |
                              f'no trajectory through these waypoints can be collision-free')
     inserted = 0
     for attempt in range(MAX_REPLANS + 1):
-        traj = solve(points, allocate_times(points, o, vehicle), o.method, o.waypoint_constraint)
+        traj = check_sane(solve(points, allocate_times(points, o, vehicle), o.method, o.waypoint_constraint),
+                          points, o)
         if world is None:
             break
         segments, times = collision.trajectory_collisions(world, traj, o.robot_radius_m)

@@ -4,16 +4,20 @@ Segment i lasts durations_s[i]; on it each axis is sum_k c[i, axis, k] * tau^k w
 time in [0, durations_s[i]] (ascending powers, the JSON layout of DESIGN.md section 6).
 """
 
+import json
+
 import numpy as np
-from scipy.special import roots_legendre
+from numpy.polynomial.legendre import leggauss
 
 from quad_common.sampled_trajectory import SampledTrajectory
 
 AXES = ('x', 'y', 'z', 'yaw')
 _PEAK_SAMPLES_PER_SEGMENT = 128
+_PEAK_GRID = np.linspace(0.0, 1.0, _PEAK_SAMPLES_PER_SEGMENT)
+_CHUNK_SEGMENTS = 2048   # grid evaluations work on this many segments at a time (bounded memory)
 # arc length: composite Gauss-Legendre, 16 pieces x 5 nodes per segment (the speed |v| has kinks where v = 0)
 _PIECES = 16
-_NODES, _WEIGHTS = roots_legendre(5)
+_NODES, _WEIGHTS = leggauss(5)
 _GAUSS_NODES = ((np.arange(_PIECES)[:, None] + 0.5 * (_NODES[None, :] + 1.0)) / _PIECES).reshape(-1)  # in [0, 1]
 _GAUSS_WEIGHTS = np.tile(_WEIGHTS / (2 * _PIECES), _PIECES)                                          # sum to 1
 
@@ -62,12 +66,30 @@ class PiecewisePolynomial:
         if order >= n:
             return np.zeros(tau.shape + (4,))
         c = self.coefficients[:, :, order:] * derivative_factors(n, order)  # (M, 4, n - order)
-        cs = c[seg.reshape(-1)]  # (N, 4, n - order)
+        s = seg.reshape(-1)
         t = tau.reshape(-1, 1)
-        out = cs[:, :, -1]
-        for k in range(cs.shape[2] - 2, -1, -1):  # Horner
-            out = out * t + cs[:, :, k]
+        out = c[s, :, -1]
+        for k in range(c.shape[2] - 2, -1, -1):  # Horner, gathering one coefficient at a time: O(N) memory
+            out = out * t + c[s, :, k]
         return out.reshape(tau.shape + (4,))
+
+    def grid_values(self, order: int, s, segments=slice(None), axes=4) -> np.ndarray:
+        """Derivative `order` at normalised times s in [0, 1] (S,) of every segment in `segments`: (m, axes, S)
+        for the first `axes` axes.
+
+        p^(order)(T s) = sum_k f_k c_k T^(k - order) s^(k - order): one matrix product of the per-segment
+        coefficients in normalised time with the fixed Vandermonde matrix of s, no per-sample gather."""
+        n = self.degree + 1
+        T = self.durations_s[segments]
+        if order >= n:
+            return np.zeros((T.size, axes, np.size(s)))
+        k = np.arange(n - order)
+        c = self.coefficients[segments][:, :axes, order:] * derivative_factors(n, order) * (T[:, None, None] ** k)
+        return c @ (np.asarray(s, dtype=float)[:, None] ** k).T
+
+    def _chunks(self):
+        for start in range(0, self.n_segments, _CHUNK_SEGMENTS):
+            yield slice(start, min(start + _CHUNK_SEGMENTS, self.n_segments))
 
     def locate(self, t_s):
         """(segment index, local time) for global times, clamped to [0, duration]."""
@@ -88,10 +110,12 @@ class PiecewisePolynomial:
 
     # --- summary numbers --------------------------------------------------------------------
     def segment_peaks(self, order: int) -> np.ndarray:
-        """Max over each segment of |d^order p/dt^order| (x, y, z norm), from dense samples: (M,)."""
-        seg, tau = self.segment_grid(_PEAK_SAMPLES_PER_SEGMENT)
-        norm = np.linalg.norm(self.evaluate_local(seg, tau, order)[:, :3], axis=1)
-        return norm.reshape(self.n_segments, -1).max(axis=1)
+        """Max over each segment of |d^order p/dt^order| (x, y, z norm), from 128 evenly spaced samples: (M,)."""
+        out = np.empty(self.n_segments)
+        for part in self._chunks():
+            v = self.grid_values(order, _PEAK_GRID, part, axes=3)
+            out[part] = np.sqrt(np.einsum('mas,mas->ms', v, v).max(axis=1))
+        return out
 
     def max_speed(self) -> float:
         return float(self.segment_peaks(1).max())
@@ -104,10 +128,11 @@ class PiecewisePolynomial:
 
     def segment_lengths(self) -> np.ndarray:
         """Arc length of each segment (composite Gauss-Legendre on the speed): (M,)."""
-        tau = self.durations_s[:, None] * _GAUSS_NODES[None, :]
-        seg = np.repeat(np.arange(self.n_segments)[:, None], _GAUSS_NODES.size, axis=1)
-        speed = np.linalg.norm(self.evaluate_local(seg, tau, 1)[..., :3], axis=-1)
-        return self.durations_s * (speed @ _GAUSS_WEIGHTS)
+        out = np.empty(self.n_segments)
+        for part in self._chunks():
+            v = self.grid_values(1, _GAUSS_NODES, part, axes=3)
+            out[part] = self.durations_s[part] * (np.sqrt(np.einsum('mas,mas->ms', v, v)) @ _GAUSS_WEIGHTS)
+        return out
 
     def arc_length(self) -> float:
         return float(self.segment_lengths().sum())
@@ -129,6 +154,16 @@ class PiecewisePolynomial:
     def to_dict(self) -> dict:
         return {'segments': [{'duration': float(d), 'coefficients': {a: c[k].tolist() for k, a in enumerate(AXES)}}
                              for d, c in zip(self.durations_s, self.coefficients)]}
+
+    def segments_json(self) -> str:
+        """json.dumps(self.to_dict()['segments']) without a Python object per value: each axis's (M, n)
+        coefficients and the durations are encoded in one call by json's C encoder, then cut per segment
+        (the rows hold only numbers, so '], [' separates them)."""
+        axes = [json.dumps(self.coefficients[:, k].tolist())[2:-2].split('], [') for k in range(len(AXES))]
+        durations = json.dumps(self.durations_s.tolist())[1:-1].split(', ')
+        names = [json.dumps(a) for a in AXES]
+        return '[' + ', '.join('{"duration": ' + d + ', "coefficients": {' + ', '.join(
+            f'{n}: [{c}]' for n, c in zip(names, cs)) + '}}' for d, *cs in zip(durations, *axes)) + ']'
 
     @classmethod
     def from_dict(cls, data: dict) -> 'PiecewisePolynomial':

@@ -7,7 +7,7 @@ import pytest
 
 from quad_common.vehicle import load_vehicle
 from quad_common.world import World
-from quad_trajectory import collision, planner, timing
+from quad_trajectory import collision, feasibility, planner, timing
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH
 from quad_trajectory.planner import PlanOptions, plan
 from quad_trajectory.polynomial import PiecewisePolynomial
@@ -55,6 +55,66 @@ def test_limit_defaults_come_from_the_vehicle_thrust_to_weight():
     traj = plan(WAYPOINTS, options=PlanOptions(time_allocation='limits', speed_mps=10.0), vehicle=vehicle).trajectory
     assert traj.max_acceleration() <= a_max * 1.001
     assert traj.max_speed() <= timing.DEFAULT_V_MAX_MPS * 1.001
+
+
+def random_dense_mission(seed, n_legs=30):
+    """n_legs legs of 0.4-1.2 m: random 3D directions, random planar ones, or near-reversals (zig-zag)."""
+    rng = np.random.default_rng(seed)
+    lengths = rng.uniform(0.4, 1.2, n_legs)
+    kind = seed % 3
+    if kind == 0:
+        dirs = rng.normal(size=(n_legs, 3))
+    elif kind == 1:
+        dirs = np.column_stack([rng.normal(size=(n_legs, 2)), np.zeros(n_legs)])
+    else:
+        heading = np.cumsum(rng.uniform(2.0, 3.1, n_legs))
+        dirs = np.column_stack([np.cos(heading), np.sin(heading), np.zeros(n_legs)])
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    return np.vstack([[0, 0, 1], np.cumsum(lengths[:, None] * dirs, axis=0) + [0, 0, 1]]), lengths.sum()
+
+
+@pytest.mark.parametrize('seed', range(0, 300, 7))
+def test_limits_allocation_converges_on_random_dense_missions(seed):
+    """Issue: 30 short legs gave a 2.1e11 s, 2.1e11 m plan (seeds 11, 75, 197, 202, 285 of this family did)."""
+    vehicle = load_vehicle(DEFAULT_VEHICLE_PATH)
+    a_max = timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
+    waypoints, polyline_m = random_dense_mission(seed)
+    opts = PlanOptions(time_allocation='limits', speed_mps=[0.5, 2.0, 5.0][seed % 3],
+                       control_points=(0.1, 0.9) if seed % 2 else ())
+    traj = plan(waypoints, options=opts, vehicle=vehicle).trajectory
+    assert traj.arc_length() <= 1.5 * polyline_m
+    t = np.linspace(0, traj.duration_s, int(traj.duration_s * 2000) + 2)
+    speed = np.linalg.norm(traj.evaluate(t, 1)[:, :3], axis=1).max()
+    accel = np.linalg.norm(traj.evaluate(t, 2)[:, :3], axis=1).max()
+    assert speed <= 1.05 * timing.DEFAULT_V_MAX_MPS and accel <= 1.05 * a_max
+    assert feasibility.check(traj, vehicle).ok   # and the vehicle can fly it (tilt, thrust, rotors, lag)
+    faster = time_scaled(traj, 1 / 1.1)          # not needlessly slow: a limit or the vehicle binds
+    assert max(speed / timing.DEFAULT_V_MAX_MPS, accel / a_max) > 0.95 or not feasibility.check(faster, vehicle).ok
+
+
+def time_scaled(traj, k):
+    """The same path flown k times slower: p(t / k)."""
+    n = traj.coefficients.shape[2]
+    return PiecewisePolynomial(traj.durations_s * k, traj.coefficients / k ** np.arange(n))
+
+
+def test_limits_allocation_is_never_slower_than_the_scaled_sqrt_shape():
+    waypoints, _ = random_dense_mission(11)
+    limits = plan(waypoints, options=PlanOptions(time_allocation='limits', a_max_mps2=4.0)).trajectory
+    sqrt = plan(waypoints, options=PlanOptions(speed_mps=1.0)).trajectory
+    v_max, a_max = 0.97 * timing.DEFAULT_V_MAX_MPS, 0.97 * 4.0
+    k = max(sqrt.max_speed() / v_max, np.sqrt(sqrt.max_acceleration() / a_max))
+    assert limits.duration_s <= k * sqrt.duration_s * (1 + 1e-9)
+
+
+def test_an_absurd_plan_is_refused_not_returned():
+    with pytest.raises(ValueError, match=r'absurd.*1 mm/s on average.*speed = 1e-06'):
+        plan(WAYPOINTS, options=PlanOptions(speed_mps=1e-6))
+    traj = plan(WAYPOINTS).trajectory
+    stretched = PiecewisePolynomial(traj.durations_s, traj.coefficients * 100)  # a path 100x too long
+    points = np.column_stack([np.asarray(WAYPOINTS, float), np.zeros(len(WAYPOINTS))])
+    with pytest.raises(ValueError, match=r'absurd: .* x the .* polyline; at most 10 x'):
+        planner.check_sane(stretched, points, PlanOptions())
 
 
 def test_optimal_allocation_lowers_the_objective():

@@ -3,8 +3,9 @@
 import sys
 from pathlib import Path
 
+from quad_bringup.commands.report import add_completion_arguments, completion_overrides
 from quad_bringup.flight import CONTROLLERS, TIME_ALLOCATIONS, FlightOptions, fly
-from quad_bringup.report import Completion, metrics_table
+from quad_bringup.report import metrics_table
 
 
 def add_arguments(parser):
@@ -25,10 +26,10 @@ def add_arguments(parser):
                         help='params file overriding config/control.yaml gains (e.g. config/control_fast.yaml)')
     parser.add_argument('--time-limit-factor', type=float, default=3.0, metavar='K',
                         help='give up after K x the planned duration + 10 s of simulated time (default 3)')
-    parser.add_argument('--position-tolerance', type=float, default=Completion.position_tolerance_m, metavar='M',
-                        help='completion: distance to the final waypoint (default %(default)s m)')
-    parser.add_argument('--speed-tolerance', type=float, default=Completion.speed_tolerance_mps, metavar='V',
-                        help='completion: speed (default %(default)s m/s)')
+    add_completion_arguments(parser)
+    parser.add_argument('--fly-anyway', action='store_true',
+                        help='fly a plan that fails the feasibility check on the vehicle (tilt, thrust, rotors, '
+                             'attitude lag); without it such a plan is refused (exit 2)')
     parser.add_argument('--quiet', action='store_true', help='no progress lines')
 
 
@@ -36,9 +37,8 @@ def options_from(args) -> FlightOptions:
     return FlightOptions(mission=Path(args.mission), controller=args.controller, speed_mps=args.speed, out=args.out,
                          time_allocation=args.time_allocation,
                          vehicle=args.vehicle, plant=args.plant, disturbances=args.disturbances,
-                         control_profile=args.control_profile,
-                         rule=Completion(args.position_tolerance, args.speed_tolerance),
-                         time_limit_factor=args.time_limit_factor, quiet=args.quiet)
+                         control_profile=args.control_profile, completion=completion_overrides(args),
+                         time_limit_factor=args.time_limit_factor, quiet=args.quiet, fly_anyway=args.fly_anyway)
 
 
 def run(args) -> int:

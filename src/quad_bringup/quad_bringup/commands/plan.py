@@ -4,12 +4,12 @@ The JSON is DESIGN.md section 6's layout ({"waypoints", "segments": [{"duration"
 coefficients in ascending powers of local time) plus the plan's options, merges and summary.
 """
 
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from quad_trajectory.feasibility import preflight
 from quad_trajectory.mission import load_mission, plan_mission
 
 
@@ -55,9 +55,11 @@ def run(args) -> int:
     if result.inserted_points:
         print(f'note: {result.inserted_points} points inserted to avoid obstacles')
     print(summary_table(result))
+    if mission.vehicle is not None:   # the plan is written either way; fly refuses what fails here
+        print('\n'.join(preflight(mission, result, speed_mps=args.speed).lines()))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({'mission': str(args.mission), **result.to_dict()}))
+        args.out.write_text(result.to_json(mission=str(args.mission)))
         print(f'wrote {args.out}')
         if args.csv is not None:
             csv_path = args.out.with_suffix('.csv')

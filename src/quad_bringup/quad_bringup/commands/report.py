@@ -13,10 +13,27 @@ def add_arguments(parser):
     parser.add_argument('bag', help='rosbag2 bag directory (MCAP or sqlite3; a killed recorder\'s bag is repaired)')
     parser.add_argument('--out', help='output directory (default: the run directory for runs/NAME/bag, '
                                       'else BAG_report next to the bag)')
-    parser.add_argument('--position-tolerance', type=float, default=Completion.position_tolerance_m, metavar='M',
-                        help='completion: distance to the final waypoint (default %(default)s m)')
-    parser.add_argument('--speed-tolerance', type=float, default=Completion.speed_tolerance_mps, metavar='V',
-                        help='completion: speed (default %(default)s m/s)')
+    parser.add_argument('--vehicle', type=Path, help="vehicle YAML whose completion: gives the tolerances and settle "
+                                                     "time (e.g. config/vehicles/px4_quad.yaml for a real flight)")
+    add_completion_arguments(parser)
+
+
+def add_completion_arguments(parser):
+    """The completion rule's options (report and fly): each overrides the vehicle's `completion:`."""
+    d = Completion()
+    parser.add_argument('--position-tolerance', type=float, metavar='M',
+                        help=f"completion: distance to the final waypoint (default: the vehicle's, else "
+                             f"{d.position_tolerance_m} m)")
+    parser.add_argument('--speed-tolerance', type=float, metavar='V',
+                        help=f"completion: speed (default: the vehicle's, else {d.speed_tolerance_mps} m/s)")
+    parser.add_argument('--settle', type=float, metavar='S',
+                        help=f"without completion the scored window ends S s after the plan's end (default: the "
+                             f"vehicle's, else {d.settle_s} s)")
+
+
+def completion_overrides(args) -> dict:
+    return {'position_tolerance_m': args.position_tolerance, 'speed_tolerance_mps': args.speed_tolerance,
+            'settle_s': args.settle}
 
 
 def default_out(bag: Path) -> Path:
@@ -27,16 +44,20 @@ def default_out(bag: Path) -> Path:
 def run(args) -> int:
     bag = Path(args.bag)
     out = Path(args.out) if args.out else default_out(bag)
-    for name, value in (('--position-tolerance', args.position_tolerance), ('--speed-tolerance', args.speed_tolerance)):
-        if not value > 0:
-            print(f'quadflight report: {name} = {value} refused: must be > 0', file=sys.stderr)
-            return 2
+    try:
+        from quad_common.vehicle import load_vehicle
+
+        rule = Completion.for_vehicle(load_vehicle(args.vehicle) if args.vehicle else None,
+                                      **completion_overrides(args))
+    except ValueError as exc:
+        print(f'quadflight report: {exc}', file=sys.stderr)
+        return 2
     extra = {}
     if (out / 'metrics.json').exists():  # keep what fly recorded about the run (mission, controller, outcome)
         keep = ('mission', 'controller', 'speed_mps', 'outcome')
         extra = {k: v for k, v in json.loads((out / 'metrics.json').read_text()).items() if k in keep}
     try:
-        metrics = write_report(bag, out, extra, Completion(args.position_tolerance, args.speed_tolerance))
+        metrics = write_report(bag, out, extra, rule)
     except (FileNotFoundError, ValueError, ReaderError) as exc:
         print(f'quadflight report: {exc}', file=sys.stderr)
         return 2
