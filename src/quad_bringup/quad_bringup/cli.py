@@ -16,6 +16,10 @@ SUBCOMMANDS = {
     'report': ('quad_bringup.commands.report', 'metrics, tables and figures from a rosbag2 bag'),
     'identify': ('quad_bringup.commands.identify', 'attitude lag and thrust scale of the vehicle from a flight bag, '
                  'as a control profile'),
+    'sweep': ('quad_bringup.commands.sweep', 'many flights over missions x controllers x vehicles x disturbances x '
+                                             'seeds: one table, a summary, figures'),
+    'tune': ('quad_bringup.commands.tune', "search a controller's gains for a robust cost over missions and a "
+                                           'plant family; write the profile, verify it through the graph'),
 }
 
 

@@ -21,9 +21,9 @@ from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 from quad_control.loop import MAX_START_STEP_M, RATE_HZ, ControlLoop
 from quad_control.position import Limits, PositionController, PositionGains, gains_from_parameters
-from quad_sim.disturbances import load_profile
+from quad_sim.disturbances import load_profile, profile_from_dict
 from quad_sim.simulator import SimulationStopped, Simulator
-from quad_trajectory.mission import load_mission, plan_mission
+from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, plan_mission
 
 DISTURBANCES_FILE = resolve_config('config/disturbances.yaml')  # installed share, else the checkout
 SAMPLE_RATE_HZ = 100.0   # config/trajectory.yaml sample_rate_hz
@@ -35,11 +35,12 @@ class LoopOptions:
     gains: PositionGains | None = None          # None: the seed's
     speed_mps: float | None = None              # None: the mission's
     plan_overrides: dict | None = None          # PlanOptions fields (e.g. time_allocation='limits')
-    disturbances: str = 'none'
+    disturbances: str | dict = 'none'           # a profile of config/disturbances.yaml, or one as a mapping
     plant: str | dict | None = None             # a plant family member (name or overrides) for the simulator only
     vehicle_path: str | None = None             # None: the mission's vehicle file
     bag_dir: Path | None = None                 # also write odom and cmd/attitude_thrust as a rosbag2 bag here
     odom_latency_s: float = 0.0                 # the controller sees the state this much old (telemetry delay)
+    seed: int = 0                               # the simulator's (gusts, odometry noise)
     rate_hz: float = RATE_HZ
     physics_rate_hz: float = 1000.0
     time_limit_factor: float = 3.0
@@ -169,19 +170,22 @@ def plan_offline(mission_path, options: LoopOptions | None = None):
 
 def controller_vehicle(mission, options: LoopOptions):
     """The vehicle the controller is configured with (the plant family acts on the simulator only)."""
-    return load_vehicle(options.vehicle_path) if options.vehicle_path else mission.vehicle
+    return load_vehicle(resolve_config(options.vehicle_path)) if options.vehicle_path else mission.vehicle
 
 
 def make_simulator(mission, trajectory, options: LoopOptions) -> Simulator:
     """The simulator as fly starts it: at the mission's initial position, facing the plan's first yaw, flying
     the plant family member if one is named."""
-    profile = load_profile(DISTURBANCES_FILE, options.disturbances)
+    profile = (profile_from_dict({k: v for k, v in options.disturbances.items() if k != 'name'},
+                                 options.disturbances.get('name', 'inline'))
+               if isinstance(options.disturbances, dict) else load_profile(DISTURBANCES_FILE, options.disturbances))
     vehicle = controller_vehicle(mission, options)
-    plant_vehicle = load_vehicle(options.vehicle_path or mission.vehicle_path, plant=options.plant) \
+    plant_vehicle = load_vehicle(resolve_config(options.vehicle_path) if options.vehicle_path else
+                                 mission.vehicle_path or DEFAULT_VEHICLE_PATH, plant=options.plant) \
         if options.plant else vehicle
     return Simulator(plant_vehicle, options.physics_rate_hz, initial_position=mission.initial_position,
                      initial_yaw=float(trajectory.position[0, 3]), disturbances=profile, world=mission.world,
-                     robot_radius_m=mission.options.robot_radius_m)
+                     robot_radius_m=mission.options.robot_radius_m, seed=options.seed)
 
 
 def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
@@ -197,9 +201,10 @@ def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
     loop.set_trajectory(round(options.start_delay_s * 1e9), trajectory)
     arrival_s = options.rule.plan_arrival_s(trajectory)
     end_s = options.time_limit_factor * trajectory.duration_s + 10.0 + options.start_delay_s
-    times, positions, velocities, eulers, ticks = [], [], [], [], []
+    times, positions, velocities, quaternions, ticks = [], [], [], [], []
     max_yaw_rate = 0.0
     stopped = None
+    saturated_ticks = 0
     bag = FlightBag(options.bag_dir) if options.bag_dir else None
     delayed = _Delay(options.odom_latency_s, period_ns * 1e-9)
     for k in range(int(end_s * options.rate_hz) + 1):
@@ -209,9 +214,11 @@ def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
         times.append(t_s)
         positions.append(truth.position)
         velocities.append(truth.velocity)
-        eulers.append(rotations.to_euler(truth.quaternion))
+        quaternions.append(truth.quaternion)
         max_yaw_rate = max(max_yaw_rate, abs(float(truth.body_rates[2])))
-        if options.rule.done(t_s - options.start_delay_s, truth.position, truth.velocity, trajectory, arrival_s):
+        elapsed_s = t_s - options.start_delay_s
+        if elapsed_s >= arrival_s and options.rule.done(elapsed_s, truth.position, truth.velocity, trajectory,
+                                                        arrival_s):
             break
         seen = delayed(sim.odometry_state())
         loop.tick(t_ns)                           # the tick at t_k waits for its odometry ...
@@ -220,6 +227,7 @@ def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
             stopped = f'no setpoint at t = {t_s:.3f} s'
             break
         ticks.append(tick)
+        saturated_ticks += tick.saturation.thrust or tick.saturation.tilt
         sim.set_setpoint(tick.setpoint)
         if bag:
             bag.write(t_s, seen, tick.setpoint)
@@ -232,11 +240,13 @@ def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
         bag.close()
     collision = next((e.time_s for e in sim.events if e.kind == 'collision'), None)
     flight = Flight(odom_t=np.array(times), position=np.array(positions), velocity=np.array(velocities),
-                    euler=np.array(eulers), traj_start_s=options.start_delay_s, trajectory=trajectory,
+                    euler=rotations.to_euler(np.array(quaternions)), traj_start_s=options.start_delay_s,
+                    trajectory=trajectory,
                     waypoints=plan.waypoints, collision_time_s=collision)
     metrics = compute_metrics(flight, options.rule)
     metrics['max_yaw_rate_radps'] = max_yaw_rate
     metrics['saturated_s'] = sim.saturated_steps * sim.step_s  # physics steps the mixer reduced an axis in
+    metrics['saturated_fraction'] = saturated_ticks / max(len(times) - 1, 1)  # ticks with thrust or tilt clamped
     if stopped:
         metrics['stopped'] = stopped
     return OfflineRun(metrics, np.array([t.t_ns * 1e-9 for t in ticks]), [t.setpoint for t in ticks],

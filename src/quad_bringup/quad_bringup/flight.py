@@ -51,6 +51,7 @@ class FlightOptions:
     plant: str | None = None              # a plant family member for the simulated vehicle (config/plant_family.yaml)
     disturbances: str | None = None
     control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
+    sim_parameters: dict | None = None    # sim_node parameters set last (sweep: seed, a plant-only vehicle file)
     rule: Completion | None = None        # None: the vehicle's completion rule (its YAML), with `completion` over it
     completion: dict = field(default_factory=dict)   # Completion field -> value given on the command line
     time_limit_factor: float = 3.0
@@ -196,6 +197,7 @@ def node_parameters(options: FlightOptions, mission) -> dict:
         params['sim_node']['disturbances'] = options.disturbances
     if options.plant:
         params['sim_node']['plant'] = options.plant
+    params['sim_node'].update(options.sim_parameters or {})
     for p in params.values():  # files named in config/ are relative to the repository
         for key in ('vehicle', 'disturbances_file'):
             if p.get(key) and not Path(p[key]).is_absolute():

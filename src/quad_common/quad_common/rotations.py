@@ -25,8 +25,14 @@ def normalize(q):
 
 def multiply(q1, q2):
     """Hamilton product q1 * q2 (apply q2 first, then q1)."""
-    x1, y1, z1, w1 = np.moveaxis(np.asarray(q1, dtype=float), -1, 0)
-    x2, y2, z2, w2 = np.moveaxis(np.asarray(q2, dtype=float), -1, 0)
+    q1, q2 = np.asarray(q1, dtype=float), np.asarray(q2, dtype=float)
+    if q1.shape == q2.shape == (4,):  # one pair (every control tick): the same arithmetic on Python floats
+        x1, y1, z1, w1 = q1.tolist()
+        x2, y2, z2, w2 = q2.tolist()
+        return np.array([w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                         w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2])
+    x1, y1, z1, w1 = np.moveaxis(q1, -1, 0)
+    x2, y2, z2, w2 = np.moveaxis(q2, -1, 0)
     return np.stack([
         w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
         w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
@@ -80,6 +86,12 @@ def from_matrix(R):
 
 def from_euler(roll, pitch, yaw):
     """Quaternion of intrinsic Z-Y-X (yaw, then pitch, then roll) Euler angles, radians."""
+    if all(isinstance(v, (float, int, np.floating)) for v in (roll, pitch, yaw)):  # one attitude: math, not ufuncs
+        cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+        cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+        cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+        return np.array([sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+                         cr * cp * cy + sr * sp * sy])
     cr, sr = np.cos(np.asarray(roll) / 2), np.sin(np.asarray(roll) / 2)
     cp, sp = np.cos(np.asarray(pitch) / 2), np.sin(np.asarray(pitch) / 2)
     cy, sy = np.cos(np.asarray(yaw) / 2), np.sin(np.asarray(yaw) / 2)

@@ -1,0 +1,43 @@
+"""`quadflight tune SPEC.yaml`: robust gain search over missions x plant family, then a check through the graph."""
+
+import json
+import sys
+from pathlib import Path
+
+from quad_bringup.commands.sweep import add_execution_arguments
+
+
+def add_arguments(parser):
+    parser.add_argument('spec', type=Path, help='tune spec YAML (controller, parameters with bounds, missions, '
+                                                'vehicles, disturbances, cost, optimizer)')
+    parser.add_argument('--out', type=Path, help='output directory (default runs/tune-SPEC); profile.yaml, '
+                                                 'cost.json, evaluations.csv, runs.csv, verify.md')
+    parser.add_argument('--no-verify', action='store_true',
+                        help='skip flying the best profile through the ROS graph')
+    add_execution_arguments(parser)
+
+
+def run(args) -> int:
+    from quad_bringup.runs import SpecError
+    from quad_bringup.tune import run_tune
+
+    out = args.out or Path('runs') / f'tune-{args.spec.stem}'
+    try:
+        summary = run_tune(args.spec, out, scheduler=args.scheduler, workers=args.workers,
+                           verify=False if args.no_verify else None,
+                           log=lambda line: print(line, file=sys.stderr, flush=True))
+    except (SpecError, RuntimeError) as exc:
+        print(f'tune refused: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'\ntune interrupted: finished runs are in {out}/runs.csv; rerunning reuses them', file=sys.stderr)
+        return 130
+    print(f'{summary["aggregate"]} cost: {summary["cost_before_m"]:.4f} m (start) -> '
+          f'{summary["cost_after_m"]:.4f} m (best) after {summary["evaluations"]} evaluations '
+          f'({summary["runs"]} runs)')
+    print('best gains: ' + json.dumps({k: v for k, v in summary['best_gains'].items()
+                                       if summary['base_gains'].get(k) != v}))
+    if 'verify' in summary:
+        print((out / 'verify.md').read_text())
+    print(f'profile: {out}/profile.yaml (cost.json, evaluations.csv, runs.csv beside it)')
+    return 0
