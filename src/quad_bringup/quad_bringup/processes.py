@@ -1,4 +1,9 @@
-"""Node processes of a flight: each in its own process group, stopped so that nothing is orphaned."""
+"""Node processes of a flight: each in its own process group, stopped so that nothing is orphaned.
+
+Each node is also bound to fly's life (quad_common.node_main.bind_to_parent, through PARENT_PID_VARIABLE): if fly
+dies for any reason, SIGKILL included, every node gets SIGTERM (the recorder closes its bag) within a fraction
+of a second.
+"""
 
 import os
 import signal
@@ -7,6 +12,8 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from quad_common.node_main import PARENT_PID_VARIABLE
 
 
 @dataclass
@@ -25,6 +32,7 @@ class NodeProcess:
         with self.log_path.open('w') as log:
             # A new session: its own process group, so a signal to the group reaches everything it started,
             # and a Ctrl-C on fly's terminal reaches fly only (fly decides the order of stopping).
+            env = dict(env, **{PARENT_PID_VARIABLE: str(os.getpid())})
             self.popen = subprocess.Popen(self.command(), env=env, stdout=log, stderr=subprocess.STDOUT,
                                           stdin=subprocess.DEVNULL, start_new_session=True)
 

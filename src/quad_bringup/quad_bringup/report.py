@@ -14,6 +14,9 @@ Times are message header stamps (simulated time in lockstep). Definitions (docs/
 - avg_velocity_mps = length_actual_m / time_actual_s (the seed's column).
 - rmse_m, max_error_m: |p_actual(t) - p_planned(t - t_start)| over that window (plan held at its ends).
 - waypoint_miss_max_m: the largest over waypoints of the closest approach of the flown path.
+- record: the bag checked against the simulator: distinct odom and /clock stamps in the bag vs the steps
+  sim_node says it published (its `sim_node: published` diagnostics, the newest in the bag, or the final count
+  fly passes), and gaps in the odometry longer than 1.5 lockstep periods. A shortfall is reported, never silent.
 """
 
 import json
@@ -28,7 +31,9 @@ from quad_common import conversions, rotations
 from quad_common.diagnostics import ERROR, level_of
 
 ODOM, TRAJECTORY, WAYPOINTS, MARKERS = 'odom', 'trajectory', 'trajectory/waypoints', 'trajectory/markers'
-COMMAND, DIAGNOSTICS = 'cmd/attitude_thrust', 'diagnostics'
+COMMAND, DIAGNOSTICS, CLOCK = 'cmd/attitude_thrust', 'diagnostics', 'clock'
+SIM_PUBLISHED = 'sim_node: published'
+GAP_FACTOR = 1.5  # an odometry interval longer than this many typical periods is a gap
 ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from rosbags
 
 
@@ -71,6 +76,10 @@ class Flight:
     cmd_euler: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     collision_time_s: float | None = None
     errors: list = field(default_factory=list)   # (time_s, name, message) of ERROR diagnostics
+    odom_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    clock_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    sim_published: tuple | None = None           # (stamp ns, steps) of the newest `sim_node: published`
+    truncated: dict | None = None                # a killed recorder's bag: where it was cut (recorder.Repair)
 
 
 def _namespaced(topic: str, wanted: str) -> bool:
@@ -81,22 +90,29 @@ def _namespaced(topic: str, wanted: str) -> bool:
 def load_flight(bag_dir) -> Flight:
     """Extract a Flight from a bag; raises ValueError naming what is missing."""
     ts = typestore()
-    odom, cmds, latest = [], [], {}
-    errors, collision = [], None
-    reader = open_bag_reader(bag_dir)
+    odom, cmds, latest, clock = [], [], {}, []
+    errors, collision, published = [], None, None
+    reader, repair = open_bag_reader(bag_dir)
     try:
-        wanted = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS)
+        wanted = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK)
         connections = [c for c in reader.connections if any(_namespaced(c.topic, w) for w in wanted)]
         for conn, _, raw in reader.messages(connections=connections):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
             topic = next(w for w in wanted if _namespaced(conn.topic, w))
             if topic == ODOM:
-                odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg)))
+                odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg),
+                             _ns(msg.header.stamp)))
+            elif topic == CLOCK:
+                clock.append(_ns(msg.clock))
             elif topic == COMMAND:
                 cmds.append((conversions.stamp_to_s(msg.header.stamp), msg.linear_acceleration.z,
                              conversions.quat(msg.orientation)))
             elif topic == DIAGNOSTICS:
                 for st in msg.status:
+                    if st.name == SIM_PUBLISHED:
+                        steps = int({kv.key: kv.value for kv in st.values}.get('steps', -1))
+                        if published is None or _ns(msg.header.stamp) >= published[0]:
+                            published = (_ns(msg.header.stamp), steps)
                     if level_of(st) == ERROR_LEVEL:
                         t = conversions.stamp_to_s(msg.header.stamp)
                         errors.append((t, st.name, st.message))
@@ -115,7 +131,9 @@ def load_flight(bag_dir) -> Flight:
         position=np.array([s.position for _, s in odom]),
         velocity=np.array([s.velocity for _, s in odom]),
         euler=rotations.to_euler(np.array([s.quaternion for _, s in odom])),
-        collision_time_s=collision, errors=errors)
+        collision_time_s=collision, errors=errors, odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
+        clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
+        truncated=None if repair is None else repair.as_dict())
     if TRAJECTORY in latest:
         flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
     if WAYPOINTS in latest:
@@ -134,7 +152,51 @@ def load_flight(bag_dir) -> Flight:
     return flight
 
 
+def _ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
 # --- metrics -------------------------------------------------------------------------------------
+
+def record_check(flight: Flight, published_steps: int | None = None) -> dict:
+    """The bag against the simulator's own count (module docstring): steps published, distinct stamps recorded
+    up to the count's stamp, what is missing, and the odometry gaps."""
+    odom = np.unique(flight.odom_stamps_ns)
+    clock = np.unique(flight.clock_stamps_ns)
+    if published_steps is not None:
+        upto = None  # fly's final count: everything the simulator published
+    elif flight.sim_published is not None:
+        upto, published_steps = flight.sim_published
+    check = {'steps_published': published_steps}
+    for name, stamps in (('odom', odom), ('/clock', clock)):
+        recorded = int(np.count_nonzero(stamps <= upto)) if upto is not None else int(len(stamps))
+        check[f'{name}_recorded'] = recorded
+        if published_steps is not None and recorded < published_steps:
+            check.setdefault('missing', {})[name] = published_steps - recorded
+    gaps = []
+    if len(odom) > 2:
+        dt = np.diff(odom)
+        period = float(np.median(dt))
+        for i in np.nonzero(dt > GAP_FACTOR * period)[0][:10]:
+            gaps.append({'after_s': float(odom[i] * 1e-9), 'length_s': float(dt[i] * 1e-9)})
+    check['gaps'] = gaps
+    check['complete'] = published_steps is not None and 'missing' not in check and not gaps
+    return check
+
+
+def record_summary(check: dict) -> str:
+    """One line: what the bag holds against what the simulator published."""
+    if check['steps_published'] is None:
+        return 'record: the bag has no count from sim_node to check against'
+    line = (f'record: odom {check["odom_recorded"]} and /clock {check["/clock_recorded"]} of '
+            f'{check["steps_published"]} steps published by sim_node')
+    if check.get('missing'):
+        line += '; MISSING ' + ', '.join(f'{n} {t}' for t, n in check['missing'].items())
+    if check['gaps']:
+        line += (f'; {len(check["gaps"])} gap(s) in odom, the longest {max(g["length_s"] for g in check["gaps"]):.3f}'
+                 f' s after t = {check["gaps"][0]["after_s"]:.2f} s')
+    return line + ('' if check['complete'] else ' (INCOMPLETE)')
+
 
 def arc_length(points) -> float:
     points = np.asarray(points)
@@ -165,7 +227,7 @@ def completion_time(flight: Flight, rule: Completion) -> float | None:
     return float(flight.odom_t[np.argmax(done)]) if np.any(done) else None
 
 
-def compute_metrics(flight: Flight, rule: Completion = Completion()) -> dict:
+def compute_metrics(flight: Flight, rule: Completion = Completion(), published_steps: int | None = None) -> dict:
     if flight.trajectory is None:
         raise ValueError('bag has no trajectory message (topic trajectory): nothing to compare the flight with')
     t0 = flight.traj_start_s
@@ -204,6 +266,8 @@ def compute_metrics(flight: Flight, rule: Completion = Completion()) -> dict:
         'errors': [f'{t - t0:.2f} s {name}: {message}' for t, name, message in flight.errors[:10]],
         'completion_rule': {'position_tolerance_m': rule.position_tolerance_m,
                             'speed_tolerance_mps': rule.speed_tolerance_mps},
+        'record': record_check(flight, published_steps),
+        'bag_truncated': flight.truncated,
     }
     return metrics
 
@@ -236,27 +300,47 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
               f'speed <= {metrics["completion_rule"]["speed_tolerance_mps"]} m/s. Time actual - planned: '
               f'{metrics["time_over_s"]:.3f} s; final error {metrics["final_error_m"]:.4f} m; max speed '
               f'{metrics["max_speed_mps"]:.2f} m/s; max tilt {metrics["max_tilt_deg"]:.1f} deg.', '']
+    lines += ['## Record', '', record_summary(metrics['record']), '']
+    if metrics.get('bag_truncated'):
+        lines += [truncation_summary(metrics['bag_truncated']), '']
     if metrics['errors']:
         lines += ['## Errors reported on diagnostics', ''] + [f'- {e}' for e in metrics['errors']] + ['']
     lines += ['## Figures', ''] + [f'![{Path(f).stem}]({f})' for f in figures] + ['']
     return '\n'.join(lines)
 
 
-def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion = Completion()) -> dict:
-    """metrics.json, report.md and figures/*.png for the bag; returns the metrics written."""
-    from quad_bringup import report_figures
+def truncation_summary(truncated: dict) -> str:
+    return (f'bag truncated: {truncated["file"]} was cut at byte {truncated["cut_at_byte"]} of '
+            f'{truncated["size_bytes"]} (its recorder did not close it); read up to there from the repaired copy '
+            f'{truncated["repaired_copy"]} (the input was not modified)')
 
+
+def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion = Completion(),
+                 published_steps: int | None = None, figures: bool = True) -> dict:
+    """metrics.json, report.md and (figures=True) figures/*.png for the bag; returns the metrics written.
+    published_steps: the simulator's final step count, when the caller has it (fly), else the bag's newest."""
     out_dir = Path(out_dir)
     flight = load_flight(bag_dir)
     metrics = dict(extra or {})
-    metrics.update(compute_metrics(flight, rule))
+    metrics.update(compute_metrics(flight, rule, published_steps))
     metrics = _json_safe(metrics)
-    figures = report_figures.draw_all(flight, out_dir / 'figures')
+    drawn = draw_figures(flight, out_dir) if figures else []
+    write_markdown(metrics, out_dir, drawn)
     (out_dir / 'metrics.json').write_text(json.dumps(metrics, indent=2) + '\n')
+    return metrics
+
+
+def draw_figures(flight: Flight, out_dir) -> list:
+    from quad_bringup import report_figures
+
+    return report_figures.draw_all(flight, Path(out_dir) / 'figures')
+
+
+def write_markdown(metrics: dict, out_dir, figures: list):
+    out_dir = Path(out_dir)
     title = f'Flight report: {metrics.get("mission", out_dir.resolve().name)}'
     (out_dir / 'report.md').write_text(
         report_markdown(metrics, [str(Path(f).relative_to(out_dir)) for f in figures], title))
-    return metrics
 
 
 def _json_safe(value):

@@ -5,6 +5,12 @@ lockstep: at sim time t_k publish odom (stamp t_k), then /clock (t_k); wait for 
 setpoint arrives, step k is re-published every 0.1 s (for nodes that join late), and the timeout advances
 only when a controller (a cmd/attitude_thrust publisher with odom and /clock subscribers) is on the graph:
 start-up order does not matter, and a controller whose first tick is after t = 0 still starts the run.
+Followers (lockstep_followers, quad_common.lockstep): each step also waits, without a timeout, until every
+follower has acknowledged odometry within FOLLOWER_LAG_STEPS of it, so a recorder that falls behind slows the run
+instead of losing samples; on SIGINT/SIGTERM the loop stops advancing, publishes its final counts on diagnostics
+and waits (up to DRAIN_TIMEOUT_S) for the followers to acknowledge its last odometry.
+A setpoint stamped more than one period ahead of sim time is refused (counted, warned): taken as "the newest",
+it would make every later, correctly stamped one look old.
 realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * elapsed wall time.
 """
 
@@ -28,7 +34,7 @@ try:  # not among the PyPI ROS wheels; present on every machine with ROS 2 insta
 except ImportError:
     TFMessage = None
 
-from quad_common import cdr, conversions, diagnostics
+from quad_common import cdr, conversions, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
@@ -41,6 +47,8 @@ from quad_sim.simulator import SimulationStopped, Simulator
 NAME = 'sim_node'
 DIAGNOSTICS_PERIOD_S = 1.0  # sim time
 STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first step until a setpoint arrives
+DRAIN_TIMEOUT_S = 1.0       # wall time, at shutdown, for the followers to acknowledge the last odometry
+FOLLOWER_WARN_S = 5.0       # wall time waiting for a follower before each warning naming it
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
@@ -70,6 +78,8 @@ SPECS = [
     Param('max_tracking_error_m', 0.0, 'stop the run when farther than this from control/reference; 0: off',
           min=0.0, max=1000.0, read_only=True),
     Param('seed', 0, 'random seed of gusts and odometry noise', min=0, max=2**31 - 1, read_only=True),
+    Param('lockstep_followers', '', 'lockstep: comma-separated node names whose acknowledgements each step waits for '
+          '(quad_common.lockstep; e.g. recorder): nothing they record is lost', read_only=True),
 ]
 
 RELIABLE_10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -96,16 +106,24 @@ class SimNode(Node):
             self.steps_per_period = self.sim.steps_in(p['lockstep_period_s'])
         except ValueError as exc:
             raise ValueError(f'lockstep_period_s: {exc}') from None
-        self.odom_pub = self.create_publisher(Odometry, 'odom', RELIABLE_10)
-        self.clock_pub = self.create_publisher(ClockMsg, '/clock', RELIABLE_10)
+        self.followers = [f.strip() for f in p['lockstep_followers'].split(',') if f.strip()]
+        paced = lockstep.PACED if self.followers else RELIABLE_10
+        self.odom_pub = self.create_publisher(Odometry, 'odom', paced)
+        self.clock_pub = self.create_publisher(ClockMsg, '/clock', paced)
         self.tf_pub = self.create_publisher(TFMessage, '/tf', QoSProfile(depth=100)) if TFMessage else None
         if TFMessage is None:
             self.get_logger().warn('tf2_msgs is not installed here: /tf is not published (odom carries the pose)')
-        self.imu_pub = self.create_publisher(Imu, 'imu', RELIABLE_10)
-        self.rotor_pub = self.create_publisher(JointState, 'rotor_speeds', RELIABLE_10)
-        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', RELIABLE_10)
+        self.imu_pub = self.create_publisher(Imu, 'imu', paced)
+        self.rotor_pub = self.create_publisher(JointState, 'rotor_speeds', paced)
+        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', paced)
         self.hot_subscriptions = [self.create_subscription(Imu, 'cmd/attitude_thrust', self._on_setpoint, RELIABLE_10,
                                                            raw=True)]
+        self.acked_ns = dict.fromkeys(self.followers, -1)
+        for follower in self.followers:
+            self.hot_subscriptions.append(self.create_subscription(
+                ClockMsg, lockstep.ack_topic(follower),
+                lambda msg, f=follower: self._on_ack(f, msg), lockstep.ACK))
+        self.stop_requested = lambda: False  # main() replaces it with its signal flag
         if p['max_tracking_error_m'] > 0:
             self.hot_subscriptions.append(self.create_subscription(
                 MultiDOFJointTrajectory, 'control/reference', self._on_reference, RELIABLE_10))
@@ -129,6 +147,9 @@ class SimNode(Node):
     def _reset_bookkeeping(self):
         self.setpoint_stamp_ns = -1
         self.setpoints_received = 0
+        self.future_setpoints = 0
+        self.steps_published = 0  # distinct odom (and /clock) stamps published
+        self.last_odom_ns = -1
         self._events_reported = 0
         self._next_diagnostics_ns = 0
         self._next_sensors_ns = 0
@@ -142,6 +163,14 @@ class SimNode(Node):
         stamp_ns = cdr.header_stamp_ns(raw, Imu)
         if stamp_ns < self.setpoint_stamp_ns:
             return  # older than the one applied
+        period_ns = self.steps_per_period * self.sim.step_ns
+        if stamp_ns > self.sim.time_ns + period_ns:
+            self.future_setpoints += 1
+            self.get_logger().warn(
+                f'setpoint refused: stamped {stamp_ns * 1e-9:.3f} s, ahead of sim time {self.sim.time_s:.3f} s by '
+                f'more than one period ({self.future_setpoints} so far; a clock other than /clock?)',
+                throttle_duration_sec=1.0)
+            return
         try:
             setpoint = cdr.imu_to_setpoint(raw)
             self.sim.set_setpoint(setpoint)
@@ -150,6 +179,13 @@ class SimNode(Node):
             return
         self.setpoint_stamp_ns = stamp_ns
         self.setpoints_received += 1
+
+    def _on_ack(self, follower: str, msg: ClockMsg):
+        self.acked_ns[follower] = max(self.acked_ns[follower], msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+
+    def followers_behind(self, stamp_ns: int) -> list[str]:
+        """Followers whose newest acknowledged odometry is older than `stamp_ns`."""
+        return [f for f, acked in self.acked_ns.items() if acked < stamp_ns]
 
     def _on_reference(self, msg: MultiDOFJointTrajectory):
         if msg.points and msg.points[0].transforms and self.sim.stopped is None:
@@ -175,6 +211,9 @@ class SimNode(Node):
         stamp = stamp_of(time_ns)
         self.odom_pub.publish(self._odom_packer.pack(self.sim.odometry_state(), time_ns))
         self.clock_pub.publish(ClockMsg(clock=stamp))
+        if time_ns != self.last_odom_ns:  # the first step is re-published until a setpoint comes: one step
+            self.steps_published += 1
+        self.last_odom_ns = time_ns
         if time_ns >= self._next_sensors_ns:
             self._next_sensors_ns = time_ns + self._sensor_period_ns
             self.publish_sensors(stamp)
@@ -215,6 +254,10 @@ class SimNode(Node):
         if sim.stopped is not None:
             statuses.append(diagnostics.status(f'{NAME}: stopped', diagnostics.ERROR, str(sim.stopped),
                                                {'reason': sim.stopped.reason, 'time_s': sim.stopped.time_s}))
+        statuses.append(diagnostics.status(
+            f'{NAME}: published', diagnostics.OK, 'distinct odom and /clock steps published (a bag is checked '
+            'against it)',
+            {'steps': self.steps_published, 'future_setpoints_refused': self.future_setpoints}))
         rtf = self.real_time_factor()
         statuses.append(diagnostics.status(f'{NAME}: real_time_factor', diagnostics.OK, f'{rtf:.2f}x',
                                            {'rtf': f'{rtf:.3f}'}))
@@ -238,14 +281,19 @@ class SimNode(Node):
 
     # --- modes -------------------------------------------------------------------------------------------
 
+    def running(self) -> bool:
+        return rclpy.ok(context=self.context) and not self.stop_requested()
+
     def run_lockstep(self, executor):
-        """The lockstep loop (see the module docstring); returns when rclpy shuts down."""
-        while rclpy.ok(context=self.context):
+        """The lockstep loop (see the module docstring); returns when rclpy shuts down or a stop is requested."""
+        lag_ns = lockstep.FOLLOWER_LAG_STEPS * self.steps_per_period * self.sim.step_ns
+        while self.running():
             self.publish_step()
             t_k = self.sim.time_ns
             now = time.monotonic()
             deadline, republish_at = now + self.params['lockstep_timeout_s'], now + STARTUP_REPUBLISH_S
-            while self.setpoint_stamp_ns < t_k and rclpy.ok(context=self.context):
+            self._await_followers(executor, t_k - lag_ns)
+            while self.setpoint_stamp_ns < t_k and self.running():
                 now = time.monotonic()
                 if now >= deadline:
                     break
@@ -255,8 +303,39 @@ class SimNode(Node):
                 executor.spin_once(timeout_sec=min(deadline, republish_at) - now)
             if self.sim.time_ns != t_k:  # reset while waiting
                 continue
+            if not self.running():
+                break
             if self.setpoint_stamp_ns >= t_k or self.setpoints_received > 0 or self._controller_present():
                 self.advance(self.steps_per_period)
+        self.drain(executor)
+
+    def _await_followers(self, executor, stamp_ns, timeout_s=None):
+        """Spin until every follower has acknowledged odometry stamped >= stamp_ns (a warning every
+        FOLLOWER_WARN_S naming the ones behind); False if timeout_s (wall) passed or a stop came first."""
+        start = warned = time.monotonic()
+        while (behind := self.followers_behind(stamp_ns)):
+            now = time.monotonic()
+            if timeout_s is not None and now - start > timeout_s or not rclpy.ok(context=self.context):
+                return False
+            if timeout_s is None and self.stop_requested():
+                return False
+            if now - warned > FOLLOWER_WARN_S:
+                warned = now
+                self.get_logger().warn(f'waiting for {", ".join(behind)} to take odometry of t = '
+                                       f'{stamp_ns * 1e-9:.3f} s (lockstep_followers)')
+            executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def drain(self, executor):
+        """At a stop: the final counts on diagnostics, then wait (bounded) for the followers to take the last
+        odometry, so a recorder stopped after the simulator holds everything it published."""
+        if not rclpy.ok(context=self.context):
+            return
+        self.publish_diagnostics()
+        last = self.last_odom_ns
+        if self.followers and not self._await_followers(executor, last, DRAIN_TIMEOUT_S):
+            self.get_logger().warn(f'{", ".join(self.followers_behind(last))} had not taken the last odometry '
+                                   f'(t = {last * 1e-9:.3f} s) within {DRAIN_TIMEOUT_S} s of the stop')
 
     def _controller_present(self) -> bool:
         """A setpoint publisher that also listens to odom and /clock is on the graph (it may not tick at t = 0)."""
@@ -290,13 +369,14 @@ def _spin(node, executor):
         node.run_lockstep(executor)
     else:
         node.start_realtime()
-        executor.spin()
+        while node.running():
+            executor.spin_once(timeout_sec=0.1)
 
 
 def main(args=None):
     run_node(NAME, SimNode, refused=(ValueError, SimulationStopped),
              make_executor=lambda node: HotPathExecutor(lambda: (node.hot_subscriptions, node.hot_timers)),
-             spin=_spin, args=args)
+             spin=_spin, args=args, own_signals=True)
 
 
 if __name__ == '__main__':
