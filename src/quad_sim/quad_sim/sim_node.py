@@ -1,7 +1,9 @@
 """sim_node: the simulated vehicle on the ROS graph (docs/quad_sim.md).
 
 lockstep: at sim time t_k publish odom (stamp t_k), then /clock (t_k); wait for a cmd/attitude_thrust stamped
->= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. Until the first
+>= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. After such a timeout
+the steps stop waiting for setpoints until one arrives again (a dead controller: the failsafe lands the vehicle
+at the pace of the graph, not one step per timeout). Until the first
 setpoint arrives, step k is re-published every 0.1 s (for nodes that join late), and the timeout advances
 only when a controller (a cmd/attitude_thrust publisher with odom and /clock subscribers) is on the graph:
 start-up order does not matter, and a controller whose first tick is after t = 0 still starts the run.
@@ -148,6 +150,7 @@ class SimNode(Node):
         self.setpoint_stamp_ns = -1
         self.setpoints_received = 0
         self.future_setpoints = 0
+        self.controller_lost = False  # a setpoint missed lockstep_timeout_s: steps no longer wait for one
         self.steps_published = 0  # distinct odom (and /clock) stamps published
         self.last_odom_ns = -1
         self._events_reported = 0
@@ -179,6 +182,7 @@ class SimNode(Node):
             return
         self.setpoint_stamp_ns = stamp_ns
         self.setpoints_received += 1
+        self.controller_lost = False
 
     def _on_ack(self, follower: str, msg: ClockMsg):
         self.acked_ns[follower] = max(self.acked_ns[follower], msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
@@ -293,9 +297,14 @@ class SimNode(Node):
             now = time.monotonic()
             deadline, republish_at = now + self.params['lockstep_timeout_s'], now + STARTUP_REPUBLISH_S
             self._await_followers(executor, t_k - lag_ns)
-            while self.setpoint_stamp_ns < t_k and self.running():
+            while self.setpoint_stamp_ns < t_k and self.running() and not self.controller_lost:
                 now = time.monotonic()
                 if now >= deadline:
+                    if self.setpoints_received > 0:
+                        self.controller_lost = True
+                        self.get_logger().warn(
+                            f'no setpoint for t = {t_k * 1e-9:.3f} s within lockstep_timeout_s: running on without '
+                            'waiting for one (the failsafe lands the vehicle) until a setpoint arrives')
                     break
                 if self.setpoints_received == 0 and now >= republish_at:  # for nodes that joined late
                     self.publish_step()
