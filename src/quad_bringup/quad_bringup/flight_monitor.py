@@ -14,12 +14,12 @@ from nav_msgs.msg import Odometry
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from quad_bringup.flight import MONITOR
 from quad_bringup.report import Completion
 from quad_common import cdr, conversions, lockstep
 from quad_common.diagnostics import ERROR, level_of
 from quad_common.hot_path import HotPathExecutor
 
-MONITOR = 'fly_monitor'
 SIM_NODE = 'sim_node'
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -56,10 +56,11 @@ class NodeProcess:
             pass
 
 
-def stop(processes, grace_s=10.0, log=print):
+def stop(processes, grace_s=10.0, log=print, idle=None):
     """SIGINT to every group, then SIGTERM, then SIGKILL to groups still alive after `grace_s` each.
 
-    Returns {name: exit code}. Waits for each group leader, and kills the rest of its group.
+    Returns {name: exit code}. Waits for each group leader, and kills the rest of its group. `idle(timeout_s)`,
+    if given, is called while waiting (fly spins its monitor: a stopping simulator waits for its acknowledgements).
     """
     running = [p for p in processes if p.popen is not None]
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
@@ -71,6 +72,10 @@ def stop(processes, grace_s=10.0, log=print):
         for p in alive:
             p.signal_group(sig)
         deadline = time.monotonic() + grace_s
+        if idle is not None:
+            while time.monotonic() < deadline and any(p.exit_code() is None for p in alive):
+                idle(0.02)
+            continue
         for p in alive:
             try:
                 p.popen.wait(timeout=max(0.1, deadline - time.monotonic()))

@@ -43,6 +43,9 @@ PARAMS = [
           read_only=True),
     Param('flush_period_s', 1.0, 'wall-clock period of pushing the open chunk to disk (what a SIGKILL can lose)',
           min=0.05, max=60.0),
+    Param('lockstep_ack_after', '', 'comma-separated topics that must be in the bag before odometry is '
+          'acknowledged (quad_common.lockstep: a follower\'s simulator does not start without them), e.g. trajectory',
+          read_only=True),
     Param('queue_depth', 1000, 'subscription history depth (reliable; generous so a busy recorder drops nothing)',
           min=1, max=100000, read_only=True),
 ]
@@ -62,6 +65,7 @@ class RecorderNode(Node):
             raise ValueError('output_dir = \'\' refused: give the bag directory to create')
         self.bag = BagRecorder(self.params['output_dir'])
         self.ack = lockstep.Acknowledger(self, self.get_name())
+        self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
         self._raw_subscriptions = {}
         self._pending = []
         for topic in self.params['topics']:
@@ -93,6 +97,8 @@ class RecorderNode(Node):
             self.bag.write(topic, time.time_ns(), data)
             if topic == ODOM:
                 self.ack.taken(cdr.header_stamp_ns(data, Odometry))
+                if self.ack_after:  # nothing acknowledged until the bag has these (e.g. the latched plan)
+                    self.ack.hold(any(self.bag.counts.get(t, 0) == 0 for t in self.ack_after))
             if self.bag.counts[topic] == 1:
                 self.publish_status()
 

@@ -127,10 +127,10 @@ def load_flight(bag_dir) -> Flight:
         raise ValueError(f'bag {bag_dir}: no odometry (topic odom) recorded')
     odom.sort(key=lambda x: x[0])
     flight = Flight(
-        odom_t=np.array([t for t, _ in odom]),
-        position=np.array([s.position for _, s in odom]),
-        velocity=np.array([s.velocity for _, s in odom]),
-        euler=rotations.to_euler(np.array([s.quaternion for _, s in odom])),
+        odom_t=np.array([o[0] for o in odom]),
+        position=np.array([o[1].position for o in odom]),
+        velocity=np.array([o[1].velocity for o in odom]),
+        euler=rotations.to_euler(np.array([o[1].quaternion for o in odom])),
         collision_time_s=collision, errors=errors, odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
         clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
         truncated=None if repair is None else repair.as_dict())

@@ -28,7 +28,13 @@ class Acknowledger:
     def __init__(self, node, follower: str):
         self._pub = node.create_publisher(Clock, ack_topic(follower), ACK)
         self._pending = 0
+        self._held = False
         self.newest_ns = -1
+
+    def hold(self, held: bool):
+        """While held, nothing is acknowledged (the simulator waits at the first step): a follower that needs
+        something first, e.g. the plan, holds until it has it."""
+        self._held = held
 
     def taken(self, stamp_ns: int):
         self.newest_ns = max(self.newest_ns, stamp_ns)
@@ -37,7 +43,7 @@ class Acknowledger:
             self.flush()
 
     def flush(self):
-        if self._pending:
+        if self._pending and not self._held:
             self._pending = 0
             msg = Clock()
             msg.clock.sec, msg.clock.nanosec = divmod(self.newest_ns, 1_000_000_000)

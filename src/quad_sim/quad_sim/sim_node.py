@@ -294,9 +294,13 @@ class SimNode(Node):
         while self.running():
             self.publish_step()
             t_k = self.sim.time_ns
+            self._await_followers(executor, max(t_k - lag_ns, 0))  # every follower has step 0 before step 1
             now = time.monotonic()
-            deadline, republish_at = now + self.params['lockstep_timeout_s'], now + STARTUP_REPUBLISH_S
-            self._await_followers(executor, t_k - lag_ns)
+            # before the first setpoint a controller on the graph may have answered before it was matched (its
+            # answer lost): advance after STARTUP_REPUBLISH_S, its next tick answers
+            timeout_s = self.params['lockstep_timeout_s'] if self.setpoints_received else min(
+                self.params['lockstep_timeout_s'], STARTUP_REPUBLISH_S)
+            deadline, republish_at = now + timeout_s, now + STARTUP_REPUBLISH_S
             while self.setpoint_stamp_ns < t_k and self.running() and not self.controller_lost:
                 now = time.monotonic()
                 if now >= deadline:
@@ -321,9 +325,12 @@ class SimNode(Node):
     def _await_followers(self, executor, stamp_ns, timeout_s=None):
         """Spin until every follower has acknowledged odometry stamped >= stamp_ns (a warning every
         FOLLOWER_WARN_S naming the ones behind); False if timeout_s (wall) passed or a stop came first."""
-        start = warned = time.monotonic()
+        start = warned = republished = time.monotonic()
         while (behind := self.followers_behind(stamp_ns)):
             now = time.monotonic()
+            if self.setpoints_received == 0 and now - republished >= STARTUP_REPUBLISH_S:  # followers joining late
+                self.publish_step()
+                republished = now
             if timeout_s is not None and now - start > timeout_s or not rclpy.ok(context=self.context):
                 return False
             if timeout_s is None and self.stop_requested():
