@@ -163,6 +163,7 @@ def record_check(flight: Flight, published_steps: int | None = None) -> dict:
     up to the count's stamp, what is missing, and the odometry gaps."""
     odom = np.unique(flight.odom_stamps_ns)
     clock = np.unique(flight.clock_stamps_ns)
+    upto = None
     if published_steps is not None:
         upto = None  # fly's final count: everything the simulator published
     elif flight.sim_published is not None:
