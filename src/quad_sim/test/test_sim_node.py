@@ -187,6 +187,60 @@ def test_future_stamped_setpoint_is_refused_and_later_ones_applied():
     assert refused and refused[-1] == 1
 
 
+class SlowFollower:
+    """A follower that is not the controller and takes each odom slowly (a recorder on a busy machine): with the
+    simulator's plain depth-10 history it lost samples; as a lockstep follower it must see every step."""
+
+    def __init__(self, domain, name='slow_follower', busy_s=0.004):
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.ctx)
+        self.ack = lockstep.Acknowledger(self.node, name)
+        self.busy_s, self.stamps_ns = busy_s, []
+        self.node.create_subscription(Odometry, 'odom', self._on_odom, lockstep.PACED)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+
+    def _on_odom(self, msg):
+        end = time.perf_counter() + self.busy_s   # the work of a slow reader (not a synchronisation)
+        while time.perf_counter() < end:
+            pass
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.stamps_ns.append(stamp_ns)
+        self.ack.taken(stamp_ns)
+
+    def spin_once(self):
+        self.executor.spin_once(timeout_sec=0.01)
+        self.ack.flush()
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+def test_slow_follower_sees_every_step():
+    steps = 300
+    with isolated_domain() as (domain, env):
+        graph = Graph(domain)
+        slow = SlowFollower(domain)
+        sim = _start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0',
+                         'lockstep_followers:=slow_follower')
+        try:
+            deadline = time.monotonic() + GIVE_UP_S
+            while len(graph.odom) < steps or len({s for s in slow.stamps_ns}) < steps:
+                assert time.monotonic() < deadline, 'graph hung'
+                graph.executor.spin_once(timeout_sec=0.01)
+                graph.ack.flush()
+                slow.spin_once()
+        finally:
+            _stop(sim)
+            slow.close()
+            graph.close()
+    taken = sorted(set(slow.stamps_ns))
+    assert taken[:steps] == [k * 10_000_000 for k in range(steps)]   # every 10 ms step, none skipped
+
+
 def test_dead_controller_lets_the_failsafe_land():
     with isolated_domain() as (domain, env):
         graph = Graph(domain, answer_until_s=0.2, target=(0.0, 0.0, 0.3))

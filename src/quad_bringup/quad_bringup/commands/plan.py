@@ -56,8 +56,12 @@ def run(args) -> int:
         print(f'note: {result.inserted_points} points inserted to avoid obstacles')
     print(summary_table(result))
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({'mission': str(args.mission), **result.to_dict()}))
+        try:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps({'mission': str(args.mission), **result.to_dict()}))
+        except OSError as exc:
+            print(f'quadflight plan: --out {args.out}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
+            return 2
         print(f'wrote {args.out}')
         if args.csv is not None:
             csv_path = args.out.with_suffix('.csv')
