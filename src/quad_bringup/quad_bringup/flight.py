@@ -28,7 +28,7 @@ from pathlib import Path
 import yaml
 
 from quad_bringup import processes
-from quad_bringup.recorder import DEFAULT_TOPICS, installed
+from quad_bringup.recorder import DEFAULT_TOPICS
 from quad_bringup.report import Completion, record_summary, write_report
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.testing import isolated_domain
