@@ -18,7 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import cdr, conversions, diagnostics, rotations
+from quad_common import cdr, conversions, diagnostics, lockstep, rotations
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
@@ -102,8 +102,10 @@ class PositionControllerNode(Node):
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.cmd_pub = self.create_publisher(Imu, 'cmd/attitude_thrust', reliable)
-        self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, 'control/reference', reliable)
+        # lockstep: as deep as the simulator's paced topics, so its followers (the recorder) lose no setpoint
+        paced = lockstep.PACED if self.params['lockstep'] else reliable
+        self.cmd_pub = self.create_publisher(Imu, 'cmd/attitude_thrust', paced)
+        self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, 'control/reference', paced)
         self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', reliable)
         self.odom_sub = self.create_subscription(Odometry, 'odom', self._on_odom, reliable, raw=True)
         self._setpoint_packer = cdr.SetpointPacker()
