@@ -1,11 +1,13 @@
 """Figures of a finished flight in a process of their own (`quadflight fly` starts it with the graph).
 
 It imports matplotlib and the report while the flight runs (most of its cost), then reads one JSON line on
-stdin, {"bag": BAG, "out": DIR}, draws DIR/figures/*.png from the bag and answers one JSON line on stdout:
-{"figures": [paths relative to DIR]} or {"error": message}.
+stdin, {"flight": PICKLE, "out": DIR} (the report.Flight fly has loaded already, pickled; or {"bag": BAG, ...}
+to load it here), draws DIR/figures/*.png and answers one JSON line on stdout: {"figures": [paths relative to
+DIR]} or {"error": message}.
 """
 
 import json
+import pickle
 import sys
 from pathlib import Path
 
@@ -20,7 +22,11 @@ def main():
     try:
         request = json.loads(line)
         out = Path(request['out'])
-        flight = report.load_flight(request['bag'])
+        if 'flight' in request:
+            with open(request['flight'], 'rb') as f:
+                flight = pickle.load(f)
+        else:
+            flight = report.load_flight(request['bag'])
         figures = [str(Path(f).relative_to(out)) for f in report.draw_figures(flight, out)]
         answer = {'figures': figures}
     except Exception as exc:  # any failure is an answer, not a traceback on fly's terminal

@@ -29,7 +29,7 @@ import yaml
 
 from quad_bringup import processes
 from quad_bringup.recorder import DEFAULT_TOPICS
-from quad_bringup.report import Completion, record_summary, write_report
+from quad_bringup.report import Completion, load_flight, record_summary, write_report
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.testing import isolated_domain
 from quad_common.yaml_io import load_yaml
@@ -329,8 +329,9 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
         extra['fault'] = fault
     published = monitor.published.get('steps')
     try:
+        flight = load_flight(run_dir / 'bag')
         metrics = write_report(run_dir / 'bag', run_dir, extra, options.rule, published_steps=published,
-                               figures=False)
+                               figures=False, flight=flight)
     except (ValueError, FileNotFoundError) as exc:
         if figure_worker:
             figure_worker.cancel()
@@ -344,7 +345,7 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
             abs(judge.completed_at_s - metrics['time_actual_s']) > 1e-6:
         notes.append(f'WARNING: the monitor saw completion at t = {judge.completed_at_s:.3f} s, the bag at '
                      f'{metrics["time_actual_s"]:.3f} s')
-    finish = (lambda: _finish_figures(figure_worker, run_dir, metrics, clock)) if figure_worker else None
+    finish = (lambda: _finish_figures(figure_worker, flight, run_dir, metrics, clock)) if figure_worker else None
     if interrupt.signum is not None:
         return FlightResult(EXIT_INTERRUPTED, reason.reason, run_dir, metrics, pids, notes, finish)
     if reason.ok and not (metrics['completed'] and not metrics['collided']):
@@ -370,9 +371,14 @@ class _FigureWorker:
                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
         return cls(popen)
 
-    def draw(self, bag: Path, out_dir: Path) -> list[str]:
+    def draw(self, flight, out_dir: Path) -> list[str]:
         """The figure paths written (relative to out_dir); raises RuntimeError with the worker's message."""
-        out, _ = self.popen.communicate(json.dumps({'bag': str(bag), 'out': str(out_dir)}) + '\n')
+        import pickle
+        import tempfile
+        with tempfile.NamedTemporaryFile(suffix='.pickle') as f:
+            pickle.dump(flight, f, protocol=pickle.HIGHEST_PROTOCOL)
+            f.flush()
+            out, _ = self.popen.communicate(json.dumps({'flight': f.name, 'out': str(out_dir)}) + '\n')
         answer = json.loads(out.strip().splitlines()[-1]) if out.strip() else {'error': 'no answer'}
         if 'error' in answer:
             raise RuntimeError(answer['error'])
@@ -384,12 +390,12 @@ class _FigureWorker:
             self.popen.wait()
 
 
-def _finish_figures(worker: _FigureWorker, run_dir: Path, metrics: dict, clock) -> str | None:
+def _finish_figures(worker: _FigureWorker, flight, run_dir: Path, metrics: dict, clock) -> str | None:
     """Figures into run_dir/figures and their links into report.md; an error line, or None."""
     from quad_bringup.report import write_markdown
 
     try:
-        figures = worker.draw(run_dir / 'bag', run_dir)
+        figures = worker.draw(flight, run_dir)
     except (RuntimeError, ValueError, OSError) as exc:
         return f'figures not drawn: {exc}'
     write_markdown(metrics, run_dir, [run_dir / f for f in figures])

@@ -317,11 +317,12 @@ def truncation_summary(truncated: dict) -> str:
 
 
 def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion = Completion(),
-                 published_steps: int | None = None, figures: bool = True) -> dict:
+                 published_steps: int | None = None, figures: bool = True, flight: Flight | None = None) -> dict:
     """metrics.json, report.md and (figures=True) figures/*.png for the bag; returns the metrics written.
-    published_steps: the simulator's final step count, when the caller has it (fly), else the bag's newest."""
+    published_steps: the simulator's final step count, when the caller has it (fly), else the bag's newest.
+    flight: the bag's Flight if the caller has loaded it already (load_flight)."""
     out_dir = Path(out_dir)
-    flight = load_flight(bag_dir)
+    flight = load_flight(bag_dir) if flight is None else flight
     metrics = dict(extra or {})
     metrics.update(compute_metrics(flight, rule, published_steps))
     metrics = _json_safe(metrics)
