@@ -267,7 +267,19 @@ class _Clock:
             print(f'[{self.marks[-1][1]:6.2f} s] {what}', file=sys.stderr, flush=True)
 
 
-def fly(options: FlightOptions, log=print) -> FlightResult:
+def fly(options: FlightOptions, log=print, defer_figures=False) -> FlightResult:
+    """Flies the mission (module docstring). The figures are drawn before this returns unless defer_figures:
+    then the caller prints the verdict first and calls result.finish() (-> an error line or None)."""
+    result = _fly(options, log)
+    if result.finish is not None and not defer_figures:
+        problem = result.finish()
+        result.finish = None
+        if problem:
+            result.notes.append(problem)
+    return result
+
+
+def _fly(options: FlightOptions, log) -> FlightResult:
     clock = _Clock()
     try:
         options = with_profile_controller(options)

@@ -38,7 +38,7 @@ def options_from(args) -> FlightOptions:
 
 
 def run(args) -> int:
-    result = fly(options_from(args), log=lambda line: print(line, flush=True))
+    result = fly(options_from(args), log=lambda line: print(line, flush=True), defer_figures=True)
     if result.metrics is not None:
         print(metrics_table(result.metrics))
         for note in result.notes:
