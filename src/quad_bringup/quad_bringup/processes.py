@@ -1,6 +1,6 @@
 """Node processes of a flight: each in its own process group, stopped so that nothing is orphaned.
 
-Each node is also bound to fly's life (quad_common.node_main.bind_to_parent, through PARENT_PID_VARIABLE): if fly
+Each node is also bound to fly's life (quad_common.lifeline.bind_to_parent, through PARENT_PID_VARIABLE): if fly
 dies for any reason, SIGKILL included, every node gets SIGTERM (the recorder closes its bag) within a fraction
 of a second.
 """
@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from quad_common.node_main import PARENT_PID_VARIABLE
+from quad_common.lifeline import PARENT_PID_VARIABLE
 
 
 @dataclass

@@ -4,7 +4,7 @@ Topics of DEFAULT_TOPICS are subscribed at once with the QoS their publishers us
 trajectory topics transient_local); any other topic is subscribed when it appears in the
 graph, with its type and durability taken from its publishers. Timestamps are receive times
 (system clock, as `ros2 bag record` does). SIGINT/SIGTERM/SIGHUP close the bag cleanly, and so does the death of
-the process that started it (quad_common.node_main.bind_to_parent).
+the process that started it (quad_common.lifeline.bind_to_parent).
 
 A lockstep follower (quad_common.lockstep): it acknowledges the odometry it has written, so a simulator started
 with lockstep_followers:=recorder never publishes more than the bag can take. The subscriptions are served in
@@ -30,7 +30,8 @@ from rclpy.signals import SignalHandlerOptions
 from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, installed
 from quad_common import cdr, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
-from quad_common.node_main import STOP_SIGNALS, bind_to_parent
+from quad_common.lifeline import bind_to_parent
+from quad_common.node_main import STOP_SIGNALS
 from quad_common.params import Param, ParameterSet
 
 STATUS_PERIOD_S = 1.0
