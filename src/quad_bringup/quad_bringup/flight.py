@@ -500,7 +500,7 @@ def _watch(judge, monitor, children, interrupt, options, log):
 
 
 def _await_landing(dead, judge, monitor, children, interrupt, log) -> dict:
-    """The controller died: the simulator runs on (its lockstep stops waiting for setpoints) and its failsafe lands
+    """The controller died: the simulator runs on (after one lockstep timeout, 0.02 s per step) and its failsafe lands
     the vehicle. Spin until sim_node reports `disarmed`, another node dies, a signal or LANDING_TIMEOUT_S; the
     bag then shows the landing. Returns what died, when, and where the vehicle came down."""
     died_at = judge.t_s

@@ -2,8 +2,8 @@
 
 lockstep: at sim time t_k publish odom (stamp t_k), then /clock (t_k); wait for a cmd/attitude_thrust stamped
 >= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. After such a timeout
-the steps stop waiting for setpoints until one arrives again (a dead controller: the failsafe lands the vehicle
-at the pace of the graph, not one step per timeout). Until the first
+each step waits LOST_STEP_TIMEOUT_S at most until a setpoint arrives again (a dead controller: the failsafe lands
+the vehicle in seconds, not one step per timeout; a controller that was only slow catches up). Until the first
 setpoint arrives, step k is re-published every 0.1 s (for nodes that join late), and the timeout advances
 only when a controller (a cmd/attitude_thrust publisher with odom and /clock subscribers) is on the graph:
 start-up order does not matter, and a controller whose first tick is after t = 0 still starts the run.
@@ -51,6 +51,7 @@ DIAGNOSTICS_PERIOD_S = 1.0  # sim time
 STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first step until a setpoint arrives
 DRAIN_TIMEOUT_S = 1.0       # wall time, at shutdown, for the followers to acknowledge the last odometry
 FOLLOWER_WARN_S = 5.0       # wall time waiting for a follower before each warning naming it
+LOST_STEP_TIMEOUT_S = 0.02  # wall time per step for a setpoint once one missed lockstep_timeout_s
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
@@ -150,7 +151,7 @@ class SimNode(Node):
         self.setpoint_stamp_ns = -1
         self.setpoints_received = 0
         self.future_setpoints = 0
-        self.controller_lost = False  # a setpoint missed lockstep_timeout_s: steps no longer wait for one
+        self.controller_lost = False  # a setpoint missed lockstep_timeout_s: steps wait LOST_STEP_TIMEOUT_S at most
         self.steps_published = 0  # distinct odom (and /clock) stamps published
         self.last_odom_ns = -1
         self._events_reported = 0
@@ -300,15 +301,17 @@ class SimNode(Node):
             # answer lost): advance after STARTUP_REPUBLISH_S, its next tick answers
             timeout_s = self.params['lockstep_timeout_s'] if self.setpoints_received else min(
                 self.params['lockstep_timeout_s'], STARTUP_REPUBLISH_S)
+            if self.controller_lost:  # one step per LOST_STEP_TIMEOUT_S: a controller that is only slow catches up
+                timeout_s = min(timeout_s, LOST_STEP_TIMEOUT_S)
             deadline, republish_at = now + timeout_s, now + STARTUP_REPUBLISH_S
-            while self.setpoint_stamp_ns < t_k and self.running() and not self.controller_lost:
+            while self.setpoint_stamp_ns < t_k and self.running():
                 now = time.monotonic()
                 if now >= deadline:
-                    if self.setpoints_received > 0:
+                    if self.setpoints_received > 0 and not self.controller_lost:
                         self.controller_lost = True
                         self.get_logger().warn(
-                            f'no setpoint for t = {t_k * 1e-9:.3f} s within lockstep_timeout_s: running on without '
-                            'waiting for one (the failsafe lands the vehicle) until a setpoint arrives')
+                            f'no setpoint for t = {t_k * 1e-9:.3f} s within lockstep_timeout_s: each step now waits '
+                            f'{LOST_STEP_TIMEOUT_S} s at most (the failsafe lands the vehicle) until a setpoint arrives')
                     break
                 if self.setpoints_received == 0 and now >= republish_at:  # for nodes that joined late
                     self.publish_step()
