@@ -20,6 +20,8 @@ def arguments():
     return [
         DeclareLaunchArgument('mission', default_value=config('missions/maze.yaml'), description='mission YAML'),
         DeclareLaunchArgument('vehicle', default_value=config('vehicles/px4_quad.yaml'), description='vehicle YAML'),
+        DeclareLaunchArgument('control_profile', default_value=config('control_real.yaml'),
+                              description='position_controller profile over control.yaml (real-vehicle profile)'),
         DeclareLaunchArgument('fcu_url', default_value='', description='overrides the bridge config fcu_url'),
     ]
 
@@ -32,9 +34,10 @@ def bridge_overrides(context) -> dict:
 def planning_and_control(context):
     mission = LaunchConfiguration('mission').perform(context)
     vehicle = LaunchConfiguration('vehicle').perform(context)
+    profile = LaunchConfiguration('control_profile').perform(context)
     return [
         Node(package='quad_trajectory', executable='trajectory_node', name='trajectory_node', output='screen',
              parameters=[config('trajectory.yaml'), WALL_TIME, {'mission_file': mission, 'vehicle_file': vehicle}]),
         Node(package='quad_control', executable='position_controller', name='position_controller', output='screen',
-             parameters=[config('control.yaml'), WALL_TIME, {'lockstep': False, 'vehicle': vehicle}]),
+             parameters=[config('control.yaml'), profile, WALL_TIME, {'lockstep': False, 'vehicle': vehicle}]),
     ]

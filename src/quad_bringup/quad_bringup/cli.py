@@ -14,6 +14,8 @@ SUBCOMMANDS = {
     'fly': ('quad_bringup.commands.fly', 'fly a mission through the node graph in the simulator, record, report'),
     'record': ('quad_bringup.commands.record', 'record topics to a rosbag2 bag (MCAP)'),
     'report': ('quad_bringup.commands.report', 'metrics, tables and figures from a rosbag2 bag'),
+    'identify': ('quad_bringup.commands.identify', 'attitude lag and thrust scale of the vehicle from a flight bag, '
+                 'as a control profile'),
 }
 
 

@@ -64,6 +64,7 @@ class FlightOptions:
     time_allocation: str | None = None    # overrides the mission's trajectory.time_allocation (e.g. limits)
     out: Path | None = None
     vehicle: Path | None = None
+    plant: str | None = None              # a plant family member for the simulated vehicle (config/plant_family.yaml)
     disturbances: str | None = None
     control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
     rule: Completion = field(default_factory=Completion)
@@ -107,6 +108,14 @@ def validate(options: FlightOptions):
     for name, value in (('--vehicle', options.vehicle), ('--control-profile', options.control_profile)):
         if value is not None and not Path(value).is_file():
             raise MissionRefused(f'{name} {value}: no such file')
+    if options.plant:
+        from quad_common.vehicle import load_plant_family
+        try:
+            family = load_plant_family()
+        except (ValueError, OSError) as exc:
+            raise MissionRefused(f'--plant {options.plant!r} refused: {exc}') from None
+        if options.plant not in family:
+            raise MissionRefused(f'--plant {options.plant!r} refused: must be one of {", ".join(family)}')
     try:
         mission = mission_module.load_mission(path)
         mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
@@ -130,9 +139,15 @@ def plan_overrides(options: FlightOptions) -> dict:
     return {} if options.time_allocation is None else {'time_allocation': options.time_allocation}
 
 
+DEFAULT_PROFILES = {'se3': 'config/control_se3.yaml'}  # a controller flown without --control-profile gets this
+
+
 def with_profile_controller(options: FlightOptions) -> FlightOptions:
-    """--controller if given, else the control profile's `controller`, else pd."""
+    """--controller if given, else the control profile's `controller`, else pd; a controller named without a
+    profile flies its default profile (se3: the robust config/control_se3.yaml; pd and pid: the seed's gains)."""
     if options.controller is not None:
+        if options.control_profile is None and options.controller in DEFAULT_PROFILES:
+            return dataclasses.replace(options, control_profile=resolve_config(DEFAULT_PROFILES[options.controller]))
         return options
     controller = 'pd'
     if options.control_profile is not None and Path(options.control_profile).is_file():
@@ -179,6 +194,8 @@ def node_parameters(options: FlightOptions, mission) -> dict:
         params['sim_node']['vehicle'] = vehicle
     if options.disturbances is not None:
         params['sim_node']['disturbances'] = options.disturbances
+    if options.plant:
+        params['sim_node']['plant'] = options.plant
     for p in params.values():  # files named in config/ are relative to the repository
         for key in ('vehicle', 'disturbances_file'):
             if p.get(key) and not Path(p[key]).is_absolute():

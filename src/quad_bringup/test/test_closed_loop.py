@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from quad_bringup.closed_loop import LoopOptions, fly_offline
+from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile
 from quad_bringup.flight import FlightOptions, MissionRefused, validate, with_profile_controller, write_flown_mission
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
@@ -57,3 +57,37 @@ def test_flown_mission_carries_the_time_allocation_and_plans_the_same(tmp_path):
 def test_unknown_time_allocation_refused_naming_it():
     with pytest.raises(MissionRefused, match="--time-allocation 'fastest'"):
         validate(FlightOptions(MAZE, controller='pd', time_allocation='fastest'))
+
+
+def test_72ms_motors_on_long_100_at_2_mps_do_not_spin():
+    """The mixer's priority (yaw limited and last, roll/pitch kept): with the old one, where yaw took no share,
+    this flight reached 24 rad/s of yaw rate and a 5.5 m RMSE."""
+    controller, gains = load_control_profile(resolve_config('config/control_se3.yaml'))
+    m = fly_offline(resolve_config('config/missions/long_100.yaml'),
+                    LoopOptions(controller=controller, gains=gains, speed_mps=2.0, plant='slow_motors_72ms',
+                                plan_overrides={'time_allocation': 'limits'}))
+    assert m['completed'] and 'stopped' not in m
+    assert m['max_yaw_rate_radps'] < 10.0 and m['rmse_m'] < 0.05
+
+
+def test_se3_without_a_profile_flies_the_robust_one_and_pd_stays_the_seed():
+    se3 = with_profile_controller(FlightOptions(MAZE, controller='se3'))
+    assert se3.control_profile == resolve_config('config/control_se3.yaml')
+    pd = with_profile_controller(FlightOptions(MAZE, controller='pd'))
+    assert pd.control_profile is None
+    controller, gains = load_control_profile(resolve_config('config/control.yaml'))
+    assert controller == 'pd' and list(gains.kp) == [5.0, 5.0, 20.0] and list(gains.kd) == [5.0, 5.0, 10.0]
+    assert gains.attitude_lead_s == 0.0 and gains.disturbance_time_constant_s == 0.0 and gains.thrust_scale == 1.0
+
+
+def test_unknown_plant_member_refused_naming_it():
+    with pytest.raises(MissionRefused, match="--plant 'wobbly'.*nominal"):
+        validate(FlightOptions(MAZE, controller='se3', plant='wobbly'))
+
+
+def test_node_parameters_carry_the_plant_to_sim_node():
+    from quad_bringup.flight import node_parameters
+    options = FlightOptions(MAZE, controller='se3', plant='autopilot_so3')
+    params = node_parameters(with_profile_controller(options), validate(options))
+    assert params['sim_node']['ros__parameters']['plant'] == 'autopilot_so3'
+    assert params['position_controller']['ros__parameters']['attitude_lead_s'] == 0.12

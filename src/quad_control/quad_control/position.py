@@ -48,6 +48,25 @@ class PositionGains:
     # Speed extensions (all off by default, so the defaults are the seed's controller; docs "Tuning for speed"):
     attitude_lead_s: float = 0.0                # attitude from a_des + lead * jerk_T (thrust from a_des)
     disturbance_time_constant_s: float = 0.0    # > 0: subtract the observed external acceleration (filtered)
+    thrust_scale: float = 1.0                   # delivered / commanded specific force of the vehicle (quadflight
+    #                                             identify); the command is divided by it
+
+
+def gains_from_parameters(values: dict) -> PositionGains:
+    """PositionGains from position_controller parameters (kp_x ... disturbance_time_constant_s); a missing one
+    keeps the seed's value."""
+    seed = PositionGains()
+
+    def axes(name):
+        return np.array([values.get(f'{name}_{a}', getattr(seed, name)[i]) for i, a in enumerate('xyz')], dtype=float)
+
+    return PositionGains(kp=axes('kp'), kd=axes('kd'), ki=axes('ki'),
+                         integral_limit_mps2=float(values.get('integral_limit_mps2', seed.integral_limit_mps2)),
+                         use_feedforward=bool(values.get('use_feedforward', seed.use_feedforward)),
+                         attitude_lead_s=float(values.get('attitude_lead_s', seed.attitude_lead_s)),
+                         disturbance_time_constant_s=float(values.get('disturbance_time_constant_s',
+                                                                      seed.disturbance_time_constant_s)),
+                         thrust_scale=float(values.get('thrust_scale', seed.thrust_scale)))
 
 
 @dataclass
@@ -253,4 +272,6 @@ class PositionController:
         sat.integral = windup
         if observing:
             self._previous = (np.array(state.velocity, dtype=float), body_z, sp.specific_force_mps2)
+        if self.gains.thrust_scale != 1.0:  # what the vehicle delivers is thrust_scale times the command
+            sp.specific_force_mps2 = sp.specific_force_mps2 / self.gains.thrust_scale
         return sp, sat

@@ -25,7 +25,7 @@ from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.types import Reference
 from quad_common.vehicle import load_vehicle
-from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains
+from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains, gains_from_parameters
 
 NODE_NAME = 'position_controller'
 AXES = ('x', 'y', 'z')
@@ -56,19 +56,14 @@ SPECS = [
     Param('use_feedforward', True, 'reference acceleration in eq. 1 and jerk-based body rates in se3'),
     Param('attitude_lead_s', SEED.attitude_lead_s, 'attitude from a_des + lead * reference jerk, cancelling the '
           'onboard attitude loop lag (about kd/kp of eq. 6 = 0.1 s); 0 = off (the seed)', min=0.0, max=1.0),
+    Param('thrust_scale', SEED.thrust_scale, 'delivered / commanded specific force of the vehicle (quadflight '
+          'identify); the thrust command is divided by it; 1 = the seed', min=0.5, max=2.0),
     Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '
           'external acceleration (drag, wind) subtracted from a_des; 0 = off (the seed)', min=0.0, max=10.0),
 ]
 
 
-def gains_from(values: dict) -> PositionGains:
-    return PositionGains(kp=np.array([values[f'kp_{a}'] for a in AXES], dtype=float),
-                         kd=np.array([values[f'kd_{a}'] for a in AXES], dtype=float),
-                         ki=np.array([values[f'ki_{a}'] for a in AXES], dtype=float),
-                         integral_limit_mps2=float(values['integral_limit_mps2']),
-                         use_feedforward=bool(values['use_feedforward']),
-                         attitude_lead_s=float(values['attitude_lead_s']),
-                         disturbance_time_constant_s=float(values['disturbance_time_constant_s']))
+gains_from = gains_from_parameters
 
 
 def _stamp_ns(stamp) -> int:

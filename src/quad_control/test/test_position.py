@@ -286,3 +286,13 @@ def test_disturbance_observer_converges_to_a_constant_external_acceleration():
 
 def test_speed_extensions_are_off_by_default():
     assert SEED.attitude_lead_s == 0.0 and SEED.disturbance_time_constant_s == 0.0
+
+
+@pytest.mark.parametrize('controller', ['pd', 'pid', 'se3'])
+def test_thrust_scale_divides_the_thrust_command_only(controller):
+    """A vehicle delivering 0.94 of the command (identify's thrust_scale) is asked for 1 / 0.94 of it."""
+    state, ref = _state(position=(0.1, -0.2, 0.9)), _ref()
+    plain, _ = PositionController(controller, SEED, VEHICLE).update(state, ref, 0.01)
+    scaled, _ = PositionController(controller, replace(SEED, thrust_scale=0.94), VEHICLE).update(state, ref, 0.01)
+    assert scaled.specific_force_mps2 == pytest.approx(plain.specific_force_mps2 / 0.94, rel=1e-12)
+    assert np.allclose(scaled.quaternion, plain.quaternion, atol=1e-15)

@@ -120,7 +120,7 @@ def rk4_step(x, w_cmd, dt_s, force_world, wind_world, p):
 class RigidBody:
     def __init__(self, vehicle: Vehicle, aerodynamics: Aerodynamics | None = None):
         positions, directions = vehicle.rotor_geometry()
-        self.mass_kg = vehicle.mass_kg
+        self.mass_kg = vehicle.plant_mass_kg
         self.ixx, self.iyy, self.izz = map(float, vehicle.inertia_kgm2)
         self.k_eta = vehicle.k_eta
         self.tau_m_s = vehicle.motor_time_constant_s

@@ -55,6 +55,8 @@ LOST_STEP_TIMEOUT_S = 0.02  # wall time per step for a setpoint once one missed 
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
+    Param('plant', '', 'plant family member (config/plant_family.yaml) applied to the vehicle; empty: none',
+          read_only=True),
     Param('initial_position', [0.0, 0.0, 0.0], 'start position, map frame (m); hovering unless on the floor',
           length=3, read_only=True),
     Param('initial_yaw', 0.0, 'start yaw (rad)', min=-math.pi, max=math.pi, read_only=True),
@@ -97,7 +99,7 @@ class SimNode(Node):
         super().__init__(NAME, **kwargs)
         self.params = ParameterSet(self, SPECS)
         p = self.params
-        vehicle = load_vehicle(self._config(p['vehicle'], 'vehicle'))
+        vehicle = load_vehicle(self._config(p['vehicle'], 'vehicle'), plant=p['plant'] or None)
         world = load_world(self._config(p['world'], 'world')) if p['world'] else None
         profile = load_profile(self._config(p['disturbances_file'], 'disturbances_file'), p['disturbances'])
         self.sim = Simulator(vehicle, physics_rate_hz=p['physics_rate_hz'], initial_position=p['initial_position'],
@@ -311,7 +313,7 @@ class SimNode(Node):
                         self.controller_lost = True
                         self.get_logger().warn(
                             f'no setpoint for t = {t_k * 1e-9:.3f} s within lockstep_timeout_s: each step now waits '
-                            f'{LOST_STEP_TIMEOUT_S} s at most (the failsafe lands the vehicle) until a setpoint arrives')
+                            f'{LOST_STEP_TIMEOUT_S} s at most (the failsafe lands the vehicle) until one arrives')
                     break
                 if self.setpoints_received == 0 and now >= republish_at:  # for nodes that joined late
                     self.publish_step()

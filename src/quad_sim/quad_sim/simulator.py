@@ -1,9 +1,11 @@
 """The simulated vehicle: rigid body + rotors + onboard autopilot + failsafe + floor + world + disturbances.
 
 Time is kept in integer nanoseconds; `advance` runs a whole number of fixed physics steps. Every physics
-step the onboard autopilot turns the held setpoint into body moments with the seed's equation 6
-(quad_control.attitude.moments) and a collective thrust (specific force * mass), the mixer turns
-them into rotor speed commands (reporting saturation), and RK4 integrates the plant over the step.
+step the onboard autopilot turns the held setpoint into body moments with the vehicle's attitude loop
+(`onboard_moments`: the seed's equation 6, quad_control.attitude.moments, by default; an autopilot's
+SO(3) cascade or a lagged attitude target, quad_common.vehicle.AttitudeLoop) and a collective thrust
+(specific force * nominal mass * (1 + thrust_error)), the mixer turns them into rotor speed commands
+(reporting saturation), and RK4 integrates the plant (mass_kg (1 + mass_error)) over the step.
 
 Speed: the step is compiled (quad_common.compiled). `quiet_steps` runs whole runs of steps in which
 nothing happens that needs bookkeeping (no saturation, floor, limit, collision suspicion, failsafe,
@@ -47,6 +49,11 @@ FAILSAFE_MAX_TILT_RAD = math.radians(30.0)
 SATURATION_GAP_S = 0.1        # a saturation event is reported when saturation starts after this long without
 # the autopilot's input as the kernels take it: quaternion (4), collective thrust (N), desired body rates (3)
 SP_QUATERNION, SP_THRUST, SP_RATES, SP_SIZE = slice(0, 4), 4, slice(5, 8), 8
+# the onboard attitude loop's parameters (AttitudeLoop): type, kp (3), kd (3), lag time constant, roll/pitch rate
+# feed-forward on (0/1), thrust scale; its state: the lag's attitude target (4) and target rates (3)
+ATT_TYPE, ATT_KP, ATT_KD, ATT_TAU, ATT_FF_PQ, ATT_THRUST_SCALE, ATT_SIZE = 0, 1, 4, 7, 8, 9, 10
+LOOP_EQ6, LOOP_SO3_PD, LOOP_LAG = 0.0, 1.0, 2.0
+LOOP_CODES = {'eq6': LOOP_EQ6, 'so3_pd': LOOP_SO3_PD, 'lag': LOOP_LAG}
 # quiet_steps' limits: floor z, squared max speed, squared max body rate
 LIMIT_FLOOR, LIMIT_SPEED2, LIMIT_RATE2 = 0, 1, 2
 
@@ -106,8 +113,8 @@ class Simulator:
         self.body = RigidBody(vehicle, self.profile.aerodynamics(vehicle))
         self.mixer = Mixer(vehicle)
         self._inertia = float_array(vehicle.inertia_matrix)
-        self._kp = float_array(vehicle.attitude_gains.kp)
-        self._kd = float_array(vehicle.attitude_gains.kd)
+        self._att = attitude_parameters(vehicle)
+        self._att_state = np.zeros(7)
         self._limits = float_array([self.floor_z_m, max_speed_mps ** 2, max_body_rate_radps ** 2])
         self._collision_world = None
         self._inflated_blocks = np.zeros((0, 6))  # lo x, y, z, hi x, y, z of each block grown by the radius
@@ -134,11 +141,12 @@ class Simulator:
         """Back to the initial state: hovering at initial_position (resting, if that is on the floor)."""
         q0 = rotations.from_yaw(self.initial_yaw)
         self.landed = bool(self.initial_position[2] <= self.floor_z_m)
-        hover = math.sqrt(self.vehicle.hover_thrust_n / (4 * self.vehicle.k_eta))
+        hover = math.sqrt(self.plant_weight_n / (4 * self.vehicle.k_eta))
         w0 = self.vehicle.rotor_speed_min_radps if self.landed else hover
         self._x = float_array([*self.initial_position, 0.0, 0.0, 0.0, *q0, 0.0, 0.0, 0.0, w0, w0, w0, w0])
         assert len(self._x) == STATE_SIZE
         self._w_cmd = np.full(4, w0)
+        self._att_state[:] = [*q0, 0.0, 0.0, 0.0]
         self.time_ns = 0
         self._set_setpoint_vector(AttitudeSetpoint(quaternion=q0, specific_force_mps2=GRAVITY_MPS2))
         self._setpoint_time_ns = 0
@@ -162,6 +170,11 @@ class Simulator:
     @property
     def time_s(self) -> float:
         return self.time_ns * 1e-9
+
+    @property
+    def plant_weight_n(self) -> float:
+        """The simulated vehicle's true weight (mass_kg (1 + mass_error) g)."""
+        return self.vehicle.plant_mass_kg * GRAVITY_MPS2
 
     @property
     def state(self) -> State:
@@ -231,7 +244,7 @@ class Simulator:
     def _set_setpoint_vector(self, setpoint: AttitudeSetpoint):
         self._setpoint = setpoint
         self._setpoint_vector = self._autopilot_input(setpoint.quaternion, setpoint.specific_force_mps2,
-                                                      desired_rates(setpoint))
+                                                      desired_rates(setpoint, use_feedforward_rates=True))
 
     def _autopilot_input(self, quaternion, specific_force_mps2, rates_des=(0.0, 0.0, 0.0)) -> np.ndarray:
         sp = np.empty(SP_SIZE)
@@ -267,7 +280,7 @@ class Simulator:
             if not self.failsafe_active and self.armed and not self.landed and self._gusts is None:
                 done = quiet_steps(self._x, self._w_cmd, self._setpoint_vector, steps, self.time_ns, self.step_ns,
                                    self._setpoint_time_ns + self.setpoint_timeout_ns, self.step_s, self._wind,
-                                   self._kp, self._kd, self._inertia, self.mixer.params, self.body.params,
+                                   self._att, self._att_state, self._inertia, self.mixer.params, self.body.params,
                                    self._limits, self._safe_bounds, self._inflated_blocks)
                 if done:  # what _physics_step would have recorded for quiet steps
                     self.time_ns += done * self.step_ns
@@ -296,8 +309,8 @@ class Simulator:
         else:
             sp = self._setpoint_vector
         if self.armed:
-            flags = flag_names(command_rotors(x, sp, self._kp, self._kd, self._inertia, self.mixer.params,
-                                              self._thrusts, self._w_cmd))
+            flags = flag_names(command_rotors(x, sp, self._att, self._att_state, self.step_s, self._inertia,
+                                              self.mixer.params, self._thrusts, self._w_cmd))
         else:
             self._w_cmd[:], flags = self.mixer.speed_min_radps, ()
         self._note_saturation(flags)
@@ -362,7 +375,7 @@ class Simulator:
         impact_mps = float(x[5])
         qx, qy, qz, qw = x[6:10].tolist()
         lift_n = self.body.thrust_n(x) * (1 - 2 * (qx * qx + qy * qy))
-        if lift_n <= self.vehicle.hover_thrust_n:
+        if lift_n <= self.plant_weight_n:
             if not self.landed:
                 self.landed = True
                 self._event('touchdown', position=x[0:3], detail={'vertical_speed_mps': round(impact_mps, 3)})
@@ -404,27 +417,102 @@ class Simulator:
         raise self.stopped
 
 
-@njit
-def command_rotors(x, setpoint, kp, kd, inertia, mixer_params, thrusts_out, w_cmd_out):
-    """The onboard autopilot: eq. 6 moments and the collective thrust, mixed into rotor commands; mixer flag bits."""
-    mx, my, mz = moments(x[6:10], x[10:13], setpoint[0:4], setpoint[5:8], kp, kd, inertia, False)
-    return rotor_commands(setpoint[4], mx, my, mz, mixer_params, thrusts_out, w_cmd_out)
+def attitude_parameters(vehicle: Vehicle) -> np.ndarray:
+    """The kernels' attitude-loop vector (ATT_*) of a vehicle."""
+    loop = vehicle.attitude_loop
+    kp, kd = vehicle.effective_attitude_gains()
+    att = np.zeros(ATT_SIZE)
+    att[ATT_TYPE] = LOOP_CODES[loop.type]
+    att[ATT_KP:ATT_KP + 3], att[ATT_KD:ATT_KD + 3] = kp, kd
+    att[ATT_TAU] = loop.time_constant_s
+    att[ATT_FF_PQ] = float(loop.type == 'so3_pd' and loop.use_feedforward_rates)
+    att[ATT_THRUST_SCALE] = 1.0 + vehicle.thrust_error
+    return att
 
 
 @njit
-def quiet_steps(x, w_cmd, setpoint, steps, time_ns, step_ns, failsafe_after_ns, step_s, wind, kp, kd, inertia,
+def _quat_mul(a, b):
+    ax, ay, az, aw = a[0], a[1], a[2], a[3]
+    bx, by, bz, bw = b[0], b[1], b[2], b[3]
+    out = np.empty(4)
+    out[0] = aw * bx + ax * bw + ay * bz - az * by
+    out[1] = aw * by - ax * bz + ay * bw + az * bx
+    out[2] = aw * bz + ax * by - ay * bx + az * bw
+    out[3] = aw * bw - ax * bx - ay * by - az * bz
+    return out
+
+
+@njit
+def _advance_target(target, quaternion_sp, tau_s, step_s):
+    """The lag loop's target (quaternion target[0:4], body rates target[4:7]) one step towards the setpoint:
+    rates = log(q_t^-1 q_sp) / tau, q_t <- q_t exp(rates dt) (first order on SO(3))."""
+    conj = np.empty(4)
+    conj[0], conj[1], conj[2], conj[3] = -target[0], -target[1], -target[2], target[3]
+    e = _quat_mul(conj, quaternion_sp)
+    if e[3] < 0.0:
+        for i in range(4):
+            e[i] = -e[i]
+    v = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    angle = 2.0 * math.atan2(v, e[3])
+    scale = angle / v / tau_s if v > 1e-12 else 2.0 / tau_s
+    for i in range(3):
+        target[4 + i] = scale * e[i]
+    h = 0.5 * step_s
+    d = np.empty(4)
+    d[0], d[1], d[2] = h * target[4], h * target[5], h * target[6]
+    d[3] = 1.0
+    q = _quat_mul(target[0:4], d)
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    for i in range(4):
+        target[i] = q[i] / n
+
+
+@njit
+def onboard_moments(x, setpoint, att, att_state, step_s, inertia):
+    """The onboard attitude loop (ATT_TYPE): body moments (N m) from the state and the held setpoint."""
+    kind = att[ATT_TYPE]
+    rates = np.empty(3)
+    if kind == LOOP_LAG:
+        _advance_target(att_state, setpoint[0:4], att[ATT_TAU], step_s)
+        rates[:] = att_state[4:7]
+        return moments(x[6:10], x[10:13], att_state[0:4], rates, att[ATT_KP:ATT_KP + 3], att[ATT_KD:ATT_KD + 3],
+                       inertia, True)
+    ff = att[ATT_FF_PQ]
+    rates[0], rates[1], rates[2] = ff * setpoint[5], ff * setpoint[6], setpoint[7]
+    mx, my, mz = moments(x[6:10], x[10:13], setpoint[0:4], rates, att[ATT_KP:ATT_KP + 3], att[ATT_KD:ATT_KD + 3],
+                         inertia, kind == LOOP_SO3_PD)
+    if kind == LOOP_SO3_PD:  # + omega x I omega (diagonal I)
+        p, q, r = x[10], x[11], x[12]
+        ixx, iyy, izz = inertia[0, 0], inertia[1, 1], inertia[2, 2]
+        mx += (izz - iyy) * q * r
+        my += (ixx - izz) * r * p
+        mz += (iyy - ixx) * p * q
+    return mx, my, mz
+
+
+@njit
+def command_rotors(x, setpoint, att, att_state, step_s, inertia, mixer_params, thrusts_out, w_cmd_out):
+    """The onboard autopilot: attitude-loop moments and the (scaled) collective thrust, mixed into rotor commands;
+    mixer flag bits."""
+    mx, my, mz = onboard_moments(x, setpoint, att, att_state, step_s, inertia)
+    return rotor_commands(setpoint[4] * att[ATT_THRUST_SCALE], mx, my, mz, mixer_params, thrusts_out, w_cmd_out)
+
+
+@njit
+def quiet_steps(x, w_cmd, setpoint, steps, time_ns, step_ns, failsafe_after_ns, step_s, wind, att, att_state, inertia,
                 mixer_params, body_params, limits, safe_bounds, inflated_blocks):
     """Up to `steps` physics steps on x and w_cmd (in place) while each is quiet: no failsafe due, no mixer
     saturation, above the floor, finite and within the speed and rate limits, not near an obstacle or the
     world's bounds. A step that is not quiet is undone, and left to Simulator._physics_step. Returns the
     number of steps done."""
-    x_before, w_before, thrusts = np.empty(17), np.empty(4), np.empty(4)
+    x_before, w_before, att_before, thrusts = np.empty(17), np.empty(4), np.empty(7), np.empty(4)
     for i in range(steps):
         if time_ns + i * step_ns > failsafe_after_ns:
             return i
         x_before[:] = x
         w_before[:] = w_cmd
-        flags = command_rotors(x, setpoint, kp, kd, inertia, mixer_params, thrusts, w_cmd)
+        att_before[:] = att_state
+        flags = command_rotors(x, setpoint, att, att_state, step_s, inertia, mixer_params, thrusts, w_cmd)
         rk4_step(x, w_cmd, step_s, NO_FORCE, wind, body_params)
         px, py, pz = x[0], x[1], x[2]
         b = safe_bounds
@@ -437,5 +525,6 @@ def quiet_steps(x, w_cmd, setpoint, steps, time_ns, step_ns, failsafe_after_ns, 
                 or x[10] * x[10] + x[11] * x[11] + x[12] * x[12] > limits[LIMIT_RATE2]):
             x[:] = x_before
             w_cmd[:] = w_before
+            att_state[:] = att_before
             return i
     return steps

@@ -28,10 +28,25 @@ def damping_ratio(poles) -> float:
 
 
 def attitude_damping(vehicle) -> float:
-    """The worst damping ratio over the vehicle's three attitude axes."""
-    g = vehicle.attitude_gains
+    """The worst damping ratio over the vehicle's three attitude axes, for its own onboard loop (eq. 6, the SO(3)
+    cascade as kp = angle_p rate_p, kd = rate_p, or the lag loop's inner eq. 6; the lag's filter is a stable
+    first-order pole in series) and its own motor lag."""
+    kps, kds = vehicle.effective_attitude_gains()
     return min(damping_ratio(attitude_loop_poles(kp, kd, vehicle.motor_time_constant_s))
-               for kp, kd in zip(g.kp, g.kd))
+               for kp, kd in zip(kps, kds))
+
+
+def attitude_lag_s(vehicle, axis: int = 0) -> float:
+    """Mean delay -G'(0) / G(0) of the onboard loop's attitude response G to an attitude setpoint without
+    roll/pitch rate feed-forward: what a first-order-plus-dead-time fit calls tau + dead time.
+    eq6: G = kp / (tau_m s^3 + s^2 + kd s + kp), mean delay kd / kp (the motor lag adds none);
+    so3_pd: the same with kp = angle_p rate_p, kd = rate_p: 1 / angle_p;
+    lag: the target's first order (time_constant_s), tracked with its own rate fed forward (no further delay)."""
+    loop = vehicle.attitude_loop
+    if loop.type == 'lag':
+        return float(loop.time_constant_s)
+    kp, kd = vehicle.effective_attitude_gains()
+    return float(kd[axis] / kp[axis])
 
 
 def largest_time_constant(kp: float, kd: float, min_damping: float = MIN_DAMPING_RATIO) -> float:

@@ -124,7 +124,7 @@ def _line_trajectory(duration_s=1.5, start=(0.0, 0.0, 1.0), end=(0.5, -0.3, 1.2)
     return SampledTrajectory(t, base + s[:, None] * delta, ds[:, None] * delta, dds[:, None] * delta)
 
 
-def _fly_once(steps=200, real_controller=False, inject=None):
+def _fly_once(steps=200, real_controller=False, inject=None, params=()):
     with isolated_domain() as (domain, env):
         graph = Graph(domain, answer_until_s=-np.inf if real_controller else np.inf, inject=inject)
         procs = []
@@ -139,7 +139,7 @@ def _fly_once(steps=200, real_controller=False, inject=None):
             # fraction of a wall second with the compiled sim): start the sim once its diagnostics say so
             graph.spin_until(lambda: _controller_mode(graph) == 'hold (trajectory not started)')
         procs.append(_start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0',
-                                f'lockstep_followers:={FOLLOWER}'))
+                                f'lockstep_followers:={FOLLOWER}', *params))
         try:
             graph.spin_until(lambda: len(graph.odom) >= steps)
             stamps = {round(t, 9) for t, *_ in graph.odom[:steps]}  # every /clock of them, taken (none is lost)
@@ -157,6 +157,13 @@ def _controller_mode(graph):
     modes = [kv.value for a in graph.diagnostics for st in a.status if st.name.startswith('position_controller')
              for kv in st.values if kv.key == 'mode']
     return modes[-1] if modes else None
+
+
+def test_plant_parameter_flies_a_family_member():
+    """heavy_20pct: the same setpoints (the seed's PD, no integral) hold the vehicle lower than the nominal one."""
+    nominal, _, _ = _fly_once(steps=300)
+    heavy, _, _ = _fly_once(steps=300, params=('plant:=heavy_20pct',))
+    assert heavy[-1, 3] < nominal[-1, 3] - 0.05       # z: 0.2 g more weight against a 20 s^-2 position gain
 
 
 def test_lockstep_is_deterministic():
@@ -293,7 +300,7 @@ def level_of_error():
 @pytest.mark.parametrize('param,words', [
     ('physics_rate_hz:=0.0', 'physics_rate_hz'), ('vehicle:=no_such_vehicle.yaml', 'no_such_vehicle.yaml'),
     ('lockstep_period_s:=0.0015', 'lockstep_period_s'), ('disturbances:=gale', "disturbances = 'gale'"),
-    ('mode:=fast', 'mode'),
+    ('mode:=fast', 'mode'), ('plant:=wobbly', "plant = 'wobbly'"),
 ])
 def test_bad_parameters_refused_with_exit_2(param, words):
     with isolated_domain() as (_, env):

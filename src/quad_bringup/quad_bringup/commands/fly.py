@@ -17,6 +17,9 @@ def add_arguments(parser):
                         help="segment times (overrides the mission's; limits: within trajectory.limits)")
     parser.add_argument('--out', type=Path, help='run directory (default runs/<mission>-<controller>-<timestamp>)')
     parser.add_argument('--vehicle', type=Path, help='vehicle YAML for controller and simulator')
+    parser.add_argument('--plant', metavar='MEMBER',
+                        help='simulate a plant family member (config/plant_family.yaml, e.g. autopilot_so3); '
+                             'the controller still flies the vehicle file')
     parser.add_argument('--disturbances', metavar='PROFILE', help='simulator disturbance profile (e.g. drag_wind)')
     parser.add_argument('--control-profile', type=Path, metavar='FILE',
                         help='params file overriding config/control.yaml gains (e.g. config/control_fast.yaml)')
@@ -32,7 +35,8 @@ def add_arguments(parser):
 def options_from(args) -> FlightOptions:
     return FlightOptions(mission=Path(args.mission), controller=args.controller, speed_mps=args.speed, out=args.out,
                          time_allocation=args.time_allocation,
-                         vehicle=args.vehicle, disturbances=args.disturbances, control_profile=args.control_profile,
+                         vehicle=args.vehicle, plant=args.plant, disturbances=args.disturbances,
+                         control_profile=args.control_profile,
                          rule=Completion(args.position_tolerance, args.speed_tolerance),
                          time_limit_factor=args.time_limit_factor, quiet=args.quiet)
 

@@ -1,0 +1,197 @@
+"""What a flight says about the vehicle that flew it (no rclpy): attitude response and thrust scale.
+
+From any flight bag with `cmd/attitude_thrust` (the commanded attitude and specific force) and `odom` (the
+measured state), simulated or flown on a real vehicle through the bridge:
+
+- Attitude response, per roll and pitch axis: the measured angle y follows the commanded angle u as a first
+  order plus dead time (FOPDT) model,
+      tau y'(t) = K u(t - d) + c - y(t),
+  fitted by output error (simulate the model, least squares on y - y_hat) for every dead time d on a grid and
+  the best d kept. The lag the position loop sees is tau + d (the model's mean delay), the bandwidth
+  1 / (2 pi tau) Hz; `attitude_lead_s` = that lag.
+- Thrust scale k: the vertical acceleration the commanded specific force f really produces,
+      a_z + g = k f R_33,
+  so k = (1 + thrust error) / (1 + mass error) (the two are not separable from a flight: a 6 % weak thrust
+  and a 6 % heavy vehicle fly the same). Fitted on velocity changes over 0.5 s windows (no differentiation
+  of noisy odometry): dv_z + g dt = k integral(f R_33 dt). The hover thrust is g / k (m/s^2 of commanded
+  specific force), the equivalent mass error 1 / k - 1.
+
+Confidence: each estimate is repeated on BLOCKS contiguous parts of the flight; the 95 % interval is the
+whole-flight estimate +- t(0.975, n - 1) s / sqrt(n) over the n parts that had enough excitation (errors in
+neighbouring samples are correlated, so the residuals of one fit would understate it).
+"""
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import optimize, signal, stats
+
+from quad_common.types import GRAVITY_MPS2
+
+DT_S = 0.01                  # resampling period (odometry comes at 100 Hz in the graph)
+MAX_DELAY_S = 0.3
+BLOCKS = 6
+MIN_EXCITATION_RAD = np.deg2rad(0.5)   # command standard deviation a block needs to be fitted
+WINDOW_S = 0.5               # thrust-scale windows
+MIN_SPAN_S = 3.0
+
+
+@dataclass
+class AxisFit:
+    axis: str
+    tau_s: float
+    delay_s: float
+    gain: float
+    lag_s: float              # tau + delay
+    lag_ci95_s: tuple         # (low, high)
+    bandwidth_hz: float       # 1 / (2 pi tau)
+    fit_r2: float             # 1 - RSS / variance of y
+    blocks: int
+
+
+@dataclass
+class ThrustFit:
+    thrust_scale: float
+    thrust_scale_ci95: tuple
+    hover_specific_force_mps2: float   # the commanded specific force that hovers: g / k
+    mass_error_equivalent: float       # 1 / k - 1
+    blocks: int
+
+
+def _interval(estimate, parts):
+    parts = np.asarray(parts, dtype=float)
+    if len(parts) < 2:
+        return (float('nan'), float('nan'))
+    half = stats.t.ppf(0.975, len(parts) - 1) * parts.std(ddof=1) / np.sqrt(len(parts))
+    return (float(estimate - half), float(estimate + half))
+
+
+def _simulate(u_delayed, y0, tau_s, gain, bias):
+    a = np.exp(-DT_S / tau_s)
+    drive = (1 - a) * (gain * u_delayed + bias)
+    out, _ = signal.lfilter([0.0, 1.0], [1.0, -a], drive, zi=[a * y0])
+    out[0] = y0
+    return out
+
+
+def fit_fopdt(u, y):
+    """(tau_s, delay_s, gain, bias, rss) of tau y' = K u(t - d) + c - y on uniformly sampled u, y (DT_S)."""
+    fits = {}
+
+    def fit(shift):
+        if shift not in fits:
+            ud = np.concatenate([np.full(shift, u[0]), u[:len(u) - shift]])
+
+            def residual(p):
+                return _simulate(ud, y[0], np.exp(p[0]), p[1], p[2]) - y
+
+            r = optimize.least_squares(residual, [np.log(0.1), 1.0, 0.0], x_scale=[1.0, 0.1, 0.01],
+                                       bounds=([np.log(0.005), 0.2, -0.5], [np.log(2.0), 5.0, 0.5]))
+            fits[shift] = (float(np.exp(r.x[0])), shift * DT_S, float(r.x[1]), float(r.x[2]), float(r.fun @ r.fun))
+        return fits[shift]
+
+    coarse = 3   # dead times on a 3-sample grid, then every sample around the best
+    last = int(round(MAX_DELAY_S / DT_S))
+    best = min((fit(s) for s in range(0, last + 1, coarse)), key=lambda f: f[4])
+    centre = int(round(best[1] / DT_S))
+    return min((fit(s) for s in range(max(centre - coarse + 1, 0), min(centre + coarse, last + 1))),
+               key=lambda f: f[4])
+
+
+def _resample(t_cmd, cmd, t_odom, measured, t0, t1):
+    grid = np.arange(t0, t1, DT_S)
+    index = np.clip(np.searchsorted(t_cmd, grid, side='right') - 1, 0, len(t_cmd) - 1)  # zero-order hold
+    return grid, cmd[index], np.interp(grid, t_odom, measured)
+
+
+def _span(flight):
+    t0 = max(flight.cmd_t[0], flight.odom_t[0])
+    t1 = min(flight.cmd_t[-1], flight.odom_t[-1])
+    if t1 - t0 < MIN_SPAN_S:
+        raise ValueError(f'the bag has {max(t1 - t0, 0):.2f} s with both cmd/attitude_thrust and odom; '
+                         f'identification needs at least {MIN_SPAN_S} s of flight')
+    return t0, t1
+
+
+def _airborne(flight, t0, t1):
+    """The part of [t0, t1] after take-off: commanded specific force above half of g throughout."""
+    low = flight.cmd_t[(flight.cmd_specific_force < 0.5 * GRAVITY_MPS2) & (flight.cmd_t >= t0) & (flight.cmd_t <= t1)]
+    if len(low):
+        late = low[low > t0 + 0.5 * (t1 - t0)]
+        early = low[low <= t0 + 0.5 * (t1 - t0)]
+        t0 = early[-1] if len(early) else t0
+        t1 = late[0] if len(late) else t1
+    return t0, t1
+
+
+def identify_attitude(flight, axis: int) -> AxisFit:
+    """FOPDT fit of measured vs commanded roll (axis 0) or pitch (axis 1), with its 95 % interval."""
+    name = ('roll', 'pitch')[axis]
+    t0, t1 = _airborne(flight, *_span(flight))
+    _, u, y = _resample(flight.cmd_t, flight.cmd_euler[:, axis], flight.odom_t, flight.euler[:, axis], t0, t1)
+    if np.std(u) < MIN_EXCITATION_RAD:
+        raise ValueError(f'the commanded {name} varies by {np.degrees(np.std(u)):.2f} deg (std); identification '
+                         f'needs at least {np.degrees(MIN_EXCITATION_RAD):.1f} deg: fly a mission that moves')
+    tau, delay, gain, _, rss = fit_fopdt(u, y)
+    parts = []
+    for uu, yy in zip(np.array_split(u, BLOCKS), np.array_split(y, BLOCKS)):
+        if np.std(uu) >= MIN_EXCITATION_RAD and len(uu) * DT_S >= 1.0:
+            b_tau, b_delay, *_ = fit_fopdt(uu, yy)
+            parts.append(b_tau + b_delay)
+    lag = tau + delay
+    return AxisFit(axis=name, tau_s=tau, delay_s=delay, gain=gain, lag_s=lag, lag_ci95_s=_interval(lag, parts),
+                   bandwidth_hz=1.0 / (2 * np.pi * tau), fit_r2=1.0 - rss / (len(y) * np.var(y)), blocks=len(parts))
+
+
+def identify_thrust(flight) -> ThrustFit:
+    """Thrust scale k from a_z + g = k f R_33 over WINDOW_S windows, with its 95 % interval."""
+    t0, t1 = _airborne(flight, *_span(flight))
+    grid = np.arange(t0, t1, DT_S)
+    index = np.clip(np.searchsorted(flight.cmd_t, grid, side='right') - 1, 0, len(flight.cmd_t) - 1)
+    roll = np.interp(grid, flight.odom_t, flight.euler[:, 0])
+    pitch = np.interp(grid, flight.odom_t, flight.euler[:, 1])
+    drive = flight.cmd_specific_force[index] * np.cos(roll) * np.cos(pitch)   # f R_33 (Z-Y-X)
+    vz = np.interp(grid, flight.odom_t, flight.velocity[:, 2])
+    n = int(round(WINDOW_S / DT_S))
+    starts = np.arange(0, len(grid) - n, n)
+    lhs = np.array([vz[s + n] - vz[s] + GRAVITY_MPS2 * n * DT_S for s in starts])
+    rhs = np.array([np.trapezoid(drive[s:s + n + 1], dx=DT_S) for s in starts])
+    if len(starts) < 2:
+        raise ValueError('too short a flight to estimate the thrust scale')
+    k = float(lhs @ rhs / (rhs @ rhs))
+    parts = [float(a @ b / (b @ b)) for a, b in zip(np.array_split(lhs, BLOCKS), np.array_split(rhs, BLOCKS))
+             if len(b)]
+    return ThrustFit(thrust_scale=k, thrust_scale_ci95=_interval(k, parts), hover_specific_force_mps2=GRAVITY_MPS2 / k,
+                     mass_error_equivalent=1.0 / k - 1.0, blocks=len(parts))
+
+
+def identify(flight) -> dict:
+    """{'roll': AxisFit, 'pitch': AxisFit, 'thrust': ThrustFit, 'attitude_lead_s': mean lag} as plain dicts."""
+    if len(flight.cmd_t) == 0:
+        raise ValueError('the bag has no commanded attitude (topic cmd/attitude_thrust): nothing to identify')
+    roll, pitch = identify_attitude(flight, 0), identify_attitude(flight, 1)
+    thrust = identify_thrust(flight)
+    return {'roll': asdict(roll), 'pitch': asdict(pitch), 'thrust': asdict(thrust),
+            'attitude_lead_s': 0.5 * (roll.lag_s + pitch.lag_s), 'thrust_scale': thrust.thrust_scale}
+
+
+def profile(result: dict, base: dict | None = None) -> dict:
+    """A position_controller params file: `base` (a control profile's content) with the identified
+    attitude_lead_s and thrust_scale, plus the identification itself under `identification`."""
+    out = {k: v for k, v in (base or {}).items() if k != 'identification'}
+    params = dict(out.get('position_controller', {}).get('ros__parameters', {}))
+    params['attitude_lead_s'] = round(float(result['attitude_lead_s']), 4)
+    params['thrust_scale'] = round(float(result['thrust_scale']), 4)
+    out['position_controller'] = {'ros__parameters': params}
+    out['identification'] = _plain(result)
+    return out
+
+
+def _plain(value):
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return round(float(value), 5)
+    return value
