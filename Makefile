@@ -31,7 +31,16 @@ $(BUILD_STAMP): $(VENV_STAMP) $(PKG_FILES)
 	    --build-base build --install-base install
 	touch $@
 
-test: lint test-packages test-graph
+# Every suite runs even when an earlier one fails; one summary at the end; non-zero exit if any failed.
+SUITES := lint test-packages test-graph
+test: $(BUILD_STAMP)
+	@failed=""; \
+	for suite in $(SUITES); do \
+	    echo "=== make $$suite"; \
+	    $(MAKE) --no-print-directory $(foreach f,$(MAKEFILE_LIST),-f $(f)) $$suite || failed="$$failed $$suite"; \
+	done; \
+	echo "=== summary: $(words $(SUITES)) suites,$${failed:- none} failed"; \
+	[ -z "$$failed" ]
 
 lint: $(VENV_STAMP)
 	$(VENV)/bin/ruff check src test bench

@@ -58,3 +58,18 @@ def test_node_reads_params_file(ros_env, tmp_path):
     out = subprocess.run([sys.executable, '-c', PARAM_READER, '--ros-args', '--params-file', str(params)],
                          env=ros_env, capture_output=True, text=True, timeout=60, check=True).stdout
     assert json.loads(out) == {'rate_hz': 250.0, 'gains': [5.0, 5.0, 20.0], 'mode': 'lockstep'}
+
+
+def test_make_test_runs_every_suite_and_sums_up(tmp_path):
+    """`make test` goes on after a failing suite, ends with one summary and fails if any suite failed."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    assert 'SUITES' in (root / 'Makefile').read_text(), 'make test stops at the first failing suite'
+    probes = tmp_path / 'probes.mk'
+    probes.write_text(f'probe-fail:\n\tfalse\nprobe-ok:\n\ttouch {tmp_path}/ran\n')
+    done = subprocess.run(['make', '--no-print-directory', '-C', str(root), '-f', 'Makefile', '-f', str(probes),
+                           'test', 'SUITES=probe-fail probe-ok', 'BUILD_STAMP='],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0
+    assert (tmp_path / 'ran').exists()                     # the suite after the failing one ran
+    assert done.stdout.strip().splitlines()[-1] == '=== summary: 2 suites, probe-fail failed'

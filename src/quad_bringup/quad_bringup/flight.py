@@ -3,11 +3,22 @@
 The graph is the one sim.launch.py describes: trajectory_node, position_controller, sim_node
 (lockstep, use_sim_time) and the recorder, each a separate process in its own process group,
 in a ROS domain of their own (quad_common.domains.isolated_domain, localhost discovery).
+
+Reliability (README, Reliability): the recorder and fly's monitor are the simulator's lockstep followers
+(quad_common.lockstep), so the bag and the verdict hold every step; the bag is checked against the simulator's
+own step count; every node dies with fly (processes, bind_to_parent); SIGINT, SIGTERM and SIGHUP stop the graph in
+order, close the bag and write the report; a dead controller leaves the simulator running until its failsafe has
+landed the vehicle (LANDING_TIMEOUT_S).
+
+Start-up: all four processes start at once (their imports and DDS discovery overlap); the order that matters is
+kept by the lockstep itself: the simulator does not leave step 0 until both followers have taken it, and the
+recorder and monitor acknowledge nothing before they have the plan.
 """
 
 import dataclasses
 import datetime
 import json
+import os
 import signal
 import time
 from collections.abc import Callable
@@ -17,8 +28,8 @@ from pathlib import Path
 import yaml
 
 from quad_bringup import processes
-from quad_bringup.recorder import DEFAULT_TOPICS, installed
-from quad_bringup.report import Completion, write_report
+from quad_bringup.recorder import DEFAULT_TOPICS
+from quad_bringup.report import Completion, load_flight, record_summary, write_report
 from quad_common.domains import isolated_domain
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.yaml_io import load_yaml
@@ -34,6 +45,11 @@ GRAPH = {  # in start order (see STARTED_WHEN)
     'position_controller': ('quad_control.position_controller_node', 'config/control.yaml'),
 }
 RECORDER = 'recorder'
+CONTROLLER_NODE = 'position_controller'
+MONITOR = 'fly_monitor'           # the flight monitor's node name (a lockstep follower)
+LOCKSTEP_TIMEOUT_S = 3.0          # wall time sim_node waits for a setpoint before it takes the controller as gone
+LANDING_TIMEOUT_S = 60.0          # wall time fly waits for the failsafe's landing after the controller died
+STARTUP_NOTE_S = 1.0              # a start-up that takes longer says what it waits for
 
 
 class MissionRefused(ValueError):
@@ -60,6 +76,7 @@ class FlightOptions:
     divergence_m: float = 1.0
     quiet: bool = False
     fly_anyway: bool = False              # fly a plan that fails the vehicle's feasibility check
+    figures: bool = True
 
 
 @dataclass
@@ -69,6 +86,8 @@ class FlightResult:
     run_dir: Path | None = None
     metrics: dict | None = None
     pids: list = field(default_factory=list)
+    notes: list = field(default_factory=list)   # lines to print with the verdict (record shortfall, landing)
+    finish: Callable | None = None              # draws the figures (after the verdict is printed)
 
 
 def validate(options: FlightOptions):
@@ -83,8 +102,9 @@ def validate(options: FlightOptions):
                              f'{", ".join(TIME_ALLOCATIONS)}')
     if options.controller not in CONTROLLERS:
         raise MissionRefused(f'--controller {options.controller!r} refused: must be one of {", ".join(CONTROLLERS)}')
-    if options.speed_mps is not None and not options.speed_mps > 0:
-        raise MissionRefused(f'--speed {options.speed_mps} refused: must be > 0 m/s')
+    for name, value, low, high, unit in OPTION_RANGES(options):
+        if value is not None and not low < value <= high:
+            raise MissionRefused(f'{name} {value} refused: must be > {low:g} and <= {high:g}{unit}')
     path = Path(options.mission)
     if not path.is_file():
         raise MissionRefused(f'mission {path}: no such file')
@@ -139,6 +159,23 @@ def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptio
     raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above); --fly-anyway flies it all the same')
 
 
+def OPTION_RANGES(options: FlightOptions):  # noqa: N802 (a table)
+    """(option, value, exclusive low, inclusive high, unit) of every numeric option."""
+    return [('--speed', options.speed_mps, 0.0, 100.0, ' m/s'),
+            ('--time-limit-factor', options.time_limit_factor, 0.0, 1000.0, ''),
+            ('--position-tolerance', _completion_value(options, 'position_tolerance_m'), 0.0, 100.0, ' m'),
+            ('--speed-tolerance', _completion_value(options, 'speed_tolerance_mps'), 0.0, 100.0, ' m/s'),
+            ('--settle', _completion_value(options, 'settle_s'), -1e-12, 1e6, ' s'),
+            ('divergence_m', options.divergence_m, 0.0, 1e6, ' m'),
+            ('startup_timeout_s', options.startup_timeout_s, 0.0, 1e6, ' s'),
+            ('stall_timeout_s', options.stall_timeout_s, 0.0, 1e6, ' s')]
+
+
+def _completion_value(options: FlightOptions, key: str):
+    """A completion option as given: the explicit rule's, else the command line's (None: the vehicle's)."""
+    return getattr(options.rule, key) if options.rule is not None else options.completion.get(key)
+
+
 def plan_overrides(options: FlightOptions) -> dict:
     return {} if options.time_allocation is None else {'time_allocation': options.time_allocation}
 
@@ -187,7 +224,10 @@ def node_parameters(options: FlightOptions, mission) -> dict:
     if options.speed_mps is not None:
         params['trajectory_node']['speed_mps'] = float(options.speed_mps)
     params['position_controller'].update(controller=options.controller, lockstep=True, wait_for_trajectory=True)
-    params['sim_node'].update(mode='lockstep', initial_position=[float(v) for v in mission.initial_position],
+    params['sim_node'].update(mode='lockstep', lockstep_followers=f'{RECORDER},{MONITOR}',
+                              lockstep_timeout_s=max(float(params['sim_node'].get('lockstep_timeout_s', 0.0)),
+                                                     LOCKSTEP_TIMEOUT_S),
+                              initial_position=[float(v) for v in mission.initial_position],
                               world=mission.world_path or '', robot_radius_m=float(mission.options.robot_radius_m))
     if options.vehicle is not None:
         vehicle = str(Path(options.vehicle).resolve())
@@ -206,19 +246,62 @@ def node_parameters(options: FlightOptions, mission) -> dict:
 
 
 def default_run_dir(mission_name: str, controller: str) -> Path:
-    stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
+    stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S-%f')[:-3]   # milliseconds
     return REPO_ROOT / 'runs' / f'{mission_name}-{controller}-{stamp}'
 
 
+def make_run_dir(requested: Path | None, default: Path) -> Path:
+    """Creates the run directory. The default name is made unique atomically (mkdir without exist_ok, a -2, -3...
+    suffix on collision: two flies in the same millisecond get two directories); an explicit --out may exist but
+    must not hold a bag. Raises MissionRefused (one line) for a path that cannot be created or written."""
+    if requested is not None:
+        run_dir = Path(requested)
+        if (run_dir / 'bag').exists():
+            raise MissionRefused(f'--out {run_dir}: already holds a bag; choose a new run directory')
+        try:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            _check_writable(run_dir)
+        except OSError as exc:
+            raise MissionRefused(f'--out {run_dir}: cannot create or write it ({exc.strerror or exc})') from None
+        if (run_dir / 'bag').exists():
+            raise MissionRefused(f'--out {run_dir}: already holds a bag; choose a new run directory')
+        return run_dir
+    try:
+        default.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise MissionRefused(f'run directory {default.parent}: cannot create it ({exc.strerror or exc}); '
+                             'give --out') from None
+    for n in range(1, 1000):
+        run_dir = default if n == 1 else default.with_name(f'{default.name}-{n}')
+        try:
+            run_dir.mkdir()
+            return run_dir
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise MissionRefused(f'run directory {run_dir}: cannot create it ({exc.strerror or exc}); '
+                                 'give --out') from None
+    raise MissionRefused(f'run directory {default}: 999 runs of that name already exist')
+
+
+def _check_writable(path: Path):
+    probe = path / f'.write-test-{os.getpid()}'
+    probe.write_text('')
+    probe.unlink()
+
+
 class _Interrupt:
-    """SIGINT/SIGTERM to fly during a flight: remember it, stop in order (children are in their own groups)."""
+    """SIGINT/SIGTERM/SIGHUP to fly during a flight: remember it, stop in order (children are in their own
+    groups; a closed terminal's SIGHUP is a stop like Ctrl-C: bag closed, report written)."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
     def __init__(self):
         self.signum = None
         self._old = {}
 
     def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in self.SIGNALS:
             self._old[sig] = signal.signal(sig, self._handle)
         return self
 
@@ -230,21 +313,46 @@ class _Interrupt:
             signal.signal(sig, old)
 
 
-def fly(options: FlightOptions, log=print) -> FlightResult:
+class _Clock:
+    """Wall-clock marks of fly's phases (QUADFLIGHT_TIMING=1 prints them to stderr: where the time goes)."""
+
+    def __init__(self):
+        self.t0 = time.monotonic()
+        self.marks = []
+        self.enabled = bool(os.environ.get('QUADFLIGHT_TIMING'))
+
+    def mark(self, what):
+        self.marks.append((what, time.monotonic() - self.t0))
+        if self.enabled:
+            import sys
+            print(f'[{self.marks[-1][1]:6.2f} s] {what}', file=sys.stderr, flush=True)
+
+
+def fly(options: FlightOptions, log=print, defer_figures=False) -> FlightResult:
+    """Flies the mission (module docstring). The figures are drawn before this returns unless defer_figures:
+    then the caller prints the verdict first and calls result.finish() (-> an error line or None)."""
+    result = _fly(options, log)
+    if result.finish is not None and not defer_figures:
+        problem = result.finish()
+        result.finish = None
+        if problem:
+            result.notes.append(problem)
+    return result
+
+
+def _fly(options: FlightOptions, log) -> FlightResult:
+    clock = _Clock()
     try:
         options = with_profile_controller(options)
         mission = validate(options)
         options = preflight_options(options, mission, log)
-    except (MissionRefused, ValueError) as exc:
-        return FlightResult(EXIT_REFUSED, str(exc))
-    run_dir = Path(options.out) if options.out else default_run_dir(mission.name, options.controller)
-    if (run_dir / 'bag').exists():
-        return FlightResult(EXIT_REFUSED, f'--out {run_dir}: already holds a bag; choose a new run directory')
-    try:
         params = node_parameters(options, mission)
+        run_dir = make_run_dir(options.out, default_run_dir(mission.name, options.controller))
+    except MissionRefused as exc:
+        return FlightResult(EXIT_REFUSED, str(exc))
     except (ValueError, OSError) as exc:
         return FlightResult(EXIT_REFUSED, f'parameters: {exc}')
-    run_dir.mkdir(parents=True, exist_ok=True)
+    clock.mark('validated, run directory made')
     if plan_overrides(options):
         flown = write_flown_mission(options, mission, run_dir / 'mission.yaml')
         params['trajectory_node']['ros__parameters']['mission_file'] = str(flown.resolve())
@@ -254,48 +362,119 @@ def fly(options: FlightOptions, log=print) -> FlightResult:
              for name, (module, _) in GRAPH.items()]
     topics = ','.join(f'"{t}"' for t in DEFAULT_TOPICS)
     recorder = processes.NodeProcess(RECORDER, 'quad_bringup.recorder_node',
-                                     ['-p', f'output_dir:={run_dir / "bag"}', '-p', f'topics:=[{topics}]'],
+                                     ['-p', f'output_dir:={run_dir / "bag"}', '-p', f'topics:=[{topics}]',
+                                      '-p', 'lockstep_ack_after:=trajectory'],
                                      run_dir / 'logs' / 'recorder.log')
     log(f'flying {options.mission} with {options.controller} -> {run_dir}')
+    started = []
     with isolated_domain() as (domain, env), _Interrupt() as interrupt:
+        for node in [recorder, *nodes]:  # at once: imports and discovery overlap (module docstring)
+            node.start(env)
+            started.append(node)
+        _write_pids(run_dir, started)
+        clock.mark('processes started')
+        figure_worker = _FigureWorker.start(env) if options.figures else None
         from quad_bringup.flight_monitor import FlightJudge, FlightMonitor
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
                             time_limit_factor=options.time_limit_factor)
         monitor = FlightMonitor(domain, judge, recorder_name=RECORDER)
+        clock.mark('flight monitor up')
+        fault = None
         try:
-            recorder.start(env)  # first, so the latched plan and the first odometry are in the bag
-            _write_pids(run_dir, [recorder])
-            deadline = time.monotonic() + options.startup_timeout_s  # for every stage together
-            reason = _await(_recorder_readers_missing, [recorder], monitor, interrupt, deadline, options)
-            started = [recorder]
-            for node in nodes:  # one at a time, each once what it publishes reaches the judge and the bag
-                if reason is not None:
-                    break
-                node.start(env)
-                started.append(node)
-                _write_pids(run_dir, started)
-                if node.name in STARTED_WHEN:
-                    reason = _await(STARTED_WHEN[node.name], started, monitor, interrupt, deadline, options)
+            deadline = time.monotonic() + options.startup_timeout_s
+            reason = _await(_flight_not_started, started, monitor, interrupt, deadline, options, log)
+            clock.mark('flight started (plan and odometry at the monitor and in the bag)')
             if reason is None:
                 reason = _watch(judge, monitor, started, interrupt, options, log)
+                clock.mark('verdict')
+            if not reason.ok and (dead := _dead(nodes, CONTROLLER_NODE)) is not None and interrupt.signum is None:
+                fault = _await_landing(dead, judge, monitor, started, interrupt, log)
+                clock.mark('failsafe landing awaited')
         finally:
-            stopped = processes.stop(nodes, log=log)
-            stopped.update(processes.stop([recorder], log=log))
+            stopped = processes.stop(nodes, log=log, idle=monitor.spin_once)
+            stopped.update(processes.stop([recorder], log=log, idle=monitor.spin_once))
             monitor.close()
+            clock.mark('graph stopped')
     pids = [p.pid for p in nodes + [recorder] if p.popen is not None]
     extra = {'mission': mission.name, 'controller': options.controller, 'speed_mps': options.speed_mps,
              'outcome': reason.reason}
+    if fault is not None:
+        extra['fault'] = fault
+    published = monitor.published.get('steps')
     try:
-        metrics = write_report(run_dir / 'bag', run_dir, extra, options.rule)
+        flight = load_flight(run_dir / 'bag')
+        metrics = write_report(run_dir / 'bag', run_dir, extra, options.rule, published_steps=published,
+                               figures=False, flight=flight)
     except (ValueError, FileNotFoundError) as exc:
+        if figure_worker:
+            figure_worker.cancel()
         return FlightResult(EXIT_FAILED if reason.ok else _failure_code(interrupt),
                             f'{reason.reason}; no report: {exc}', run_dir, None, pids)
+    clock.mark('metrics and report.md written')
+    notes = [record_summary(metrics['record'])]
+    if fault is not None:
+        notes.append(fault['summary'])
+    if judge.completed_at_s is not None and metrics['completed'] and \
+            abs(judge.completed_at_s - metrics['time_actual_s']) > 1e-6:
+        notes.append(f'WARNING: the monitor saw completion at t = {judge.completed_at_s:.3f} s, the bag at '
+                     f'{metrics["time_actual_s"]:.3f} s')
+    finish = (lambda: _finish_figures(figure_worker, flight, run_dir, metrics, clock)) if figure_worker else None
     if interrupt.signum is not None:
-        return FlightResult(EXIT_INTERRUPTED, reason.reason, run_dir, metrics, pids)
+        return FlightResult(EXIT_INTERRUPTED, reason.reason, run_dir, metrics, pids, notes, finish)
     if reason.ok and not (metrics['completed'] and not metrics['collided']):
         reason.ok, reason.reason = False, f'{reason.reason}, but the bag does not show completion'
-    return FlightResult(EXIT_COMPLETED if reason.ok else EXIT_FAILED, reason.reason, run_dir, metrics, pids)
+    if reason.ok and not metrics['record']['complete']:
+        reason.ok, reason.reason = False, f'{reason.reason}, but the bag is incomplete'
+    return FlightResult(EXIT_COMPLETED if reason.ok else EXIT_FAILED, reason.reason, run_dir, metrics, pids, notes,
+                        finish)
+
+
+class _FigureWorker:
+    """A process started with the graph that imports matplotlib and the report while the flight runs, then
+    draws the figures of the finished bag (quad_bringup.figure_worker): the verdict does not wait for them."""
+
+    def __init__(self, popen):
+        self.popen = popen
+
+    @classmethod
+    def start(cls, env):
+        import subprocess
+        import sys
+        popen = subprocess.Popen([sys.executable, '-m', 'quad_bringup.figure_worker'], env=env, text=True,
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
+        return cls(popen)
+
+    def draw(self, flight, out_dir: Path) -> list[str]:
+        """The figure paths written (relative to out_dir); raises RuntimeError with the worker's message."""
+        import pickle
+        import tempfile
+        with tempfile.NamedTemporaryFile(suffix='.pickle') as f:
+            pickle.dump(flight, f, protocol=pickle.HIGHEST_PROTOCOL)
+            f.flush()
+            out, _ = self.popen.communicate(json.dumps({'flight': f.name, 'out': str(out_dir)}) + '\n')
+        answer = json.loads(out.strip().splitlines()[-1]) if out.strip() else {'error': 'no answer'}
+        if 'error' in answer:
+            raise RuntimeError(answer['error'])
+        return answer['figures']
+
+    def cancel(self):
+        if self.popen.poll() is None:
+            self.popen.kill()
+            self.popen.wait()
+
+
+def _finish_figures(worker: _FigureWorker, flight, run_dir: Path, metrics: dict, clock) -> str | None:
+    """Figures into run_dir/figures and their links into report.md; an error line, or None."""
+    from quad_bringup.report import write_markdown
+
+    try:
+        figures = worker.draw(flight, run_dir)
+    except (RuntimeError, ValueError, OSError) as exc:
+        return f'figures not drawn: {exc}'
+    write_markdown(metrics, run_dir, [run_dir / f for f in figures])
+    clock.mark('figures drawn')
+    return None
 
 
 def _write_pids(run_dir: Path, started):
@@ -306,31 +485,24 @@ def _failure_code(interrupt):
     return EXIT_INTERRUPTED if interrupt.signum is not None else EXIT_FAILED
 
 
-def _recorder_readers_missing(monitor) -> str | None:
-    """The recorder must read every topic before any publisher starts: a flight of a few simulated seconds can
-    be over in under a second of wall time, before a recorder still importing its libraries has subscribed."""
-    missing = monitor.missing_readers(RECORDER, [t for t, spec in DEFAULT_TOPICS.items() if installed(spec)])
-    return f'{RECORDER} not subscribed to {", ".join(missing)}' if missing else None
+def _dead(children, name):
+    return next((p for p in children if p.name == name and p.exit_code() is not None), None)
 
 
-def _first_message_missing(topic: str, at_judge) -> Callable:
-    """What a node must have delivered before the next one starts: its first `topic` message, to the judge and
-    into the bag (the recorder reports its counts on diagnostics). A sample written while a reader is still being
-    matched can wait for the writer's next heartbeat (Fast DDS: 3 s), and a lockstep flight of a few simulated
-    seconds is over in less wall time than that, so fly waits for delivery instead of racing it."""
-    def missing(monitor) -> str | None:
-        waiting = [who for who, ok in (('the flight monitor', at_judge(monitor.judge)),
-                                       (RECORDER, monitor.recorded.get(topic, 0) > 0)) if not ok]
-        return f'no {topic} at {" and ".join(waiting)}' if waiting else None
-    return missing
-
-
-# The graph starts in GRAPH order; each node named here once its condition holds: the plan (latched, published
-# once), then the simulator's odometry (it re-publishes t = 0 until a controller is up), then the controller.
-STARTED_WHEN = {
-    'trajectory_node': _first_message_missing('trajectory', lambda judge: judge.trajectory is not None),
-    'sim_node': _first_message_missing('odom', lambda judge: judge.t_s is not None),
-}
+def _flight_not_started(monitor) -> str | None:
+    """What the flight still waits for before it is under way: the plan and odometry at the monitor and in the
+    bag (the simulator holds step 0 until both followers have them; this only names the wait)."""
+    judge = monitor.judge
+    waiting = []
+    if judge.trajectory is None:
+        waiting.append('the plan at the flight monitor')
+    if monitor.recorded.get('trajectory', 0) == 0:
+        waiting.append('the plan in the bag')
+    if judge.t_s is None:
+        waiting.append('odometry from sim_node')
+    if monitor.recorded.get('odom', 0) == 0:
+        waiting.append('odometry in the bag')
+    return ', '.join(waiting) if waiting else None
 
 
 def _interrupted_or_dead(children, interrupt, when: str):
@@ -345,22 +517,30 @@ def _interrupted_or_dead(children, interrupt, when: str):
     return None
 
 
-def _await(missing, children, monitor, interrupt, deadline, options):
-    """Spin the monitor until `missing(monitor)` is None (-> None), else the Verdict why the flight cannot start."""
+def _await(missing, children, monitor, interrupt, deadline, options, log):
+    """Spin the monitor until `missing(monitor)` is None (-> None), else the Verdict why the flight cannot start.
+    After STARTUP_NOTE_S, and on each change, one line says what it still waits for."""
     from quad_bringup.flight_monitor import Verdict
 
+    start = time.monotonic()
+    said = None
     while (what := missing(monitor)) is not None:
         if (ended := _interrupted_or_dead(children, interrupt, 'before the flight')) is not None:
             return ended
-        if time.monotonic() > deadline:
-            return Verdict(False, f'{what} within {options.startup_timeout_s:.0f} s of start')
+        now = time.monotonic()
+        if now > deadline:
+            return Verdict(False, f'waiting for {what}: not there within {options.startup_timeout_s:.0f} s of start')
+        if now - start > STARTUP_NOTE_S and what != said and not options.quiet:
+            log(f'starting: waiting for {what} ({now - start:.1f} s; a first run compiles the simulator\'s '
+                'kernels)')
+            said = what
         monitor.spin_once(0.05)
     return None
 
 
 def _watch(judge, monitor, children, interrupt, options, log):
     """Spin the monitor until a verdict, a dead child, a stall or a signal (the judge already has the plan and
-    odometry: the staged start waited for both)."""
+    odometry: the start waited for both)."""
     from quad_bringup.flight_monitor import Verdict
 
     last_progress = last_change = time.monotonic()
@@ -379,3 +559,38 @@ def _watch(judge, monitor, children, interrupt, options, log):
         if not options.quiet and now - last_progress >= 1.0:
             log(judge.progress())
             last_progress = now
+
+
+def _await_landing(dead, judge, monitor, children, interrupt, log) -> dict:
+    """The controller died: the simulator runs on (after one lockstep timeout, 0.02 s per step) and its failsafe lands
+    the vehicle. Spin until sim_node reports `disarmed`, another node dies, a signal or LANDING_TIMEOUT_S; the
+    bag then shows the landing. Returns what died, when, and where the vehicle came down."""
+    died_at = judge.t_s
+    log(f'{dead.name} exited with status {dead.exit_code()} at t = {_since(judge, died_at)}: '
+        'waiting for the simulator\'s failsafe to land the vehicle')
+    others = [p for p in children if p is not dead]
+    deadline = time.monotonic() + LANDING_TIMEOUT_S
+    landed = None
+    while time.monotonic() < deadline and interrupt.signum is None and not any(
+            p.exit_code() is not None for p in others):
+        monitor.spin_once(0.05)
+        level, message, values = monitor.sim_events.get('sim_node: failsafe', (None, '', {}))
+        if 'disarmed' in message:
+            landed = values
+            break
+    fault = {'node': dead.name, 'exit_code': dead.exit_code(), 'at_s': None if died_at is None else
+             died_at - (judge.start_s or 0.0), 'landed': landed is not None}
+    if landed is not None:
+        fault['landed_at_s'] = float(landed['time_s']) - (judge.start_s or 0.0)
+        fault['landed_position_m'] = [float(landed[k]) for k in ('x', 'y', 'z')]
+        where = ', '.join(f'{v:.2f}' for v in fault['landed_position_m'])
+        fault['summary'] = (f'fault: {dead.name} died at t = {_since(judge, died_at)}; the failsafe landed the '
+                            f'vehicle at t = {fault["landed_at_s"]:.2f} s at ({where}) m')
+    else:
+        fault['summary'] = (f'fault: {dead.name} died at t = {_since(judge, died_at)}; no landing reported by '
+                            f'sim_node within {LANDING_TIMEOUT_S:.0f} s')
+    return fault
+
+
+def _since(judge, t_s) -> str:
+    return '?' if t_s is None else f'{t_s - (judge.start_s or 0.0):.2f} s'

@@ -1,6 +1,8 @@
 """In-process watcher of a flight (fly's eyes): trajectory, odometry and diagnostics -> a verdict.
 
 The judgement itself (`FlightJudge`) has no rclpy: it is fed plain numbers, so it is unit-tested.
+The monitor is a lockstep follower (quad_common.lockstep, as MONITOR): the simulator never runs more than a few
+steps ahead of what it has judged, so the verdict is computed from every odometry sample, as the report is.
 """
 
 from dataclasses import dataclass
@@ -11,9 +13,13 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from quad_bringup.flight import MONITOR
 from quad_bringup.metrics import Completion
-from quad_common import contract, conversions
+from quad_common import cdr, contract, conversions, lockstep
 from quad_common.diagnostics import ERROR, level_of
+from quad_common.hot_path import HotPathExecutor
+
+SIM_NODE = 'sim_node'
 
 
 @dataclass
@@ -94,28 +100,40 @@ class FlightMonitor:
         self.judge = judge
         self.recorder_name = recorder_name
         self.recorded = {}  # topic -> messages in the bag, from the recorder's status on diagnostics
+        self.published = {}  # the simulator's `sim_node: published` values (steps, future_setpoints_refused)
+        self.sim_events = {}  # diagnostics name -> (level, message, values) of the simulator's newest statuses
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id,
                    signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-        self.node = rclpy.create_node('fly_monitor', context=self.context)
+        self.node = rclpy.create_node(MONITOR, context=self.context)
+        self.ack = lockstep.Acknowledger(self.node, MONITOR)
         c = contract
-        self.node.create_subscription(MultiDOFJointTrajectory, c.TRAJECTORY, self._on_trajectory, c.qos(c.TRAJECTORY))
-        self.node.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM))
-        self.node.create_subscription(DiagnosticArray, c.DIAGNOSTICS, self._on_diagnostics, c.qos(c.DIAGNOSTICS, 50))
-        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self._hot = [self.node.create_subscription(MultiDOFJointTrajectory, c.TRAJECTORY, self._on_trajectory,
+                                                   c.qos(c.TRAJECTORY)),
+                     self.node.create_subscription(Odometry, c.ODOM, self._on_odom, lockstep.PACED, raw=True),
+                     self.node.create_subscription(DiagnosticArray, c.DIAGNOSTICS, self._on_diagnostics,
+                                                   lockstep.PACED)]
+        self.executor = HotPathExecutor(lambda: (self._hot, ()), context=self.context)
         self.executor.add_node(self.node)
 
     def _on_trajectory(self, msg):
         self.judge.set_trajectory(*conversions.msg_to_sampled(msg))
 
-    def _on_odom(self, msg):
-        state = conversions.odometry_to_state(msg)
-        self.judge.on_odometry(conversions.stamp_to_s(msg.header.stamp), state.position, state.velocity)
+    def _on_odom(self, raw: bytes):
+        stamp_ns, state = cdr.odometry_to_state(raw)
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        self.judge.on_odometry(sec + nanosec * 1e-9, state.position, state.velocity)  # as conversions.stamp_to_s
+        self.ack.taken(stamp_ns)
 
     def _on_diagnostics(self, msg):
         for st in msg.status:
             if st.name == self.recorder_name:
                 self.recorded = {kv.key: int(kv.value) for kv in st.values}
+            elif st.name.startswith(SIM_NODE + ':'):
+                values = {kv.key: kv.value for kv in st.values}
+                self.sim_events[st.name] = (level_of(st), st.message, values)
+                if st.name == f'{SIM_NODE}: published':
+                    self.published = {k: int(v) for k, v in values.items()}
             if level_of(st) == ERROR[0]:  # an event is a key of an ERROR status, not its name or message
                 t_s = contract.event_time_s({kv.key: kv.value for kv in st.values}, contract.COLLISION_TIME_S)
                 if t_s is not None:
@@ -129,6 +147,7 @@ class FlightMonitor:
 
     def spin_once(self, timeout_s=0.1):
         self.executor.spin_once(timeout_sec=timeout_s)
+        self.ack.flush()
 
     def close(self):
         self.executor.shutdown()

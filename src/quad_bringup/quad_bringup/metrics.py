@@ -16,6 +16,9 @@ Definitions:
 - avg_velocity_mps = length_actual_m / time_actual_s (the seed's column).
 - rmse_m, max_error_m: |p_actual(t) - p_planned(t - t_start)| over that window (plan held at its ends).
 - waypoint_miss_max_m: the largest over waypoints of the closest approach of the flown path.
+- record: the bag checked against the simulator: distinct odom and /clock stamps in the bag vs the steps
+  sim_node says it published (its `sim_node: published` diagnostics, the newest in the bag, or the final count
+  fly passes), and gaps in the odometry longer than 1.5 lockstep periods. A shortfall is reported, never silent.
 """
 
 import math
@@ -97,9 +100,56 @@ class Flight:
     cmd_euler: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     collision_time_s: float | None = None
     errors: list = field(default_factory=list)   # (time_s, name, message) of ERROR diagnostics
+    odom_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    clock_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    sim_published: tuple | None = None           # (stamp ns, steps) of the newest `sim_node: published`
+    truncated: dict | None = None                # a killed recorder's bag: where it was cut (recorder.Repair)
+
+
+GAP_FACTOR = 1.5  # an odometry interval longer than this many typical periods is a gap
 
 
 # --- metrics -------------------------------------------------------------------------------------
+
+def record_check(flight: Flight, published_steps: int | None = None) -> dict:
+    """The bag against the simulator's own count (module docstring): steps published, distinct stamps recorded
+    up to the count's stamp, what is missing, and the odometry gaps."""
+    odom = np.unique(flight.odom_stamps_ns)
+    clock = np.unique(flight.clock_stamps_ns)
+    upto = None  # with fly's final count: everything the simulator published
+    if published_steps is None and flight.sim_published is not None:
+        upto, published_steps = flight.sim_published
+    check = {'steps_published': published_steps}
+    for name, stamps in (('odom', odom), ('/clock', clock)):
+        recorded = int(np.count_nonzero(stamps <= upto)) if upto is not None else int(len(stamps))
+        check[f'{name}_recorded'] = recorded
+        if published_steps is not None and recorded < published_steps:
+            check.setdefault('missing', {})[name] = published_steps - recorded
+    gaps = []
+    if len(odom) > 2:
+        dt = np.diff(odom)
+        period = float(np.median(dt))
+        for i in np.nonzero(dt > GAP_FACTOR * period)[0][:10]:
+            gaps.append({'after_s': float(odom[i] * 1e-9), 'length_s': float(dt[i] * 1e-9)})
+    check['gaps'] = gaps
+    check['complete'] = published_steps is not None and 'missing' not in check and not gaps
+    return check
+
+
+def record_summary(check: dict) -> str:
+    """One line: what the bag holds against what the simulator published."""
+    if check['steps_published'] is None:
+        return 'record: the bag has no count from sim_node to check against'
+    line = (f'record: odom {check["odom_recorded"]} and /clock {check["/clock_recorded"]} of '
+            f'{check["steps_published"]} steps published by sim_node')
+    if check.get('missing'):
+        line += '; MISSING ' + ', '.join(f'{n} {t}' for t, n in check['missing'].items())
+    if check['gaps']:
+        line += (f'; {len(check["gaps"])} gap(s) in odom, the longest {max(g["length_s"] for g in check["gaps"]):.3f}'
+                 f' s after t = {check["gaps"][0]["after_s"]:.2f} s')
+    return line + ('' if check['complete'] else ' (INCOMPLETE)')
+
+
 
 def arc_length(points) -> float:
     points = np.asarray(points)
@@ -130,7 +180,7 @@ def completion_time(flight: Flight, rule: Completion) -> float | None:
     return float(flight.odom_t[np.argmax(done)]) if np.any(done) else None
 
 
-def compute_metrics(flight: Flight, rule: Completion = Completion()) -> dict:
+def compute_metrics(flight: Flight, rule: Completion = Completion(), published_steps: int | None = None) -> dict:
     if flight.trajectory is None:
         raise ValueError('bag has no trajectory message (topic trajectory): nothing to compare the flight with')
     t0 = flight.traj_start_s
@@ -176,5 +226,7 @@ def compute_metrics(flight: Flight, rule: Completion = Completion()) -> dict:
         'completion_rule': rule.describe(),
         'scored_window': {'start_s': 0.0, 'end_s': t_end - t0, 'ends_at': ends_at,
                           'bag_end_s': float(flight.odom_t[-1]) - t0},
+        'record': record_check(flight, published_steps),
+        'bag_truncated': flight.truncated,
     }
     return metrics

@@ -1,4 +1,9 @@
-"""Node processes of a flight: each in its own process group, stopped so that nothing is orphaned."""
+"""Node processes of a flight: each in its own process group, stopped so that nothing is orphaned.
+
+Each node is also bound to fly's life (quad_common.lifeline.bind_to_parent, through PARENT_PID_VARIABLE): if fly
+dies for any reason, SIGKILL included, every node gets SIGTERM (the recorder closes its bag) within a fraction
+of a second.
+"""
 
 import os
 import signal
@@ -7,6 +12,8 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from quad_common.lifeline import PARENT_PID_VARIABLE
 
 
 @dataclass
@@ -25,6 +32,7 @@ class NodeProcess:
         with self.log_path.open('w') as log:
             # A new session: its own process group, so a signal to the group reaches everything it started,
             # and a Ctrl-C on fly's terminal reaches fly only (fly decides the order of stopping).
+            env = dict(env, **{PARENT_PID_VARIABLE: str(os.getpid())})
             self.popen = subprocess.Popen(self.command(), env=env, stdout=log, stderr=subprocess.STDOUT,
                                           stdin=subprocess.DEVNULL, start_new_session=True)
 
@@ -48,10 +56,11 @@ class NodeProcess:
             pass
 
 
-def stop(processes, grace_s=10.0, log=print):
+def stop(processes, grace_s=10.0, log=print, idle=None):
     """SIGINT to every group, then SIGTERM, then SIGKILL to groups still alive after `grace_s` each.
 
-    Returns {name: exit code}. Waits for each group leader, and kills the rest of its group.
+    Returns {name: exit code}. Waits for each group leader, and kills the rest of its group. `idle(timeout_s)`,
+    if given, is called while waiting (fly spins its monitor: a stopping simulator waits for its acknowledgements).
     """
     running = [p for p in processes if p.popen is not None]
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
@@ -63,6 +72,10 @@ def stop(processes, grace_s=10.0, log=print):
         for p in alive:
             p.signal_group(sig)
         deadline = time.monotonic() + grace_s
+        if idle is not None:
+            while time.monotonic() < deadline and any(p.exit_code() is None for p in alive):
+                idle(0.02)
+            continue
         for p in alive:
             try:
                 p.popen.wait(timeout=max(0.1, deadline - time.monotonic()))

@@ -6,13 +6,17 @@ Jazzy typestore, so `ros2 bag info` / Foxglove / rosbags read the bag like one f
 Crash safety: the MCAP writer keeps the open chunk in memory; `flush()` closes that chunk and
 pushes it to the file, so a recorder killed with SIGKILL leaves every flushed chunk on disk but
 no MCAP footer and no metadata.yaml. `repair_bag(path)` cuts a torn last record, appends the
-footer and writes metadata.yaml from a scan of the file; `open_bag_reader` does this on demand.
+footer and writes metadata.yaml from a scan of the file (in place: for a copy); `open_bag_reader` reads such a
+bag from a repaired copy (`repaired_copy`: BAG.repaired next to it, else in the temp directory) and never
+modifies its input; it says where the file was cut and where the copy is.
 """
 
 import importlib.util
 import os
+import shutil
 import struct
-from dataclasses import dataclass
+import tempfile
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
@@ -144,16 +148,25 @@ def _last_whole_record_end(mcap: Path) -> int:
     return end
 
 
-def repair_bag(bag_dir) -> bool:
-    """Make the bag of a killed recorder readable: returns True if something was repaired.
+def needs_repair(bag_dir) -> bool:
+    """A single .mcap without its footer or without metadata.yaml: a recorder that did not close its bag."""
+    bag_dir = Path(bag_dir)
+    mcap = _mcap_file(bag_dir)
+    return mcap is not None and not ((bag_dir / 'metadata.yaml').exists() and _has_footer(mcap))
+
+
+def repair_bag(bag_dir) -> int | None:
+    """Make the bag of a killed recorder readable IN PLACE (use it on a copy): returns the byte offset the .mcap
+    was cut at (its size if nothing was torn), or None if it needed no repair.
 
     Keeps every whole record (all flushed chunks), appends DataEnd + a footer without summary
     (readers then scan the file) and writes metadata.yaml with the counts found by that scan.
     """
     bag_dir = Path(bag_dir)
+    if not needs_repair(bag_dir):
+        return None
     mcap = _mcap_file(bag_dir)
-    if mcap is None or (bag_dir / 'metadata.yaml').exists() and _has_footer(mcap):
-        return False
+    end = mcap.stat().st_size
     if not _has_footer(mcap):
         end = _last_whole_record_end(mcap)
         with mcap.open('r+b') as f:
@@ -162,7 +175,50 @@ def repair_bag(bag_dir) -> bool:
             f.write(bytes([_OP_DATA_END]) + struct.pack('<QI', 4, 0))
             f.write(bytes([_OP_FOOTER]) + struct.pack('<QQQI', 20, 0, 0, 0) + MCAP_MAGIC)
     _write_metadata(bag_dir, mcap)
-    return True
+    return end
+
+
+@dataclass
+class Repair:
+    """Where a bag left by a killed recorder was cut, and where its repaired copy is."""
+    file: str
+    size_bytes: int
+    cut_at_byte: int
+    repaired_copy: str
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def repaired_copy(bag_dir) -> Repair:
+    """Copy the bag to BAG.repaired next to it (the temp directory if that is not writable) and repair the copy.
+    A copy made from the same file (same size and mtime, noted in it) is reused."""
+    bag_dir = Path(bag_dir)
+    mcap = _mcap_file(bag_dir)
+    st = mcap.stat()
+    source = f'{mcap.resolve()} {st.st_size} {st.st_mtime_ns}\n'
+    for parent in (bag_dir.parent, Path(tempfile.gettempdir())):
+        copy = parent / f'{bag_dir.name}.repaired'
+        marker = copy / 'repaired_from.txt'
+        try:
+            if marker.is_file() and marker.read_text() == source:
+                return Repair(str(mcap), st.st_size, int(marker.with_name('cut_at.txt').read_text()), str(copy))
+            staging = Path(tempfile.mkdtemp(prefix=f'.{bag_dir.name}.repairing-', dir=parent))
+        except OSError:
+            continue
+        try:
+            shutil.copy2(mcap, staging / mcap.name)
+            cut = repair_bag(staging)
+            (staging / 'cut_at.txt').write_text(str(cut))
+            (staging / 'repaired_from.txt').write_text(source)
+            if copy.exists():
+                shutil.rmtree(copy)
+            staging.rename(copy)
+        except OSError:
+            shutil.rmtree(staging, ignore_errors=True)
+            continue
+        return Repair(str(mcap), st.st_size, cut, str(copy))
+    raise OSError(f'bag {bag_dir}: needs repair, and no writable place for a repaired copy')
 
 
 def _write_metadata(bag_dir: Path, mcap: Path):
@@ -201,14 +257,18 @@ def _write_metadata(bag_dir: Path, mcap: Path):
         yaml.dump({'rosbag2_bagfile_information': info}, f)
 
 
-def open_bag_reader(bag_dir) -> Reader:
-    """An opened rosbags Reader; a bag left by a killed recorder is repaired first."""
+def open_bag_reader(bag_dir) -> tuple[Reader, Repair | None]:
+    """(an opened rosbags Reader, None), or for a bag left by a killed recorder (a reader of its repaired copy,
+    the Repair saying where it was cut and where the copy is). The input is never modified."""
     bag_dir = Path(bag_dir)
     if not bag_dir.is_dir():
         raise FileNotFoundError(f'bag {bag_dir}: no such directory')
-    repair_bag(bag_dir)
+    repair = None
+    if needs_repair(bag_dir):
+        repair = repaired_copy(bag_dir)
+        bag_dir = Path(repair.repaired_copy)
     if not (bag_dir / 'metadata.yaml').exists():
         raise FileNotFoundError(f'bag {bag_dir}: no metadata.yaml and no single .mcap file to recover it from')
     reader = Reader(bag_dir)
     reader.open()
-    return reader
+    return reader, repair

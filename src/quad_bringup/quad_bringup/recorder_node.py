@@ -3,7 +3,12 @@
 Topics of DEFAULT_TOPICS are subscribed at once with the QoS their publishers use (latched
 trajectory topics transient_local); any other topic is subscribed when it appears in the
 graph, with its type and durability taken from its publishers. Timestamps are receive times
-(system clock, as `ros2 bag record` does). SIGINT/SIGTERM close the bag cleanly.
+(system clock, as `ros2 bag record` does). SIGINT/SIGTERM/SIGHUP close the bag cleanly, and so does the death of
+the process that started it (quad_common.lifeline.bind_to_parent).
+
+A lockstep follower (quad_common.lockstep): it acknowledges the odometry it has written, so a simulator started
+with lockstep_followers:=recorder never publishes more than the bag can take. The subscriptions are served in
+one pass per wake-up (HotPathExecutor), the status timer and discovery in its slow pass.
 
 Status on `diagnostics` (name `recorder`, one value per topic: messages written) every second and when a topic
 gets its first message: how `quadflight fly` knows the latched plan is in the bag before the flight starts.
@@ -16,16 +21,22 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from nav_msgs.msg import Odometry
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, installed
-from quad_common import contract, diagnostics
+from quad_common import cdr, contract, diagnostics, lockstep
+from quad_common.hot_path import HotPathExecutor
+from quad_common.lifeline import bind_to_parent
+from quad_common.node_main import STOP_SIGNALS
 from quad_common.params import Param, ParameterSet
 
 STATUS_PERIOD_S = 1.0
+ACK_FLUSH_S = 0.05  # wall time: the newest odometry is acknowledged at least this often (a stopping simulator)
+ODOM = 'odom'
 
 PARAMS = [
     Param('output_dir', '', 'bag directory to create (must not exist yet)', read_only=True),
@@ -33,6 +44,9 @@ PARAMS = [
           read_only=True),
     Param('flush_period_s', 1.0, 'wall-clock period of pushing the open chunk to disk (what a SIGKILL can lose)',
           min=0.05, max=60.0),
+    Param('lockstep_ack_after', '', 'comma-separated topics that must be in the bag before odometry is '
+          'acknowledged (quad_common.lockstep: a follower\'s simulator does not start without them), e.g. trajectory',
+          read_only=True),
     Param('queue_depth', 1000, 'subscription history depth (reliable; generous so a busy recorder drops nothing)',
           min=1, max=100000, read_only=True),
 ]
@@ -51,6 +65,8 @@ class RecorderNode(Node):
         if not self.params['output_dir']:
             raise ValueError('output_dir = \'\' refused: give the bag directory to create')
         self.bag = BagRecorder(self.params['output_dir'])
+        self.ack = lockstep.Acknowledger(self, self.get_name())
+        self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
         self._raw_subscriptions = {}
         self._pending = []
         for topic in self.params['topics']:
@@ -66,6 +82,7 @@ class RecorderNode(Node):
         self.status_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                                 contract.qos(contract.DIAGNOSTICS))
         self.create_timer(STATUS_PERIOD_S, self.publish_status, clock=steady)
+        self.ack_timer = self.create_timer(ACK_FLUSH_S, self.ack.flush, clock=steady)
         if self._pending:
             self.create_timer(0.5, self._discover,
                               clock=rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME))
@@ -80,11 +97,18 @@ class RecorderNode(Node):
 
         def on_message(data: bytes, topic=topic):
             self.bag.write(topic, time.time_ns(), data)
+            if topic == ODOM:
+                self.ack.taken(cdr.header_stamp_ns(data, Odometry))
+                if self.ack_after:  # nothing acknowledged until the bag has these (e.g. the latched plan)
+                    self.ack.hold(any(self.bag.counts.get(t, 0) == 0 for t in self.ack_after))
             if self.bag.counts[topic] == 1:
                 self.publish_status()
 
         self._raw_subscriptions[topic] = self.create_subscription(message_class(spec.msgtype), topic, on_message, qos,
                                                               raw=True)
+
+    def hot_entities(self):
+        return list(self._raw_subscriptions.values()), [self.ack_timer]
 
     def _discover(self):
         """Subscribe to requested topics that have appeared in the graph since."""
@@ -114,10 +138,12 @@ class RecorderNode(Node):
 
 
 def main(args=None):
-    """Spins until SIGINT/SIGTERM, then takes what is already delivered and closes the bag."""
+    """Spins until SIGINT/SIGTERM/SIGHUP (or the parent's death), then takes what is already delivered and closes
+    the bag."""
     stop = []
+    bind_to_parent()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         signal.signal(sig, lambda signum, frame: stop.append(signum))
     try:
         node = RecorderNode()
@@ -125,7 +151,7 @@ def main(args=None):
         print(f'recorder: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(2)
-    executor = SingleThreadedExecutor()
+    executor = HotPathExecutor(node.hot_entities)
     executor.add_node(node)
     try:
         while not stop:

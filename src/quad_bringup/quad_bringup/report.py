@@ -22,6 +22,8 @@ from quad_bringup.metrics import (  # noqa: F401  (re-exported: the report's API
     completion_time,
     compute_metrics,
     planned_position,
+    record_check,
+    record_summary,
 )
 from quad_bringup.recorder import open_bag_reader, typestore
 from quad_common import contract, conversions, rotations
@@ -32,6 +34,8 @@ from quad_common.contract import TRAJECTORY_WAYPOINTS as WAYPOINTS
 from quad_common.diagnostics import ERROR, level_of
 
 ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from rosbags
+CLOCK = contract.CLOCK
+SIM_PUBLISHED = 'sim_node: published'
 
 
 _namespaced = contract.matches
@@ -40,17 +44,20 @@ _namespaced = contract.matches
 def load_flight(bag_dir) -> Flight:
     """Extract a Flight from a bag; raises ValueError naming what is missing."""
     ts = typestore()
-    odom, cmds, latest = [], [], {}
-    errors, collision = [], None
-    reader = open_bag_reader(bag_dir)
+    odom, cmds, latest, clock = [], [], {}, []
+    errors, collision, published = [], None, None
+    reader, repair = open_bag_reader(bag_dir)
     try:
-        wanted = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS)
+        wanted = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK)
         connections = [c for c in reader.connections if any(_namespaced(c.topic, w) for w in wanted)]
         for conn, _, raw in reader.messages(connections=connections):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
             topic = next(w for w in wanted if _namespaced(conn.topic, w))
             if topic == ODOM:
-                odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg)))
+                odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg),
+                             _ns(msg.header.stamp)))
+            elif topic == CLOCK:
+                clock.append(_ns(msg.clock))
             elif topic == COMMAND:
                 try:  # the contract's one decoder; a setpoint it refuses was refused by the vehicle too
                     setpoint = conversions.imu_to_setpoint(msg)
@@ -60,6 +67,10 @@ def load_flight(bag_dir) -> Flight:
                              setpoint.quaternion))
             elif topic == DIAGNOSTICS:
                 for st in msg.status:
+                    if st.name == SIM_PUBLISHED:
+                        steps = int({kv.key: kv.value for kv in st.values}.get('steps', -1))
+                        if published is None or _ns(msg.header.stamp) >= published[0]:
+                            published = (_ns(msg.header.stamp), steps)
                     if level_of(st) == ERROR_LEVEL:
                         t = conversions.stamp_to_s(msg.header.stamp)
                         errors.append((t, st.name, st.message))
@@ -74,11 +85,13 @@ def load_flight(bag_dir) -> Flight:
         raise ValueError(f'bag {bag_dir}: no odometry (topic odom) recorded')
     odom.sort(key=lambda x: x[0])
     flight = Flight(
-        odom_t=np.array([t for t, _ in odom]),
-        position=np.array([s.position for _, s in odom]),
-        velocity=np.array([s.velocity for _, s in odom]),
-        euler=rotations.to_euler(np.array([s.quaternion for _, s in odom])),
-        collision_time_s=collision, errors=errors)
+        odom_t=np.array([o[0] for o in odom]),
+        position=np.array([o[1].position for o in odom]),
+        velocity=np.array([o[1].velocity for o in odom]),
+        euler=rotations.to_euler(np.array([o[1].quaternion for o in odom])),
+        collision_time_s=collision, errors=errors, odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
+        clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
+        truncated=None if repair is None else repair.as_dict())
     if TRAJECTORY in latest:
         flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
     if WAYPOINTS in latest:
@@ -95,6 +108,10 @@ def load_flight(bag_dir) -> Flight:
         flight.cmd_specific_force = np.array([c[1] for c in cmds])
         flight.cmd_euler = rotations.to_euler(np.array([c[2] for c in cmds]))
     return flight
+
+
+def _ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 # --- tables ---------------------------------------------------------------------------------------
@@ -127,6 +144,9 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
               f'{_scored_text(metrics)} Time actual - planned: '
               f'{metrics["time_over_s"]:.3f} s; final error {metrics["final_error_m"]:.4f} m; max speed '
               f'{metrics["max_speed_mps"]:.2f} m/s; max tilt {metrics["max_tilt_deg"]:.1f} deg.', '']
+    lines += ['## Record', '', record_summary(metrics['record']), '']
+    if metrics.get('bag_truncated'):
+        lines += [truncation_summary(metrics['bag_truncated']), '']
     if metrics['errors']:
         lines += ['## Errors reported on diagnostics', ''] + [f'- {e}' for e in metrics['errors']] + ['']
     lines += ['## Figures', ''] + [f'![{Path(f).stem}]({f})' for f in figures] + ['']
@@ -141,22 +161,40 @@ def _scored_text(metrics: dict) -> str:
             f'{w["ends_at"]}; the bag runs to {w["bag_end_s"]:.2f} s.')
 
 
-def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion | None = None) -> dict:
-    """metrics.json, report.md and figures/*.png for the bag; returns the metrics written."""
+def truncation_summary(truncated: dict) -> str:
+    return (f'bag truncated: {truncated["file"]} was cut at byte {truncated["cut_at_byte"]} of '
+            f'{truncated["size_bytes"]} (its recorder did not close it); read up to there from the repaired copy '
+            f'{truncated["repaired_copy"]} (the input was not modified)')
+
+
+def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion | None = None,
+                 published_steps: int | None = None, figures: bool = True, flight: Flight | None = None) -> dict:
+    """metrics.json, report.md and (figures=True) figures/*.png for the bag; returns the metrics written.
+    published_steps: the simulator's final step count, when the caller has it (fly), else the bag's newest.
+    flight: the bag's Flight if the caller has loaded it already (load_flight)."""
     rule = rule or Completion()
+    out_dir = Path(out_dir)
+    flight = load_flight(bag_dir) if flight is None else flight
+    metrics = dict(extra or {})
+    metrics.update(compute_metrics(flight, rule, published_steps))
+    metrics = _json_safe(metrics)
+    drawn = draw_figures(flight, out_dir) if figures else []
+    write_markdown(metrics, out_dir, drawn)
+    (out_dir / 'metrics.json').write_text(json.dumps(metrics, indent=2) + '\n')
+    return metrics
+
+
+def draw_figures(flight: Flight, out_dir) -> list:
     from quad_bringup import report_figures
 
+    return report_figures.draw_all(flight, Path(out_dir) / 'figures')
+
+
+def write_markdown(metrics: dict, out_dir, figures: list):
     out_dir = Path(out_dir)
-    flight = load_flight(bag_dir)
-    metrics = dict(extra or {})
-    metrics.update(compute_metrics(flight, rule))
-    metrics = _json_safe(metrics)
-    figures = report_figures.draw_all(flight, out_dir / 'figures')
-    (out_dir / 'metrics.json').write_text(json.dumps(metrics, indent=2) + '\n')
     title = f'Flight report: {metrics.get("mission", out_dir.resolve().name)}'
     (out_dir / 'report.md').write_text(
         report_markdown(metrics, [str(Path(f).relative_to(out_dir)) for f in figures], title))
-    return metrics
 
 
 def _json_safe(value):

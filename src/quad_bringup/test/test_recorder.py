@@ -5,6 +5,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 import rclpy
@@ -125,8 +126,12 @@ def test_killed_recorder_leaves_a_readable_bag(graph, tmp_path):
     proc.kill()
     proc.communicate(timeout=TIMEOUT_S)
     assert not (bag / 'metadata.yaml').exists()
-    reader = open_bag_reader(bag)  # repairs: cuts a torn record, appends the footer, writes metadata.yaml
+    before = {f.name: f.read_bytes() for f in bag.iterdir()}
+    reader, repair = open_bag_reader(bag)  # reads a repaired copy: torn record cut, footer, metadata.yaml
     try:
+        assert {f.name: f.read_bytes() for f in bag.iterdir()} == before   # the input is never modified
+        assert repair is not None and Path(repair.repaired_copy) == bag.with_name('bag.repaired')
+        assert 0 < repair.cut_at_byte <= repair.size_bytes == len(before[Path(repair.file).name])
         assert {c.topic: c.msgcount for c in reader.connections} == expected
         ts = typestore()
         odom = [c for c in reader.connections if c.topic == 'odom']
@@ -134,6 +139,13 @@ def test_killed_recorder_leaves_a_readable_bag(graph, tmp_path):
     finally:
         reader.close()
     assert xs == pytest.approx([0.001 * k for k in range(N_ODOM)])
+    # `quadflight report` on it: exit 0, the input untouched, and report.md says where it was cut and the copy
+    done = subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'report', str(bag), '--out',
+                           str(tmp_path / 'report')], env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert {f.name: f.read_bytes() for f in bag.iterdir()} == before
+    text = done.stdout  # printed first: it holds even when the bag then lacks what a flight report needs
+    assert f'was cut at byte {repair.cut_at_byte} of {repair.size_bytes}' in text
+    assert str(bag.with_name('bag.repaired')) in text
 
 
 def test_recorder_refuses_an_existing_bag_directory(graph, tmp_path):

@@ -48,10 +48,25 @@ if 'NUMBA_CACHE_DIR' not in os.environ and os.environ.get('NUMBA_DISABLE_JIT', '
     except OSError:  # unreadable sources or home: numba's default cache place (next to the sources)
         pass
 
-try:
-    import numba
-except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
-    numba = None
+def _import_numba():
+    """numba, imported without `coverage` when no coverage run is active: numba.misc.coverage_support imports
+    it if installed (0.3-0.8 s of every node's start on the 2-core machine) only to report compiled lines to a
+    coverage run, and a run already measuring has imported coverage itself."""
+    import sys
+    hide = 'coverage' not in sys.modules
+    if hide:
+        sys.modules['coverage'] = None  # import coverage -> ImportError inside numba only
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
+        return None
+    finally:
+        if hide:
+            del sys.modules['coverage']
+    return numba
+
+
+numba = _import_numba()
 
 COMPILED = numba is not None
 

@@ -1,22 +1,40 @@
-"""The `main` every node shares: start-up refusal as exit status 2, spin until Ctrl-C/SIGTERM, clean shutdown."""
+"""The `main` every node shares: start-up refusal as exit status 2, spin until Ctrl-C/SIGTERM, clean shutdown;
+bound to the life of the process that started it (quad_common.lifeline)."""
 
+import signal
 import sys
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
 
+from quad_common.lifeline import bind_to_parent
 
-def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=None, args=None):
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=None, args=None, own_signals=False):
     """Builds the node (an exception in `refused`, e.g. a bad parameter: one error line naming it, exit 2), adds
     it to `make_executor(node)` (default a SingleThreadedExecutor) and runs `spin(node, executor)` (default
-    executor.spin()) until interrupted; then destroys the node and shuts the context down."""
-    rclpy.init(args=args)
+    executor.spin()) until interrupted; then destroys the node and shuts the context down.
+
+    own_signals: SIGINT/SIGTERM/SIGHUP do not shut rclpy down; they make `node.stop_requested()` true and `spin`
+    returns when it has finished (e.g. the simulator's final diagnostics and drain)."""
+    bind_to_parent()
+    stop = []
+    if own_signals:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, lambda signum, frame: stop.append(signum))
+    else:
+        rclpy.init(args=args)
     try:
         node = make_node()
     except refused as exc:
         rclpy.logging.get_logger(name).error(f'{name} refused to start: {exc}')
         rclpy.try_shutdown()
         sys.exit(2)
+    if own_signals:
+        node.stop_requested = lambda: bool(stop)
     executor = make_executor(node) if make_executor else SingleThreadedExecutor()
     executor.add_node(node)
     try:

@@ -22,7 +22,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import cdr, contract, diagnostics
+from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
@@ -148,8 +148,10 @@ class PositionControllerNode(Node):
                                          0)
         self.last_future_odom = ''  # 'stamp s > clock s' of the last odometry refused as from the future
         c = contract
-        self.cmd_pub = self.create_publisher(Imu, c.SETPOINT, c.qos(c.SETPOINT))
-        self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, c.REFERENCE, c.qos(c.REFERENCE))
+        # lockstep: as deep as the simulator's paced topics, so its followers (the recorder) lose no setpoint
+        pace = (lambda topic: lockstep.PACED) if self.params['lockstep'] else c.qos
+        self.cmd_pub = self.create_publisher(Imu, c.SETPOINT, pace(c.SETPOINT))
+        self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, c.REFERENCE, pace(c.REFERENCE))
         self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, c.qos(c.DIAGNOSTICS))
         self.odom_sub = self.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM), raw=True)
         self._setpoint_packer = cdr.SetpointPacker()

@@ -1,10 +1,18 @@
 """sim_node: the simulated vehicle on the ROS graph (docs/quad_sim.md).
 
 lockstep: at sim time t_k publish odom (stamp t_k), then /clock (t_k); wait for a cmd/attitude_thrust stamped
->= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. Until the first
+>= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. After such a timeout
+each step waits LOST_STEP_TIMEOUT_S at most until a setpoint arrives again (a dead controller: the failsafe lands
+the vehicle in seconds, not one step per timeout; a controller that was only slow catches up). Until the first
 setpoint arrives, step k is re-published every 0.1 s (for nodes that join late), and the timeout advances
 only when a controller (a cmd/attitude_thrust publisher with odom and /clock subscribers) is on the graph:
 start-up order does not matter, and a controller whose first tick is after t = 0 still starts the run.
+Followers (lockstep_followers, quad_common.lockstep): each step also waits, without a timeout, until every
+follower has acknowledged odometry within FOLLOWER_LAG_STEPS of it, so a recorder that falls behind slows the run
+instead of losing samples; on SIGINT/SIGTERM the loop stops advancing, publishes its final counts on diagnostics
+and waits (up to DRAIN_TIMEOUT_S) for the followers to acknowledge its last odometry.
+A setpoint stamped more than one period ahead of sim time is refused (counted, warned): taken as "the newest",
+it would make every later, correctly stamped one look old.
 realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * elapsed wall time.
 """
 
@@ -27,7 +35,7 @@ try:  # not among the PyPI ROS wheels; present on every machine with ROS 2 insta
 except ImportError:
     TFMessage = None
 
-from quad_common import cdr, contract, conversions, diagnostics
+from quad_common import cdr, contract, conversions, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
@@ -40,6 +48,9 @@ from quad_sim.simulator import SimulationStopped, Simulator
 NAME = 'sim_node'
 DIAGNOSTICS_PERIOD_S = 1.0  # sim time
 STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first step until a setpoint arrives
+DRAIN_TIMEOUT_S = 1.0       # wall time, at shutdown, for the followers to acknowledge the last odometry
+FOLLOWER_WARN_S = 5.0       # wall time waiting for a follower before each warning naming it
+LOST_STEP_TIMEOUT_S = 0.02  # wall time per step for a setpoint once one missed lockstep_timeout_s
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
@@ -71,6 +82,8 @@ SPECS = [
     Param('max_tracking_error_m', 0.0, 'stop the run when farther than this from control/reference; 0: off',
           min=0.0, max=1000.0, read_only=True),
     Param('seed', 0, 'random seed of gusts and odometry noise', min=0, max=2**31 - 1, read_only=True),
+    Param('lockstep_followers', '', 'lockstep: comma-separated node names whose acknowledgements each step waits for '
+          '(quad_common.lockstep; e.g. recorder): nothing they record is lost', read_only=True),
 ]
 
 
@@ -96,17 +109,25 @@ class SimNode(Node):
             self.steps_per_period = self.sim.steps_in(p['lockstep_period_s'])
         except ValueError as exc:
             raise ValueError(f'lockstep_period_s: {exc}') from None
+        self.followers = [f.strip() for f in p['lockstep_followers'].split(',') if f.strip()]
         c = contract
-        self.odom_pub = self.create_publisher(Odometry, c.ODOM, c.qos(c.ODOM))
-        self.clock_pub = self.create_publisher(ClockMsg, c.CLOCK, c.qos(c.CLOCK))
+        pace = (lambda topic: lockstep.PACED) if self.followers else c.qos  # followers: paced, deep history
+        self.odom_pub = self.create_publisher(Odometry, c.ODOM, pace(c.ODOM))
+        self.clock_pub = self.create_publisher(ClockMsg, c.CLOCK, pace(c.CLOCK))
         self.tf_pub = self.create_publisher(TFMessage, c.TF, c.qos(c.TF)) if TFMessage else None
         if TFMessage is None:
             self.get_logger().warn('tf2_msgs is not installed here: /tf is not published (odom carries the pose)')
-        self.imu_pub = self.create_publisher(Imu, c.IMU, c.qos(c.IMU))
-        self.rotor_pub = self.create_publisher(JointState, c.ROTOR_SPEEDS, c.qos(c.ROTOR_SPEEDS))
-        self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, c.qos(c.DIAGNOSTICS))
+        self.imu_pub = self.create_publisher(Imu, c.IMU, pace(c.IMU))
+        self.rotor_pub = self.create_publisher(JointState, c.ROTOR_SPEEDS, pace(c.ROTOR_SPEEDS))
+        self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, pace(c.DIAGNOSTICS))
         self.hot_subscriptions = [self.create_subscription(Imu, c.SETPOINT, self._on_setpoint, c.qos(c.SETPOINT),
                                                            raw=True)]
+        self.acked_ns = dict.fromkeys(self.followers, -1)
+        for follower in self.followers:
+            self.hot_subscriptions.append(self.create_subscription(
+                ClockMsg, lockstep.ack_topic(follower),
+                lambda msg, f=follower: self._on_ack(f, msg), lockstep.ACK))
+        self.stop_requested = lambda: False  # main() replaces it with its signal flag
         if p['max_tracking_error_m'] > 0:
             self.hot_subscriptions.append(self.create_subscription(
                 MultiDOFJointTrajectory, c.REFERENCE, self._on_reference, c.qos(c.REFERENCE)))
@@ -130,6 +151,10 @@ class SimNode(Node):
     def _reset_bookkeeping(self):
         self.setpoint_stamp_ns = -1
         self.setpoints_received = 0
+        self.future_setpoints = 0
+        self.controller_lost = False  # a setpoint missed lockstep_timeout_s: steps wait LOST_STEP_TIMEOUT_S at most
+        self.steps_published = 0  # distinct odom (and /clock) stamps published
+        self.last_odom_ns = -1
         self._events_reported = 0
         self._next_diagnostics_ns = 0
         self._next_sensors_ns = 0
@@ -143,6 +168,14 @@ class SimNode(Node):
         stamp_ns = cdr.header_stamp_ns(raw, Imu)
         if stamp_ns < self.setpoint_stamp_ns:
             return  # older than the one applied
+        period_ns = self.steps_per_period * self.sim.step_ns
+        if stamp_ns > self.sim.time_ns + period_ns:
+            self.future_setpoints += 1
+            self.get_logger().warn(
+                f'setpoint refused: stamped {stamp_ns * 1e-9:.3f} s, ahead of sim time {self.sim.time_s:.3f} s by '
+                f'more than one period ({self.future_setpoints} so far; a clock other than /clock?)',
+                throttle_duration_sec=1.0)
+            return
         try:
             setpoint = cdr.imu_to_setpoint(raw)
             self.sim.set_setpoint(setpoint)
@@ -151,6 +184,14 @@ class SimNode(Node):
             return
         self.setpoint_stamp_ns = stamp_ns
         self.setpoints_received += 1
+        self.controller_lost = False
+
+    def _on_ack(self, follower: str, msg: ClockMsg):
+        self.acked_ns[follower] = max(self.acked_ns[follower], msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+
+    def followers_behind(self, stamp_ns: int) -> list[str]:
+        """Followers whose newest acknowledged odometry is older than `stamp_ns`."""
+        return [f for f, acked in self.acked_ns.items() if acked < stamp_ns]
 
     def _on_reference(self, msg: MultiDOFJointTrajectory):
         if msg.points and msg.points[0].transforms and self.sim.stopped is None:
@@ -176,6 +217,9 @@ class SimNode(Node):
         stamp = stamp_of(time_ns)
         self.odom_pub.publish(self._odom_packer.pack(self.sim.odometry_state(), time_ns))
         self.clock_pub.publish(ClockMsg(clock=stamp))
+        if time_ns != self.last_odom_ns:  # the first step is re-published until a setpoint comes: one step
+            self.steps_published += 1
+        self.last_odom_ns = time_ns
         if time_ns >= self._next_sensors_ns:
             self._next_sensors_ns = time_ns + self._sensor_period_ns
             self.publish_sensors(stamp)
@@ -219,6 +263,10 @@ class SimNode(Node):
             statuses.append(diagnostics.status(contract.SIM_STATUS.format('stopped'), diagnostics.ERROR,
                                                str(sim.stopped), {'reason': sim.stopped.reason,
                                                                   contract.STOP_TIME_S: repr(sim.stopped.time_s)}))
+        statuses.append(diagnostics.status(
+            contract.SIM_STATUS.format('published'), diagnostics.OK, 'distinct odom and /clock steps published (a bag '
+            'is checked against it)',
+            {'steps': self.steps_published, 'future_setpoints_refused': self.future_setpoints}))
         rtf = self.real_time_factor()
         statuses.append(diagnostics.status(contract.SIM_STATUS.format('real_time_factor'), diagnostics.OK,
                                            f'{rtf:.2f}x', {'rtf': f'{rtf:.3f}'}))
@@ -242,16 +290,32 @@ class SimNode(Node):
 
     # --- modes -------------------------------------------------------------------------------------------
 
+    def running(self) -> bool:
+        return rclpy.ok(context=self.context) and not self.stop_requested()
+
     def run_lockstep(self, executor):
-        """The lockstep loop (see the module docstring); returns when rclpy shuts down."""
-        while rclpy.ok(context=self.context):
+        """The lockstep loop (see the module docstring); returns when rclpy shuts down or a stop is requested."""
+        lag_ns = lockstep.FOLLOWER_LAG_STEPS * self.steps_per_period * self.sim.step_ns
+        while self.running():
             self.publish_step()
             t_k = self.sim.time_ns
+            self._await_followers(executor, max(t_k - lag_ns, 0))  # every follower has step 0 before step 1
             now = time.monotonic()
-            deadline, republish_at = now + self.params['lockstep_timeout_s'], now + STARTUP_REPUBLISH_S
-            while self.setpoint_stamp_ns < t_k and rclpy.ok(context=self.context):
+            # before the first setpoint a controller on the graph may have answered before it was matched (its
+            # answer lost): advance after STARTUP_REPUBLISH_S, its next tick answers
+            timeout_s = self.params['lockstep_timeout_s'] if self.setpoints_received else min(
+                self.params['lockstep_timeout_s'], STARTUP_REPUBLISH_S)
+            if self.controller_lost:  # one step per LOST_STEP_TIMEOUT_S: a controller that is only slow catches up
+                timeout_s = min(timeout_s, LOST_STEP_TIMEOUT_S)
+            deadline, republish_at = now + timeout_s, now + STARTUP_REPUBLISH_S
+            while self.setpoint_stamp_ns < t_k and self.running():
                 now = time.monotonic()
                 if now >= deadline:
+                    if self.setpoints_received > 0 and not self.controller_lost:
+                        self.controller_lost = True
+                        self.get_logger().warn(
+                            f'no setpoint for t = {t_k * 1e-9:.3f} s within lockstep_timeout_s: each step now waits '
+                            f'{LOST_STEP_TIMEOUT_S} s at most (the failsafe lands the vehicle) until one arrives')
                     break
                 if self.setpoints_received == 0 and now >= republish_at:  # for nodes that joined late
                     self.publish_step()
@@ -259,8 +323,42 @@ class SimNode(Node):
                 executor.spin_once(timeout_sec=min(deadline, republish_at) - now)
             if self.sim.time_ns != t_k:  # reset while waiting
                 continue
+            if not self.running():
+                break
             if self.setpoint_stamp_ns >= t_k or self.setpoints_received > 0 or self._controller_present():
                 self.advance(self.steps_per_period)
+        self.drain(executor)
+
+    def _await_followers(self, executor, stamp_ns, timeout_s=None):
+        """Spin until every follower has acknowledged odometry stamped >= stamp_ns (a warning every
+        FOLLOWER_WARN_S naming the ones behind); False if timeout_s (wall) passed or a stop came first."""
+        start = warned = republished = time.monotonic()
+        while (behind := self.followers_behind(stamp_ns)):
+            now = time.monotonic()
+            if self.setpoints_received == 0 and now - republished >= STARTUP_REPUBLISH_S:  # followers joining late
+                self.publish_step()
+                republished = now
+            if timeout_s is not None and now - start > timeout_s or not rclpy.ok(context=self.context):
+                return False
+            if timeout_s is None and self.stop_requested():
+                return False
+            if now - warned > FOLLOWER_WARN_S:
+                warned = now
+                self.get_logger().warn(f'waiting for {", ".join(behind)} to take odometry of t = '
+                                       f'{stamp_ns * 1e-9:.3f} s (lockstep_followers)')
+            executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def drain(self, executor):
+        """At a stop: the final counts on diagnostics, then wait (bounded) for the followers to take the last
+        odometry, so a recorder stopped after the simulator holds everything it published."""
+        if not rclpy.ok(context=self.context):
+            return
+        self.publish_diagnostics()
+        last = self.last_odom_ns
+        if self.followers and not self._await_followers(executor, last, DRAIN_TIMEOUT_S):
+            self.get_logger().warn(f'{", ".join(self.followers_behind(last))} had not taken the last odometry '
+                                   f'(t = {last * 1e-9:.3f} s) within {DRAIN_TIMEOUT_S} s of the stop')
 
     def _controller_present(self) -> bool:
         """A setpoint publisher that also listens to odom and /clock is on the graph (it may not tick at t = 0)."""
@@ -295,13 +393,14 @@ def _spin(node, executor):
         node.run_lockstep(executor)
     else:
         node.start_realtime()
-        executor.spin()
+        while node.running():
+            executor.spin_once(timeout_sec=0.1)
 
 
 def main(args=None):
     run_node(NAME, SimNode, refused=(ValueError, SimulationStopped),
              make_executor=lambda node: HotPathExecutor(lambda: (node.hot_subscriptions, node.hot_timers)),
-             spin=_spin, args=args)
+             spin=_spin, args=args, own_signals=True)
 
 
 if __name__ == '__main__':

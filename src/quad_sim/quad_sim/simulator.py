@@ -12,10 +12,13 @@ nothing happens that needs bookkeeping (no saturation, floor, limit, collision s
 gusts); it leaves the first step that does to `_physics_step`, which runs the same kernels one step at a
 time with the event logic around them. The result is the same either way.
 
-Failsafe (like PX4's / ArduPilot's setpoint-loss landing): when no setpoint arrived for
-setpoint_timeout_s, the autopilot levels (keeping the current yaw) and descends at failsafe_descent_mps,
-    specific force = g + k_v (-descent - v_z),  clipped to [0.5 g, 1.5 g],
-and disarms (rotors to their minimum speed) once it rests on the floor. A new setpoint ends it.
+Failsafe (like PX4's / ArduPilot's setpoint-loss landing, which hold position horizontally while they descend):
+when no setpoint arrived for setpoint_timeout_s, the autopilot brakes back to p_hold, where the vehicle was when
+the last setpoint arrived, and descends at failsafe_descent_mps, keeping the current yaw:
+    a_xy = k_p (p_hold - p)_xy - k_d v_xy,  |a_xy| <= g tan(FAILSAFE_MAX_TILT),
+    a_z  = k_v (-descent - v_z),  specific force g + a_z clipped to [0.5 g, 1.5 g],
+thrust along (a_xy, g + a_z); it disarms (rotors to their minimum speed) once it rests on the floor. A new
+setpoint ends it. From a 2 m/s flight it comes down within a few cm of p_hold (test_simulator).
 
 Floor at z = floor_z_m (the world's lower bound, else 0): the vehicle never goes below it; it rests
 (zero velocity and rates, level, yaw kept) while the thrust's vertical part cannot lift its weight.
@@ -40,6 +43,9 @@ from quad_sim.rigid_body import NO_FORCE, STATE_SIZE, RigidBody, rk4_step
 NON_FINITE, SPEED_LIMIT, BODY_RATE_LIMIT, FAR_FROM_REFERENCE = (
     'non_finite_state', 'speed_limit', 'body_rate_limit', 'far_from_reference')
 FAILSAFE_VELOCITY_GAIN = 2.0  # 1/s, vertical speed loop of the landing failsafe
+FAILSAFE_POSITION_GAIN = 4.0  # 1/s^2, horizontal hold: omega_n = 2 rad/s, critically damped with
+FAILSAFE_DAMPING_GAIN = 4.0   # 1/s
+FAILSAFE_MAX_TILT_RAD = math.radians(30.0)
 SATURATION_GAP_S = 0.1        # a saturation event is reported when saturation starts after this long without
 # the autopilot's input as the kernels take it: quaternion (4), collective thrust (N), desired body rates (3)
 SP_QUATERNION, SP_THRUST, SP_RATES, SP_SIZE = slice(0, 4), 4, slice(5, 8), 8
@@ -144,6 +150,7 @@ class Simulator:
         self.time_ns = 0
         self._set_setpoint_vector(AttitudeSetpoint(quaternion=q0, specific_force_mps2=GRAVITY_MPS2))
         self._setpoint_time_ns = 0
+        self._hold_position = self._x[0:3].copy()  # where the vehicle was at the last setpoint (failsafe)
         self.failsafe_active = False
         self.armed = True
         self._failsafe_quaternion = q0
@@ -228,6 +235,7 @@ class Simulator:
             raise ValueError(f'setpoint must be finite, got {setpoint}')
         self._set_setpoint_vector(setpoint)
         self._setpoint_time_ns = self.time_ns
+        self._hold_position[:] = self._x[0:3]
         if self.failsafe_active:
             self.failsafe_active = False
             self.armed = True
@@ -297,9 +305,7 @@ class Simulator:
             if self.landed and self.armed:
                 self.armed = False
                 self._event('disarmed')
-            sp = self._autopilot_input(self._failsafe_quaternion, min(max(
-                GRAVITY_MPS2 + FAILSAFE_VELOCITY_GAIN * (-self.failsafe_descent_mps - x[5]),
-                0.5 * GRAVITY_MPS2), 1.5 * GRAVITY_MPS2))
+            sp = self._failsafe_input(x)
         else:
             sp = self._setpoint_vector
         if self.armed:
@@ -337,10 +343,31 @@ class Simulator:
 
     def _enter_failsafe(self):
         self.failsafe_active = True
-        yaw = rotations.to_euler(self._x[6:10])[2]
-        self._failsafe_quaternion = rotations.from_yaw(yaw)
+        self._failsafe_yaw = rotations.to_euler(self._x[6:10])[2]
+        self._failsafe_quaternion = rotations.from_yaw(self._failsafe_yaw)
+        hold = self._hold_position
         self._event('failsafe', detail={'reason': f'no setpoint for {self.setpoint_timeout_ns * 1e-9:.3f} s',
-                                        'action': 'level, descend, land, disarm'})
+                                        'action': f'brake back to ({hold[0]:.2f}, {hold[1]:.2f}) m, descend, land, '
+                                                  'disarm'})
+
+    def _failsafe_input(self, x) -> np.ndarray:
+        """The failsafe's attitude and thrust (module docstring): horizontal hold at p_hold, fixed descent rate."""
+        if self.landed:
+            return self._autopilot_input(self._failsafe_quaternion, 0.5 * GRAVITY_MPS2)
+        a_x = FAILSAFE_POSITION_GAIN * (self._hold_position[0] - x[0]) - FAILSAFE_DAMPING_GAIN * x[3]
+        a_y = FAILSAFE_POSITION_GAIN * (self._hold_position[1] - x[1]) - FAILSAFE_DAMPING_GAIN * x[4]
+        f_z = min(max(GRAVITY_MPS2 + FAILSAFE_VELOCITY_GAIN * (-self.failsafe_descent_mps - x[5]),
+                      0.5 * GRAVITY_MPS2), 1.5 * GRAVITY_MPS2)
+        a_max = f_z * math.tan(FAILSAFE_MAX_TILT_RAD)
+        norm = math.hypot(a_x, a_y)
+        if norm > a_max:
+            a_x, a_y = a_x * a_max / norm, a_y * a_max / norm
+        z_b = np.array([a_x, a_y, f_z]) / math.sqrt(a_x * a_x + a_y * a_y + f_z * f_z)
+        x_c = np.array([math.cos(self._failsafe_yaw), math.sin(self._failsafe_yaw), 0.0])
+        y_b = np.cross(z_b, x_c)
+        y_b /= np.linalg.norm(y_b)
+        rotation = np.column_stack([np.cross(y_b, z_b), y_b, z_b])
+        return self._autopilot_input(rotations.from_matrix(rotation), math.sqrt(a_x * a_x + a_y * a_y + f_z * f_z))
 
     def _ground_contact(self, x):
         """Keeps x on the floor; rests when the thrust's vertical part cannot lift the weight."""

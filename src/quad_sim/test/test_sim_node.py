@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -20,7 +21,7 @@ from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import contract, conversions, rotations
+from quad_common import contract, conversions, lockstep, rotations
 from quad_common.diagnostics import ERROR, level_of
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.testing import isolated_domain
@@ -55,21 +56,27 @@ def _pd_setpoint(state, target):
                             specific_force_mps2=GRAVITY_MPS2 + acc[2], body_rates=np.zeros(3))
 
 
-class Graph:
-    """An in-process test node that answers each odom with a setpoint stamped like it."""
+FOLLOWER = 'test_controller'  # the test node is a lockstep follower: it sees every odom and /clock
 
-    def __init__(self, domain, answer_until_s=np.inf, target=(0.5, -0.3, 1.2)):
+
+class Graph:
+    """An in-process test node that answers each odom with a setpoint stamped like it, and acknowledges it
+    (quad_common.lockstep) so the simulator never outruns it: the test sees every step, however busy the machine."""
+
+    def __init__(self, domain, answer_until_s=np.inf, target=(0.5, -0.3, 1.2), inject=None):
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
-        self.node = rclpy.create_node('test_controller', context=self.ctx)
+        self.node = rclpy.create_node(FOLLOWER, context=self.ctx)
+        self.ack = lockstep.Acknowledger(self.node, FOLLOWER)
+        self.inject = inject  # (at_s, stamp_s): once, at odom t >= at_s, also a setpoint stamped stamp_s
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self.odom, self.clock, self.diagnostics = [], [], []
         self.answer_until_s, self.target = answer_until_s, np.array(target)
         self.pub = self.node.create_publisher(Imu, 'cmd/attitude_thrust', RELIABLE)
-        self.node.create_subscription(Odometry, 'odom', self._on_odom, RELIABLE)
+        self.node.create_subscription(Odometry, 'odom', self._on_odom, lockstep.PACED)
         self.node.create_subscription(Clock, '/clock', lambda m: self.clock.append(conversions.stamp_to_s(m.clock)),
-                                      RELIABLE)
+                                      lockstep.PACED)
         self.node.create_subscription(DiagnosticArray, 'diagnostics', self.diagnostics.append, RELIABLE)
 
     def _on_odom(self, msg):
@@ -77,14 +84,20 @@ class Graph:
         state = conversions.odometry_to_state(msg)
         if not self.odom or t > self.odom[-1][0]:
             self.odom.append((t, *state.position, *state.velocity, *state.quaternion, *state.body_rates))
+        if self.inject is not None and t >= self.inject[0]:
+            self.pub.publish(conversions.setpoint_to_imu(_pd_setpoint(state, self.target),
+                                                         conversions.s_to_stamp(self.inject[1])))
+            self.inject = None
         if t < self.answer_until_s:
             self.pub.publish(conversions.setpoint_to_imu(_pd_setpoint(state, self.target), msg.header.stamp))
+        self.ack.taken(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
 
     def spin_until(self, condition):
         deadline = time.monotonic() + GIVE_UP_S
         while not condition():
             assert time.monotonic() < deadline, 'graph hung'
-            self.executor.spin_once(timeout_sec=0.5)
+            self.executor.spin_once(timeout_sec=0.05)
+            self.ack.flush()
 
     def call(self, srv_type, name, request):
         """A service of the graph (served off sim_node's tick path: HotPathExecutor's slow pass)."""
@@ -111,9 +124,9 @@ def _line_trajectory(duration_s=1.5, start=(0.0, 0.0, 1.0), end=(0.5, -0.3, 1.2)
     return SampledTrajectory(t, base + s[:, None] * delta, ds[:, None] * delta, dds[:, None] * delta)
 
 
-def _fly_once(steps=200, real_controller=False, params=()):
+def _fly_once(steps=200, real_controller=False, inject=None, params=()):
     with isolated_domain() as (domain, env):
-        graph = Graph(domain, answer_until_s=-np.inf if real_controller else np.inf)
+        graph = Graph(domain, answer_until_s=-np.inf if real_controller else np.inf, inject=inject)
         procs = []
         if real_controller:
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -125,16 +138,19 @@ def _fly_once(steps=200, real_controller=False, params=()):
             # the controller must have the (latched) trajectory before sim time reaches its start (0.2 s: a
             # fraction of a wall second with the compiled sim): start the sim once its diagnostics say so
             graph.spin_until(lambda: _controller_mode(graph) == 'hold (trajectory not started)')
-        procs.append(_start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0', *params))
+        procs.append(_start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0',
+                                f'lockstep_followers:={FOLLOWER}', *params))
         try:
             graph.spin_until(lambda: len(graph.odom) >= steps)
+            stamps = {round(t, 9) for t, *_ in graph.odom[:steps]}  # every /clock of them, taken (none is lost)
+            graph.spin_until(lambda: stamps <= {round(c, 9) for c in graph.clock})
         finally:
             log = _stop(procs[-1])
             for p in procs[:-1]:
                 _stop(p)
             graph.close()
     assert 'lockstep: crazyflie' in log
-    return np.array(graph.odom[:steps]), graph.clock
+    return np.array(graph.odom[:steps]), graph.clock, graph.diagnostics
 
 
 def _controller_mode(graph):
@@ -145,33 +161,86 @@ def _controller_mode(graph):
 
 def test_plant_parameter_flies_a_family_member():
     """heavy_20pct: the same setpoints (the seed's PD, no integral) hold the vehicle lower than the nominal one."""
-    nominal, _ = _fly_once(steps=300)
-    heavy, _ = _fly_once(steps=300, params=('plant:=heavy_20pct',))
+    nominal, _, _ = _fly_once(steps=300)
+    heavy, _, _ = _fly_once(steps=300, params=('plant:=heavy_20pct',))
     assert heavy[-1, 3] < nominal[-1, 3] - 0.05       # z: 0.2 g more weight against a 20 s^-2 position gain
 
 
 def test_lockstep_is_deterministic():
-    first, clock = _fly_once()
-    second, _ = _fly_once()
+    first, clock, _ = _fly_once()
+    second, _, _ = _fly_once()
     assert np.array_equal(first, second)
     assert np.allclose(first[:, 0], np.arange(len(first)) * 0.01, atol=1e-12)  # one odom per 10 ms, integer ns
-    assert set(np.round(first[:-1, 0], 9)) <= set(np.round(clock, 9))  # /clock follows every odom
+    assert np.all(np.diff(clock) >= 0)                                          # /clock never goes back
     assert first[-1, 1] > 0.3 and first[-1, 2] < -0.15                          # it actually flew toward the target
 
 
 def test_lockstep_with_the_real_position_controller_is_deterministic():
-    """This test's own odom subscriber is not in the lockstep loop: at the compiled sim's pace a busy machine can
-    make it miss samples that the publisher's depth-10 history no longer holds. So the runs are compared at every
-    stamp both received (bit for bit), which must be most of them."""
-    first, _ = _fly_once(real_controller=True)
-    second, _ = _fly_once(real_controller=True)
-    ticks = [dict(zip(np.round(run[:, 0] * 100).astype(int), run)) for run in (first, second)]
-    common = sorted(set(ticks[0]) & set(ticks[1]))
-    assert len(common) >= 100
-    assert all(np.array_equal(ticks[0][k], ticks[1][k]) for k in common)
-    assert np.allclose(first[:, 0] * 100, np.round(first[:, 0] * 100), atol=1e-9)  # on the 10 ms grid
-    last = ticks[0][common[-1]]
-    assert last[1] == pytest.approx(0.5, abs=0.1) and last[2] == pytest.approx(-0.3, abs=0.1)
+    """The test node is a lockstep follower: it sees every step, so two runs agree bit for bit at every step."""
+    first, _, _ = _fly_once(real_controller=True)
+    second, _, _ = _fly_once(real_controller=True)
+    assert np.array_equal(first, second)
+    assert np.allclose(first[:, 0], np.arange(len(first)) * 0.01, atol=1e-12)  # every step of the 10 ms grid
+    assert first[-1, 1] == pytest.approx(0.5, abs=0.1) and first[-1, 2] == pytest.approx(-0.3, abs=0.1)
+
+
+def test_future_stamped_setpoint_is_refused_and_later_ones_applied():
+    """One setpoint stamped 100 s ahead (a node on wall-clock time) must not lock the correctly stamped ones out:
+    the flight is the same as without it, and the refusal is counted on diagnostics."""
+    reference, _, _ = _fly_once()
+    flown, _, diagnostics = _fly_once(inject=(0.3, 100.0))
+    assert np.array_equal(flown, reference)
+    refused = [int(kv.value) for a in diagnostics for st in a.status if st.name == 'sim_node: published'
+               for kv in st.values if kv.key == 'future_setpoints_refused']
+    assert refused and refused[-1] == 1
+
+
+class SlowFollower:
+    """A follower that is not the controller and takes each odom slowly (a recorder on a busy machine), spinning in
+    a thread of its own: with the simulator's plain depth-10 history it lost samples; as a lockstep follower it
+    must see every step."""
+
+    def __init__(self, domain, name='slow_follower', busy_s=0.004):
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.ctx)
+        self.ack = lockstep.Acknowledger(self.node, name)
+        self.busy_s, self.stamps_ns = busy_s, []
+        self.node.create_subscription(Odometry, 'odom', self._on_odom, lockstep.PACED)
+        self.node.create_timer(0.05, self.ack.flush)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def _on_odom(self, msg):
+        time.sleep(self.busy_s)  # the work of a slow reader (it models load; nothing waits on it)
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.stamps_ns.append(stamp_ns)
+        self.ack.taken(stamp_ns)
+
+    def close(self):
+        self.executor.shutdown()
+        self.thread.join(timeout=30)
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+def test_slow_follower_sees_every_step():
+    steps = 300
+    with isolated_domain() as (domain, env):
+        graph = Graph(domain)
+        slow = SlowFollower(domain)
+        sim = _start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0',
+                         'lockstep_followers:=slow_follower')
+        try:
+            graph.spin_until(lambda: len(graph.odom) >= steps and len(set(slow.stamps_ns)) >= steps)
+        finally:
+            _stop(sim)
+            slow.close()
+            graph.close()
+    taken = sorted(set(slow.stamps_ns))
+    assert taken[:steps] == [k * 10_000_000 for k in range(steps)]   # every 10 ms step, none skipped
 
 
 def test_dead_controller_lets_the_failsafe_land():

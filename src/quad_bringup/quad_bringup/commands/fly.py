@@ -42,10 +42,17 @@ def options_from(args) -> FlightOptions:
 
 
 def run(args) -> int:
-    result = fly(options_from(args), log=lambda line: print(line, flush=True))
+    result = fly(options_from(args), log=lambda line: print(line, flush=True), defer_figures=True)
     if result.metrics is not None:
         print(metrics_table(result.metrics))
-        print(f'run: {result.run_dir} (bag/, metrics.json, report.md, figures/)')
+        for note in result.notes:
+            print(note)
+        print(f'run: {result.run_dir} (bag/, metrics.json, report.md, figures/)', flush=True)
     stream = sys.stdout if result.exit_code == 0 else sys.stderr
-    print(f'{"OK" if result.exit_code == 0 else "FAILED"}: {result.reason}', file=stream, flush=True)
+    word = {0: 'OK', 2: 'REFUSED'}.get(result.exit_code, 'FAILED')
+    print(f'{word}: {result.reason}', file=stream, flush=True)
+    if result.finish is not None:  # the figures after the verdict (their process imported during the flight)
+        problem = result.finish()
+        if problem:
+            print(problem, file=sys.stderr, flush=True)
     return result.exit_code

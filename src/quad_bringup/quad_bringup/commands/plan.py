@@ -58,8 +58,12 @@ def run(args) -> int:
     if mission.vehicle is not None:   # the plan is written either way; fly refuses what fails here
         print('\n'.join(preflight(mission, result, speed_mps=args.speed).lines()))
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(result.to_json(mission=str(args.mission)))
+        try:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(result.to_json(mission=str(args.mission)))
+        except OSError as exc:
+            print(f'quadflight plan: --out {args.out}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
+            return 2
         print(f'wrote {args.out}')
         if args.csv is not None:
             csv_path = args.out.with_suffix('.csv')

@@ -6,11 +6,13 @@ from pathlib import Path
 
 from rosbags.rosbag2 import ReaderError
 
-from quad_bringup.report import Completion, metrics_table, write_report
+from quad_bringup.recorder import needs_repair, repaired_copy
+from quad_bringup.report import Completion, metrics_table, truncation_summary, write_report
 
 
 def add_arguments(parser):
-    parser.add_argument('bag', help='rosbag2 bag directory (MCAP or sqlite3; a killed recorder\'s bag is repaired)')
+    parser.add_argument('bag', help='rosbag2 bag directory (MCAP or sqlite3; a killed recorder\'s bag is read from a '
+                                    'repaired copy, BAG.repaired, never changed in place)')
     parser.add_argument('--out', help='output directory (default: the run directory for runs/NAME/bag, '
                                       'else BAG_report next to the bag)')
     parser.add_argument('--vehicle', type=Path, help="vehicle YAML whose completion: gives the tolerances and settle "
@@ -52,13 +54,24 @@ def run(args) -> int:
     except ValueError as exc:
         print(f'quadflight report: {exc}', file=sys.stderr)
         return 2
+    if bag.is_dir() and needs_repair(bag):  # said first: it holds even if the bag then proves unusable
+        try:
+            print(truncation_summary(repaired_copy(bag).as_dict()), flush=True)
+        except (OSError, ValueError) as exc:
+            print(f'quadflight report: {exc}', file=sys.stderr)
+            return 2
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f'quadflight report: --out {out}: cannot create it ({exc.strerror or exc})', file=sys.stderr)
+        return 2
     extra = {}
     if (out / 'metrics.json').exists():  # keep what fly recorded about the run (mission, controller, outcome)
         keep = ('mission', 'controller', 'speed_mps', 'outcome')
         extra = {k: v for k, v in json.loads((out / 'metrics.json').read_text()).items() if k in keep}
     try:
         metrics = write_report(bag, out, extra, rule)
-    except (FileNotFoundError, ValueError, ReaderError) as exc:
+    except (OSError, ValueError, ReaderError) as exc:
         print(f'quadflight report: {exc}', file=sys.stderr)
         return 2
     print(metrics_table(metrics))
