@@ -30,6 +30,7 @@ import yaml
 from quad_bringup import processes
 from quad_bringup.recorder import DEFAULT_TOPICS
 from quad_bringup.report import Completion, load_flight, record_summary, write_report
+from quad_common import contract
 from quad_common.domains import isolated_domain
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.yaml_io import load_yaml
@@ -581,7 +582,8 @@ def _await_landing(dead, judge, monitor, children, interrupt, log) -> dict:
     fault = {'node': dead.name, 'exit_code': dead.exit_code(), 'at_s': None if died_at is None else
              died_at - (judge.start_s or 0.0), 'landed': landed is not None}
     if landed is not None:
-        fault['landed_at_s'] = float(landed['time_s']) - (judge.start_s or 0.0)
+        # the failsafe status's time is its latest event's: here 'disarmed'
+        fault['landed_at_s'] = contract.event_time_s(landed, contract.FAILSAFE_TIME_S) - (judge.start_s or 0.0)
         fault['landed_position_m'] = [float(landed[k]) for k in ('x', 'y', 'z')]
         where = ', '.join(f'{v:.2f}' for v in fault['landed_position_m'])
         fault['summary'] = (f'fault: {dead.name} died at t = {_since(judge, died_at)}; the failsafe landed the '
