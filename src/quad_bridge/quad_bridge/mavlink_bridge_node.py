@@ -30,7 +30,7 @@ from quad_bridge.safety import Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import TelemetryPublisher, stamp
 from quad_bridge.vehicle import Vehicle
-from quad_common import diagnostics
+from quad_common import contract, diagnostics
 from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 
@@ -117,15 +117,14 @@ class MavlinkBridge(Node):
         self.t0 = time.monotonic()
         self.stale_events = 0
         self.stopping = threading.Event()
-        qos = 10
-        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', qos)
+        self.diag_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.qos(contract.DIAGNOSTICS))
         self.create_service(SetBool, 'arm', self.srv_arm)
         self.create_service(SetBool, 'offboard', self.srv_offboard)
         self.create_service(Trigger, 'land', self.srv_land)
 
         self.client = MavlinkClient(p['fcu_url'], p['source_system'], p['source_component'], self.on_mavlink,
                                     baud=p['baud'], signing_key=key)
-        self.telemetry = TelemetryPublisher(self, self.vehicle, self.client, self.on_state, p['stream_grace_s'], qos)
+        self.telemetry = TelemetryPublisher(self, self.vehicle, self.client, self.on_state, p['stream_grace_s'])
         self.setpoints = SetpointPath(self, self.may_stream, self.on_stream_quiet)
         self.streamer = self.setpoints.streamer
         self.supervisor = threading.Thread(target=self._supervise, name='supervisor', daemon=True)

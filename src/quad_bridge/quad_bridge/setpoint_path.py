@@ -12,7 +12,7 @@ from quad_bridge import frames
 from quad_bridge.mavlink_client import mavlink
 from quad_bridge.setpoint import check_setpoint
 from quad_bridge.streamer import SetpointStreamer
-from quad_common import cdr
+from quad_common import cdr, contract
 from quad_common.hot_path import HotPathExecutor
 
 # DDS keeps this many setpoints for us while the interpreter is busy elsewhere (its reader thread is not held by
@@ -34,7 +34,7 @@ class SetpointPath:
                                          self.params['setpoint_timeout_s'], on_quiet, on_error=self._error)
         self.node = rclpy.create_node(f'{bridge.get_name()}_setpoints', namespace=bridge.get_namespace(),
                                       context=bridge.context, start_parameter_services=False)
-        self.sub = self.node.create_subscription(Imu, 'cmd/attitude_thrust', self.on_setpoint, SETPOINT_QUEUE_DEPTH,
+        self.sub = self.node.create_subscription(Imu, contract.SETPOINT, self.on_setpoint, SETPOINT_QUEUE_DEPTH,
                                                  raw=True)
         self.executor = HotPathExecutor(lambda: ([self.sub], []), context=bridge.context)
         self.executor.add_node(self.node)

@@ -13,7 +13,7 @@ from quad_bridge import frames
 from quad_bridge.clock import ClockMapper
 from quad_bridge.streams import StreamSelector
 from quad_bridge.telemetry import imu_flu, state_from_local_position, state_from_odometry, time_us
-from quad_common import cdr, conversions
+from quad_common import cdr, contract, conversions
 
 TIMESTAMPED = ('ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED', 'ODOMETRY', 'HIGHRES_IMU', 'SCALED_IMU', 'RAW_IMU')
 
@@ -23,12 +23,13 @@ def stamp(ns: int) -> Time:
 
 
 class TelemetryPublisher:
-    def __init__(self, node, vehicle, client, on_state, grace_s: float, qos=10):
+    def __init__(self, node, vehicle, client, on_state, grace_s: float):
         """on_state(state): every published odometry state (ENU/FLU), e.g. for the geofence."""
         self.vehicle, self.client, self.on_state, self.grace_s = vehicle, client, on_state, grace_s
-        self.odom_pub = node.create_publisher(Odometry, 'odom', qos)
-        self.imu_pub = node.create_publisher(Imu, 'imu', qos)
-        self.battery_pub = node.create_publisher(BatteryState, 'battery', qos)
+        c = contract
+        self.odom_pub = node.create_publisher(Odometry, c.ODOM, c.qos(c.ODOM))
+        self.imu_pub = node.create_publisher(Imu, c.IMU, c.qos(c.IMU))
+        self.battery_pub = node.create_publisher(BatteryState, c.BATTERY, c.qos(c.BATTERY))
         self.log = node.get_logger()
         self.clock = ClockMapper()
         self.streams = None            # StreamSelector once the backend is known
