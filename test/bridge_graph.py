@@ -307,3 +307,25 @@ def running_graph(log_dir: Path):
         finally:
             procs.stop_all()
             observer.close()
+
+
+@contextmanager
+def tapped_graph(tmp_path):
+    """running_graph plus start(flavour, position, extra, **bridge_params): an emulated vehicle and the bridge
+    joined through a Tap (the wire seen between them), once the bridge sees the vehicle armed; yields
+    (procs, observer, start) and closes every tap."""
+    taps = []
+    with running_graph(tmp_path) as (procs, observer):
+        def start(flavour, position=(0.0, 0.0, 1.0), extra=(), **bridge_params):
+            bridge_port = free_udp_port()
+            tap = Tap(bridge_port)
+            taps.append(tap)
+            procs.vehicle(flavour, f'udpout:127.0.0.1:{tap.port}', position=position, extra=extra)
+            procs.bridge(f'udpin:127.0.0.1:{bridge_port}', **bridge_params)
+            observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+            return tap
+        try:
+            yield procs, observer, start
+        finally:
+            for tap in taps:
+                tap.close()

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from bridge_graph import SetpointPublisher, Tap, free_udp_port, running_graph
+from bridge_graph import SetpointPublisher, tapped_graph
 from std_srvs.srv import SetBool, Trigger
 
 from quad_common import rotations
@@ -22,24 +22,13 @@ COPTER_GUIDED = 4
 
 @pytest.fixture
 def graph(tmp_path):
-    taps = []
-    with running_graph(tmp_path) as (procs, observer):
+    with tapped_graph(tmp_path) as (procs, observer, start_tapped):
         def start(flavour, position=(0.0, 0.0, 1.0), extra=(), **bridge_params):
-            bridge_port = free_udp_port()
-            tap = Tap(bridge_port)
-            taps.append(tap)
             # a busy machine's stalls must not trip PX4's COM_OF_LOSS_T; ArduPilot flies thrust (GUID_OPTIONS = 8)
             own = ('--offboard-loss-s', '3.0') if flavour == 'px4' else ('--param', 'GUID_OPTIONS=8')
-            procs.vehicle(flavour, f'udpout:127.0.0.1:{tap.port}', position=position,
-                          extra=(*own, '--hover-throttle', str(HOVER), *extra))
-            procs.bridge(f'udpin:127.0.0.1:{bridge_port}', hover_throttle=HOVER, **bridge_params)
-            observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
-            return tap
-        try:
-            yield procs, observer, start
-        finally:
-            for tap in taps:
-                tap.close()
+            return start_tapped(flavour, position, (*own, '--hover-throttle', str(HOVER), *extra),
+                                hover_throttle=HOVER, **bridge_params)
+        yield procs, observer, start
 
 
 def _received(observer):

@@ -7,28 +7,15 @@ import threading
 
 import numpy as np
 import pytest
-from bridge_graph import SetpointPublisher, Tap, free_udp_port, running_graph
+from bridge_graph import SetpointPublisher, tapped_graph
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool
 
 
 @pytest.fixture
 def graph(tmp_path):
-    taps = []
-    with running_graph(tmp_path) as (procs, observer):
-        def start(flavour, extra=(), **bridge_params):
-            bridge_port = free_udp_port()
-            tap = Tap(bridge_port)
-            taps.append(tap)
-            procs.vehicle(flavour, f'udpout:127.0.0.1:{tap.port}', position=(0.0, 0.0, 1.0), extra=extra)
-            procs.bridge(f'udpin:127.0.0.1:{bridge_port}', **bridge_params)
-            observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
-            return tap
-        try:
-            yield procs, observer, start
-        finally:
-            for tap in taps:
-                tap.close()
+    with tapped_graph(tmp_path) as (procs, observer, start):
+        yield procs, observer, lambda flavour, extra=(), **bridge_params: start(flavour, extra=extra, **bridge_params)
 
 
 def _offboard_with_setpoints(observer, tap):
