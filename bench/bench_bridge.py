@@ -23,7 +23,7 @@ from std_srvs.srv import SetBool
 os.environ['MAVLINK20'] = '1'
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from quad_common.testing import isolated_domain  # noqa: E402
+from quad_common.domains import isolated_domain  # noqa: E402
 
 HOVER_THROTTLE = 0.5
 RATES_HZ = (50.0, 100.0, 250.0, 500.0, 1000.0)

@@ -5,6 +5,7 @@ import subprocess
 import sys
 import time
 import timeit
+from contextlib import contextmanager
 
 import numpy as np
 import rclpy
@@ -18,9 +19,9 @@ from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import conversions as conv
+from quad_common.domains import isolated_domain
 from quad_common.paths import resolve_config
 from quad_common.sampled_trajectory import SampledTrajectory
-from quad_common.testing import isolated_domain
 from quad_common.types import Reference, State
 from quad_common.vehicle import load_vehicle
 from quad_control.position import CONTROLLERS, PositionController, PositionGains
@@ -45,24 +46,38 @@ def update_cost_us():
     return out
 
 
-def node_timing(rate_hz, env, domain):
-    """Stamps of cmd/attitude_thrust (= tick times on the wall clock) over MEASURE_S seconds."""
+@contextmanager
+def controller_node(rate_hz, env, domain, probe_name, odom_period_s):
+    """A position_controller process in wall-clock mode at rate_hz, fed hover odometry every odom_period_s by a
+    probe node; yields (probe node, its executor, the stamps of cmd/attitude_thrust received so far) and stops
+    both on exit."""
     proc = subprocess.Popen([sys.executable, '-m', 'quad_control.position_controller_node', '--ros-args',
                              '-p', f'rate_hz:={rate_hz}', '-p', 'odom_timeout_s:=2.0', '--log-level', 'warn'],
                             env=env)
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain)
-    node = rclpy.create_node('bench_control', context=ctx)
-    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    node = rclpy.create_node(probe_name, context=ctx)
     stamps = []
     node.create_subscription(Imu, 'cmd/attitude_thrust', lambda m: stamps.append(conv.stamp_to_s(m.header.stamp)),
                              QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
-    odom_pub = node.create_publisher(Odometry, 'odom', qos)
-    node.create_timer(0.02, lambda: odom_pub.publish(
+    odom_pub = node.create_publisher(Odometry, 'odom', QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    node.create_timer(odom_period_s, lambda: odom_pub.publish(
         conv.state_to_odometry(State(position=np.array([0.0, 0.0, 1.0])), node.get_clock().now().to_msg())))
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
     try:
+        yield node, executor, stamps
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def node_timing(rate_hz, env, domain):
+    """Stamps of cmd/attitude_thrust (= tick times on the wall clock) over MEASURE_S seconds."""
+    with controller_node(rate_hz, env, domain, 'bench_control', 0.02) as (_, executor, stamps):
         deadline = time.monotonic() + 60.0
         while not stamps and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
@@ -70,12 +85,6 @@ def node_timing(rate_hz, env, domain):
         end = time.monotonic() + MEASURE_S
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
     t = np.sort(np.array(stamps))
     periods = np.diff(t)
     jitter = np.abs(periods - 1.0 / rate_hz)
@@ -87,36 +96,22 @@ def arrival_gap(env, domain, rate_hz=100.0):
     """Longest period between setpoint stamps (the node's tick times, ms) in the ARRIVAL_WINDOW_S after an
     ARRIVAL_POINTS-point trajectory is published to a node ticking at rate_hz in wall-clock mode, and the longest
     before it (same length). Stamps, not receipt times: publishing 2 MB stalls this probe too."""
-    proc = subprocess.Popen([sys.executable, '-m', 'quad_control.position_controller_node', '--ros-args',
-                             '-p', f'rate_hz:={rate_hz}', '-p', 'odom_timeout_s:=2.0', '--log-level', 'warn'],
-                            env=env)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = rclpy.create_node('bench_arrival', context=ctx)
-    stamps = []
-    node.create_subscription(Imu, 'cmd/attitude_thrust', lambda m: stamps.append(conv.stamp_to_s(m.header.stamp)),
-                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
-    odom_pub = node.create_publisher(Odometry, 'odom', QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-    traj_pub = node.create_publisher(MultiDOFJointTrajectory, 'trajectory', QoSProfile(
-        depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    node.create_timer(0.01, lambda: odom_pub.publish(
-        conv.state_to_odometry(State(position=np.array([0.0, 0.0, 1.0])), node.get_clock().now().to_msg())))
-    t = np.arange(ARRIVAL_POINTS) * 0.01
-    p = np.column_stack([0.01 * np.sin(t), np.zeros_like(t), np.ones_like(t), np.zeros_like(t)])
-    plan = conv.sampled_to_msg(SampledTrajectory(t, p, np.zeros_like(p), np.zeros_like(p)),
-                               (node.get_clock().now() + Duration(seconds=3600)).to_msg())
-    has_plan = []  # the node's diagnostics say it holds the plan (mode 'hold (trajectory not started)')
-    node.create_subscription(DiagnosticArray, 'diagnostics', lambda m: has_plan.extend(
-        1 for st in m.status for kv in st.values if kv.key == 'mode' and 'not started' in kv.value), 10)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
+    with controller_node(rate_hz, env, domain, 'bench_arrival', 0.01) as (node, executor, stamps):
+        traj_pub = node.create_publisher(MultiDOFJointTrajectory, 'trajectory', QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        t = np.arange(ARRIVAL_POINTS) * 0.01
+        p = np.column_stack([0.01 * np.sin(t), np.zeros_like(t), np.ones_like(t), np.zeros_like(t)])
+        plan = conv.sampled_to_msg(SampledTrajectory(t, p, np.zeros_like(p), np.zeros_like(p)),
+                                   (node.get_clock().now() + Duration(seconds=3600)).to_msg())
+        has_plan = []  # the node's diagnostics say it holds the plan (mode 'hold (trajectory not started)')
+        node.create_subscription(DiagnosticArray, 'diagnostics', lambda m: has_plan.extend(
+            1 for st in m.status for kv in st.values if kv.key == 'mode' and 'not started' in kv.value), 10)
 
-    def spin_for(seconds, until=lambda: False):
-        end = time.monotonic() + seconds
-        while time.monotonic() < end and not until():
-            executor.spin_once(timeout_sec=0.005)
+        def spin_for(seconds, until=lambda: False):
+            end = time.monotonic() + seconds
+            while time.monotonic() < end and not until():
+                executor.spin_once(timeout_sec=0.005)
 
-    try:
         deadline = time.monotonic() + 60.0
         while len(stamps) < 50 and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
@@ -126,12 +121,6 @@ def arrival_gap(env, domain, rate_hz=100.0):
         spin_for(60.0, until=lambda: has_plan)  # the node took it (diagnostics, once a second) ...
         taken = bool(has_plan)
         spin_for(1.0)                           # ... and ticks on
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
     s = np.sort(np.array(stamps))
     before, after = s[(s >= sent - ARRIVAL_WINDOW_S) & (s < sent)], s[s >= sent]
     if not taken:

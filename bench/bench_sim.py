@@ -13,8 +13,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from quad_common import conversions
 from quad_common.compiled import COMPILED
+from quad_common.domains import isolated_domain
 from quad_common.sampled_trajectory import SampledTrajectory
-from quad_common.testing import isolated_domain
 from quad_common.types import AttitudeSetpoint
 from quad_common.vehicle import load_vehicle
 from quad_sim.simulator import Simulator
