@@ -13,12 +13,15 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import rclpy
+import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.serialization import deserialize_message
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from quad_common import contract
 from quad_common.conversions import stamp_to_s
 from quad_common.testing import isolated_domain
 
@@ -85,6 +88,28 @@ class Processes:
         for k, v in {**BRIDGE_DEFAULTS, **params}.items():
             args += ['-p', f'{k}:={v}']
         return self.start('bridge', args)
+
+    def controller(self, *param_files, **params):
+        """position_controller on the wall clock: the parameter files (paths under the repository, in order), then
+        the parameters; the vehicle file is the emulator's unless given. The files' `position_controller` entries
+        are merged under a namespace wildcard (their plain node name would not match the graph's namespace)."""
+        merged = {}
+        for path in param_files:
+            merged.update(yaml.safe_load((ROOT / path).read_text())['position_controller']['ros__parameters'])
+        merged.update({'vehicle': VEHICLE_FILE, **params})
+        file = self.log_dir / 'controller_params.yaml'
+        file.write_text(yaml.safe_dump({'/**/position_controller': {'ros__parameters': merged}}))
+        return self.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
+                                         '--params-file', str(file)])
+
+    def odom_probe(self):
+        """test/odom_probe.py: odometry arrivals seen from a process of their own (read back with odom_arrivals)."""
+        return self.start('odom_probe', [str(ROOT / 'test' / 'odom_probe.py'), '--ros-args'])
+
+    def odom_arrivals(self):
+        """(arrival_s on CLOCK_MONOTONIC, stamp_s) arrays of what the odom probe has received so far."""
+        from odom_probe import read
+        return read(self.log('odom_probe'))
 
 
 class Tap:
@@ -216,12 +241,13 @@ class Observer:
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node('bridge_test_observer', namespace=namespace, context=self.context)
         self.lock = threading.Lock()
-        self.odom, self.diagnostics, self.references, self.trajectory = [], {}, [], None
+        self.odom, self.diagnostics, self.references, self._trajectory_raw = [], {}, [], None
+        self._trajectory_pub = None
         self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
         self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diag, 10)
         self.node.create_subscription(MultiDOFJointTrajectory, 'control/reference', self._on_ref, 10)
         latched = rclpy.qos.QoSProfile(depth=1, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL)
-        self.node.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_traj, latched)
+        self.node.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_traj, latched, raw=True)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -251,8 +277,14 @@ class Observer:
         with self.lock:
             self.references.append((stamp_to_s(msg.header.stamp), (t.x, t.y, t.z)))
 
-    def _on_traj(self, msg):
-        self.trajectory = msg
+    def _on_traj(self, raw):
+        self._trajectory_raw = raw   # decoded when asked for: a 10,000-point plan costs ~1 s of Python
+
+    @property
+    def trajectory(self):
+        """The latest `trajectory` (MultiDOFJointTrajectory), or None."""
+        raw = self._trajectory_raw
+        return None if raw is None else deserialize_message(raw, MultiDOFJointTrajectory)
 
     def link(self):
         """(message, values) of the newest `mavlink_bridge: link` status, or (None, {})."""
@@ -266,6 +298,17 @@ class Observer:
         with self.lock:
             entries = self.diagnostics.get(name)
             return entries[-1][1:] if entries else (None, {})
+
+    def controller(self):
+        """(message, values) of the newest position_controller status, or (None, {})."""
+        return self.status(contract.CONTROLLER_STATUS)
+
+    def publish_trajectory(self, msg):
+        """Publishes `trajectory` latched, as trajectory_node does."""
+        if self._trajectory_pub is None:
+            self._trajectory_pub = self.node.create_publisher(MultiDOFJointTrajectory, contract.TRAJECTORY,
+                                                              contract.qos(contract.TRAJECTORY))
+        self._trajectory_pub.publish(msg)
 
     def position(self):
         with self.lock:
@@ -293,6 +336,31 @@ class Observer:
     def close(self):
         self.context.try_shutdown()
         self.thread.join(timeout=5)
+
+
+OFFBOARD_MODE = {'px4': 'OFFBOARD', 'ardupilot': 'GUIDED_NOGPS'}
+
+
+def vehicle_extra(flavour):
+    """Emulator options of a vehicle set up as docs/bridge.md says for thrust mode: ArduPilot's GUID_OPTIONS
+    defaults to 0 (the thrust field is a climb rate); the bridge's default ardupilot_thrust_mode is thrust."""
+    return () if flavour == 'px4' else ('--param', 'GUID_OPTIONS=8')
+
+
+def hover_in_offboard(procs, observer, flavour, port, controller_files=(), position=(0.0, 0.0, 1.0),
+                      bridge_port=None, bridge=None, controller=None):
+    """The emulated vehicle (sending to udp `port`), mavlink_bridge (listening on `bridge_port`, default `port`:
+    another port puts a Tap between them) and position_controller (parameter files, then `controller`),
+    hovering in offboard: returns once the bridge reports the offboard mode."""
+    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=position, extra=vehicle_extra(flavour))
+    procs.bridge(f'udpin:127.0.0.1:{bridge_port or port}', **(bridge or {}))
+    procs.controller(*controller_files, **(controller or {}))
+    observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+    observer.wait_for(lambda: observer.references, 'the controller to hold position')
+    result = observer.call('offboard', SetBool.Request(data=True))
+    assert result.success, result.message
+    observer.wait_for(lambda: observer.link()[1].get('mode') == OFFBOARD_MODE[flavour],
+                      f'mode {OFFBOARD_MODE[flavour]}')
 
 
 @contextmanager

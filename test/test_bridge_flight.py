@@ -5,8 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from bridge_graph import VEHICLE_FILE, free_udp_port, running_graph
-from std_srvs.srv import SetBool
+from bridge_graph import VEHICLE_FILE, free_udp_port, hover_in_offboard, running_graph
 
 from quad_common.conversions import stamp_to_s
 
@@ -27,22 +26,11 @@ def graph(tmp_path):
 
 def _start_hovering_vehicle_in_offboard(procs, observer, flavour):
     # Timeouts well above a busy 2-core machine's scheduling stalls (the defaults suit a real vehicle): the
-    # bridge's stale-setpoint and the controller's stale-odometry limits.
-    port = free_udp_port()
-    # ArduPilot's GUID_OPTIONS defaults to 0 (thrust field = climb rate); the bridge's default
-    # ardupilot_thrust_mode is thrust, which docs/bridge.md says needs GUID_OPTIONS = 8 on the vehicle.
+    # bridge's stale-setpoint and the controller's stale-odometry limits (test_bridge_busy.py flies the defaults).
     # PX4 keeps its default COM_OF_LOSS_T = 1 s: a longer one lets a stalled graph's last tilted setpoint fly on.
-    extra = () if flavour == 'px4' else ('--param', 'GUID_OPTIONS=8')
-    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=WAYPOINTS[0], extra=extra)
-    procs.bridge(f'udpin:127.0.0.1:{port}', autopilot='auto', setpoint_timeout_s=1.0)
-    procs.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
-                               '-p', f'vehicle:={VEHICLE_FILE}', '-p', 'rate_hz:=50.0', '-p', 'odom_timeout_s:=1.0'])
-    observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
-    observer.wait_for(lambda: observer.references, 'the controller to hold position')
-    result = observer.call('offboard', SetBool.Request(data=True))
-    assert result.success, result.message
-    expected = 'OFFBOARD' if flavour == 'px4' else 'GUIDED_NOGPS'
-    observer.wait_for(lambda: observer.link()[1].get('mode') == expected, f'mode {expected}')
+    hover_in_offboard(procs, observer, flavour, free_udp_port(), position=WAYPOINTS[0],
+                      bridge={'autopilot': 'auto', 'setpoint_timeout_s': 1.0},
+                      controller={'rate_hz': 50.0, 'odom_timeout_s': 1.0})
 
 
 @pytest.mark.parametrize('flavour', ['px4', 'ardupilot'])

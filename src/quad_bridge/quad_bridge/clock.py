@@ -31,7 +31,7 @@ class ClockMapper:
         self._minima = collections.deque()   # monotone deque for the sliding minimum
         self._sync = collections.deque()     # (local ns, rtt ns, offset ns)
         self.source = 'none'
-        self._last = (-1, -1)                # (remote us, local ns) of the last mapping
+        self._last = {}                      # stream -> (remote us, local ns) of its last mapping
 
     def observe(self, remote_us: int, arrival_ns: int):
         """A message stamped remote_us (autopilot boot time, us) arrived at local arrival_ns."""
@@ -68,14 +68,17 @@ class ClockMapper:
         self.source = 'arrival minimum filter'
         return floor
 
-    def to_local_ns(self, remote_us: int, arrival_ns: int) -> int:
+    def to_local_ns(self, remote_us: int, arrival_ns: int, stream=None) -> int:
         """Local time of a message stamped remote_us, never after its arrival and never before the stamp of an
-        earlier-measured message (an offset update must not put odometry out of order)."""
+        earlier-measured message of the same stream (an offset update must not put odometry out of order). Per
+        stream: messages of different kinds carry different times of the same instant (PX4's HIGHRES_IMU
+        time_usec is ahead of LOCAL_POSITION_NED's whole time_boot_ms), so one guard for all would skip."""
         offset = self.offset_ns()
         local = arrival_ns if offset is None else min(int(remote_us) * 1000 + offset, arrival_ns)
-        if remote_us >= self._last[0] and local < self._last[1]:
-            local = min(self._last[1], arrival_ns)
-        self._last = (int(remote_us), local)
+        last_remote, last_local = self._last.get(stream, (-1, -1))
+        if remote_us >= last_remote and local < last_local:
+            local = min(last_local, arrival_ns)
+        self._last[stream] = (int(remote_us), local)
         return local
 
     def jitter_ms(self) -> float:

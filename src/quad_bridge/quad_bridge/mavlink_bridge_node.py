@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
@@ -96,8 +97,9 @@ def _validate(values):
 
 
 class MavlinkBridge(Node):
-    def __init__(self):
-        super().__init__(NAME)
+    def __init__(self, **kwargs):
+        """kwargs: rclpy Node's (context, namespace, parameter_overrides: a bridge inside a test process)."""
+        super().__init__(NAME, **kwargs)
         self.params = ParameterSet(self, PARAMS, validate=_validate)
         p = self.params
         key = load_signing_key(p['signing_key_file']) if p['signing_key_file'] else None
@@ -369,6 +371,7 @@ class MavlinkBridge(Node):
             self.publish_diagnostics()
         if event:
             self.get_logger().info(f'vehicle {s.system} {event}: {s.backend.name}, mode {s.mode}')
+            self.telemetry.link_up()
             threading.Thread(target=self.on_connect, name='on-connect', daemon=True).start()
 
     def on_state(self, state):
@@ -427,9 +430,15 @@ class MavlinkBridge(Node):
 GIL_SWITCH_INTERVAL_S = 0.001
 
 
+def make_executor(node):
+    """The node's own executor (services, parameters): single-threaded; the telemetry, setpoint, keep-alive and
+    supervisor threads never wait on it."""
+    return SingleThreadedExecutor(context=node.context)
+
+
 def main(args=None):
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    run_node(NAME, MavlinkBridge, refused=(ValueError, OSError), args=args)
+    run_node(NAME, MavlinkBridge, refused=(ValueError, OSError), make_executor=make_executor, args=args)
 
 
 if __name__ == '__main__':

@@ -3,6 +3,7 @@ messages and publishes `odom`, `imu` and `battery` stamped with the autopilot's 
 for the node's executors. Which messages are used: quad_bridge.streams; time mapping: quad_bridge.clock."""
 
 import time
+from collections import deque
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -15,6 +16,7 @@ from quad_bridge.streams import StreamSelector
 from quad_bridge.telemetry import imu_flu, state_from_local_position, state_from_odometry, time_us
 from quad_common import cdr, contract, conversions
 
+ODOM_GAP_WINDOW_S = 10.0   # diagnostics' odom_gap_max_ms: the longest gap between odometry publications this recent
 TIMESTAMPED = ('ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED', 'ODOMETRY', 'HIGHRES_IMU', 'SCALED_IMU', 'RAW_IMU')
 
 
@@ -35,6 +37,8 @@ class TelemetryPublisher:
         self.streams = None            # StreamSelector once the backend is known
         self.odom_packer = cdr.OdometryPacker()
         self.timesync_ts1 = None
+        self.last_odom_s = None        # monotonic time of the newest odometry publication (None: none since up)
+        self.odom_gaps = deque()       # (monotonic time, time since the previous publication) over ODOM_GAP_WINDOW_S
         self.handlers = {'ATTITUDE_QUATERNION': self.on_attitude_quaternion,
                          'LOCAL_POSITION_NED': self.on_local_position_ned, 'ODOMETRY': self.on_odometry,
                          'HIGHRES_IMU': self.on_imu, 'SCALED_IMU': self.on_imu, 'RAW_IMU': self.on_imu,
@@ -43,6 +47,11 @@ class TelemetryPublisher:
 
     def start(self, backend):
         self.streams = StreamSelector(backend.telemetry, self.grace_s)
+
+    def link_up(self):
+        """The link came up (again): the time without a link is not an odometry gap of ours."""
+        with self.vehicle.lock:
+            self.last_odom_s = None
 
     def send_timesync(self):
         self.timesync_ts1 = time.time_ns()
@@ -59,7 +68,7 @@ class TelemetryPublisher:
         if t_us:
             self.clock.observe(t_us, arrival_ns)
         self.streams.arrived(kind, now_s)
-        handler(msg, self.clock.to_local_ns(t_us, arrival_ns) if t_us else arrival_ns)
+        handler(msg, self.clock.to_local_ns(t_us, arrival_ns, kind) if t_us else arrival_ns)
 
     def info(self, now_s: float) -> dict:
         """Diagnostics values: which clock and messages are used, what never arrived."""
@@ -68,7 +77,14 @@ class TelemetryPublisher:
                 'odometry_source': '+'.join(st.current('odometry')) if st else '',
                 'imu_source': '+'.join(st.current('imu')) if st else '',
                 'missing_streams': ','.join(st.missing(now_s)) if st else '',
+                'odom_gap_max_ms': f'{1e3 * self.odom_gap_max_s(time.monotonic() - ODOM_GAP_WINDOW_S):.1f}',
                 'stream_fallbacks': '; '.join(st.notes) if st else ''}
+
+    def odom_gap_max_s(self, since_s: float) -> float:
+        """The longest time between two odometry publications that ended at or after `since_s` (monotonic),
+        0 if none: what the controller's odom_timeout_s must exceed."""
+        with self.vehicle.lock:
+            return max((gap for t, gap in self.odom_gaps if t >= since_s), default=0.0)
 
     def on_attitude_quaternion(self, msg, stamp_ns):
         with self.vehicle.lock:
@@ -90,8 +106,14 @@ class TelemetryPublisher:
     def publish_state(self, state, stamp_ns):
         if not state.is_finite():
             return
+        now_s = time.monotonic()
         with self.vehicle.lock:
             self.vehicle.status.state = state
+            if self.last_odom_s is not None:
+                self.odom_gaps.append((now_s, now_s - self.last_odom_s))
+                while self.odom_gaps[0][0] < now_s - ODOM_GAP_WINDOW_S:
+                    self.odom_gaps.popleft()
+            self.last_odom_s = now_s
         self.odom_pub.publish(self.odom_packer.pack(state, stamp_ns))  # serialized: ~10x cheaper than Odometry()
         self.on_state(state)
 

@@ -134,3 +134,16 @@ def test_stamps_never_go_back_when_the_offset_estimate_improves():
     second = clock.to_local_ns(40_000, 95 * MS)     # 40 + 1 = 41 ms < 70 ms
     assert clock.source == 'timesync' and first == 70 * MS and second == first
     assert clock.to_local_ns(120_000, 125 * MS) == 121 * MS   # and later ones follow the better offset
+
+
+def test_a_stream_never_goes_back_when_another_stream_is_mapped_ahead_of_it():
+    """PX4 sends HIGHRES_IMU (time_usec) just ahead of LOCAL_POSITION_NED (whole ms) of the same instant. With
+    one guard for all streams, the position after an IMU message was not guarded and its stamp went back when
+    the offset dropped (seen at 5 ms under load); each stream keeps its own order."""
+    clock = ClockMapper()
+    clock.observe(0, 50 * MS)                                      # offset 50 ms
+    first = clock.to_local_ns(20_000, 75 * MS, 'LOCAL_POSITION_NED')       # 70 ms
+    clock.timesync(ts1_local_ns=80 * MS, tc1_remote_ns=79 * MS, reply_local_ns=80 * MS)   # offset 1 ms
+    clock.to_local_ns(40_400, 95 * MS, 'HIGHRES_IMU')              # the IMU of the next instant, 0.4 ms ahead
+    second = clock.to_local_ns(40_000, 95 * MS, 'LOCAL_POSITION_NED')      # 41 ms < 70 ms: held at 70
+    assert second == first
