@@ -192,8 +192,11 @@ class Tap:
 
     def set_mode_as_gcs(self, main_mode, sub_mode=0):
         """A ground station (system 255) switches the vehicle's mode: MAV_CMD_DO_SET_MODE, custom mode."""
-        msg = mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, main_mode, sub_mode,
-                                                   0, 0, 0, 0)
+        self.send_as_gcs(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, main_mode,
+                                                              sub_mode, 0, 0, 0, 0))
+
+    def send_as_gcs(self, msg):
+        """A MAVLink message from a ground station (system 255) to the vehicle, past a cut too."""
         self.vehicle_side.sendto(msg.pack(self.gcs), self.vehicle_addr)
 
     def close(self):

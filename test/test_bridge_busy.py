@@ -13,10 +13,12 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 import rclpy
-from bridge_graph import free_udp_port, hover_in_offboard, running_graph
+from bridge_graph import Tap, free_udp_port, hover_in_offboard, mavlink, running_graph
+from rclpy.duration import Duration
 from rclpy.parameter import Parameter
 
-from quad_bridge import mavlink_bridge_node
+from quad_bridge import frames, mavlink_bridge_node
+from quad_common import contract, rotations
 from quad_common import conversions as conv
 from quad_common.conversions import stamp_to_s
 from quad_common.sampled_trajectory import SampledTrajectory
@@ -28,6 +30,7 @@ REAL_PROFILE = ('config/control.yaml', 'config/control_real.yaml')  # as the bri
 BIG_PLAN_POINTS = 10_000  # 100 s at 100 Hz: 1.8 MB, 0.2-0.7 s to decode on this machine (issue 13.4)
 HOLD_BOUND_M = 0.05   # hovering in offboard (quiet machine: about 1 cm)
 AFTER_PLAN_S = 3.0    # odometry looked at after the controller took the plan
+REFUSAL_WAIT_S = 20.0  # a refusal comes at the plan's start (0.5 s after publication): generous for a busy machine
 
 
 @pytest.fixture
@@ -179,3 +182,104 @@ def test_a_big_plan_arriving_in_offboard_stalls_nothing_with_default_timeouts(gr
     assert setpoints['stale_events'] == '0' and setpoints['handover'] == 'active', setpoints
     assert link['mode'] == 'GUIDED_NOGPS' and 'setpoints stale' not in procs.log('bridge')
     assert error.max() < HOLD_BOUND_M
+
+
+def _smooth_line(start, delta, duration_s, start_stamp, rate_hz=100.0):
+    """start -> start + delta along a quintic (rest to rest) in duration_s, latched at start_stamp."""
+    t = np.arange(int(duration_s * rate_hz) + 1) / rate_hz
+    tau = t / duration_s
+    s, ds, dds = (10 * tau**3 - 15 * tau**4 + 6 * tau**5, (30 * tau**2 - 60 * tau**3 + 30 * tau**4) / duration_s,
+                  (60 * tau - 180 * tau**2 + 120 * tau**3) / duration_s**2)
+    d = np.array([*delta, 0.0])
+    p = np.array([*start, 0.0]) + s[:, None] * d
+    return conv.sampled_to_msg(SampledTrajectory(t, p, ds[:, None] * d, dds[:, None] * d), start_stamp)
+
+
+def _push(tap, pitch_deg, thrust, duration_s, rate_hz=50.0):
+    """A ground station's SET_ATTITUDE_TARGET stream straight to the vehicle (past the bridge): pitched pitch_deg
+    nose down, facing east (ENU yaw 0, as it hovers), thrust in [0, 1] (GUID_OPTIONS = 8); how the vehicle is moved
+    while its odometry is cut off."""
+    q_enu = rotations.from_euler(0.0, np.radians(pitch_deg), 0.0)   # FLU pitch about +y (left): nose down
+    q = [float(c) for c in frames.to_mavlink_quaternion(frames.quaternion_enu_to_ned(q_enu))]
+    end = time.monotonic() + duration_s
+    while time.monotonic() < end:
+        tap.send_as_gcs(mavlink.MAVLink_set_attitude_target_message(
+            0, 1, 1, mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+            | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
+            | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE, q, 0.0, 0.0, 0.0, thrust))
+        time.sleep(1.0 / rate_hz)   # a stream's period (the push's length), not a wait for an event
+
+
+def _controller_faults(observer):
+    with observer.lock:
+        return [m for _, m, _ in observer.diagnostics.get(contract.CONTROLLER_STATUS, [])]
+
+
+def test_start_step_refused_hold_kept_after_stale_odometry_and_a_start_at_the_vehicle_flown(graph):
+    """13.3 against the emulator, hovering in offboard (ArduPilot, control_real.yaml's controller): a plan that
+    starts 1 m away is refused and the vehicle holds where it was; the link is cut while a ground station pushes
+    the vehicle away (stale odometry at the controller) and the controller brings it back to the same hold point
+    (not re-anchored where it drifted); a plan that starts at the vehicle is flown."""
+    procs, observer = graph
+    bridge_port = free_udp_port()
+    tap = Tap(bridge_port)
+    try:
+        # setpoint_timeout_s above the cut: the hand-over survives it, so what follows is the controller's doing
+        hover_in_offboard(procs, observer, 'ardupilot', tap.port, controller_files=REAL_PROFILE,
+                          bridge_port=bridge_port, bridge={'setpoint_timeout_s': 2.0})
+        hold = _hold_point(observer)
+        max_step = float(_values(observer.controller())['max_start_step_m'])
+
+        # a plan 1 m away: refused, named, and the vehicle keeps holding
+        now = observer.node.get_clock().now()
+        observer.publish_trajectory(_smooth_line(hold + [1.0, 0.0, 0.0], [0.5, 0.0, 0.0], 2.0,
+                                                 (now + Duration(seconds=0.5)).to_msg()))
+        observer.wait_for(lambda: _values(observer.controller()).get('refused_start_steps') == '1', 'the refusal',
+                          REFUSAL_WAIT_S)
+        refusal = next(m for m in _controller_faults(observer) if 'max_start_step_m' in m)
+        step = float(_values(observer.controller())['start_step_m'])
+        assert abs(step - 1.0) < HOLD_BOUND_M
+        assert f'{step:.3f} m' in refusal and f'max_start_step_m {max_step}' in refusal
+        assert refusal in procs.log('controller')
+        refused_s = observer.odom[-1][0]
+        observer.wait_for(lambda: observer.odom[-1][0] > refused_s + 2.0, 'odometry after the refusal')
+        with observer.lock:
+            held = np.array([p for t, p in observer.odom if t >= refused_s - 1.0])
+            refs = np.array([p for t, p in observer.references if t >= refused_s - 1.0])
+        assert np.abs(refs - hold).max() == 0.0, 'the reference left the hold point'
+        assert np.linalg.norm(held - hold, axis=1).max() < HOLD_BOUND_M
+
+        # the vehicle pushed 0.2-0.5 m away while its odometry is cut off: the controller goes stale, then
+        # brings it back to the point it held (a re-anchored hold point would keep it where it drifted)
+        tap.cut.set()
+        observer.wait_for(lambda: _values(observer.controller()).get('odom_timeouts') == '1', 'stale odometry')
+        _push(tap, 8.0, 0.5, 0.4)
+        _push(tap, 0.0, 0.5, 0.3)
+        tap.cut.clear()
+        cut_end_s = time.time()
+        observer.wait_for(lambda: observer.odom[-1][0] > cut_end_s + 6.0, 'odometry after the cut')
+        with observer.lock:
+            after = np.array([p for t, p in observer.odom if t >= cut_end_s])
+            refs = np.array([p for t, p in observer.references if t >= cut_end_s])
+        drift = np.linalg.norm(after - hold, axis=1)
+        print(f'pushed {drift.max():.3f} m from the hold point while odometry was stale; back within '
+              f'{drift[-1]:.3f} m; hold point before {hold.tolist()}, after '
+              f'{_values(observer.controller())["hold_position_m"]}')
+        assert drift.max() > 0.15, 'the push did not move the vehicle: nothing tested'
+        assert np.abs(refs - hold).max() == 0.0 and drift[-1] < HOLD_BOUND_M
+        assert np.allclose(_hold_point(observer), hold, rtol=0.0, atol=1e-9)
+        assert _values(observer.setpoints())['handover'] == 'active'
+
+        # a plan that starts at the vehicle is flown
+        now = observer.node.get_clock().now()
+        start = now + Duration(seconds=0.5)
+        observer.publish_trajectory(_smooth_line(hold, [0.5, 0.0, 0.0], 2.5, start.to_msg()))
+        end_s = start.nanoseconds * 1e-9 + 2.5
+        observer.wait_for(lambda: observer.odom[-1][0] > end_s + 2.0, 'the end of the plan')
+        controller = _values(observer.controller())
+        final = np.array(observer.position())
+        print(f'flown to {final.round(3).tolist()}, start step {controller["start_step_m"]} m')
+        assert controller['refused_start_steps'] == '1' and float(controller['start_step_m']) < HOLD_BOUND_M
+        assert np.linalg.norm(final - (hold + [0.5, 0.0, 0.0])) < HOLD_BOUND_M
+    finally:
+        tap.close()
