@@ -219,6 +219,15 @@ class PositionControllerNode(Node):
         self.odom_received_ns = self.steady.now().nanoseconds
         self._publish(self.loop.set_odometry(stamp_ns, state))
 
+    def _take_waiting_odometry(self) -> bool:
+        """Odometry that arrived but was not yet taken (this process was not scheduled, or the executor ran the
+        tick first): taken now, so staleness means none arrived, not none handled yet. True if any was."""
+        taken = False
+        while (msg := self.odom_sub.handle.take_message(self.odom_sub.msg_type, self.odom_sub.raw)) is not None:
+            self._on_odom(msg[0])
+            taken = True
+        return taken
+
     def _take_trajectories(self):
         """The decoder's results, on the executor's thread (guard condition, and every tick)."""
         for result in self.trajectory_decoder.take():
@@ -270,6 +279,8 @@ class PositionControllerNode(Node):
         if self.loop.odom is None or self.odom_fault is not None:
             return
         age_s = (self.steady.now().nanoseconds - self.odom_received_ns) * 1e-9
+        if age_s > self.params['odom_timeout_s'] and self._take_waiting_odometry():
+            age_s = (self.steady.now().nanoseconds - self.odom_received_ns) * 1e-9
         if age_s > self.params['odom_timeout_s']:
             if not self.stale:
                 self.stale = True

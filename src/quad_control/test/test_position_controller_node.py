@@ -14,6 +14,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -226,6 +227,27 @@ def test_stale_odometry_stops_setpoints_then_resumes(graph):
     graph.spin_until(lambda: _status(graph.diags[-1]).level == diagnostics.OK, 'OK again')
     values = {kv.key: kv.value for kv in _status(graph.diags[-1]).values}
     assert values['controller'] == 'pd' and values['odom_timeouts'] == '1'
+
+
+def test_odometry_waiting_in_the_subscription_is_not_stale(graph):
+    """Issue 13.5 (the controller's side): a process that was not scheduled for longer than odom_timeout_s finds
+    its timer and a new odometry ready at once; the tick takes that odometry before judging staleness (on a loaded
+    2-core machine the tick used to run first and stop the setpoints although odometry was there)."""
+    node = graph.start(odom_timeout_s=0.2, rate_hz=100.0)
+    graph.publish_odom(0.0)
+    graph.spin_until(lambda: len(graph.setpoints) > 0, 'setpoints with fresh odom')
+    graph.executor.remove_node(node)               # the node is not scheduled from here on ...
+    node.odom_received_ns -= 1_000_000_000          # ... for a second, as far as its odometry age goes
+    graph.publish_odom(0.0, z=0.9)
+    waiting = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, graph.ctx.handle)
+    waiting.add_subscription(node.odom_sub.handle)
+    waiting.wait(int(TIMEOUT_S * 1e9))               # the odometry is in the node's subscription, not yet taken
+    assert node.odom_sub.handle.pointer in waiting.get_ready_entities('subscription')
+    n = len(graph.setpoints)
+    node._on_tick()                                  # the timer runs first
+    assert node.counts['odom_timeouts'] == 0 and node.loop.odom[1].position[2] == 0.9
+    graph.spin_until(lambda: len(graph.setpoints) > n, 'the tick\'s setpoint')
+    graph.executor.add_node(node)
 
 
 def test_bad_runtime_parameters_are_refused_and_good_ones_apply(graph):
