@@ -343,28 +343,38 @@ class Observer:
 
 
 OFFBOARD_MODE = {'px4': 'OFFBOARD', 'ardupilot': 'GUIDED_NOGPS'}
+# what each emulated autopilot is told at boot, as docs/bridge.md's checklist says for thrust mode: ArduPilot flies
+# the thrust field as thrust with GUID_OPTIONS bit 3 (its default 0 is a climb rate; the bridge's default
+# ardupilot_thrust_mode is thrust)
+VEHICLE_PARAMS = {'px4': (), 'ardupilot': ('--param', 'GUID_OPTIONS=8')}
 
 
-def vehicle_extra(flavour):
-    """Emulator options of a vehicle set up as docs/bridge.md says for thrust mode: ArduPilot's GUID_OPTIONS
-    defaults to 0 (the thrust field is a climb rate); the bridge's default ardupilot_thrust_mode is thrust."""
-    return () if flavour == 'px4' else ('--param', 'GUID_OPTIONS=8')
-
-
-def hover_in_offboard(procs, observer, flavour, port, controller_files=(), position=(0.0, 0.0, 1.0),
-                      bridge_port=None, bridge=None, controller=None):
-    """The emulated vehicle (sending to udp `port`), mavlink_bridge (listening on `bridge_port`, default `port`:
-    another port puts a Tap between them) and position_controller (parameter files, then `controller`),
-    hovering in offboard: returns once the bridge reports the offboard mode."""
-    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=position, extra=vehicle_extra(flavour))
+def start_vehicle_graph(procs, flavour, port, controller_files=(), position=(0.0, 0.0, 1.0), bridge_port=None,
+                        bridge=None, controller=None, vehicle_extra=()):
+    """The emulated vehicle (sending to udp `port`, VEHICLE_PARAMS and vehicle_extra), mavlink_bridge (listening on
+    `bridge_port`, default `port`: another port puts a Tap between them; `bridge` parameters) and
+    position_controller (parameter files, then `controller` parameters)."""
+    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=position,
+                  extra=(*VEHICLE_PARAMS[flavour], *vehicle_extra))
     procs.bridge(f'udpin:127.0.0.1:{bridge_port or port}', **(bridge or {}))
     procs.controller(*controller_files, **(controller or {}))
+
+
+def enter_offboard(observer, flavour):
+    """Once the bridge sees the armed vehicle and the controller holds: `offboard`, until the bridge reports the
+    offboard mode."""
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
     observer.wait_for(lambda: observer.references, 'the controller to hold position')
     result = observer.call('offboard', SetBool.Request(data=True))
     assert result.success, result.message
     observer.wait_for(lambda: observer.link()[1].get('mode') == OFFBOARD_MODE[flavour],
                       f'mode {OFFBOARD_MODE[flavour]}')
+
+
+def hover_in_offboard(procs, observer, flavour, port, **graph):
+    """start_vehicle_graph(..., **graph), then enter_offboard: the vehicle hovering under our controller."""
+    start_vehicle_graph(procs, flavour, port, **graph)
+    enter_offboard(observer, flavour)
 
 
 @contextmanager

@@ -11,8 +11,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from bridge_graph import ROOT, VEHICLE_FILE, free_udp_port
-from std_srvs.srv import SetBool, Trigger
+from bridge_graph import OFFBOARD_MODE, ROOT, VEHICLE_FILE, enter_offboard, free_udp_port, start_vehicle_graph
+from std_srvs.srv import Trigger
 
 from quad_bringup.metrics import Completion
 from quad_common.conversions import stamp_to_s
@@ -20,10 +20,6 @@ from quad_common.vehicle import load_vehicle
 
 CONTROL = str(ROOT / 'config' / 'control.yaml')
 REAL_PROFILE = str(ROOT / 'config' / 'control_real.yaml')
-OFFBOARD_MODE = {'px4': 'OFFBOARD', 'ardupilot': 'GUIDED_NOGPS'}
-# what each emulated autopilot is told at boot: ArduPilot flies the thrust field as thrust with GUID_OPTIONS
-# bit 3 (its default 0 is a climb rate; docs/bridge.md's checklist)
-VEHICLE_PARAMS = {'px4': (), 'ardupilot': ('--param', 'GUID_OPTIONS=8')}
 
 
 @dataclass
@@ -40,25 +36,14 @@ def fly_mission(procs, observer, out_dir: Path, flavour: str, waypoints, speed_m
     """Flies `waypoints` (ENU, m; the vehicle starts hovering at the first) and returns the report of the bag."""
     out_dir = Path(out_dir)
     bag = out_dir / 'bag'
-    port = free_udp_port()
-    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=waypoints[0],
-                  extra=(*VEHICLE_PARAMS[flavour], *vehicle_extra))
-    procs.bridge(f'udpin:127.0.0.1:{port}', autopilot=flavour, **(bridge_params or {}))
-    controller = ['-m', 'quad_control.position_controller_node', '--ros-args', '--params-file', CONTROL]
-    if profile:
-        controller += ['--params-file', profile]
-    for key, value in {'vehicle': VEHICLE_FILE, **(controller_params or {})}.items():
-        controller += ['-p', f'{key}:={value}']
-    procs.start('controller', controller)
+    start_vehicle_graph(procs, flavour, free_udp_port(), position=waypoints[0], vehicle_extra=vehicle_extra,
+                        controller_files=(CONTROL, profile) if profile else (CONTROL,),
+                        bridge={'autopilot': flavour, **(bridge_params or {})}, controller=controller_params)
     from quad_bringup.commands.record import ros_arguments
     from quad_bringup.recorder import DEFAULT_TOPICS
     procs.start('recorder', ['-m', 'quad_bringup.recorder_node', *ros_arguments(str(bag), list(DEFAULT_TOPICS))])
-    observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
-    observer.wait_for(lambda: observer.references, 'the controller to hold position')
-    result = observer.call('offboard', SetBool.Request(data=True))
-    assert result.success, result.message
+    enter_offboard(observer, flavour)
     mode = OFFBOARD_MODE[flavour]
-    observer.wait_for(lambda: observer.link()[1].get('mode') == mode, f'mode {mode}')
     flat = ','.join(str(float(c)) for wp in waypoints for c in wp)
     procs.start('trajectory', ['-m', 'quad_trajectory.trajectory_node', '--ros-args', '-p', f'waypoints:=[{flat}]',
                                '-p', f'speed_mps:={speed_mps}', '-p', 'start_delay_s:=1.0',
