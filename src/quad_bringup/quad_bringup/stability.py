@@ -59,7 +59,7 @@ class Hold:
 
     def describe(self) -> str:
         head = (f'attitude lag {self.lag_s:.3f} s, telemetry latency {self.latency_s:.3f} s, thrust error '
-                f'{100 * self.thrust_error:+.0f} %: ')
+                f'{100 * self.thrust_error:+.1f} %: ')
         if self.stopped:
             return head + f'lost ({self.stopped}), peak tilt {self.peak_tilt_deg:.1f} deg'
         verdict = 'settled' if self.settled else 'NOT settled'

@@ -11,8 +11,14 @@ import pytest
 
 from quad_bringup.closed_loop import load_control_profile
 from quad_bringup.identify import DT_S, fit_fopdt
-from quad_bringup.stability import (MARGIN_LAG, MARGIN_LATENCY, MEASURED_LAG_S, MEASURED_LATENCY_S,
-                                    hold_on_autopilot, margin_hold)
+from quad_bringup.stability import (
+    MARGIN_LAG,
+    MARGIN_LATENCY,
+    MEASURED_LAG_S,
+    MEASURED_LATENCY_S,
+    hold_on_autopilot,
+    margin_hold,
+)
 from quad_common import rotations
 from quad_common.paths import resolve_config
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
