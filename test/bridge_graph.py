@@ -2,6 +2,7 @@
 
 import collections
 import itertools
+import math
 import os
 import select
 import socket
@@ -79,6 +80,18 @@ class Processes:
         return self.start(name, ['-m', 'quad_vehicle_emu.mavlink_vehicle', '--autopilot', flavour, '--url', url,
                                  '--vehicle', VEHICLE_FILE, '--initial-position', ','.join(map(str, position)),
                                  *extra])
+
+    def params_file(self, node, *files) -> str:
+        """The `node` section of YAML params files (later ones win), written under the '/**' key so that it
+        reaches the node in this graph's namespace (a plain `node:` key names the node without a namespace and
+        would be silently ignored); its path, for --params-file."""
+        import yaml
+        merged = {}
+        for path in files:
+            merged.update((yaml.safe_load(Path(path).read_text()) or {}).get(node, {}).get('ros__parameters', {}))
+        out = self.log_dir / f'{node}_params.yaml'
+        out.write_text(yaml.safe_dump({'/**': {'ros__parameters': merged}}))
+        return str(out)
 
     def bridge(self, url, **params):
         args = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', f'fcu_url:={url}']
@@ -217,6 +230,7 @@ class Observer:
         self.node = rclpy.create_node('bridge_test_observer', namespace=namespace, context=self.context)
         self.lock = threading.Lock()
         self.odom, self.diagnostics, self.references, self.trajectory = [], {}, [], None
+        self.tilt = []   # (stamp, tilt from level in deg) of each odom
         self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
         self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diag, 10)
         self.node.create_subscription(MultiDOFJointTrajectory, 'control/reference', self._on_ref, 10)
@@ -236,9 +250,11 @@ class Observer:
                     raise
 
     def _on_odom(self, msg):
-        p = msg.pose.pose.position
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        tilt_deg = math.degrees(math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (q.x * q.x + q.y * q.y)))))  # R_33
         with self.lock:
             self.odom.append((stamp_to_s(msg.header.stamp), (p.x, p.y, p.z)))
+            self.tilt.append((stamp_to_s(msg.header.stamp), tilt_deg))
 
     def _on_diag(self, msg):
         with self.lock:

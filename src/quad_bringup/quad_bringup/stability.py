@@ -31,6 +31,7 @@ MARGIN_LATENCY = 2.0
 SETTLED_TILT_DEG = 2.0           # largest tilt over the last quarter of a settled hold
 SETTLED_OSCILLATION_DEG = 0.5    # tilt standard deviation over the last quarter of a settled hold
 SETTLED_OSCILLATION_M = 0.005    # position standard deviation over the last quarter of a settled hold
+TELEMETRY_RATE_HZ = 50.0         # mavlink_bridge's telemetry_rate_hz: the odometry stream it requests
 HOLD_ALTITUDE_M = 20.0           # room for a flip to show as a flip, not as ground contact
 
 
@@ -70,11 +71,13 @@ class Hold:
 
 def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s: float, latency_s: float,
                       thrust_error: float = 0.0, start_offset_m=(0.5, 0.0, 0.3), duration_s: float = 20.0,
-                      rate_hz: float = RATE_HZ, physics_rate_hz: float = 500.0) -> Hold:
+                      rate_hz: float = RATE_HZ, physics_rate_hz: float = 500.0,
+                      telemetry_rate_hz: float = TELEMETRY_RATE_HZ) -> Hold:
     """The controller holds a point from start_offset_m behind the emulator's attitude response (lag_s) and
     telemetry (latency_s) on vehicle_path's plant with thrust_error. Each period, as mavlink_vehicle's loop:
     the controller sees the newest telemetry at least latency_s old, its attitude goes through the shaping,
-    the physics advances one period, the new state enters the telemetry line."""
+    the physics advances one period, the new state enters the telemetry line (at telemetry_rate_hz: what the
+    bridge asks the vehicle for)."""
     nominal = load_vehicle(vehicle_path)
     plant = load_vehicle(vehicle_path, plant={'thrust_error': thrust_error}) if thrust_error else nominal
     target = np.array([0.0, 0.0, HOLD_ALTITUDE_M])
@@ -89,6 +92,7 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
     period_s = 1.0 / rate_hz
     steps = sim.steps_in(round(period_s * physics_rate_hz) / physics_rate_hz)
     telemetry.push(0.0, sim.odometry_state())
+    every = max(int(round(rate_hz / telemetry_rate_hz)), 1)
     positions, euler = [], []
     stopped = None
     for k in range(int(round(duration_s * rate_hz))):
@@ -103,7 +107,8 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
         except SimulationStopped as exc:
             stopped = str(exc)
             break
-        telemetry.push(t_s + period_s, sim.odometry_state())
+        if (k + 1) % every == 0:
+            telemetry.push(t_s + period_s, sim.odometry_state())
         positions.append(sim.state.position)
         euler.append(rotations.to_euler(sim.state.quaternion)[:2])
         if sim.landed or sim.state.position[2] < 1.0:

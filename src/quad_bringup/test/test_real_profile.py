@@ -77,9 +77,9 @@ def test_real_profile_settles_at_the_margin(thrust_error):
 
 
 def test_margin_has_an_edge():
-    """The check can fail the real profile too: far beyond the margin (0.45 s of lag) it oscillates."""
+    """The check can fail the real profile too: far beyond the margin (0.6 s of lag) it oscillates."""
     controller, gains = load_control_profile(REAL)
-    hold = hold_on_autopilot(VEHICLE, controller, gains, 0.45, 2 * MEASURED_LATENCY_S)
+    hold = hold_on_autopilot(VEHICLE, controller, gains, 0.6, 2 * MEASURED_LATENCY_S)
     print(hold.describe())
     assert not hold.settled and hold.oscillation_deg > 2.0
 
