@@ -3,7 +3,8 @@
 The plant is the emulator's (quad_vehicle_emu.mavlink_vehicle, its main loop step for step): quad_sim's Simulator
 with the vehicle's own onboard loop, behind quad_vehicle_emu.attitude.AttitudeResponse with
 tau = lag - the loop's own lag (tau_for_lag_s: the total roll/pitch lag is the requested one), its telemetry
-read through quad_vehicle_emu.attitude.DelayLine (latency), and a hover-thrust error (delivered / commanded
+read through quad_vehicle_emu.attitude.DelayLine (latency) at the bridge's 50 Hz and released in ArduPilot's
+bursts (up to 40 ms apart, as the emulator does), and a hover-thrust error (delivered / commanded
 specific force = 1 + thrust_error: the bridge's hover_throttle vs the vehicle's true one). The controller is
 quad_control's PositionController, the one position_controller's ControlLoop runs, at its rate, holding a
 point from a start offset. No ROS, no sockets: the graph version is test/test_bridge_real_profile.py.
@@ -23,6 +24,7 @@ from quad_control.loop import RATE_HZ
 from quad_control.position import Limits, PositionController, PositionGains
 from quad_sim.simulator import SimulationStopped, Simulator
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, own_lag_s, tau_for_lag_s
+from quad_vehicle_emu.mavlink_vehicle import DEFAULT_BURST_S
 
 MEASURED_LAG_S = (0.17, 0.21)    # ArduCopter SITL roll/pitch under pd/pid (issue 13)
 MEASURED_LATENCY_S = 0.05        # its telemetry
@@ -32,6 +34,7 @@ SETTLED_TILT_DEG = 2.0           # largest tilt over the last quarter of a settl
 SETTLED_OSCILLATION_DEG = 0.5    # tilt standard deviation over the last quarter of a settled hold
 SETTLED_OSCILLATION_M = 0.005    # position standard deviation over the last quarter of a settled hold
 TELEMETRY_RATE_HZ = 50.0         # mavlink_bridge's telemetry_rate_hz: the odometry stream it requests
+BURST_S = DEFAULT_BURST_S['ardupilot']   # ArduPilot SITL's telemetry arrived 0.5-65 ms apart (issue 13)
 HOLD_ALTITUDE_M = 20.0           # room for a flip to show as a flip, not as ground contact
 
 
@@ -72,12 +75,13 @@ class Hold:
 def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s: float, latency_s: float,
                       thrust_error: float = 0.0, start_offset_m=(0.5, 0.0, 0.3), duration_s: float = 20.0,
                       rate_hz: float = RATE_HZ, physics_rate_hz: float = 500.0,
-                      telemetry_rate_hz: float = TELEMETRY_RATE_HZ) -> Hold:
+                      telemetry_rate_hz: float = TELEMETRY_RATE_HZ, burst_s: float = BURST_S, seed: int = 0) -> Hold:
     """The controller holds a point from start_offset_m behind the emulator's attitude response (lag_s) and
     telemetry (latency_s) on vehicle_path's plant with thrust_error. Each period, as mavlink_vehicle's loop:
     the controller sees the newest telemetry at least latency_s old, its attitude goes through the shaping,
     the physics advances one period, the new state enters the telemetry line (at telemetry_rate_hz: what the
-    bridge asks the vehicle for)."""
+    bridge asks the vehicle for). Telemetry leaves in bursts up to burst_s apart (uniform, seeded), as the
+    emulated ArduPilot sends it: between bursts the controller sees the last one released."""
     nominal = load_vehicle(vehicle_path)
     plant = load_vehicle(vehicle_path, plant={'thrust_error': thrust_error}) if thrust_error else nominal
     target = np.array([0.0, 0.0, HOLD_ALTITUDE_M])
@@ -95,9 +99,13 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
     every = max(int(round(rate_hz / telemetry_rate_hz)), 1)
     positions, euler = [], []
     stopped = None
+    rng = np.random.default_rng(seed)
+    next_burst_s = 0.0
     for k in range(int(round(duration_s * rate_hz))):
         t_s = k * period_s
-        _, seen = telemetry.read(t_s)
+        if t_s >= next_burst_s:
+            _, seen = telemetry.read(t_s)
+            next_burst_s = t_s + rng.uniform(0.0, burst_s)
         setpoint, _ = control.update(seen, ref, period_s if k else 0.0)
         q, w = shaper.step(setpoint.quaternion, period_s, setpoint.body_rates)
         sim.set_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=setpoint.specific_force_mps2,
