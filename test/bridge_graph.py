@@ -39,9 +39,9 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def python_env(env):
-    """env with every package of src/ importable (also without a colcon install)."""
-    paths = [str(p) for p in sorted((ROOT / 'src').iterdir()) if p.is_dir()]
+def python_env(env, src_root: Path | None = None):
+    """env with every package of src/ (or of src_root) importable (also without a colcon install)."""
+    paths = [str(p) for p in sorted((src_root or ROOT / 'src').iterdir()) if p.is_dir()]
     return dict(env, PYTHONPATH=os.pathsep.join(paths + [env.get('PYTHONPATH', '')]), PYTHONUNBUFFERED='1')
 
 
@@ -49,8 +49,9 @@ class Processes:
     """Child processes with logs under log_dir; stop() ends each one it started. ROS nodes run in `namespace`,
     so even a stray process left in the same ROS domain by someone else cannot cross-talk with the graph."""
 
-    def __init__(self, env, log_dir: Path, namespace: str):
-        self.env, self.log_dir, self.namespace, self.procs = python_env(env), log_dir, namespace, {}
+    def __init__(self, env, log_dir: Path, namespace: str, src_root: Path | None = None):
+        """src_root: run the packages of another checkout's src/ (bench/bench_bridge_arrival.py's baseline)."""
+        self.env, self.log_dir, self.namespace, self.procs = python_env(env, src_root), log_dir, namespace, {}
 
     def start(self, name, args):
         if '--ros-args' in args:

@@ -34,7 +34,9 @@ DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
 HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
 EARTH_RADIUS_M = 6378137.0
 DEFAULT_ATTITUDE_TAU_S = 0.08                          # see attitude.py
-DEFAULT_LATENCY_S = {'px4': 0.02, 'ardupilot': 0.05}   # ArduCopter SITL measured ~50 ms (issue 13)
+# ArduCopter SITL's telemetry was ~50 ms old (issue 13): 35 ms here plus the wait for the next burst, uniform
+# up to 40 ms apart (mean wait E[T^2] / 2E[T] = 40 / 3 ms), 48 ms on average
+DEFAULT_LATENCY_S = {'px4': 0.02, 'ardupilot': 0.035}
 DEFAULT_BURST_S = {'px4': 0.0, 'ardupilot': 0.04}      # ArduPilot SITL telemetry arrived 0.5-65 ms apart
 
 
@@ -416,7 +418,7 @@ def build_parser():
                     help='attitude shaping time constant; default 0.08 s (a 10 deg roll step reaches 63 %% in 0.19 s '
                     "with px4_quad.yaml, as ArduCopter SITL did), 0 when the vehicle file sets quad_sim's "
                     'attitude_loop to an autopilot-like one (so3_pd, lag)')
-    ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.05')
+    ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.035 (+ its bursts)')
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')
     ap.add_argument('--boot-offset-s', type=float, default=37.0, help='the vehicle booted this long before us')

@@ -1,0 +1,86 @@
+"""A mission flown as on a real vehicle, against quad_vehicle_emu: the emulated autopilot hovering where it took
+off, mavlink_bridge, position_controller with a control profile (the launch files' control_real.yaml by default),
+the recorder (`quadflight record`'s node), `offboard`, trajectory_node with the waypoints, `land` after the plan's
+end plus the vehicle's settle time, the recorder stopped, then `quadflight report BAG --vehicle VEHICLE`.
+
+Used by test_bridge_report.py and bench/bench_bridge_flight.py (the flight table of docs/bridge.md)."""
+
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from bridge_graph import ROOT, VEHICLE_FILE, free_udp_port
+from std_srvs.srv import SetBool, Trigger
+
+from quad_bringup.metrics import Completion
+from quad_common.conversions import stamp_to_s
+from quad_common.vehicle import load_vehicle
+
+CONTROL = str(ROOT / 'config' / 'control.yaml')
+REAL_PROFILE = str(ROOT / 'config' / 'control_real.yaml')
+OFFBOARD_MODE = {'px4': 'OFFBOARD', 'ardupilot': 'GUIDED_NOGPS'}
+# what each emulated autopilot is told at boot: ArduPilot flies the thrust field as thrust with GUID_OPTIONS
+# bit 3 (its default 0 is a climb rate; docs/bridge.md's checklist)
+VEHICLE_PARAMS = {'px4': (), 'ardupilot': ('--param', 'GUID_OPTIONS=8')}
+
+
+@dataclass
+class MissionFlight:
+    metrics: dict          # the report's metrics.json
+    report_md: str
+    trajectory_points: int
+    bag: Path
+
+
+def fly_mission(procs, observer, out_dir: Path, flavour: str, waypoints, speed_mps: float,
+                profile: str | None = REAL_PROFILE, vehicle_extra=(), bridge_params=None, controller_params=None,
+                wait_s: float = 180.0) -> MissionFlight:
+    """Flies `waypoints` (ENU, m; the vehicle starts hovering at the first) and returns the report of the bag."""
+    out_dir = Path(out_dir)
+    bag = out_dir / 'bag'
+    port = free_udp_port()
+    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=waypoints[0],
+                  extra=(*VEHICLE_PARAMS[flavour], *vehicle_extra))
+    procs.bridge(f'udpin:127.0.0.1:{port}', autopilot=flavour, **(bridge_params or {}))
+    controller = ['-m', 'quad_control.position_controller_node', '--ros-args', '--params-file', CONTROL]
+    if profile:
+        controller += ['--params-file', profile]
+    for key, value in {'vehicle': VEHICLE_FILE, **(controller_params or {})}.items():
+        controller += ['-p', f'{key}:={value}']
+    procs.start('controller', controller)
+    from quad_bringup.commands.record import ros_arguments
+    from quad_bringup.recorder import DEFAULT_TOPICS
+    procs.start('recorder', ['-m', 'quad_bringup.recorder_node', *ros_arguments(str(bag), list(DEFAULT_TOPICS))])
+    observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+    observer.wait_for(lambda: observer.references, 'the controller to hold position')
+    result = observer.call('offboard', SetBool.Request(data=True))
+    assert result.success, result.message
+    mode = OFFBOARD_MODE[flavour]
+    observer.wait_for(lambda: observer.link()[1].get('mode') == mode, f'mode {mode}')
+    flat = ','.join(str(float(c)) for wp in waypoints for c in wp)
+    procs.start('trajectory', ['-m', 'quad_trajectory.trajectory_node', '--ros-args', '-p', f'waypoints:=[{flat}]',
+                               '-p', f'speed_mps:={speed_mps}', '-p', 'start_delay_s:=1.0',
+                               '-p', f'vehicle_file:={VEHICLE_FILE}'])
+    observer.wait_for(lambda: observer.trajectory is not None, 'the trajectory')
+    traj = observer.trajectory
+    settle_s = Completion.for_vehicle(load_vehicle(VEHICLE_FILE)).settle_s
+    end_s = stamp_to_s(traj.header.stamp) + stamp_to_s(traj.points[-1].time_from_start) + settle_s + 1.0
+    observer.wait_for(lambda: observer.odom and observer.odom[-1][0] > end_s, 'the plan end plus settle', wait_s)
+    assert observer.link()[1].get('mode') == mode, f'the hand-over ended early: {observer.link()}'
+    result = observer.call('land', Trigger.Request())
+    assert result.success, result.message
+    observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle to land and disarm', wait_s)
+    procs.stop('recorder')   # SIGTERM: the recorder closes the bag
+    metrics, report_md = report(bag, out_dir / 'report', procs.env)
+    return MissionFlight(metrics, report_md, len(traj.points), bag)
+
+
+def report(bag: Path, out_dir: Path, env, *options) -> tuple[dict, str]:
+    """(metrics.json, report.md) of `quadflight report BAG --vehicle px4_quad.yaml --out OUT_DIR *options`."""
+    done = subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'report', str(bag), '--vehicle', VEHICLE_FILE,
+                           '--out', str(out_dir), *options], env=env, cwd=str(ROOT), capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return json.loads((out_dir / 'metrics.json').read_text()), (out_dir / 'report.md').read_text()
