@@ -44,9 +44,8 @@ def fly_mission(procs, observer, out_dir: Path, flavour: str, waypoints, speed_m
     procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=waypoints[0],
                   extra=(*VEHICLE_PARAMS[flavour], *vehicle_extra))
     procs.bridge(f'udpin:127.0.0.1:{port}', autopilot=flavour, **(bridge_params or {}))
-    controller = ['-m', 'quad_control.position_controller_node', '--ros-args', '--params-file', CONTROL]
-    if profile:
-        controller += ['--params-file', profile]
+    params = procs.params_file('position_controller', CONTROL, *([profile] if profile else []))
+    controller = ['-m', 'quad_control.position_controller_node', '--ros-args', '--params-file', params]
     for key, value in {'vehicle': VEHICLE_FILE, **(controller_params or {})}.items():
         controller += ['-p', f'{key}:={value}']
     procs.start('controller', controller)
