@@ -96,8 +96,8 @@ def run_once(src: Path | None, busy: int) -> dict:
             procs.vehicle('ardupilot', f'udpout:127.0.0.1:{port}', position=HOVER, extra=('--param', 'GUID_OPTIONS=8'))
             ours.bridge(f'udpin:127.0.0.1:{port}', autopilot='ardupilot')
             config = (src.parent if src else ROOT) / 'config'
-            ours.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args', '--params-file',
-                                      str(config / 'control.yaml'), '-p', f'vehicle:={config}/vehicles/px4_quad.yaml'])
+            ours.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
+                                      '-p', f'vehicle:={config}/vehicles/px4_quad.yaml'])   # its defaults
             observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the armed vehicle')
             observer.wait_for(lambda: observer.references, 'the controller to hold')
             result = observer.call('offboard', SetBool.Request(data=True))

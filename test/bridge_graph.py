@@ -2,6 +2,7 @@
 
 import collections
 import itertools
+import math
 import os
 import select
 import socket
@@ -13,7 +14,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import rclpy
-import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
@@ -84,6 +84,18 @@ class Processes:
                                  '--vehicle', VEHICLE_FILE, '--initial-position', ','.join(map(str, position)),
                                  *extra])
 
+    def params_file(self, node, *files) -> str:
+        """The `node` section of YAML params files (later ones win), written under the '/**' key so that it
+        reaches the node in this graph's namespace (a plain `node:` key names the node without a namespace and
+        would be silently ignored); its path, for --params-file."""
+        import yaml
+        merged = {}
+        for path in files:
+            merged.update((yaml.safe_load(Path(path).read_text()) or {}).get(node, {}).get('ros__parameters', {}))
+        out = self.log_dir / f'{node}_params.yaml'
+        out.write_text(yaml.safe_dump({'/**': {'ros__parameters': merged}}))
+        return str(out)
+
     def bridge(self, url, **params):
         args = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', f'fcu_url:={url}']
         for k, v in {**BRIDGE_DEFAULTS, **params}.items():
@@ -91,17 +103,13 @@ class Processes:
         return self.start('bridge', args)
 
     def controller(self, *param_files, **params):
-        """position_controller on the wall clock: the parameter files (paths under the repository, in order), then
-        the parameters; the vehicle file is the emulator's unless given. The files' `position_controller` entries
-        are merged under a namespace wildcard (their plain node name would not match the graph's namespace)."""
-        merged = {}
-        for path in param_files:
-            merged.update(yaml.safe_load((ROOT / path).read_text())['position_controller']['ros__parameters'])
-        merged.update({'vehicle': VEHICLE_FILE, **params})
-        file = self.log_dir / 'controller_params.yaml'
-        file.write_text(yaml.safe_dump({'/**/position_controller': {'ros__parameters': merged}}))
-        return self.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
-                                         '--params-file', str(file)])
+        """position_controller on the wall clock: the parameter files (paths under the repository, in order;
+        through params_file), then the parameters; the vehicle file is the emulator's unless given."""
+        args = ['-m', 'quad_control.position_controller_node', '--ros-args',
+                '--params-file', self.params_file('position_controller', *(ROOT / p for p in param_files))]
+        for k, v in {'vehicle': VEHICLE_FILE, **params}.items():
+            args += ['-p', f'{k}:={v}']
+        return self.start('controller', args)
 
     def odom_probe(self):
         """test/odom_probe.py: odometry arrivals seen from a process of their own (read back with odom_arrivals)."""
@@ -247,6 +255,7 @@ class Observer:
         self.lock = threading.Lock()
         self.odom, self.diagnostics, self.references, self._trajectory_raw = [], {}, [], None
         self._trajectory_pub = None
+        self.tilt = []   # (stamp, tilt from level in deg) of each odom
         self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
         self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diag, 10)
         self.node.create_subscription(MultiDOFJointTrajectory, 'control/reference', self._on_ref, 10)
@@ -266,9 +275,11 @@ class Observer:
                     raise
 
     def _on_odom(self, msg):
-        p = msg.pose.pose.position
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        tilt_deg = math.degrees(math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (q.x * q.x + q.y * q.y)))))  # R_33
         with self.lock:
             self.odom.append((stamp_to_s(msg.header.stamp), (p.x, p.y, p.z)))
+            self.tilt.append((stamp_to_s(msg.header.stamp), tilt_deg))
 
     def _on_diag(self, msg):
         with self.lock:

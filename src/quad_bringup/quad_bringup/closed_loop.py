@@ -16,7 +16,6 @@ import numpy as np
 from quad_bringup.metrics import Completion, Flight, compute_metrics
 from quad_common import rotations
 from quad_common.paths import resolve_config
-from quad_common.types import Reference
 from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 from quad_control.loop import MAX_START_STEP_M, RATE_HZ, ControlLoop
@@ -123,35 +122,14 @@ class FlightBag:
         self.writer.close()
 
 
-def hold_offline(vehicle_path, controller: str, gains: PositionGains, plant=None, start_offset_m=(0.5, 0.0, 0.0),
-                 duration_s: float = 20.0, odom_latency_s: float = 0.0, rate_hz: float = 100.0) -> dict:
-    """Hold a point from a start offset: the position loop against the vehicle's (plant's) attitude response
-    and a telemetry delay. Returns the final offset (mean over the last quarter, m), the largest tilt over the
-    last quarter (deg: a sustained oscillation keeps it large) and over the whole hold."""
-    nominal = load_vehicle(vehicle_path)
-    vehicle = load_vehicle(vehicle_path, plant=plant) if plant else nominal
-    target = np.array([0.0, 0.0, 2.0])
-    sim = Simulator(vehicle, initial_position=target + np.asarray(start_offset_m, dtype=float))
-    control = PositionController(controller, gains, nominal, Limits.of(nominal))
-    ref = Reference(position=target, velocity=np.zeros(3), acceleration=np.zeros(3), jerk=np.zeros(3), yaw=0.0,
-                    yaw_rate=0.0)
-    delayed, period_s = _Delay(odom_latency_s, 1.0 / rate_hz), 1.0 / rate_hz
-    positions, tilts = [], []
-    for k in range(int(round(duration_s * rate_hz))):
-        setpoint, _ = control.update(delayed(sim.odometry_state()), ref, period_s if k else 0.0)
-        sim.set_setpoint(setpoint)
-        sim.advance(period_s)
-        positions.append(sim.state.position)
-        roll, pitch, _ = rotations.to_euler(sim.state.quaternion)
-        tilts.append(np.degrees(np.hypot(roll, pitch)))
-    last = len(positions) * 3 // 4
-    return {'offset_m': float(np.linalg.norm(np.mean(positions[last:], axis=0) - target)),
-            'late_tilt_deg': float(np.max(tilts[last:])), 'peak_tilt_deg': float(np.max(tilts))}
-
-
 def load_control_profile(path) -> tuple[str, PositionGains]:
     """(controller, gains) of a position_controller params file (config/control*.yaml) over the seed's."""
-    values = (load_yaml(resolve_config(path)) or {}).get('position_controller', {}).get('ros__parameters', {})
+    return control_profile(load_yaml(resolve_config(path)) or {})
+
+
+def control_profile(content: dict) -> tuple[str, PositionGains]:
+    """(controller, gains) of a params file's content over the seed's."""
+    values = content.get('position_controller', {}).get('ros__parameters', {})
     return values.get('controller', 'pd'), gains_from_parameters(values)
 
 

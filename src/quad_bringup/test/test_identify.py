@@ -49,16 +49,56 @@ def test_thrust_scale_of_mass_and_hover_thrust_errors(tmp_path, member, scale):
     assert thrust['mass_error_equivalent'] == pytest.approx(1 / scale - 1, abs=0.015)
 
 
-def test_cli_writes_a_profile_the_controller_flies(tmp_path):
-    bag = flown_bag(tmp_path, 'autopilot_lag')
-    out = tmp_path / 'profile.yaml'
-    done = subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'identify', str(bag), '--out', str(out)],
+@pytest.fixture(scope='module')
+def lag_bag(tmp_path_factory):
+    return flown_bag(tmp_path_factory.mktemp('identify'), 'autopilot_lag')
+
+
+def identify_cli(*args):
+    return subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'identify', *map(str, args)],
                           capture_output=True, text=True, cwd=REPO_ROOT)
+
+
+def test_cli_writes_a_profile_the_controller_flies(tmp_path, lag_bag):
+    """The default base is the real-vehicle profile (what the bridge flies); it has margin on the lag found."""
+    out = tmp_path / 'profile.yaml'
+    done = identify_cli(lag_bag, '--out', out)
     assert done.returncode == 0, done.stderr
     assert 'roll : lag 0.1' in done.stdout and 'thrust: scale' in done.stdout
-    params = yaml.safe_load(out.read_text())['position_controller']['ros__parameters']
-    assert params['controller'] == 'se3' and params['attitude_lead_s'] == pytest.approx(0.15, rel=0.15)
+    assert 'margin (1.5x the lag 0.1' in done.stdout and '0.050 s, pid): ' in done.stdout
+    assert 'telemetry latency 0.100 s' in done.stdout and ': settled' in done.stdout
+    written = yaml.safe_load(out.read_text())
+    params = written['position_controller']['ros__parameters']
+    assert params['controller'] == 'pid' and params['attitude_lead_s'] == pytest.approx(0.15, rel=0.15)
     assert params['thrust_scale'] == pytest.approx(1.0, abs=0.01)
+    assert params['kp_x'] == yaml.safe_load(resolve_config('config/control_real.yaml').read_text())[
+        'position_controller']['ros__parameters']['kp_x']
+    margin = written['identification']['margin']
+    assert margin['lag_s'] == pytest.approx(1.5 * written['identification']['attitude_lead_s'], abs=1e-3)
+    assert margin['latency_s'] == pytest.approx(0.1) and margin['oscillation_deg'] < 0.5
+
+
+def test_cli_refuses_a_profile_without_margin(tmp_path, lag_bag):
+    """control_fast behind 1.5x the identified lag (0.15 s) and 2x the latency oscillates: nothing is written."""
+    out = tmp_path / 'fast.yaml'
+    done = identify_cli(lag_bag, '--base', resolve_config('config/control_fast.yaml'), '--out', out,
+                        '--latency-s', '0.05')
+    assert done.returncode == 1, done.stdout
+    assert not out.exists()
+    message = done.stderr
+    assert f'refused to write {out}' in message and 'se3' in message and 'control_fast.yaml' in message
+    assert 's of attitude lag' in message and '0.100 s of telemetry latency' in message
+    lag = float(message.split(' does not settle at ')[1].split(' s')[0])
+    assert lag == pytest.approx(0.225, rel=0.15)
+    tilt = float(message.split('(tilt ')[1].split(' deg')[0])
+    oscillation = float(message.split('oscillation ')[1].split(' deg')[0])
+    assert tilt > 20.0 and oscillation > 10.0
+    assert 'NOT settled' in done.stdout
+
+
+def test_cli_refuses_a_bad_latency_by_name(lag_bag):
+    done = identify_cli(lag_bag, '--latency-s', 'nan')
+    assert done.returncode == 1 and '--latency-s = nan' in done.stderr
 
 
 def test_a_bag_without_commands_is_refused_by_name(tmp_path):

@@ -11,6 +11,14 @@ which quad_sim's attitude loop (the seed's eq. 6 with the vehicle YAML's kp/kd) 
 feed-forward. With config/vehicles/px4_quad.yaml the bare loop reaches 63 % of a 10 deg roll step in 0.09 s;
 tau = 0.08 s in front of it makes that 0.19 s, inside the 0.17-0.21 s measured on ArduCopter SITL (issue 13;
 test_attitude_response.py). tau is calibrated to that measurement, not taken from ATC_INPUT_TC or MC_ROLL_P.
+
+A requested total lag L (the mean delay -G'(0)/G(0) of the attitude response G, what an FOPDT fit calls
+tau + dead time, `quadflight identify`'s lag) is reached by `tau_for_lag_s`: mean delays of systems in
+series add, and the emulator's eq. 6 loop ignores the roll/pitch rate feed-forward, so
+
+    L = tau + lag_loop,   lag_loop = quad_sim.stability.attitude_lag_s(vehicle)  (kd / kp: 0.1 s for px4_quad)
+
+(tau 0.08 -> L = 0.18 s, whose 63 % step rise is the 0.19 s above).
 """
 
 import collections
@@ -19,6 +27,7 @@ import math
 import numpy as np
 
 from quad_common import rotations
+from quad_sim.stability import attitude_lag_s
 
 
 def _log_body(q_from, q_to) -> np.ndarray:
@@ -39,6 +48,21 @@ def _exp_body(q, rotvec) -> np.ndarray:
     axis = rotvec / angle
     dq = np.array([*(axis * math.sin(angle / 2.0)), math.cos(angle / 2.0)])
     return rotations.normalize(rotations.multiply(q, dq))
+
+
+def own_lag_s(vehicle) -> float:
+    """The roll/pitch lag of the vehicle's onboard loop without shaping (the slower axis)."""
+    return max(attitude_lag_s(vehicle, 0), attitude_lag_s(vehicle, 1))
+
+
+def tau_for_lag_s(vehicle, lag_s: float) -> float:
+    """The shaping time constant that makes the vehicle's total roll/pitch lag lag_s (see the module): lag_s minus
+    the onboard loop's own mean delay; refused when the loop alone is slower."""
+    own_s = own_lag_s(vehicle)
+    if not (math.isfinite(lag_s) and lag_s >= own_s):
+        raise ValueError(f'attitude lag = {lag_s!r} s: this vehicle\'s own attitude loop already lags {own_s:.3f} s; '
+                         f'ask for at least that')
+    return float(lag_s - own_s)
 
 
 class AttitudeResponse:
