@@ -40,7 +40,7 @@ AFTER_PLAN_S = 3.0    # odometry looked at after the controller took the plan
 STALE_TIMEOUT_S = 0.5  # the controller's odom_timeout_s in the start-step test; the cut lasts twice that
 PUSH_PITCH_DEG = 5.0   # a ground station tilts the vehicle this much for 0.3 s during the cut: ~0.2 m away
 SETTLED_S = 1.0        # settled: within HOLD_BOUND_M this long
-SETTLE_WAIT_S = 30.0   # a loaded machine's latency leaves the recovery lightly damped (quiet: ~3 s)
+SETTLE_WAIT_S = 30.0   # control_real settles from the push in ~6 s; a loaded machine adds lag (seen 7.6 s)
 REFUSAL_WAIT_S = 20.0  # a refusal comes at the plan's start (0.5 s after publication): generous for a busy machine
 
 
