@@ -128,6 +128,29 @@ def test_guided_keeps_flying_our_last_setpoint_so_the_quiet_stream_lands(graph):
     assert 'mode changed to GUIDED' in procs.log('bridge')
 
 
+def test_a_link_loss_that_ends_the_hand_over_brings_the_stale_action_when_the_link_returns(graph):
+    """The link drops mid hand-over: the hand-over ends and nothing can be commanded; ArduPilot in GUIDED_NOGPS
+    keeps flying the last attitude target (then levels, drifting). When the link returns the vehicle is still in
+    a mode that obeys setpoints with nobody streaming: the bridge commands its stale action (point 1). Streaming
+    never resumes by itself."""
+    procs, observer, start = graph
+    tap = start('ardupilot', link_timeout_s=1.5, setpoint_timeout_s=0.5)   # ArduPilot beats at 1 Hz
+    publisher = SetpointPublisher(observer)
+    try:
+        _handed_over(procs, observer, tap, publisher, 'GUIDED_NOGPS')
+        tap.cut.set()
+        observer.wait_for(lambda: observer.link()[0] == 'link lost', 'the bridge to see the link lost')
+        tap.cut.clear()
+        back_s = time.monotonic()
+        observer.wait_for(lambda: observer.link()[1].get('mode') == 'LAND', 'the stale action LAND', 30.0)
+        assert tap.setpoints(back_s) == [], 'setpoints streamed after the link returned'
+    finally:
+        publisher.stop()
+    log = procs.log('bridge')
+    assert 'vehicle heartbeat lost' in log
+    assert 'commanding LAND (the vehicle in GUIDED_NOGPS keeps flying the last setpoint)' in log
+
+
 def test_the_over_tilt_clamp_keeps_the_vertical_acceleration(graph):
     """60 deg at f = 2 g holds height (2 g cos 60 = g); clamped to 35 deg it needs g / cos 35, not 2 g (point 8)."""
     procs, observer, start = graph
