@@ -118,6 +118,7 @@ class MavlinkBridge(Node):
         self.geofence = Geofence(p['geofence_enabled'], p['geofence_min_m'], p['geofence_max_m'])
         self.t0 = time.monotonic()
         self.stale_events = 0
+        self.lost_while_handed_over = False   # a link loss ended a hand-over (after_link_loss)
         self.stopping = threading.Event()
         self.diag_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.qos(contract.DIAGNOSTICS))
         self.create_service(SetBool, 'arm', self.srv_arm)
@@ -158,13 +159,34 @@ class MavlinkBridge(Node):
             mode = s.backend.hold_mode(self.params['stale_action']) if s.backend else None
             current = s.mode
         action = f'nothing commanded (vehicle in {current or "?"}, not flying our setpoints)'
-        if obeying and self.link.state == LinkState.UP:
+        if self.link.state != LinkState.UP:
+            action = (f'nothing can be commanded while the link is {self.link.state} (the vehicle\'s own failsafe '
+                      'acts; the stale action follows when the link returns with it still flying our setpoints)')
+        elif obeying:
             self.set_mode(mode, wait=False)
             action = f'commanding {mode} (the vehicle in {current} keeps flying the last setpoint)'
         what = (f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)' if stale
                 else 'setpoint stream stopped')
         (self.get_logger().error if stale or obeying else self.get_logger().info)(f'{what}: {action}')
         self.publish_diagnostics()
+
+    def after_link_loss(self):
+        """The link is back after a loss that ended a hand-over: a vehicle still armed in a mode that obeys
+        SET_ATTITUDE_TARGET keeps flying the last one it got (ArduPilot: for GUID_TIMEOUT, then level with no
+        climb, drifting) and nothing streams to it any more: the stream is stale, so command stale_action (the
+        quiet-stream check may have fired while the link was down, when nothing could be commanded)."""
+        with self.vehicle.lock:
+            s = self.vehicle.status
+            lost, self.lost_while_handed_over = self.lost_while_handed_over, False
+            obeying = lost and s.backend is not None and s.armed and s.backend.obeys_setpoints(s.mode)
+            mode = s.backend.hold_mode(self.params['stale_action']) if obeying else None
+            current = s.mode
+        if obeying:
+            self.stale_events += 1
+            self.get_logger().error(f'link back after a loss that ended the hand-over, the vehicle still in {current} '
+                                    f'flying our last setpoint: commanding {mode}')
+            self.set_mode(mode, wait=False)
+            self.publish_diagnostics()
 
     # --- supervisor thread: link, heartbeats, telemetry fall-backs, diagnostics --------------------
 
@@ -175,7 +197,8 @@ class MavlinkBridge(Node):
                 now = self.now_s()
                 if self.link.update(now) == 'lost':
                     with self.vehicle.lock:
-                        self.vehicle.handover.end('link lost')
+                        if self.vehicle.handover.end('link lost'):
+                            self.lost_while_handed_over = True
                     self.get_logger().error(f'vehicle heartbeat lost (none for {self.params["link_timeout_s"]} s)')
                     self.publish_diagnostics()
                 streams = self.telemetry.streams
@@ -369,6 +392,8 @@ class MavlinkBridge(Node):
         if ended:
             self.get_logger().warn(ended)
             self.publish_diagnostics()
+        if event == 'reconnected':
+            self.after_link_loss()
         if event:
             self.get_logger().info(f'vehicle {s.system} {event}: {s.backend.name}, mode {s.mode}')
             self.telemetry.link_up()
