@@ -12,8 +12,7 @@ from bridge_graph import ROOT, VEHICLE_FILE, free_udp_port, hover_in_offboard, r
 
 from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LAG_S, MEASURED_LATENCY_S
 from quad_common.conversions import stamp_to_s
-from quad_common.vehicle import load_vehicle
-from quad_vehicle_emu.attitude import tau_for_lag_s
+from quad_vehicle_emu.attitude import emulated_vehicle, tau_for_lag_s
 
 LAG_S = MARGIN_LAG * max(MEASURED_LAG_S)             # 0.315 s
 LATENCY_S = MARGIN_LATENCY * MEASURED_LATENCY_S      # 0.1 s
@@ -35,7 +34,7 @@ def graph(tmp_path):
 
 def _offboard_at_the_margin(procs, observer, profile) -> float:
     """Vehicle, bridge and controller (control.yaml + profile) up, offboard entered; the odom stamp then."""
-    tau_s = tau_for_lag_s(load_vehicle(VEHICLE_FILE), LAG_S)
+    tau_s = tau_for_lag_s(emulated_vehicle(VEHICLE_FILE), LAG_S)
     # setpoint_timeout_s / odom_timeout_s above the defaults (0.5 / 0.2 s): the odometry is 0.1 s old when it
     # leaves the vehicle, and a busy 2-core machine stalls processes for a few 100 ms; a stale event would
     # land the vehicle and end the test for a reason that is not the one under test

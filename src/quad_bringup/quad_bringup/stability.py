@@ -1,13 +1,13 @@
 """Is a control profile stable on an autopilot's attitude response? The offline check of a profile the bridge flies.
 
 The plant is the emulator's (quad_vehicle_emu.mavlink_vehicle, its main loop step for step): quad_sim's Simulator
-with the vehicle's own onboard loop, behind quad_vehicle_emu.attitude.AttitudeResponse with
-tau = lag - the loop's own lag (tau_for_lag_s: the total roll/pitch lag is the requested one), its telemetry
-read through quad_vehicle_emu.attitude.DelayLine (latency) at the bridge's 50 Hz and released in ArduPilot's
-bursts (up to 40 ms apart, as the emulator does), and a hover-thrust error (delivered / commanded
-specific force = 1 + thrust_error: the bridge's hover_throttle vs the vehicle's true one). The controller is
-quad_control's PositionController, the one position_controller's ControlLoop runs, at its rate, holding a
-point from a start offset. No ROS, no sockets: the graph version is test/test_bridge_real_profile.py.
+with the autopilot's quaternion attitude loop (quad_vehicle_emu.attitude.emulated_vehicle), behind
+quad_vehicle_emu.attitude.AttitudeResponse with tau = lag - the loop's own lag (tau_for_lag_s: the total roll/pitch
+lag is the requested one), its telemetry read through quad_vehicle_emu.attitude.DelayLine (latency) at the bridge's
+50 Hz and released in ArduPilot's bursts (up to 40 ms apart, as the emulator does), and a hover-thrust error
+(delivered / commanded specific force = 1 + thrust_error: the bridge's hover_throttle vs the vehicle's true one).
+The controller is quad_control's PositionController, the one position_controller's ControlLoop runs, at its rate,
+holding a point from a start offset. No ROS, no sockets: the graph version is test/test_bridge_real_profile.py.
 
 Measured on ArduCopter (issue 13): roll/pitch lag 0.17-0.21 s, ~50 ms of telemetry. A profile is offered
 only with margin: it settles (no sustained oscillation) at MARGIN_LAG x the lag and MARGIN_LATENCY x the latency.
@@ -23,7 +23,7 @@ from quad_common.vehicle import load_vehicle
 from quad_control.loop import RATE_HZ
 from quad_control.position import Limits, PositionController, PositionGains
 from quad_sim.simulator import SimulationStopped, Simulator
-from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, own_lag_s, tau_for_lag_s
+from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle, own_lag_s, tau_for_lag_s
 from quad_vehicle_emu.mavlink_vehicle import DEFAULT_BURST_S
 
 MEASURED_LAG_S = (0.17, 0.21)    # ArduCopter SITL roll/pitch under pd/pid (issue 13)
@@ -75,20 +75,22 @@ class Hold:
 def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s: float, latency_s: float,
                       thrust_error: float = 0.0, start_offset_m=(0.5, 0.0, 0.3), duration_s: float = 20.0,
                       rate_hz: float = RATE_HZ, physics_rate_hz: float = 500.0,
-                      telemetry_rate_hz: float = TELEMETRY_RATE_HZ, burst_s: float = BURST_S, seed: int = 0) -> Hold:
+                      telemetry_rate_hz: float = TELEMETRY_RATE_HZ, burst_s: float = BURST_S, seed: int = 0,
+                      initial_yaw_rad: float = 0.0) -> Hold:
     """The controller holds a point from start_offset_m behind the emulator's attitude response (lag_s) and
-    telemetry (latency_s) on vehicle_path's plant with thrust_error. Each period, as mavlink_vehicle's loop:
-    the controller sees the newest telemetry at least latency_s old, its attitude goes through the shaping,
-    the physics advances one period, the new state enters the telemetry line (at telemetry_rate_hz: what the
-    bridge asks the vehicle for). Telemetry leaves in bursts up to burst_s apart (uniform, seeded), as the
-    emulated ArduPilot sends it: between bursts the controller sees the last one released."""
-    nominal = load_vehicle(vehicle_path)
-    plant = load_vehicle(vehicle_path, plant={'thrust_error': thrust_error}) if thrust_error else nominal
+    telemetry (latency_s) on vehicle_path's plant with thrust_error, facing initial_yaw_rad (the point's yaw is
+    0). Each period, as mavlink_vehicle's loop: the controller sees the newest telemetry at least latency_s old,
+    its attitude goes through the shaping, the physics advances one period, the new state enters the telemetry
+    line (at telemetry_rate_hz: what the bridge asks the vehicle for). Telemetry leaves in bursts up to burst_s
+    apart (uniform, seeded), as the emulated ArduPilot sends it: between bursts the controller sees the last one
+    released."""
+    nominal = load_vehicle(vehicle_path)    # what the controller is configured with
+    plant = emulated_vehicle(vehicle_path, {'thrust_error': thrust_error} if thrust_error else None)
     target = np.array([0.0, 0.0, HOLD_ALTITUDE_M])
     sim = Simulator(plant, physics_rate_hz=physics_rate_hz, initial_position=target + np.asarray(start_offset_m,
                                                                                                  dtype=float),
-                    setpoint_timeout_s=1e6)
-    shaper = AttitudeResponse(tau_for_lag_s(nominal, lag_s), sim.state.quaternion)
+                    initial_yaw=initial_yaw_rad, setpoint_timeout_s=1e6)
+    shaper = AttitudeResponse(tau_for_lag_s(plant, lag_s), sim.state.quaternion)
     telemetry = DelayLine(latency_s)
     control = PositionController(controller, gains, nominal, Limits.of(nominal))
     ref = Reference(position=target, velocity=np.zeros(3), acceleration=np.zeros(3), jerk=np.zeros(3), yaw=0.0,
@@ -142,6 +144,6 @@ def margin_hold(vehicle_path, controller: str, gains: PositionGains, lag_s: floa
                 latency_s: float = MEASURED_LATENCY_S, thrust_error: float = 0.0, **kwargs) -> Hold:
     """The hold at MARGIN_LAG x lag_s (at least the vehicle's own loop's lag: shaping cannot make it faster) and
     MARGIN_LATENCY x latency_s: a profile is offered when it settles there."""
-    lag_s = max(MARGIN_LAG * lag_s, own_lag_s(load_vehicle(vehicle_path)))
+    lag_s = max(MARGIN_LAG * lag_s, own_lag_s(emulated_vehicle(vehicle_path)))
     return hold_on_autopilot(vehicle_path, controller, gains, lag_s, MARGIN_LATENCY * latency_s, thrust_error,
                              **kwargs)

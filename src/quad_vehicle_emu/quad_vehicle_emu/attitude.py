@@ -7,16 +7,20 @@ SO(3): the commanded attitude q_c moves toward the target q_t with angular veloc
 
     w = log(q_c^-1 q_t) / tau + w_ff        (body frame, rad/s)
 
-which quad_sim's attitude loop (the seed's eq. 6 with the vehicle YAML's kp/kd) then tracks with w as its rate
-feed-forward. With config/vehicles/px4_quad.yaml the bare loop reaches 63 % of a 10 deg roll step in 0.09 s;
-tau = 0.08 s in front of it makes that 0.19 s, inside the 0.17-0.21 s measured on ArduCopter SITL (issue 13;
-test_attitude_response.py). tau is calibrated to that measurement, not taken from ATC_INPUT_TC or MC_ROLL_P.
+which the autopilot's own attitude loop then tracks (`emulated_vehicle`): quad_sim's so3_pd cascade, an angle P
+on the quaternion error feeding a body-rate P (PX4's mc_att_control and ArduPilot's AC_AttitudeControl both
+work on the quaternion error, so a large yaw error never turns the tilt the wrong way, as the seed's eq. 6 on
+Euler-angle differences does: from a 180 deg yaw error and a 0.3 m offset eq. 6 runs away). Its gains are
+PX4's defaults MC_ROLL_P = MC_PITCH_P = 6.5, MC_YAW_P = 2.8 with 60 / 30 rad/s rate loops, without roll/pitch
+rate feed-forward, so its own lag is 1 / MC_ROLL_P = 0.154 s. The default total lag is 0.19 s, inside the
+0.17-0.21 s measured on ArduCopter SITL (issue 13; test_attitude_response.py): calibrated to that measurement,
+not taken from ATC_INPUT_TC.
 
 A requested total lag L (the mean delay -G'(0)/G(0) of the attitude response G, what an FOPDT fit calls
 tau + dead time, `quadflight identify`'s lag) is reached by `tau_for_lag_s`: mean delays of systems in
-series add, and the emulator's eq. 6 loop ignores the roll/pitch rate feed-forward, so
+series add, and the emulated loop ignores the roll/pitch rate feed-forward, so
 
-    L = tau + lag_loop,   lag_loop = quad_sim.stability.attitude_lag_s(vehicle)  (kd / kp: 0.1 s for px4_quad)
+    L = tau + lag_loop,   lag_loop = quad_sim.stability.attitude_lag_s(vehicle)  (1 / angle_p: 0.154 s)
 
 (tau 0.08 -> L = 0.18 s, whose 63 % step rise is the 0.19 s above).
 """
@@ -28,6 +32,30 @@ import numpy as np
 
 from quad_common import rotations
 from quad_sim.stability import attitude_lag_s
+
+DEFAULT_LAG_S = 0.19     # total roll/pitch lag: ArduCopter SITL's 0.17-0.21 s (issue 13)
+# the autopilot's attitude loop in place of a vehicle file's eq. 6: PX4's defaults (mc_att_control_params.c
+# MC_ROLL_P / MC_PITCH_P 6.5, MC_YAW_P 2.8; rate loops as config/plant_family.yaml's autopilot_so3)
+AUTOPILOT_LOOP = {'type': 'so3_pd', 'angle_p': [6.5, 6.5, 2.8], 'rate_p': [60.0, 60.0, 30.0],
+                  'use_feedforward_rates': False}
+
+
+def emulated_vehicle(vehicle_path, plant: dict | None = None):
+    """The vehicle file as the emulator flies it: a file whose onboard loop is the seed's eq. 6 gets the
+    autopilot's quaternion loop (AUTOPILOT_LOOP); one that already names an autopilot-like loop (so3_pd, lag)
+    keeps it. `plant`: further plant-only fields (thrust_error, mass_error)."""
+    from quad_common.vehicle import load_vehicle
+    given = load_vehicle(vehicle_path)
+    swap = {'attitude_loop': AUTOPILOT_LOOP} if given.attitude_loop.type == 'eq6' else {}
+    overrides = {**swap, **(plant or {})}
+    return load_vehicle(vehicle_path, plant=overrides) if overrides else given
+
+
+def default_tau_s(vehicle) -> float:
+    """Shaping for the default total lag on an emulated vehicle (emulated_vehicle) whose loop is the autopilot's;
+    0 for a vehicle file that brings its own autopilot-like loop (it already is the response wanted)."""
+    return tau_for_lag_s(vehicle, DEFAULT_LAG_S) if vehicle.attitude_loop.type == 'so3_pd' and \
+        not vehicle.attitude_loop.use_feedforward_rates else 0.0
 
 
 def _log_body(q_from, q_to) -> np.ndarray:

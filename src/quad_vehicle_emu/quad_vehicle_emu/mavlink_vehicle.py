@@ -2,8 +2,9 @@
 
 The protocol (modes, type_mask, thrust, parameters, streams, SYS_STATUS) is the emulator's own reading of the
 autopilots' source (quad_vehicle_emu.protocol, .params, .autopilots), independent of quad_bridge. Physics:
-quad_sim's Simulator in real time, behind a first-order attitude response (quad_vehicle_emu.attitude) and a
-telemetry delay line; every message's time field is the vehicle's own boot clock at the sample it carries.
+quad_sim's Simulator in real time with the autopilot's quaternion attitude loop, behind a first-order attitude
+response (quad_vehicle_emu.attitude) and a telemetry delay line; every message's time field is the vehicle's own
+boot clock at the sample it carries.
 
     python -m quad_vehicle_emu.mavlink_vehicle --autopilot px4 --url udpout:127.0.0.1:14540
 """
@@ -23,17 +24,15 @@ from pymavlink import mavutil  # noqa: E402
 
 from quad_common import rotations  # noqa: E402
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
-from quad_common.vehicle import load_vehicle  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
 from quad_vehicle_emu import ned  # noqa: E402
 from quad_vehicle_emu import protocol as p  # noqa: E402
-from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine  # noqa: E402
+from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, default_tau_s, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
 
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
 HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
 EARTH_RADIUS_M = 6378137.0
-DEFAULT_ATTITUDE_TAU_S = 0.08                          # see attitude.py
 # ArduCopter SITL's telemetry was ~50 ms old (issue 13): 35 ms here plus the wait for the next burst, uniform
 # up to 40 ms apart (mean wait E[T^2] / 2E[T] = 40 / 3 ms), 48 ms on average
 DEFAULT_LATENCY_S = {'px4': 0.02, 'ardupilot': 0.035}
@@ -93,7 +92,7 @@ class MavlinkVehicle:
         self.args = args
         self.flavour = args.autopilot
         self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))  # bad parameters: first
-        vehicle = load_vehicle(args.vehicle)
+        vehicle = emulated_vehicle(args.vehicle)
         self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
                              setpoint_timeout_s=1e6)
@@ -101,10 +100,7 @@ class MavlinkVehicle:
         if not self.sim.landed:  # starts in the air: armed, holding position
             self.ap.armed = True
             self.ap.mode = 'AUTO.LOITER' if self.flavour == 'px4' else 'LOITER'
-        tau_s = args.attitude_tau_s
-        if tau_s is None:   # a vehicle file that already gives quad_sim an autopilot-like loop needs no shaping
-            loop = getattr(getattr(vehicle, 'attitude_loop', None), 'type', 'eq6')
-            tau_s = DEFAULT_ATTITUDE_TAU_S if loop == 'eq6' else 0.0
+        tau_s = default_tau_s(vehicle) if args.attitude_tau_s is None else args.attitude_tau_s
         self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
@@ -415,9 +411,9 @@ def build_parser():
     ap.add_argument('--offboard-loss-s', type=float, default=None, help='PX4: = --param COM_OF_LOSS_T=S')
     ap.add_argument('--guided-timeout-s', type=float, default=None, help='ArduPilot: = --param GUID_TIMEOUT=S')
     ap.add_argument('--attitude-tau-s', type=float, default=None,
-                    help='attitude shaping time constant; default 0.08 s (a 10 deg roll step reaches 63 %% in 0.19 s '
-                    "with px4_quad.yaml, as ArduCopter SITL did), 0 when the vehicle file sets quad_sim's "
-                    'attitude_loop to an autopilot-like one (so3_pd, lag)')
+                    help='attitude shaping time constant; default: what makes the roll/pitch lag 0.19 s on the '
+                    "autopilot's loop (0.036 s; ArduCopter SITL measured 0.17-0.21 s), 0 when the vehicle file "
+                    "sets quad_sim's attitude_loop to an autopilot-like one itself (so3_pd, lag)")
     ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.035 (+ its bursts)')
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')
