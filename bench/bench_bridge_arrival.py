@@ -21,10 +21,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / 'test'))   # the graph helpers the bridge tests use
 
-from bridge_graph import Processes, free_udp_port, running_graph  # noqa: E402
+from bridge_graph import Processes, enter_offboard, free_udp_port, running_graph  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
-from std_srvs.srv import SetBool  # noqa: E402
 
 from quad_common.conversions import stamp_to_s  # noqa: E402
 
@@ -98,11 +97,7 @@ def run_once(src: Path | None, busy: int) -> dict:
             config = (src.parent if src else ROOT) / 'config'
             ours.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
                                       '-p', f'vehicle:={config}/vehicles/px4_quad.yaml'])   # its defaults
-            observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the armed vehicle')
-            observer.wait_for(lambda: observer.references, 'the controller to hold')
-            result = observer.call('offboard', SetBool.Request(data=True))
-            assert result.success, result.message
-            observer.wait_for(lambda: observer.link()[1].get('mode') == 'GUIDED_NOGPS', 'GUIDED_NOGPS')
+            enter_offboard(observer, 'ardupilot')
             time.sleep(BEFORE_S)                 # the window measured before (wall time is what is measured)
             started = time.time()
             flat = ','.join(str(float(c)) for wp in SLOW_SQUARE for c in wp)

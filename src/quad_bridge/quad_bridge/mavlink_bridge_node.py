@@ -155,9 +155,8 @@ class MavlinkBridge(Node):
             if stale:
                 self.stale_events += 1
                 self.vehicle.handover.end(f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)')
-            obeying = s.backend is not None and s.armed and s.backend.obeys_setpoints(s.mode)
-            mode = s.backend.hold_mode(self.params['stale_action']) if s.backend else None
-            current = s.mode
+            mode, current = self._stale_action_mode(), s.mode
+        obeying = mode is not None
         action = f'nothing commanded (vehicle in {current or "?"}, not flying our setpoints)'
         if self.link.state != LinkState.UP:
             action = (f'nothing can be commanded while the link is {self.link.state} (the vehicle\'s own failsafe '
@@ -170,18 +169,24 @@ class MavlinkBridge(Node):
         (self.get_logger().error if stale or obeying else self.get_logger().info)(f'{what}: {action}')
         self.publish_diagnostics()
 
+    def _stale_action_mode(self) -> str | None:
+        """The mode stale_action commands when the vehicle is armed in a mode that obeys SET_ATTITUDE_TARGET
+        (it keeps flying the last one), else None. Under the vehicle lock."""
+        s = self.vehicle.status
+        if s.backend is None or not s.armed or not s.backend.obeys_setpoints(s.mode):
+            return None
+        return s.backend.hold_mode(self.params['stale_action'])
+
     def after_link_loss(self):
         """The link is back after a loss that ended a hand-over: a vehicle still armed in a mode that obeys
         SET_ATTITUDE_TARGET keeps flying the last one it got (ArduPilot: for GUID_TIMEOUT, then level with no
         climb, drifting) and nothing streams to it any more: the stream is stale, so command stale_action (the
         quiet-stream check may have fired while the link was down, when nothing could be commanded)."""
         with self.vehicle.lock:
-            s = self.vehicle.status
             lost, self.lost_while_handed_over = self.lost_while_handed_over, False
-            obeying = lost and s.backend is not None and s.armed and s.backend.obeys_setpoints(s.mode)
-            mode = s.backend.hold_mode(self.params['stale_action']) if obeying else None
-            current = s.mode
-        if obeying:
+            mode = self._stale_action_mode() if lost else None
+            current = self.vehicle.status.mode
+        if mode is not None:
             self.stale_events += 1
             self.get_logger().error(f'link back after a loss that ended the hand-over, the vehicle still in {current} '
                                     f'flying our last setpoint: commanding {mode}')

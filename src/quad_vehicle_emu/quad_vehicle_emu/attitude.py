@@ -22,7 +22,7 @@ series add, and the emulated loop ignores the roll/pitch rate feed-forward, so
 
     L = tau + lag_loop,   lag_loop = quad_sim.stability.attitude_lag_s(vehicle)  (1 / angle_p: 0.154 s)
 
-(tau 0.08 -> L = 0.18 s, whose 63 % step rise is the 0.19 s above).
+(the default: tau = 0.19 - 0.154 = 0.036 s).
 """
 
 import collections
@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from quad_common import rotations
+from quad_common.vehicle import load_vehicle
 from quad_sim.stability import attitude_lag_s
 
 DEFAULT_LAG_S = 0.19     # total roll/pitch lag: ArduCopter SITL's 0.17-0.21 s (issue 13)
@@ -44,7 +45,6 @@ def emulated_vehicle(vehicle_path, plant: dict | None = None):
     """The vehicle file as the emulator flies it: a file whose onboard loop is the seed's eq. 6 gets the
     autopilot's quaternion loop (AUTOPILOT_LOOP); one that already names an autopilot-like loop (so3_pd, lag)
     keeps it. `plant`: further plant-only fields (thrust_error, mass_error)."""
-    from quad_common.vehicle import load_vehicle
     given = load_vehicle(vehicle_path)
     swap = {'attitude_loop': AUTOPILOT_LOOP} if given.attitude_loop.type == 'eq6' else {}
     overrides = {**swap, **(plant or {})}
