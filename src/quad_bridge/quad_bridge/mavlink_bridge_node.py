@@ -16,6 +16,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
 from quad_bridge.backend import (
@@ -25,6 +26,7 @@ from quad_bridge.backend import (
     rate_interval_us,
 )
 from quad_bridge.backends import BACKENDS, resolve
+from quad_bridge.handover import ACTIVE
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
 from quad_bridge.safety import Geofence
@@ -121,6 +123,10 @@ class MavlinkBridge(Node):
         self.lost_while_handed_over = False   # a link loss ended a hand-over (after_link_loss)
         self.stopping = threading.Event()
         self.diag_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.qos(contract.DIAGNOSTICS))
+        self.engaged_pub = self.create_publisher(Bool, contract.ENGAGED, contract.qos(contract.ENGAGED))
+        self.engaged_lock = threading.Lock()
+        self.engaged = None
+        self.update_engaged()
         self.create_service(SetBool, 'arm', self.srv_arm)
         self.create_service(SetBool, 'offboard', self.srv_offboard)
         self.create_service(Trigger, 'land', self.srv_land)
@@ -146,6 +152,20 @@ class MavlinkBridge(Node):
     def may_stream(self) -> bool:
         return self.link.state == LinkState.UP and not self.geofence.breached and self.vehicle.may_stream()
 
+    def update_engaged(self):
+        """vehicle/engaged (latched): true while the vehicle flies our setpoints, i.e. the hand-over is ACTIVE (the
+        vehicle accepted the mode we asked for) and setpoints may go out; published on every change. The
+        controller runs a plan's clock only while it is true (quad_control.loop), so a plan never runs ahead
+        of a hand-over."""
+        with self.engaged_lock:
+            with self.vehicle.lock:
+                engaged = self.vehicle.handover.phase == ACTIVE and self.may_stream()
+            if engaged != self.engaged:
+                self.engaged = engaged
+                self.engaged_pub.publish(Bool(data=engaged))
+                if engaged or self.vehicle.handover.ended:
+                    self.get_logger().info(f'vehicle/engaged: {str(engaged).lower()}')
+
     def on_stream_quiet(self, wire_age_s, input_age_s):
         """Nothing went out for setpoint_timeout_s: a vehicle in a mode that obeys SET_ATTITUDE_TARGET keeps flying
         the last one (ArduPilot for GUID_TIMEOUT, in GUIDED as in GUIDED_NOGPS), so command stale_action."""
@@ -156,6 +176,7 @@ class MavlinkBridge(Node):
                 self.stale_events += 1
                 self.vehicle.handover.end(f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)')
             mode, current = self._stale_action_mode(), s.mode
+        self.update_engaged()
         obeying = mode is not None
         action = f'nothing commanded (vehicle in {current or "?"}, not flying our setpoints)'
         if self.link.state != LinkState.UP:
@@ -200,11 +221,13 @@ class MavlinkBridge(Node):
         while not self.stopping.wait(SUPERVISOR_PERIOD_S):
             try:
                 now = self.now_s()
+                self.update_engaged()
                 if self.link.update(now) == 'lost':
                     with self.vehicle.lock:
                         if self.vehicle.handover.end('link lost'):
                             self.lost_while_handed_over = True
                     self.get_logger().error(f'vehicle heartbeat lost (none for {self.params["link_timeout_s"]} s)')
+                    self.update_engaged()
                     self.publish_diagnostics()
                 streams = self.telemetry.streams
                 if streams is not None and self.link.state == LinkState.UP:
@@ -326,6 +349,7 @@ class MavlinkBridge(Node):
         if not request.data:
             with self.vehicle.lock:
                 self.vehicle.handover.end('offboard false')
+            self.update_engaged()
             mode = backend.hold_mode('hold')
             return self._answer(response, f'mode {mode}', self.set_mode(mode))
         check = self.param_check
@@ -353,6 +377,7 @@ class MavlinkBridge(Node):
         with self.vehicle.lock:
             self.vehicle.handover.acknowledged(result == mavlink.MAV_RESULT_ACCEPTED, result_name(result),
                                                self.now_s())
+        self.update_engaged()
         self.streamer.kick()
         self.publish_diagnostics()
         return self._answer(response, f'mode {target}', result)
@@ -362,6 +387,7 @@ class MavlinkBridge(Node):
             return response
         with self.vehicle.lock:
             self.vehicle.handover.end('land')
+        self.update_engaged()
         mode = self.vehicle.status.backend.land_mode
         return self._answer(response, f'mode {mode}', self.set_mode(mode))
 
@@ -396,6 +422,7 @@ class MavlinkBridge(Node):
             self.get_logger().info(f'vehicle mode {change}')
         if ended:
             self.get_logger().warn(ended)
+            self.update_engaged()
             self.publish_diagnostics()
         if event == 'reconnected':
             self.after_link_loss()
@@ -409,6 +436,7 @@ class MavlinkBridge(Node):
         if self.geofence.check(state.position, self.vehicle.status.armed):
             with self.vehicle.lock:
                 self.vehicle.handover.end('geofence left')
+            self.update_engaged()
             self.get_logger().error(f'geofence left at {np.round(state.position, 2).tolist()}: streaming stopped, '
                                     'landing')
             self.set_mode(self.vehicle.status.backend.land_mode, wait=False)

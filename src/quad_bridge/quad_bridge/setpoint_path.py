@@ -32,8 +32,12 @@ class SetpointPath:
         self.refused = self.clamped = self.clamp_short = 0
         self.streamer = SetpointStreamer(self.send, may_stream, self.params['setpoint_rate_hz'],
                                          self.params['setpoint_timeout_s'], on_quiet, on_error=self._error)
-        self.node = rclpy.create_node(f'{bridge.get_name()}_setpoints', namespace=bridge.get_namespace(),
-                                      context=bridge.context, start_parameter_services=False)
+        # Its own name through a node-local remap: rcl applies local remaps before the process-wide ones, so the
+        # `-r __node:=NAME` that launch_ros gives the process renames the bridge, never this node too.
+        name = f'{bridge.get_name()}_setpoints'
+        self.node = rclpy.create_node(name, namespace=bridge.get_namespace(), context=bridge.context,
+                                      cli_args=['--ros-args', '-r', f'__node:={name}'],
+                                      start_parameter_services=False)
         self.sub = self.node.create_subscription(Imu, contract.SETPOINT, self.on_setpoint, SETPOINT_QUEUE_DEPTH,
                                                  raw=True)
         self.executor = HotPathExecutor(lambda: ([self.sub], []), context=bridge.context)

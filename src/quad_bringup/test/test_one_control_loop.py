@@ -15,6 +15,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
+from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_bringup.closed_loop import LoopOptions, make_simulator, plan_offline, run_offline
@@ -41,6 +42,7 @@ def _fly_through_the_node(ctx):
     odom_pub = probe.create_publisher(Odometry, 'odom', RELIABLE)
     clock_pub = probe.create_publisher(Clock, '/clock', RELIABLE)
     traj_pub = probe.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
+    probe.create_publisher(Bool, 'vehicle/engaged', LATCHED).publish(Bool(data=True))  # as sim_node does
     setpoints = {}
     probe.create_subscription(Imu, 'cmd/attitude_thrust', lambda m: setpoints.setdefault(
         m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, m), RELIABLE)

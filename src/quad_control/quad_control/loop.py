@@ -1,20 +1,28 @@
 """ControlLoop: the rules between a PositionController and its inputs (no rclpy), the one loop that
 position_controller_node and the offline flight loop (quad_bringup.closed_loop) both run.
 
+- Engagement (docs/bridge.md): a plan's clock runs only while the vehicle flies our setpoints (`engaged`: the
+  bridge's hand-over is active; a simulator is engaged at once). While not engaged the reference follows the
+  vehicle (its position and yaw, every tick): the setpoints that stream before a hand-over hover where it is.
+  At engagement at t_e the hold point is anchored where the vehicle is and the controller is reset; a plan
+  whose start has passed begins at t_e + its own start delay (its stamp minus its arrival time), a plan paused
+  by the end of a hand-over resumes there from where it stopped; a plan still in the future keeps its stamp.
+  The end of a hand-over stops the plan's clock (the plan is paused, the reference follows the vehicle again).
 - Hold before the plan: until a trajectory has started the reference is the hold point, anchored once at the
-  first odometry controlled from (its position and yaw) and never re-anchored (a stale-odometry event or a
-  refused plan does not move it).
-- A plan (start_ns, SampledTrajectory) is taken at its first tick t >= start_ns: reference(t - start_ns), after
-  its end the final point. Taking it resets the controller (pid integral, disturbance observer).
+  first engaged odometry controlled from (its position and yaw) and never re-anchored while engaged (a
+  stale-odometry event or a refused plan does not move it).
+- A plan (start_ns, SampledTrajectory) is taken at its first tick t >= start_ns: reference(tau0 + t - start_ns)
+  (tau0 = 0 for a new plan, the plan time it stopped at for a resumed one), after its end the final point.
+  Taking it resets the controller (pid integral, disturbance observer).
 - Start step: a plan whose reference at that first tick is farther than max_start_step_m from the vehicle is
   refused (the loop keeps what it tracked before; a fault names the distance), never flown as a step.
 - dt = clamp(t - t_previous, 0, 2 / rate_hz), 0 at the first tick.
 - Lockstep: the tick at t runs with the odometry stamped >= t, deferred until that arrives (a newer tick
-  supersedes a pending one); wait_for_trajectory also defers it until a plan is here.
+  supersedes a pending one); wait_for_trajectory also defers it until a plan is here and the vehicle is engaged.
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, Reference, State
@@ -24,6 +32,22 @@ RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's 
 MAX_START_STEP_M = 0.5     # position_controller max_start_step_m and the offline loop's default
 COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'refused_start_steps',
           'saturation_thrust', 'saturation_tilt', 'saturation_integral')
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A plan on the loop's clock: at node time t >= start_ns the reference is trajectory(tau0_s + t - start_ns).
+    lead_ns: the plan's own start delay (its stamp minus its arrival), kept when it is re-based at engagement."""
+    start_ns: int
+    trajectory: object
+    tau0_s: float = 0.0
+    lead_ns: int = 0
+
+    def time_s(self, t_ns: int) -> float:
+        return self.tau0_s + (t_ns - self.start_ns) * 1e-9
+
+    def reference(self, t_ns: int) -> Reference:
+        return self.trajectory.reference(self.time_s(t_ns))
 
 
 @dataclass
@@ -37,17 +61,21 @@ class Tick:
 
 class ControlLoop:
     def __init__(self, controller: PositionController, rate_hz: float, *, lockstep: bool = False,
-                 wait_for_trajectory: bool = False, max_start_step_m: float = math.inf, on_fault=None):
-        """on_fault(reason): called with a one-line reason when a tick produces no setpoint or a plan is refused."""
+                 wait_for_trajectory: bool = False, max_start_step_m: float = math.inf, engaged: bool = True,
+                 on_fault=None, on_event=None):
+        """on_fault(reason): called with a one-line reason when a tick produces no setpoint or a plan is refused;
+        on_event(line): an engagement, a pause or a re-based plan (informational)."""
         self.controller = controller
         self.rate_hz = float(rate_hz)
         self.lockstep = lockstep
         self.wait_for_trajectory = wait_for_trajectory
         self.max_start_step_m = float(max_start_step_m)
         self.on_fault = on_fault or (lambda reason: None)
+        self.on_event = on_event or (lambda line: None)
+        self.engaged = engaged       # the vehicle flies our setpoints (module docstring)
         self.odom = None             # (stamp_ns, State) of the newest accepted odometry
-        self.trajectory = None       # (start_ns, SampledTrajectory) being tracked (or ended)
-        self.next_plan = None        # (start_ns, SampledTrajectory) received, not started yet
+        self.trajectory = None       # Plan being tracked (or ended)
+        self.next_plan = None        # Plan received (or paused), not started yet
         self.hold = None             # Reference: the hold point, anchored once
         self.pending_tick_ns = None  # lockstep: the tick waiting for its odometry
         self.last_control_ns = None
@@ -61,9 +89,38 @@ class ControlLoop:
         self.odom = (stamp_ns, state)
         return self.run_pending()
 
-    def set_trajectory(self, start_ns: int, trajectory) -> Tick | None:
-        """A new plan, started at its first tick at or after start_ns (see the module docstring)."""
-        self.next_plan = (start_ns, trajectory)
+    def set_trajectory(self, start_ns: int, trajectory, received_ns: int | None = None) -> Tick | None:
+        """A new plan, started at its first engaged tick at or after start_ns (see the module docstring);
+        received_ns: its arrival on the loop's clock (its start delay is start_ns - received_ns)."""
+        lead_ns = 0 if received_ns is None else max(start_ns - received_ns, 0)
+        self.next_plan = Plan(start_ns, trajectory, lead_ns=lead_ns)
+        return self.run_pending()
+
+    def set_engaged(self, t_ns: int, engaged: bool) -> Tick | None:
+        """The vehicle started (True) or stopped (False) flying our setpoints at t_ns (module docstring)."""
+        if engaged == self.engaged:
+            return None
+        self.engaged = engaged
+        if not engaged:
+            self.hold = None
+            plan = self.trajectory
+            if plan is not None and plan.time_s(t_ns) < plan.trajectory.duration_s and self.next_plan is None:
+                tau_s = max(plan.time_s(t_ns), 0.0)
+                self.next_plan = replace(plan, tau0_s=tau_s)
+                self.on_event(f'hand-over ended at t = {t_ns * 1e-9:.3f} s: plan paused at {tau_s:.3f} s of '
+                              f'{plan.trajectory.duration_s:.3f} s, following the vehicle')
+            else:
+                self.on_event(f'hand-over ended at t = {t_ns * 1e-9:.3f} s: following the vehicle')
+            self.trajectory = None
+            return None
+        self.hold = None if self.odom is None else self._here(self.odom[1])   # where the vehicle is now
+        self.controller.reset()
+        plan, line = self.next_plan, 'holding where the vehicle is'
+        if plan is not None and (plan.tau0_s > 0.0 or plan.start_ns < t_ns):
+            self.next_plan = replace(plan, start_ns=t_ns + plan.lead_ns)
+            what = f'resumes at {plan.tau0_s:.3f} s' if plan.tau0_s > 0.0 else 'starts'
+            line += f'; the plan {what} at t = {(t_ns + plan.lead_ns) * 1e-9:.3f} s'
+        self.on_event(f'engaged at t = {t_ns * 1e-9:.3f} s: {line}')
         return self.run_pending()
 
     def clear_pending(self):
@@ -88,7 +145,7 @@ class ControlLoop:
         """Lockstep: the pending tick at t runs as soon as the odometry stamped >= t is here."""
         if self.pending_tick_ns is None or self.odom is None:
             return None
-        if self.wait_for_trajectory and self.trajectory is None and self.next_plan is None:
+        if self.wait_for_trajectory and (not self.engaged or (self.trajectory is None and self.next_plan is None)):
             return None
         if self.odom[0] < self.pending_tick_ns:
             return None
@@ -113,18 +170,24 @@ class ControlLoop:
             self.counts[f'saturation_{name}'] += int(getattr(sat, name))
         return Tick(t_ns, setpoint, ref, sat)
 
+    @staticmethod
+    def _here(state: State) -> Reference:
+        return Reference(position=state.position.copy(), yaw=float(rotations.to_euler(state.quaternion)[2]))
+
     def reference(self, t_ns: int, state: State) -> Reference:
+        if not self.engaged:   # before a hand-over: hover where the vehicle is
+            return self._here(state)
         if self.hold is None:
-            self.hold = Reference(position=state.position.copy(), yaw=float(rotations.to_euler(state.quaternion)[2]))
-        if self.next_plan is not None and t_ns >= self.next_plan[0]:
+            self.hold = self._here(state)
+        if self.next_plan is not None and t_ns >= self.next_plan.start_ns:
             self._start_plan(t_ns, state)
-        if self.trajectory is None or t_ns < self.trajectory[0]:
+        if self.trajectory is None or t_ns < self.trajectory.start_ns:
             return self.hold
-        return self.trajectory[1].reference((t_ns - self.trajectory[0]) * 1e-9)  # after the end: the final point
+        return self.trajectory.reference(t_ns)  # after the end: the final point
 
     def _start_plan(self, t_ns: int, state: State):
-        (start_ns, traj), self.next_plan = self.next_plan, None
-        step_m = float(math.dist(traj.reference((t_ns - start_ns) * 1e-9).position, state.position))
+        plan, self.next_plan = self.next_plan, None
+        step_m = float(math.dist(plan.reference(t_ns).position, state.position))
         self.last_start_step_m = step_m
         if step_m > self.max_start_step_m:
             self.counts['refused_start_steps'] += 1
@@ -132,13 +195,15 @@ class ControlLoop:
                           f'from the vehicle > max_start_step_m {self.max_start_step_m} m; '
                           f'{"holding" if self.trajectory is None else "keeping the previous plan"}')
             return
-        self.trajectory = (start_ns, traj)
+        self.trajectory = plan
         self.controller.reset()
 
     # --- status -------------------------------------------------------------------------------------
 
     def mode(self, t_ns: int) -> str:
+        if not self.engaged:
+            return 'not engaged (following the vehicle)' + (', plan waiting' if self.next_plan is not None else '')
         if self.trajectory is None:
             return 'hold (trajectory not started)' if self.next_plan is not None else 'hold (no trajectory)'
-        start_ns, traj = self.trajectory
-        return 'tracking' if (t_ns - start_ns) * 1e-9 <= traj.duration_s else 'hold (trajectory ended)'
+        plan = self.trajectory
+        return 'tracking' if plan.time_s(t_ns) <= plan.trajectory.duration_s else 'hold (trajectory ended)'

@@ -20,6 +20,7 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
+from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import cdr, contract, diagnostics, lockstep
@@ -44,6 +45,9 @@ SPECS = [
     Param('lockstep', False, 'compute the tick at t from the odometry stamped t (deferred until it arrives)'),
     Param('wait_for_trajectory', False, 'lockstep: defer the ticks (so simulated time waits) until a trajectory '
           'arrives; a late latched plan then never starts in the past'),
+    Param('wait_for_engagement', True, 'advance a plan only while `vehicle/engaged` is true (the bridge\'s hand-over, '
+          'the simulator at once); until then the setpoints hover where the vehicle is (docs/bridge.md); false: '
+          'a plant that publishes no engagement (the plan runs on its stamp)', read_only=True),
     Param('max_start_step_m', MAX_START_STEP_M, 'a plan whose reference at its first tick is farther than this '
           'from the vehicle is refused (the controller keeps holding, ERROR on diagnostics naming the distance)',
           min=0.0, max=1000.0),
@@ -137,7 +141,9 @@ class PositionControllerNode(Node):
                                              Limits.of(self.vehicle, self.params['max_tilt_deg']))
         self.loop = ControlLoop(self.controller, self.params['rate_hz'], lockstep=self.params['lockstep'],
                                 wait_for_trajectory=self.params['wait_for_trajectory'],
-                                max_start_step_m=self.params['max_start_step_m'], on_fault=self._fault)
+                                max_start_step_m=self.params['max_start_step_m'],
+                                engaged=not self.params['wait_for_engagement'], on_fault=self._fault,
+                                on_event=self.get_logger().info)
         self.odom_received_ns = None  # steady time of the newest finite odometry
         self.odom_fault = None      # reason the newest odometry was refused (non-finite), until a good one
         self.pending_since_ns = 0
@@ -154,6 +160,8 @@ class PositionControllerNode(Node):
         self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, c.REFERENCE, pace(c.REFERENCE))
         self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, c.qos(c.DIAGNOSTICS))
         self.odom_sub = self.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM), raw=True)
+        self.engaged_sub = self.create_subscription(Bool, c.ENGAGED, self._on_engaged, c.qos(c.ENGAGED)) \
+            if self.params['wait_for_engagement'] else None
         self._setpoint_packer = cdr.SetpointPacker()
         self._reference_packer = cdr.ReferencePacker()
         self.trajectory_ready = self.create_guard_condition(self._take_trajectories)
@@ -170,7 +178,8 @@ class PositionControllerNode(Node):
         """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
         trajectory's bytes and its decoded result (rare, but a new plan must not wait for the slow pass)."""
         clock = [s for s in self.subscriptions if s.topic_name == contract.CLOCK]
-        return clock + [self.odom_sub, self.trajectory_sub], [self.timer], [self.trajectory_ready]
+        engaged = [self.engaged_sub] if self.engaged_sub is not None else []
+        return clock + engaged + [self.odom_sub, self.trajectory_sub], [self.timer], [self.trajectory_ready]
 
     def destroy_node(self):
         self.trajectory_decoder.close()
@@ -219,6 +228,12 @@ class PositionControllerNode(Node):
         self.odom_received_ns = self.steady.now().nanoseconds
         self._publish(self.loop.set_odometry(stamp_ns, state))
 
+    def _on_engaged(self, msg: Bool):
+        """vehicle/engaged: the plan's clock runs only while the vehicle flies our setpoints (quad_control.loop)."""
+        self._take_trajectories()   # a plan that arrived before the hand-over is re-based with it
+        self._publish(self.loop.set_engaged(self.get_clock().now().nanoseconds, bool(msg.data)))
+        self.publish_diagnostics()
+
     def _take_waiting_odometry(self) -> bool:
         """Odometry that arrived but was not yet taken (this process was not scheduled, or the executor ran the
         tick first): taken now, so staleness means none arrived, not none handled yet. True if any was."""
@@ -238,7 +253,7 @@ class PositionControllerNode(Node):
             _, start_ns, traj, decode_s = result
             self.get_logger().info(f'trajectory: {len(traj.times_s)} samples, {traj.duration_s:.2f} s, '
                                    f'starts at {start_ns * 1e-9:.3f} s (decoded in {1e3 * decode_s:.1f} ms)')
-            self._publish(self.loop.set_trajectory(start_ns, traj))
+            self._publish(self.loop.set_trajectory(start_ns, traj, received_ns=self.get_clock().now().nanoseconds))
 
     def _on_change(self, changed: dict):
         values = self.params.values
@@ -332,7 +347,7 @@ class PositionControllerNode(Node):
             level, message = diagnostics.ERROR, f'lockstep: no odom stamped >= tick for {deferred_s:.2f} s'
         elif self.loop.odom is None:
             level, message = diagnostics.WARN, 'waiting for odom'
-        values = {'controller': self.controller.name, 'mode': self.loop.mode(now_ns),
+        values = {'controller': self.controller.name, 'mode': self.loop.mode(now_ns), 'engaged': self.loop.engaged,
                   'lockstep': self.params['lockstep'], 'rate_hz': self.params['rate_hz'],
                   'loop_rate_hz': f'{self._loop_rate_hz(now_ns):.2f}', **self.counts,
                   'integral_m_s': np.round(self.controller.integral_m_s, 4).tolist(), 'last_error': self.last_error,

@@ -19,6 +19,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
+from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import conversions as conv
@@ -44,6 +45,7 @@ class Graph:
         self.odom_pub = self.probe.create_publisher(Odometry, 'odom', RELIABLE)
         self.clock_pub = self.probe.create_publisher(Clock, '/clock', RELIABLE)
         self.traj_pub = self.probe.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
+        self.engaged_pub = self.probe.create_publisher(Bool, 'vehicle/engaged', LATCHED)
         self.setpoints, self.diags, self.references = [], [], []
         self.probe.create_subscription(Imu, 'cmd/attitude_thrust', self.setpoints.append, RELIABLE)
         self.probe.create_subscription(MultiDOFJointTrajectory, 'control/reference', self.references.append, RELIABLE)
@@ -51,15 +53,23 @@ class Graph:
         self.executor.add_node(self.probe)
         self.node = None
 
-    def start(self, **params):
+    def start(self, engaged=True, **params):
+        """The controller with `params`; engaged: vehicle/engaged is published true first (as a simulator does)."""
+        if engaged:
+            self.engaged_pub.publish(Bool(data=True))
         self.node = PositionControllerNode(context=self.ctx, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
         self.executor.add_node(self.node)
         self.spin_until(lambda: self.odom_pub.get_subscription_count() > 0
                         and (self.clock_pub.get_subscription_count() > 0 or not params.get('use_sim_time'))
-                        and len(self.probe.get_publishers_info_by_topic('/cmd/attitude_thrust')) > 0,
+                        and len(self.probe.get_publishers_info_by_topic('/cmd/attitude_thrust')) > 0
+                        and self.node.loop.engaged == (engaged or not params.get('wait_for_engagement', True)),
                         'discovery')
         return self.node
+
+    def engage(self, engaged):
+        self.engaged_pub.publish(Bool(data=engaged))
+        self.spin_until(lambda: self.node.loop.engaged == engaged, f'engaged {engaged}')
 
     def spin_until(self, condition, what='condition'):
         deadline = self.probe.get_clock().now().nanoseconds + int(TIMEOUT_S * 1e9)
@@ -299,7 +309,7 @@ def test_plan_starting_away_from_the_vehicle_is_refused_and_held(graph):
     assert values['mode'] == 'hold (no trajectory)'
     # a plan that starts where the vehicle is, is taken
     graph.traj_pub.publish(_line_trajectory([0.1, 0.0, 1.0], 3.0))
-    graph.spin_until(lambda: graph.node.trajectory is not None and graph.node.trajectory[0] == 3_000_000_000,
+    graph.spin_until(lambda: graph.node.trajectory is not None and graph.node.trajectory.start_ns == 3_000_000_000,
                      'the second plan')
     assert np.allclose(graph.step(3.5, z=1.0), [0.35, 0, 1.0])
     assert graph.node.counts['refused_start_steps'] == 1
@@ -364,3 +374,38 @@ def test_odometry_from_the_future_is_refused_and_a_later_valid_one_applied(graph
     values = {kv.key: kv.value for kv in graph.node_status().values}
     assert values['future_odom'] == '1'
     assert 'stamp 5.000000 s > clock 1.0' in values['last_future_odom']
+
+
+def test_plan_runs_only_while_engaged_and_starts_from_the_vehicle(graph):
+    """Issue 21: before the hand-over the setpoints hover where the vehicle is and the plan's clock does not run;
+    at engagement the controller holds where the vehicle is and a plan whose stamp has passed begins its own
+    start delay later; the end of the hand-over pauses it, the next engagement resumes it from there."""
+    graph.start(engaged=False, use_sim_time=True, lockstep=True)
+    assert np.allclose(graph.step(1.0, x=0.3, z=0.7), [0.3, 0, 0.7])       # not engaged: where the vehicle is
+    graph.traj_pub.publish(_line_trajectory([0.0, 0.0, 1.0], 2.0))        # received at 1.0: its start delay 1 s
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    assert np.allclose(graph.step(2.5, x=0.0, z=1.0), [0.0, 0, 1.0])      # its stamp passed: it does not run
+    assert np.allclose(graph.step(3.0, x=0.05, z=1.0), [0.05, 0, 1.0])    # still following the vehicle
+    graph.engage(True)                                                      # engaged at 3.0: plan at 4.0
+    assert np.allclose(graph.step(3.5, x=0.0, z=1.0), [0.05, 0, 1.0])     # hold, anchored where it was at 3.0
+    assert np.allclose(graph.step(3.9, x=0.2, z=1.1), [0.05, 0, 1.0])     # ... and not re-anchored
+    assert np.allclose(graph.step(4.5, x=0.0, z=1.0), [0.25, 0, 1.0])     # the plan's midpoint, 0.5 s in
+    graph.engage(False)                                                     # paused at 0.5 s of 1 s
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert values['engaged'] == 'False' and values['mode'].startswith('not engaged')
+    assert np.allclose(graph.step(5.0, x=0.3, z=1.0), [0.3, 0, 1.0])
+    assert np.allclose(graph.step(5.5, x=0.3, z=1.0), [0.3, 0, 1.0])
+    graph.engage(True)                                                      # at 5.5: resumes at 6.5
+    assert np.allclose(graph.step(6.0, x=0.25, z=1.0), [0.3, 0, 1.0])     # held where it was at 5.5
+    assert np.allclose(graph.step(6.5, x=0.25, z=1.0), [0.25, 0, 1.0])    # from where it stopped
+    assert np.allclose(graph.step(6.75, x=0.25, z=1.0), [0.5 * 0.896484375, 0, 1.0])  # quintic at 0.75
+    assert graph.node.counts['refused_start_steps'] == 0
+
+
+def test_without_wait_for_engagement_a_plan_runs_on_its_stamp(graph):
+    """A plant that publishes no engagement (wait_for_engagement false): the plan starts at its stamp."""
+    graph.start(engaged=False, use_sim_time=True, lockstep=True, wait_for_engagement=False)
+    graph.step(1.0, z=1.0)
+    graph.traj_pub.publish(_line_trajectory([0.0, 0.0, 1.0], 2.0))
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    assert np.allclose(graph.step(2.5, z=1.0), [0.25, 0, 1.0])

@@ -27,6 +27,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
@@ -120,6 +121,9 @@ class SimNode(Node):
         self.imu_pub = self.create_publisher(Imu, c.IMU, pace(c.IMU))
         self.rotor_pub = self.create_publisher(JointState, c.ROTOR_SPEEDS, pace(c.ROTOR_SPEEDS))
         self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, pace(c.DIAGNOSTICS))
+        # the simulated vehicle flies our setpoints from the start (a bridge says so only during a hand-over)
+        self.engaged_pub = self.create_publisher(Bool, c.ENGAGED, c.qos(c.ENGAGED))
+        self.engaged_pub.publish(Bool(data=True))
         self.hot_subscriptions = [self.create_subscription(Imu, c.SETPOINT, self._on_setpoint, c.qos(c.SETPOINT),
                                                            raw=True)]
         self.acked_ns = dict.fromkeys(self.followers, -1)
