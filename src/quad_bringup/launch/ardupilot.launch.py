@@ -1,23 +1,14 @@
-"""A mission on an ArduPilot Copter: trajectory_node + position_controller + mavlink_bridge on wall-clock time,
-the bridge from config/bridge_ardupilot.yaml (tcp 5760, ArduPilot SITL's port). Arm and enter GUIDED_NOGPS with
-the bridge's services once setpoints stream (docs/bridge.md).
+"""A mission on a ArduPilot Copter vehicle (quad_bringup.graph.bridge_graph): trajectory_node and
+position_controller on wall-clock time,
+mavlink_bridge from config/bridge_ardupilot.yaml (tcp 5760, ArduPilot SITL's port).
+Start in any order: the plan runs only once `offboard` has handed the vehicle over (GUIDED_NOGPS), from where the
+vehicle is then (docs/bridge.md, "Flying a real vehicle").
 
-    ros2 launch quad_bringup ardupilot.launch.py mission:=/path/to/mission.yaml [fcu_url:=...]
+    ros2 launch quad_bringup ardupilot.launch.py mission:=/path/to/mission.yaml [fcu_url:=...] [hover_throttle:=0.42]
 """
 
-from launch import LaunchDescription
-from launch.actions import OpaqueFunction
-from launch_ros.actions import Node
-
-from quad_bringup.bridge_launch import arguments, bridge_overrides, config, planning_and_control
-
-
-def graph(context):
-    return planning_and_control(context) + [
-        Node(package='quad_bridge', executable='mavlink_bridge', name='mavlink_bridge', output='screen',
-             parameters=[config('bridge_ardupilot.yaml'), bridge_overrides(context)]),
-    ]
+from quad_bringup.launch_graph import launch_description
 
 
 def generate_launch_description():
-    return LaunchDescription(arguments() + [OpaqueFunction(function=graph)])
+    return launch_description('ardupilot')

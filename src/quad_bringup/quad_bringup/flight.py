@@ -1,7 +1,7 @@
 """`quadflight fly` orchestration: validate, write params, start the node graph, watch, stop, report.
 
-The graph is the one sim.launch.py describes: trajectory_node, position_controller, sim_node
-(lockstep, use_sim_time) and the recorder, each a separate process in its own process group,
+The graph is the one sim.launch.py starts (quad_bringup.graph.sim_graph): trajectory_node, sim_node and
+position_controller (lockstep, use_sim_time), plus the recorder, each a separate process in its own process group,
 in a ROS domain of their own (quad_common.domains.isolated_domain, localhost discovery).
 
 Reliability (README, Reliability): the recorder and fly's monitor are the simulator's lockstep followers
@@ -27,24 +27,18 @@ from pathlib import Path
 
 import yaml
 
-from quad_bringup import processes
+from quad_bringup import graph, processes
 from quad_bringup.recorder import DEFAULT_TOPICS
 from quad_bringup.report import Completion, load_flight, record_summary, write_report
 from quad_common import contract
 from quad_common.domains import isolated_domain
-from quad_common.paths import REPO_ROOT, resolve_config
+from quad_common.paths import REPO_ROOT
 from quad_common.yaml_io import load_yaml
 from quad_control.position import CONTROLLERS
 from quad_trajectory.timing import ALLOCATIONS as TIME_ALLOCATIONS
 
 EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
-# node name -> (module, params file under config/)
-GRAPH = {  # in start order (see STARTED_WHEN)
-    'trajectory_node': ('quad_trajectory.trajectory_node', 'config/trajectory.yaml'),
-    'sim_node': ('quad_sim.sim_node', 'config/sim.yaml'),
-    'position_controller': ('quad_control.position_controller_node', 'config/control.yaml'),
-}
 RECORDER = 'recorder'
 CONTROLLER_NODE = 'position_controller'
 MONITOR = 'fly_monitor'           # the flight monitor's node name (a lockstep follower)
@@ -181,21 +175,11 @@ def plan_overrides(options: FlightOptions) -> dict:
     return {} if options.time_allocation is None else {'time_allocation': options.time_allocation}
 
 
-DEFAULT_PROFILES = {'se3': 'config/control_se3.yaml'}  # a controller flown without --control-profile gets this
-
-
 def with_profile_controller(options: FlightOptions) -> FlightOptions:
     """--controller if given, else the control profile's `controller`, else pd; a controller named without a
-    profile flies its default profile (se3: the robust config/control_se3.yaml; pd and pid: the seed's gains)."""
-    if options.controller is not None:
-        if options.control_profile is None and options.controller in DEFAULT_PROFILES:
-            return dataclasses.replace(options, control_profile=resolve_config(DEFAULT_PROFILES[options.controller]))
-        return options
-    controller = 'pd'
-    if options.control_profile is not None and Path(options.control_profile).is_file():
-        profile = load_yaml(options.control_profile) or {}
-        controller = profile.get('position_controller', {}).get('ros__parameters', {}).get('controller', controller)
-    return dataclasses.replace(options, controller=controller)
+    profile flies its default profile (quad_bringup.graph.controller_and_profile)."""
+    controller, profile = graph.controller_and_profile(options.controller, options.control_profile)
+    return dataclasses.replace(options, controller=controller, control_profile=Path(profile) if profile else None)
 
 
 def write_flown_mission(options: FlightOptions, mission, path: Path) -> Path:
@@ -210,40 +194,28 @@ def write_flown_mission(options: FlightOptions, mission, path: Path) -> Path:
     return path
 
 
-def node_parameters(options: FlightOptions, mission) -> dict:
-    """{node: {ros__parameters: ...}}: the config/ files plus what this flight sets."""
-    params = {}
-    for node, (_, config) in GRAPH.items():
-        data = load_yaml(resolve_config(config)) or {}
-        params[node] = dict(data.get(node, {}).get('ros__parameters', {}))
-    if options.control_profile is not None:
-        profile = load_yaml(options.control_profile) or {}
-        params['position_controller'].update(profile.get('position_controller', {}).get('ros__parameters', {}))
-    for node in params:
-        params[node]['use_sim_time'] = True
-    params['trajectory_node']['mission_file'] = str(Path(options.mission).resolve())
-    if options.speed_mps is not None:
-        params['trajectory_node']['speed_mps'] = float(options.speed_mps)
-    params['position_controller'].update(controller=options.controller, lockstep=True, wait_for_trajectory=True)
-    params['sim_node'].update(mode='lockstep', lockstep_followers=f'{RECORDER},{MONITOR}',
-                              lockstep_timeout_s=max(float(params['sim_node'].get('lockstep_timeout_s', 0.0)),
-                                                     LOCKSTEP_TIMEOUT_S),
-                              initial_position=[float(v) for v in mission.initial_position],
-                              world=mission.world_path or '', robot_radius_m=float(mission.options.robot_radius_m))
-    if options.vehicle is not None:
-        vehicle = str(Path(options.vehicle).resolve())
-        params['position_controller']['vehicle'] = vehicle
-        params['sim_node']['vehicle'] = vehicle
+FLY_ONLY = {'sim_node': ('lockstep_followers', 'lockstep_timeout_s')}  # what fly adds to the launch graph
+
+
+def node_specs(options: FlightOptions) -> list:
+    """The graph sim.launch.py starts (quad_bringup.graph.sim_graph, lockstep), plus what only fly has: the
+    recorder and fly's monitor as the simulator's lockstep followers, a longer lockstep timeout (a loaded
+    machine), and the sweep's or the command line's plant, disturbances and sim_node parameters."""
+    sim = {'lockstep_followers': f'{RECORDER},{MONITOR}', 'lockstep_timeout_s': LOCKSTEP_TIMEOUT_S}
     if options.disturbances is not None:
-        params['sim_node']['disturbances'] = options.disturbances
+        sim['disturbances'] = options.disturbances
     if options.plant:
-        params['sim_node']['plant'] = options.plant
-    params['sim_node'].update(options.sim_parameters or {})
-    for p in params.values():  # files named in config/ are relative to the repository
-        for key in ('vehicle', 'disturbances_file'):
-            if p.get(key) and not Path(p[key]).is_absolute():
-                p[key] = str(resolve_config(p[key]))
-    return {node: {'ros__parameters': p} for node, p in params.items()}
+        sim['plant'] = options.plant
+    sim.update(options.sim_parameters or {})
+    return graph.sim_graph(options.mission, controller=options.controller, control_profile=options.control_profile,
+                           vehicle=options.vehicle, speed_mps=options.speed_mps, extra={'sim_node': sim})
+
+
+def node_parameters(options: FlightOptions, mission=None) -> dict:
+    """{node: {ros__parameters: ...}}: what each node of node_specs ends up with (files named in config/ made
+    absolute, so the run directory's params.yaml holds on its own)."""
+    return {spec.name: {'ros__parameters': graph.absolute_config_paths(spec.merged_parameters())}
+            for spec in node_specs(options)}
 
 
 def default_run_dir(mission_name: str, controller: str) -> Path:
@@ -359,8 +331,8 @@ def _fly(options: FlightOptions, log) -> FlightResult:
         params['trajectory_node']['ros__parameters']['mission_file'] = str(flown.resolve())
     params_file = run_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
-    nodes = [processes.NodeProcess(name, module, ['--params-file', str(params_file)], run_dir / 'logs' / f'{name}.log')
-             for name, (module, _) in GRAPH.items()]
+    nodes = [processes.NodeProcess(name, graph.MODULES[name], ['--params-file', str(params_file)],
+                                   run_dir / 'logs' / f'{name}.log') for name in params]
     topics = ','.join(f'"{t}"' for t in DEFAULT_TOPICS)
     recorder = processes.NodeProcess(RECORDER, 'quad_bringup.recorder_node',
                                      ['-p', f'output_dir:={run_dir / "bag"}', '-p', f'topics:=[{topics}]',

@@ -21,7 +21,8 @@ BATTERY = 'battery'
 CLOCK = '/clock'
 TF = '/tf'
 DIAGNOSTICS = 'diagnostics'
-ENGAGED = 'vehicle/engaged'  # std_msgs/Bool, latched: True while the vehicle flies our setpoints (bridge: hand-over active; simulator: always)
+# std_msgs/Bool, latched: true while the vehicle flies our setpoints (bridge: hand-over active; simulator: always)
+ENGAGED = 'vehicle/engaged'
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,9 @@ position_controller_node and the offline flight loop (quad_bringup.closed_loop) 
   bridge's hand-over is active; a simulator is engaged at once). While not engaged the reference follows the
   vehicle (its position and yaw, every tick): the setpoints that stream before a hand-over hover where it is.
   At engagement at t_e the hold point is anchored where the vehicle is and the controller is reset; a plan
-  whose start has passed begins at t_e + its own start delay (its stamp minus its arrival time), a plan paused
-  by the end of a hand-over resumes there from where it stopped; a plan still in the future keeps its stamp.
+  whose start has passed begins at t_e + its own start delay (its stamp minus its arrival time, at least
+  engage_delay_s: the vehicle settles under our setpoints first), a plan paused by the end of a hand-over
+  resumes there from where it stopped; a plan still in the future keeps its stamp.
   The end of a hand-over stops the plan's clock (the plan is paused, the reference follows the vehicle again).
 - Hold before the plan: until a trajectory has started the reference is the hold point, anchored once at the
   first engaged odometry controlled from (its position and yaw) and never re-anchored while engaged (a
@@ -29,6 +30,7 @@ from quad_common.types import AttitudeSetpoint, Reference, State
 from quad_control.position import PositionController, Saturation
 
 RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's default
+ENGAGE_DELAY_S = 1.0       # position_controller engage_delay_s
 MAX_START_STEP_M = 0.5     # position_controller max_start_step_m and the offline loop's default
 COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'refused_start_steps',
           'saturation_thrust', 'saturation_tilt', 'saturation_integral')
@@ -62,7 +64,7 @@ class Tick:
 class ControlLoop:
     def __init__(self, controller: PositionController, rate_hz: float, *, lockstep: bool = False,
                  wait_for_trajectory: bool = False, max_start_step_m: float = math.inf, engaged: bool = True,
-                 on_fault=None, on_event=None):
+                 engage_delay_s: float = ENGAGE_DELAY_S, on_fault=None, on_event=None):
         """on_fault(reason): called with a one-line reason when a tick produces no setpoint or a plan is refused;
         on_event(line): an engagement, a pause or a re-based plan (informational)."""
         self.controller = controller
@@ -73,6 +75,7 @@ class ControlLoop:
         self.on_fault = on_fault or (lambda reason: None)
         self.on_event = on_event or (lambda line: None)
         self.engaged = engaged       # the vehicle flies our setpoints (module docstring)
+        self.engage_delay_s = float(engage_delay_s)
         self.odom = None             # (stamp_ns, State) of the newest accepted odometry
         self.trajectory = None       # Plan being tracked (or ended)
         self.next_plan = None        # Plan received (or paused), not started yet
@@ -117,9 +120,10 @@ class ControlLoop:
         self.controller.reset()
         plan, line = self.next_plan, 'holding where the vehicle is'
         if plan is not None and (plan.tau0_s > 0.0 or plan.start_ns < t_ns):
-            self.next_plan = replace(plan, start_ns=t_ns + plan.lead_ns)
+            start_ns = t_ns + max(plan.lead_ns, round(self.engage_delay_s * 1e9))
+            self.next_plan = replace(plan, start_ns=start_ns)
             what = f'resumes at {plan.tau0_s:.3f} s' if plan.tau0_s > 0.0 else 'starts'
-            line += f'; the plan {what} at t = {(t_ns + plan.lead_ns) * 1e-9:.3f} s'
+            line += f'; the plan {what} at t = {start_ns * 1e-9:.3f} s'
         self.on_event(f'engaged at t = {t_ns * 1e-9:.3f} s: {line}')
         return self.run_pending()
 

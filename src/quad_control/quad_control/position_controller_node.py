@@ -29,7 +29,7 @@ from quad_common.node_main import run_node
 from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
-from quad_control.loop import MAX_START_STEP_M, RATE_HZ, ControlLoop, Tick
+from quad_control.loop import ENGAGE_DELAY_S, MAX_START_STEP_M, RATE_HZ, ControlLoop, Tick
 from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains, gains_from_parameters
 
 NODE_NAME = 'position_controller'
@@ -48,6 +48,9 @@ SPECS = [
     Param('wait_for_engagement', True, 'advance a plan only while `vehicle/engaged` is true (the bridge\'s hand-over, '
           'the simulator at once); until then the setpoints hover where the vehicle is (docs/bridge.md); false: '
           'a plant that publishes no engagement (the plan runs on its stamp)', read_only=True),
+    Param('engage_delay_s', ENGAGE_DELAY_S, 'at engagement a plan whose start has passed begins at least this '
+          'long after it (the vehicle settles under our setpoints first; longer if the plan\'s own start delay is)',
+          min=0.0, max=60.0),
     Param('max_start_step_m', MAX_START_STEP_M, 'a plan whose reference at its first tick is farther than this '
           'from the vehicle is refused (the controller keeps holding, ERROR on diagnostics naming the distance)',
           min=0.0, max=1000.0),
@@ -142,7 +145,8 @@ class PositionControllerNode(Node):
         self.loop = ControlLoop(self.controller, self.params['rate_hz'], lockstep=self.params['lockstep'],
                                 wait_for_trajectory=self.params['wait_for_trajectory'],
                                 max_start_step_m=self.params['max_start_step_m'],
-                                engaged=not self.params['wait_for_engagement'], on_fault=self._fault,
+                                engaged=not self.params['wait_for_engagement'],
+                                engage_delay_s=self.params['engage_delay_s'], on_fault=self._fault,
                                 on_event=self.get_logger().info)
         self.odom_received_ns = None  # steady time of the newest finite odometry
         self.odom_fault = None      # reason the newest odometry was refused (non-finite), until a good one
@@ -260,6 +264,7 @@ class PositionControllerNode(Node):
         self.controller.gains = gains_from(values)
         self.controller.limits = Limits.of(self.vehicle, values['max_tilt_deg'])
         self.loop.max_start_step_m = values['max_start_step_m']
+        self.loop.engage_delay_s = values['engage_delay_s']
         self.loop.wait_for_trajectory = values['wait_for_trajectory']
         if 'controller' in changed:
             self.controller.name = values['controller']

@@ -10,6 +10,7 @@ import dataclasses
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
+from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -27,6 +28,7 @@ from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SEED_CONTROL_POINTS, l
 
 PATH_RATE_HZ = 20.0   # trajectory/path and the marker line: for viewing, not for control
 DIAG_NAME = 'trajectory_node: trajectory'
+CLOCK_POLL_S = 0.01   # steady time between looks for the first /clock (use_sim_time)
 
 PARAMS = [
     Param('mission_file', '', 'mission YAML (docs/missions.md); when set, its waypoints, options, vehicle and world '
@@ -50,7 +52,8 @@ PARAMS = [
     Param('sample_rate_hz', 100.0, 'rate of the points in `trajectory`', min=100.0, max=10000.0),
     Param('start_delay_s', 1.0, 'trajectory start = node clock now + this', min=0.0, max=3600.0),
     Param('frame_id', 'map', 'frame of every output'),
-    Param('vehicle_file', '', 'vehicle YAML for the limits; empty = config/vehicles/crazyflie.yaml', read_only=True),
+    Param('vehicle_file', '', 'vehicle YAML for the limits (over the mission\'s vehicle); empty = the mission\'s, '
+          'else config/vehicles/crazyflie.yaml', read_only=True),
     Param('world_file', '', 'world (MEAM620/rotorpy JSON or YAML) to plan collision-free in; empty = none',
           read_only=True),
     Param('robot_radius_m', 0.0, 'robot radius for the collision check', min=0.0, max=10.0),
@@ -63,8 +66,10 @@ class TrajectoryNode(Node):
         super().__init__('trajectory_node', **kwargs)
         self.params = ParameterSet(self, PARAMS, validate=self._check, on_change=self._replan_current)
         self.mission = load_mission(self.params['mission_file']) if self.params['mission_file'] else None
-        if self.mission:
-            self.vehicle, self.world = self.mission.vehicle, self.mission.world
+        if self.mission:   # vehicle_file, when given, sets the limits over the mission's vehicle
+            self.vehicle = load_vehicle(self.params['vehicle_file']) if self.params['vehicle_file'] \
+                else self.mission.vehicle
+            self.world = self.mission.world
         else:
             self.vehicle = load_vehicle(self.params['vehicle_file'] or DEFAULT_VEHICLE_PATH)
             self.world = load_world(self.params['world_file']) if self.params['world_file'] else None
@@ -79,7 +84,13 @@ class TrajectoryNode(Node):
         self.result = None          # the plan in force
         self.request = None         # (waypoints, yaw) of the plan in force
         self.last_status = diagnostics.status(DIAG_NAME, diagnostics.WARN, 'no trajectory yet')
-        self.create_timer(1.0, self._publish_diagnostics)
+        self.unpublished = None     # a plan made before the first /clock (use_sim_time), published once time runs
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.clock_wait = None
+        if self._time_stopped():
+            self.get_logger().info('use_sim_time: waiting for the first /clock before publishing a plan')
+            self.clock_wait = self.create_timer(CLOCK_POLL_S, self._on_clock_wait, clock=self.steady)
+        self.create_timer(1.0, self._publish_diagnostics, clock=self.steady)
         if self.mission:
             self._plan_and_publish(self.mission.waypoints, self.mission.yaw, raise_errors=True)
         elif self.params['waypoints']:
@@ -147,7 +158,25 @@ class TrajectoryNode(Node):
                                               {'kept_previous': self.result is not None})
         self._publish_diagnostics()
 
+    def _time_stopped(self) -> bool:
+        """use_sim_time before the first /clock: the node clock reads 0, a plan stamped now + delay would
+        begin in the past once simulated time arrives."""
+        return self.get_parameter('use_sim_time').value and self.get_clock().now().nanoseconds == 0
+
+    def _on_clock_wait(self):
+        if self._time_stopped():
+            return
+        self.destroy_timer(self.clock_wait)
+        self.clock_wait = None
+        if self.unpublished is not None:
+            result, self.unpublished = self.unpublished, None
+            self._publish(result)
+
     def _publish(self, result: planner.PlanResult):
+        if self._time_stopped():
+            self.unpublished = result
+            self.last_status = diagnostics.status(DIAG_NAME, diagnostics.WARN, 'planned; waiting for /clock')
+            return
         frame = self.params['frame_id']
         now = self.get_clock().now()
         start = (now + Duration(nanoseconds=int(self.params['start_delay_s'] * 1e9))).to_msg()
@@ -168,6 +197,8 @@ class TrajectoryNode(Node):
         self._publish_diagnostics()
 
     def _publish_diagnostics(self):
+        if self._time_stopped():   # nothing is stamped before time exists
+            return
         self.diag_pub.publish(diagnostics.array(self.get_clock().now().to_msg(), [self.last_status]))
 
 

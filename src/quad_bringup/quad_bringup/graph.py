@@ -1,0 +1,222 @@
+"""The node graphs, described once (no launch, no rclpy): which nodes, with which parameters, in start order.
+
+`quadflight fly` starts the simulated graph from `sim_graph`; launch/sim.launch.py, px4.launch.py and
+ardupilot.launch.py turn the same NodeSpecs into launch_ros Nodes (`launch_node`). A NodeSpec's parameters are
+what launch_ros passes: params files and dicts, in order, the later one winning (launch_ros writes a dict to a
+file under the '/**' key and gives every entry as `--params-file`); `merged_parameters` is what the node ends
+up with, `ros_arguments` the command line launch_ros gives its console script.
+"""
+
+import dataclasses
+from pathlib import Path
+
+import yaml
+
+from quad_common.paths import resolve_config
+from quad_common.yaml_io import load_yaml
+
+# executable (console script of the package's setup.py) -> the module it runs (`python -m`, fly's processes)
+MODULES = {
+    'trajectory_node': 'quad_trajectory.trajectory_node',
+    'position_controller': 'quad_control.position_controller_node',
+    'sim_node': 'quad_sim.sim_node',
+    'mavlink_bridge': 'quad_bridge.mavlink_bridge_node',
+    'recorder': 'quad_bringup.recorder_node',
+}
+PACKAGES = {'trajectory_node': 'quad_trajectory', 'position_controller': 'quad_control', 'sim_node': 'quad_sim',
+            'mavlink_bridge': 'quad_bridge', 'recorder': 'quad_bringup'}
+CONFIG_FILES = {'trajectory_node': 'trajectory.yaml', 'position_controller': 'control.yaml', 'sim_node': 'sim.yaml',
+                'mavlink_bridge': 'bridge_{autopilot}.yaml'}
+# a controller flown without a control profile gets this one (pd and pid: the seed's gains in control.yaml)
+DEFAULT_PROFILES = {'se3': 'control_se3.yaml'}
+REAL_VEHICLE_PROFILE = 'control_real.yaml'       # the bridge graphs' default
+REAL_VEHICLE = 'vehicles/px4_quad.yaml'
+AUTOPILOTS = ('px4', 'ardupilot')
+SIM_MODES = ('lockstep', 'realtime')
+CONFIG_PATH_PARAMETERS = ('vehicle', 'disturbances_file')
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeSpec:
+    name: str                  # the node name (launch_ros: -r __node:=NAME), also its executable
+    parameters: tuple = ()     # params file paths (str) and dicts, in the order launch_ros applies them
+
+    @property
+    def executable(self) -> str:
+        return self.name
+
+    @property
+    def package(self) -> str:
+        return PACKAGES[self.name]
+
+    @property
+    def module(self) -> str:
+        return MODULES[self.name]
+
+    def merged_parameters(self) -> dict:
+        """The parameters the node ends up with: each file's section for this node (its name or '/**'), then
+        each dict, the later one winning."""
+        merged = {}
+        for entry in self.parameters:
+            if isinstance(entry, dict):
+                merged.update(entry)
+                continue
+            data = load_yaml(entry) or {}
+            for key in ('/**', self.name, '/' + self.name):
+                merged.update((data.get(key) or {}).get('ros__parameters', {}))
+        return merged
+
+    def ros_arguments(self, out_dir: Path) -> list[str]:
+        """`--ros-args -r __node:=NAME --params-file ...` as launch_ros gives them (dicts written under out_dir)."""
+        args = ['--ros-args', '-r', f'__node:={self.name}']
+        for i, entry in enumerate(self.parameters):
+            if isinstance(entry, dict):
+                path = Path(out_dir) / f'{self.name}_params_{i}.yaml'
+                path.write_text(yaml.safe_dump({'/**': {'ros__parameters': entry}}, sort_keys=False))
+                entry = str(path)
+            args += ['--params-file', str(entry)]
+        return args
+
+
+def absolute_config_paths(params: dict) -> dict:
+    """params with the config files they name (vehicle, disturbances_file: relative to config/'s root) made
+    absolute, as the nodes resolve them."""
+    return {k: str(resolve_config(v)) if k in CONFIG_PATH_PARAMETERS and v and not Path(v).is_absolute() else v
+            for k, v in params.items()}
+
+
+def config(name: str) -> str:
+    """A file of config/ (installed share/quad_bringup/config first, then the checkout)."""
+    return str(resolve_config(Path('config') / name))
+
+
+def profile_controller(control_profile) -> str | None:
+    """The `controller` a control profile sets, or None."""
+    if not control_profile or not Path(control_profile).is_file():   # a missing file is refused by its caller
+        return None
+    data = load_yaml(control_profile) or {}
+    return ((data.get('position_controller') or {}).get('ros__parameters') or {}).get('controller')
+
+
+def controller_and_profile(controller: str | None, control_profile) -> tuple[str, str | None]:
+    """--controller if given, else the profile's `controller`, else pd; a controller named without a profile
+    flies its default profile (se3: the robust control_se3.yaml; pd and pid: the seed's gains)."""
+    if control_profile:
+        return controller or profile_controller(control_profile) or 'pd', str(control_profile)
+    controller = controller or 'pd'
+    return controller, config(DEFAULT_PROFILES[controller]) if controller in DEFAULT_PROFILES else None
+
+
+def sim_graph(mission_path, *, controller: str | None = None, control_profile=None, vehicle=None,
+              mode: str = 'lockstep', rtf: float = 1.0, speed_mps: float | None = None,
+              extra: dict | None = None) -> list[NodeSpec]:
+    """The simulated flight: trajectory_node, sim_node and position_controller on simulated time.
+
+    vehicle: the vehicle file of all three (default: the mission's); the world and the robot radius are the
+    mission's; mode lockstep (as fast as the graph goes; fly) or realtime at `rtf`; extra: {node: {param: value}}
+    set last (fly's lockstep followers)."""
+    from quad_trajectory.mission import load_mission
+
+    if mode not in SIM_MODES:
+        raise ValueError(f'mode {mode!r} refused: must be one of {", ".join(SIM_MODES)}')
+    if not rtf > 0:
+        raise ValueError(f'rtf {rtf!r} refused: must be > 0')
+    mission = load_mission(mission_path)
+    vehicle = str(Path(vehicle).resolve()) if vehicle else mission.vehicle_path or config('vehicles/crazyflie.yaml')
+    controller, profile = controller_and_profile(controller, control_profile)
+    lockstep = mode == 'lockstep'
+    sim_time = {'use_sim_time': True}
+    trajectory = {**sim_time, 'mission_file': str(Path(mission_path).resolve()), 'vehicle_file': vehicle}
+    if speed_mps is not None:
+        trajectory['speed_mps'] = float(speed_mps)
+    nodes = {
+        'trajectory_node': [config(CONFIG_FILES['trajectory_node']), trajectory],
+        'sim_node': [config(CONFIG_FILES['sim_node']), {
+            **sim_time, 'mode': mode, 'rtf': float(rtf), 'vehicle': vehicle,
+            'initial_position': [float(v) for v in mission.initial_position],
+            'world': mission.world_path or '', 'robot_radius_m': float(mission.options.robot_radius_m)}],
+        'position_controller': [config(CONFIG_FILES['position_controller']), *([profile] if profile else []), {
+            **sim_time, 'controller': controller, 'lockstep': lockstep, 'wait_for_trajectory': lockstep,
+            'vehicle': vehicle}],
+    }
+    for name, values in (extra or {}).items():
+        nodes[name].append(dict(values))
+    return [NodeSpec(name, tuple(params)) for name, params in nodes.items()]
+
+
+def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=None, fcu_url: str = '',
+                 hover_throttle: float | None = None, vehicle_params: str = '') -> list[NodeSpec]:
+    """A real (or emulated) vehicle: trajectory_node and position_controller on wall-clock time and
+    mavlink_bridge from config/bridge_<autopilot>.yaml. The plan runs only while the bridge's hand-over is
+    active (vehicle/engaged), so the nodes may start in any order and `offboard` may come at any time.
+
+    vehicle: the vehicle file of the planner's limits and the controller (default px4_quad.yaml);
+    control_profile: over control.yaml (default control_real.yaml); fcu_url, hover_throttle, vehicle_params:
+    the bridge's parameters when given."""
+    if autopilot not in AUTOPILOTS:
+        raise ValueError(f'autopilot {autopilot!r} refused: must be one of {", ".join(AUTOPILOTS)}')
+    vehicle = str(Path(vehicle).resolve()) if vehicle else config(REAL_VEHICLE)
+    profile = str(control_profile) if control_profile else config(REAL_VEHICLE_PROFILE)
+    wall = {'use_sim_time': False}
+    bridge = dict(wall)
+    for key, value in (('fcu_url', fcu_url), ('hover_throttle', hover_throttle), ('vehicle_params', vehicle_params)):
+        if value not in (None, ''):
+            bridge[key] = float(value) if key == 'hover_throttle' else str(value)
+    return [
+        NodeSpec('trajectory_node', (config(CONFIG_FILES['trajectory_node']),
+                                     {**wall, 'mission_file': str(Path(mission_path).resolve()),
+                                      'vehicle_file': vehicle})),
+        NodeSpec('position_controller', (config(CONFIG_FILES['position_controller']), profile,
+                                         {**wall, 'lockstep': False, 'wait_for_engagement': True,
+                                          'vehicle': vehicle})),
+        NodeSpec('mavlink_bridge', (config(CONFIG_FILES['mavlink_bridge'].format(autopilot=autopilot)), bridge)),
+    ]
+
+
+# --- launch arguments: (name, default, description); '' = the graph's own default ----------------------------
+SIM_LAUNCH_ARGUMENTS = (
+    ('mission', 'missions/maze.yaml', 'mission YAML: a path, or one under config/'),
+    ('controller', '', 'pd | pid | se3; empty: the control profile\'s, else pd'),
+    ('control_profile', '', 'params file over control.yaml; empty: se3 flies control_se3.yaml, pd and pid the '
+                            'seed\'s gains'),
+    ('vehicle', '', 'vehicle YAML of the planner\'s limits, the controller and the simulator; empty: the mission\'s'),
+    ('mode', 'lockstep', 'lockstep (as fast as the graph goes) | realtime'),
+    ('rtf', '1.0', 'realtime: simulated seconds per wall-clock second'),
+)
+BRIDGE_LAUNCH_ARGUMENTS = (
+    ('mission', 'missions/maze.yaml', 'mission YAML: a path, or one under config/'),
+    ('vehicle', REAL_VEHICLE, 'vehicle YAML of the planner\'s limits and the controller'),
+    ('control_profile', REAL_VEHICLE_PROFILE, 'position_controller profile over control.yaml'),
+    ('fcu_url', '', 'the autopilot\'s MAVLink address; empty: the bridge config\'s'),
+    ('hover_throttle', '', 'the vehicle\'s hover thrust (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER); empty: '
+                           'the bridge config\'s'),
+    ('vehicle_params', '', 'check | adopt | ignore the vehicle\'s semantic parameters; empty: the bridge config\'s'),
+)
+LAUNCH_FILES = {'sim': SIM_LAUNCH_ARGUMENTS, 'px4': BRIDGE_LAUNCH_ARGUMENTS, 'ardupilot': BRIDGE_LAUNCH_ARGUMENTS}
+
+
+def config_path(value: str) -> str:
+    """A file argument: the path as given if it exists, else the same path under config/."""
+    if not value:
+        return ''
+    return str(Path(value).resolve()) if Path(value).is_file() else config(value)
+
+
+def graph_from_arguments(kind: str, args: dict) -> list[NodeSpec]:
+    """The graph of launch/<kind>.launch.py from its launch arguments (strings, as launch gives them)."""
+    if kind == 'sim':
+        try:
+            rtf = float(args['rtf'])
+        except ValueError:
+            raise ValueError(f'rtf {args["rtf"]!r} refused: must be a number') from None
+        return sim_graph(config_path(args['mission']), controller=args['controller'] or None,
+                         control_profile=config_path(args['control_profile']) or None,
+                         vehicle=config_path(args['vehicle']) or None, mode=args['mode'], rtf=rtf)
+    hover = args['hover_throttle']
+    try:
+        hover_throttle = float(hover) if hover else None
+    except ValueError:
+        raise ValueError(f'hover_throttle {hover!r} refused: must be a number') from None
+    return bridge_graph(kind, config_path(args['mission']), vehicle=config_path(args['vehicle']),
+                        control_profile=config_path(args['control_profile']), fcu_url=args['fcu_url'],
+                        hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'])

@@ -1,0 +1,209 @@
+"""The launch files as `ros2 launch` runs them (launch_standin: launch's and launch_ros' semantics), and their
+nodes started as launch_ros starts them: the installed console script, `--ros-args -r __node:=NAME
+--params-file ...` in the launch file's order.
+
+- sim.launch.py is the graph `quadflight fly` starts (same nodes, same parameters but fly's lockstep followers),
+  and flies a mission to completion;
+- px4.launch.py / ardupilot.launch.py pass every documented launch argument to its node; against the emulated
+  autopilot, `offboard` called 20 s after launch does not dash: the plan starts from where the vehicle is.
+"""
+
+import ast
+import math
+import subprocess
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ament_index_python.packages import get_package_prefix
+from bridge_graph import VEHICLE_FILE, VEHICLE_PARAMS, WAIT_S, Observer, Processes, free_udp_port
+from launch_standin import evaluate
+from std_srvs.srv import SetBool
+
+from quad_bringup import flight, graph
+from quad_common.conversions import stamp_to_s
+from quad_common.testing import isolated_domain
+
+ROOT = Path(__file__).resolve().parent.parent
+LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'
+MAZE = ROOT / 'config' / 'missions' / 'maze.yaml'
+SPEED_MPS = 0.5
+OFFBOARD_AFTER_S = 20.0     # the user calls `offboard` this long after `ros2 launch`
+SETTLE_S = 2.0              # after engagement: no more than 2 x the mission's speed, within 0.3 m
+DASH_SPEED_MPS = 2 * SPEED_MPS
+DASH_DISTANCE_M = 0.3
+
+
+def _mission(tmp_path, waypoints, vehicle=VEHICLE_FILE):
+    path = tmp_path / 'short.yaml'
+    path.write_text(f'name: short\nvehicle: {vehicle}\nwaypoints: {waypoints}\nyaw: 0.0\n'
+                    f'trajectory: {{method: minsnap, speed: {SPEED_MPS}, time_allocation: sqrt}}\n')
+    return path
+
+
+def _console_scripts(package: str) -> set[str]:
+    """The `name = module:function` entry points of src/<package>/setup.py."""
+    tree = ast.parse((ROOT / 'src' / package / 'setup.py').read_text())
+    return {n.value.split('=')[0].strip() for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str) and ' = ' in n.value and ':' in n.value}
+
+
+@pytest.mark.parametrize('kind', sorted(graph.LAUNCH_FILES))
+def test_launch_file_starts_installed_executables_with_existing_params_files(kind, tmp_path):
+    nodes = evaluate(LAUNCH / f'{kind}.launch.py')
+    assert nodes, f'{kind}.launch.py starts no node'
+    for node in nodes:
+        assert node.executable in _console_scripts(node.package), f'{node.package} has no {node.executable}'
+        argv = node.command(tmp_path, Path(get_package_prefix(node.package)))
+        assert Path(argv[0]).is_file(), f'{argv[0]} is not installed (colcon build)'
+        assert argv[1:4] == ['--ros-args', '-r', f'__node:={node.name}']
+        files = argv[5::2]
+        assert files and all(Path(f).is_file() for f in files) and argv[4::2] == ['--params-file'] * len(files)
+
+
+def _merged(nodes) -> dict:
+    return {n.name: graph.absolute_config_paths(graph.NodeSpec(n.name, tuple(n.parameters)).merged_parameters())
+            for n in nodes}
+
+
+def test_sim_launch_starts_the_graph_fly_starts():
+    nodes = evaluate(LAUNCH / 'sim.launch.py', mission=str(MAZE), controller='se3')
+    assert [(n.package, n.executable, n.name) for n in nodes] == [
+        ('quad_trajectory', 'trajectory_node', 'trajectory_node'), ('quad_sim', 'sim_node', 'sim_node'),
+        ('quad_control', 'position_controller', 'position_controller')]
+    launched = _merged(nodes)
+    options = flight.with_profile_controller(flight.FlightOptions(MAZE, controller='se3'))
+    flown = {name: p['ros__parameters'] for name, p in flight.node_parameters(options).items()}
+    for name, fly_only in flight.FLY_ONLY.items():
+        for key in fly_only:
+            flown[name].pop(key)
+            launched[name].pop(key, None)
+    assert launched == flown
+    sim, control = launched['sim_node'], launched['position_controller']
+    assert sim['world'].endswith('worlds/maze.yaml') and sim['robot_radius_m'] > 0    # collisions are simulated
+    se3 = graph.NodeSpec('position_controller', (str(ROOT / 'config' / 'control_se3.yaml'),)).merged_parameters()
+    assert all(control[k] == v for k, v in se3.items())                          # the robust profile, not pd's
+    assert control['controller'] == 'se3' and sim['mode'] == 'lockstep' and control['lockstep']
+
+
+def test_sim_launch_realtime_argument():
+    nodes = evaluate(LAUNCH / 'sim.launch.py', mode='realtime', rtf='2.5')
+    launched = _merged(nodes)
+    assert launched['sim_node']['mode'] == 'realtime' and launched['sim_node']['rtf'] == 2.5
+    assert not launched['position_controller']['lockstep']
+    with pytest.raises(ValueError, match="mode 'fast' refused"):
+        evaluate(LAUNCH / 'sim.launch.py', mode='fast')
+
+
+@pytest.mark.parametrize('autopilot', ['px4', 'ardupilot'])
+def test_bridge_launch_arguments_reach_their_nodes(autopilot):
+    nodes = evaluate(LAUNCH / f'{autopilot}.launch.py', mission='missions/window.yaml',
+                     vehicle='vehicles/crazyflie.yaml', control_profile='control_fast.yaml',
+                     fcu_url='udpin:127.0.0.1:14999', hover_throttle='0.42', vehicle_params='adopt')
+    assert [n.name for n in nodes] == ['trajectory_node', 'position_controller', 'mavlink_bridge']
+    p = _merged(nodes)
+    crazyflie = str(ROOT / 'config' / 'vehicles' / 'crazyflie.yaml')
+    assert p['trajectory_node']['vehicle_file'] == crazyflie == p['position_controller']['vehicle']
+    assert p['trajectory_node']['mission_file'] == str(ROOT / 'config' / 'missions' / 'window.yaml')
+    assert p['position_controller']['controller'] == 'se3'         # control_fast.yaml's
+    assert p['position_controller']['wait_for_engagement'] and not p['position_controller']['use_sim_time']
+    assert p['mavlink_bridge']['fcu_url'] == 'udpin:127.0.0.1:14999'
+    assert p['mavlink_bridge']['hover_throttle'] == 0.42 and p['mavlink_bridge']['vehicle_params'] == 'adopt'
+    assert p['mavlink_bridge']['autopilot'] == autopilot
+    defaults = _merged(evaluate(LAUNCH / f'{autopilot}.launch.py'))
+    assert defaults['position_controller']['vehicle'].endswith('px4_quad.yaml')
+    assert defaults['mavlink_bridge']['hover_throttle'] == 0.5     # the bridge config's
+    with pytest.raises(ValueError, match="hover_throttle 'half' refused"):
+        evaluate(LAUNCH / f'{autopilot}.launch.py', hover_throttle='half')
+
+
+# --- the launched graphs -----------------------------------------------------------------------------------
+
+@contextmanager
+def _launched(tmp_path):
+    """(start, procs, observer): start(launch_file, **arguments) runs its nodes as launch_ros does, in the root
+    namespace of a ROS domain of their own (the config files name the nodes there)."""
+    with isolated_domain() as (domain, env):
+        procs = Processes(env, tmp_path, namespace='/')
+        observer = Observer(domain, '/')
+
+        def start(launch_file, **arguments):
+            for node in evaluate(launch_file, **arguments):
+                argv = node.command(tmp_path, Path(get_package_prefix(node.package)))
+                log = open(tmp_path / f'{node.name}.log', 'w')
+                procs.procs[node.name] = subprocess.Popen(argv, env=procs.env, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            yield start, procs, observer
+        finally:
+            procs.stop_all()
+            observer.close()
+
+
+def _node_names(observer):
+    return sorted(f'{ns.rstrip("/")}/{name}' for name, ns in observer.node.get_node_names_and_namespaces())
+
+
+def test_sim_launch_graph_flies_the_mission(tmp_path):
+    waypoints = [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.5, 1.2]]
+    with _launched(tmp_path) as (start, procs, observer):
+        start(LAUNCH / 'sim.launch.py', mission=str(_mission(tmp_path, waypoints,
+                                                              ROOT / 'config/vehicles/crazyflie.yaml')))
+        observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
+        traj = observer.trajectory
+        end_s = stamp_to_s(traj.header.stamp) + stamp_to_s(traj.points[-1].time_from_start)
+        observer.wait_for(lambda: observer.odom and observer.odom[-1][0] > end_s + 1.0, 'the end of the mission')
+        assert np.linalg.norm(np.array(observer.position()) - waypoints[-1]) < 0.05
+        names = _node_names(observer)
+        for name in ('/trajectory_node', '/sim_node', '/position_controller'):
+            assert names.count(name) == 1, names
+        for name in procs.procs:
+            assert procs.procs[name].poll() is None, procs.log(name)
+
+
+@pytest.mark.parametrize('autopilot', ['px4', 'ardupilot'])
+def test_bridge_launch_graph_does_not_dash_when_offboard_comes_late(tmp_path, autopilot):
+    """Issue 21: the plan used to run on the wall clock from launch: `offboard` 20 s later flew the vehicle to
+    where the plan had got to (a 7 m dash at 5.9 m/s). Now it begins where the vehicle is when handed over."""
+    waypoints = [[0.0, 0.0, 1.0], [1.5, 0.0, 1.0], [1.5, 1.0, 1.2]]
+    port = free_udp_port()
+    with _launched(tmp_path) as (start, procs, observer):
+        procs.vehicle(autopilot, f'udpout:127.0.0.1:{port}', position=waypoints[0],
+                      extra=VEHICLE_PARAMS[autopilot])
+        launched_at = time.monotonic()
+        start(LAUNCH / f'{autopilot}.launch.py', mission=str(_mission(tmp_path, waypoints)),
+              fcu_url=f'udpin:127.0.0.1:{port}')
+        observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
+        observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+        assert _node_names(observer).count('/mavlink_bridge') == 1, _node_names(observer)
+        assert '/mavlink_bridge_setpoints' in _node_names(observer)
+        time.sleep(max(0.0, launched_at + OFFBOARD_AFTER_S - time.monotonic()))   # the user's delay, not a sync
+        assert observer.controller()[1].get('engaged') == 'False'
+        with observer.lock:
+            n_before = len(observer.odom)
+        result = observer.call('offboard', SetBool.Request(data=True))
+        assert result.success, result.message
+        engaged_at = observer.odom[-1][0]
+        observer.wait_for(lambda: observer.odom[-1][0] > engaged_at + SETTLE_S, 'two seconds after engagement')
+        with observer.lock:
+            odom = [(t, p) for t, p in observer.odom[n_before:]]
+        t = np.array([s for s, _ in odom])
+        p = np.array([q for _, q in odom])
+        first = t <= engaged_at + SETTLE_S
+        at_engagement = p[np.searchsorted(t, engaged_at)]
+        dist = np.linalg.norm(p[first] - at_engagement, axis=1).max()
+        window = (t[1:] - t[:-1]) > 0
+        speed = np.linalg.norm(np.diff(p, axis=0), axis=1)[window] / np.diff(t)[window]
+        peak = np.convolve(speed, np.ones(5) / 5, mode='valid')[: max(1, int(first.sum()) - 5)].max()  # 0.1 s
+        print(f'{autopilot}: offboard {OFFBOARD_AFTER_S:.0f} s after launch: first {SETTLE_S} s moved {dist:.3f} m, '
+              f'peak {peak:.2f} m/s')
+        assert dist < DASH_DISTANCE_M and peak < DASH_SPEED_MPS
+        _, values = observer.controller()
+        assert values['engaged'] == 'True' and values['refused_start_steps'] == '0'
+        # ... then flies the mission to its end
+        traj_s = stamp_to_s(observer.trajectory.points[-1].time_from_start)
+        observer.wait_for(lambda: observer.odom[-1][0] > engaged_at + 1.0 + traj_s + 2.0, 'the end of the mission',
+                          WAIT_S + traj_s)
+        assert np.linalg.norm(np.array(observer.position()) - waypoints[-1]) < 0.15
+        assert math.isfinite(peak)
