@@ -23,6 +23,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -31,7 +32,7 @@ from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, instal
 from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.lifeline import bind_to_parent
-from quad_common.node_main import STOP_SIGNALS
+from quad_common.node_main import STOP_SIGNALS, rcl_reason
 from quad_common.params import Param, ParameterSet
 
 STATUS_PERIOD_S = 1.0
@@ -142,7 +143,11 @@ def main(args=None):
     the bag."""
     stop = []
     bind_to_parent()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except _rclpy.RCLError as exc:   # a missing or malformed --params-file
+        print(f'[ERROR] [recorder]: recorder refused to start: {rcl_reason(exc)}', file=sys.stderr)
+        sys.exit(2)
     for sig in STOP_SIGNALS:
         signal.signal(sig, lambda signum, frame: stop.append(signum))
     try:

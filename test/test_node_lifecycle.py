@@ -1,0 +1,77 @@
+"""Every node's console script as launch_ros starts it (`--ros-args -r __node:=NAME ...`): Ctrl-C in a terminal
+running `ros2 launch` (SIGINT to every process, then launch forwards a second one during shutdown) ends it with
+exit 0 and no traceback; a --params-file that does not exist is one error line and exit 2."""
+
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import rclpy
+from ament_index_python.packages import get_package_prefix
+from bridge_graph import WAIT_S, free_udp_port
+from rclpy.executors import SingleThreadedExecutor
+
+from quad_common.testing import isolated_domain
+
+EXECUTABLES = [('quad_trajectory', 'trajectory_node', []), ('quad_control', 'position_controller', []),
+               ('quad_sim', 'sim_node', []), ('quad_bridge', 'mavlink_bridge', ['fcu_url']),
+               ('quad_bringup', 'recorder', ['output_dir'])]
+SECOND_SIGINT_AFTER_S = 0.005
+
+
+def _argv(package, executable, needs, tmp_path, name):
+    argv = [str(Path(get_package_prefix(package)) / 'lib' / package / executable), '--ros-args',
+            '-r', f'__node:={name}']
+    if 'fcu_url' in needs:
+        argv += ['-p', f'fcu_url:=udpin:127.0.0.1:{free_udp_port()}']
+    if 'output_dir' in needs:
+        argv += ['-p', f'output_dir:={tmp_path / "bag"}']
+    return argv
+
+
+def _wait_for_node(domain, name, proc):
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = rclpy.create_node('lifecycle_probe', context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    try:
+        deadline = time.monotonic() + WAIT_S   # a hang guard only
+        while name not in node.get_node_names():
+            assert proc.poll() is None, f'{name} exited with {proc.returncode}'
+            assert time.monotonic() < deadline, f'{name} never joined the graph'
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.parametrize('package,executable,needs', EXECUTABLES, ids=[e[1] for e in EXECUTABLES])
+def test_a_second_sigint_during_shutdown_ends_the_node_cleanly(tmp_path, package, executable, needs):
+    name = f'launched_{executable}'
+    with isolated_domain() as (domain, env):
+        proc = subprocess.Popen(_argv(package, executable, needs, tmp_path, name), env=env, text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        try:
+            _wait_for_node(domain, name, proc)
+            proc.send_signal(signal.SIGINT)
+            time.sleep(SECOND_SIGINT_AFTER_S)   # the second Ctrl-C of the scenario, not a synchronisation
+            proc.send_signal(signal.SIGINT)
+            out, _ = proc.communicate(timeout=WAIT_S)
+        finally:
+            proc.kill()
+    assert proc.returncode == 0 and 'Traceback' not in out, out
+
+
+@pytest.mark.parametrize('package,executable,needs', EXECUTABLES, ids=[e[1] for e in EXECUTABLES])
+def test_a_missing_params_file_is_one_line_and_exit_2(tmp_path, package, executable, needs):
+    missing = tmp_path / 'no_such_params.yaml'
+    with isolated_domain() as (_, env):
+        proc = subprocess.run([*_argv(package, executable, needs, tmp_path, executable), '--params-file',
+                               str(missing)], env=env, capture_output=True, text=True, timeout=WAIT_S)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 2, out
+    assert 'Traceback' not in out and str(missing) in out and 'refused to start' in out
