@@ -1,0 +1,73 @@
+"""Every import of every package is declared in its package.xml with a rosdep key that exists, so that
+`rosdep install --from-paths src` on a ROS 2 Jazzy machine installs what the nodes import.
+
+Keys are ROS package names (resolved from the distribution), our own packages, or the system keys of
+ros/rosdistro's rosdep/python.yaml and base.yaml listed in SYSTEM_KEYS (checked there by hand; a new third-party
+import needs its key added here after checking it exists)."""
+
+import ast
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = sorted(p.name for p in (ROOT / 'src').iterdir() if (p / 'package.xml').is_file())
+# Python top-level module -> rosdep key (ros/rosdistro rosdep/python.yaml; each resolves on Ubuntu noble)
+SYSTEM_KEYS = {
+    'numpy': 'python3-numpy',
+    'scipy': 'python3-scipy',
+    'yaml': 'python3-yaml',
+    'matplotlib': 'python3-matplotlib',
+    'pymavlink': 'python3-pymavlink-pip',
+    'rosbags': 'python3-rosbags-pip',
+    'numba': 'python3-numba',
+    'dask': 'python3-dask',
+    'distributed': 'python3-distributed',
+    'pytest': 'python3-pytest',
+}
+# ROS 2 Jazzy packages the nodes import (rosdep resolves a ROS package name to ros-jazzy-<name>)
+ROS_PACKAGES = {'rclpy', 'launch', 'launch_ros', 'ament_index_python', 'builtin_interfaces', 'rcl_interfaces',
+                'std_msgs', 'std_srvs', 'geometry_msgs', 'nav_msgs', 'sensor_msgs', 'trajectory_msgs',
+                'diagnostic_msgs', 'visualization_msgs', 'rosgraph_msgs', 'tf2_msgs'}
+
+
+def declared(package: str) -> dict[str, set[str]]:
+    root = ET.parse(ROOT / 'src' / package / 'package.xml').getroot()
+    deps = {}
+    for tag in ('depend', 'exec_depend', 'test_depend', 'build_depend'):
+        deps[tag] = {e.text.strip() for e in root.findall(tag)}
+    return deps
+
+
+def imports(paths) -> set[str]:
+    """Top-level modules imported anywhere in `paths` (also inside functions and try blocks), minus stdlib."""
+    found = set()
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                found |= {a.name.split('.')[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                found.add(node.module.split('.')[0])
+    return {m for m in found if m not in sys.stdlib_module_names and m != 'setuptools'}
+
+
+def key(module: str) -> str:
+    return SYSTEM_KEYS.get(module, module)
+
+
+@pytest.mark.parametrize('package', PACKAGES)
+def test_every_import_is_declared_with_a_valid_key(package):
+    pkg = ROOT / 'src' / package
+    runtime = imports([*pkg.glob(f'{package}/**/*.py'), *pkg.glob('launch/*.py')])
+    tests = imports(pkg.glob('test/**/*.py')) - runtime
+    deps = declared(package)
+    run_deps = deps['depend'] | deps['exec_depend']
+    missing = sorted(key(m) for m in runtime - {package} if key(m) not in run_deps)
+    assert not missing, f'{package}/package.xml: exec_depend missing for {missing}'
+    missing_tests = sorted(key(m) for m in tests - {package} if key(m) not in run_deps | deps['test_depend'])
+    assert not missing_tests, f'{package}/package.xml: test_depend missing for {missing_tests}'
+    valid = set(PACKAGES) | ROS_PACKAGES | set(SYSTEM_KEYS.values())
+    unknown = sorted(k for k in set().union(*deps.values()) if k not in valid)
+    assert not unknown, f'{package}/package.xml: {unknown} are not rosdep keys (nor packages of this workspace)'
