@@ -189,3 +189,21 @@ def test_bad_start_up_parameters_exit_2_naming_the_field(args, words):
                               env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert words in proc.stderr + proc.stdout
+
+
+def test_with_sim_time_the_plan_waits_for_the_first_clock(graph):
+    """Issue 21: under use_sim_time the node planned before the first /clock and stamped the plan 0 + 1 s, in the
+    past once simulated time arrived (refused by the controller's start-step guard). It now plans at start (a bad
+    request still fails at once) and publishes, stamped clock + start_delay_s, when time exists."""
+    from rosgraph_msgs.msg import Clock
+
+    from quad_common.conversions import s_to_stamp
+
+    clock_pub = graph.probe.create_publisher(Clock, '/clock', RELIABLE)
+    node = graph.start(use_sim_time=True, waypoints=FLAT, start_delay_s=1.0)
+    assert node.unpublished is not None and not graph.got['trajectory']   # planned, nothing stamped yet
+    graph.spin_until(lambda: clock_pub.get_subscription_count() > 0, 'the node\'s /clock subscription')
+    clock_pub.publish(Clock(clock=s_to_stamp(5.0)))
+    msg = graph.wait_for('trajectory')
+    assert stamp_to_s(msg.header.stamp) == pytest.approx(6.0)
+    assert node.unpublished is None and node.clock_wait is None
