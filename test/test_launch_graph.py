@@ -129,8 +129,9 @@ def _launched(tmp_path):
         procs = Processes(env, tmp_path, namespace='/')
         observer = Observer(domain, '/')
 
-        def start(launch_file, **arguments):
-            for node in evaluate(launch_file, **arguments):
+        def start(launch_file, reverse=False, **arguments):
+            nodes = evaluate(launch_file, **arguments)
+            for node in reversed(nodes) if reverse else nodes:
                 argv = node.command(tmp_path, Path(get_package_prefix(node.package)))
                 log = open(tmp_path / f'{node.name}.log', 'w')
                 procs.procs[node.name] = subprocess.Popen(argv, env=procs.env, stdout=log, stderr=subprocess.STDOUT)
@@ -162,17 +163,19 @@ def test_sim_launch_graph_flies_the_mission(tmp_path):
             assert procs.procs[name].poll() is None, procs.log(name)
 
 
-@pytest.mark.parametrize('autopilot', ['px4', 'ardupilot'])
-def test_bridge_launch_graph_does_not_dash_when_offboard_comes_late(tmp_path, autopilot):
+@pytest.mark.parametrize('autopilot,reverse', [('px4', False), ('ardupilot', False), ('px4', True)],
+                         ids=['px4', 'ardupilot', 'px4-reverse-order'])
+def test_bridge_launch_graph_does_not_dash_when_offboard_comes_late(tmp_path, autopilot, reverse):
     """Issue 21: the plan used to run on the wall clock from launch: `offboard` 20 s later flew the vehicle to
-    where the plan had got to (a 7 m dash at 5.9 m/s). Now it begins where the vehicle is when handed over."""
+    where the plan had got to (a 7 m dash at 5.9 m/s). Now it begins where the vehicle is when handed over,
+    whatever order the nodes started in (launch's, or the bridge first and trajectory_node last)."""
     waypoints = [[0.0, 0.0, 1.0], [1.5, 0.0, 1.0], [1.5, 1.0, 1.2]]
     port = free_udp_port()
     with _launched(tmp_path) as (start, procs, observer):
         procs.vehicle(autopilot, f'udpout:127.0.0.1:{port}', position=waypoints[0],
                       extra=VEHICLE_PARAMS[autopilot])
         launched_at = time.monotonic()
-        start(LAUNCH / f'{autopilot}.launch.py', mission=str(_mission(tmp_path, waypoints)),
+        start(LAUNCH / f'{autopilot}.launch.py', reverse, mission=str(_mission(tmp_path, waypoints)),
               fcu_url=f'udpin:127.0.0.1:{port}')
         observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
         observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
