@@ -156,7 +156,7 @@ class TrajectoryNode(Node):
         self.get_logger().error(f'waypoints refused: {reason}; {kept}')
         self.last_status = diagnostics.status(DIAG_NAME, diagnostics.ERROR, f'request refused: {reason}',
                                               {'kept_previous': self.result is not None})
-        self._publish_diagnostics()
+        self._publish_diagnostics(fault=True)
 
     def _time_stopped(self) -> bool:
         """use_sim_time before the first /clock: the node clock reads 0, a plan stamped now + delay would
@@ -196,8 +196,8 @@ class TrajectoryNode(Node):
                                               {k: round(v, 4) if isinstance(v, float) else v for k, v in s.items()})
         self._publish_diagnostics()
 
-    def _publish_diagnostics(self):
-        if self._time_stopped():   # nothing is stamped before time exists
+    def _publish_diagnostics(self, fault=False):
+        if self._time_stopped() and not fault:   # the periodic status waits for time to exist; a refusal does not
             return
         self.diag_pub.publish(diagnostics.array(self.get_clock().now().to_msg(), [self.last_status]))
 
