@@ -91,6 +91,11 @@ class Graph:
         state = State(position=np.array([x, 0.0, z]))
         self.odom_pub.publish(conv.state_to_odometry(state, conv.s_to_stamp(t_s)))
 
+    def odom_until(self, condition, what, **odom):
+        """publish_odom(0.0, **odom) until condition(): a stalled machine can call the odometry stale before a tick
+        took it (odom_timeout_s is wall time), and then nothing else would come."""
+        self.spin_until(lambda: condition() or self.publish_odom(0.0, **odom), what)
+
     def publish_clock(self, t_s):
         self.clock_pub.publish(Clock(clock=conv.s_to_stamp(t_s)))
 
@@ -217,26 +222,27 @@ def test_nonfinite_trajectory_is_refused_and_the_previous_kept(graph):
 
 def test_stale_odometry_stops_setpoints_then_resumes(graph):
     graph.start(odom_timeout_s=0.2, rate_hz=100.0)
-    graph.publish_odom(0.0)
-    graph.spin_until(lambda: len(graph.setpoints) > 0, 'setpoints with fresh odom')
+    graph.odom_until(lambda: len(graph.setpoints) > 0, 'setpoints with fresh odom')
+    graph.spin_until(lambda: not graph.node.stale, 'fresh')
+    before = graph.node.counts['odom_timeouts']   # a stalled start may have counted one already
     # no more odometry: after 0.2 s the node stops and reports ERROR
     graph.spin_until(lambda: any(_status(d).level == diagnostics.ERROR
                                  and 'stale' in _status(d).message for d in graph.diags), 'stale ERROR')
     stale_at = max(conv.stamp_to_s(d.header.stamp) for d in graph.diags
                    if 'stale' in _status(d).message)
+    assert graph.node.counts['odom_timeouts'] == before + 1
     n_diags = len(graph.diags)
     graph.spin_until(lambda: len(graph.diags) >= n_diags + 2, 'two more diagnostics')
     assert _status(graph.diags[-1]).level == diagnostics.ERROR
     assert not [m for m in graph.setpoints if conv.stamp_to_s(m.header.stamp) > stale_at]
-    assert graph.node.counts['odom_timeouts'] == 1
+    assert graph.node.counts['odom_timeouts'] == before + 1
     # odometry returns: setpoints resume, diagnostics OK
     n_before = len(graph.setpoints)
-    graph.publish_odom(0.0)
-    graph.spin_until(lambda: len(graph.setpoints) > n_before, 'setpoints resume')
+    graph.odom_until(lambda: len(graph.setpoints) > n_before, 'setpoints resume')
     graph.node.publish_diagnostics()
     graph.spin_until(lambda: _status(graph.diags[-1]).level == diagnostics.OK, 'OK again')
     values = {kv.key: kv.value for kv in _status(graph.diags[-1]).values}
-    assert values['controller'] == 'pd' and values['odom_timeouts'] == '1'
+    assert values['controller'] == 'pd' and values['odom_timeouts'] == str(graph.node.counts['odom_timeouts'])
 
 
 def test_odometry_waiting_in_the_subscription_is_not_stale(graph):
@@ -319,12 +325,11 @@ def test_hold_point_is_not_re_anchored_after_stale_odometry(graph):
     """Issue 13.3: after a stale-odometry event the hold point stays where it was anchored (it used to move to
     wherever the vehicle had drifted)."""
     graph.start(odom_timeout_s=0.2, rate_hz=100.0)
-    graph.publish_odom(0.0, x=0.0, z=1.0)
-    graph.spin_until(lambda: len(graph.references) > 0, 'references with fresh odom')
-    graph.spin_until(lambda: graph.node.counts['odom_timeouts'] == 1, 'stale')
+    graph.odom_until(lambda: len(graph.references) > 0, 'references with fresh odom', x=0.0, z=1.0)
+    graph.spin_until(lambda: graph.node.stale, 'stale')
     n = len(graph.references)
-    graph.publish_odom(0.0, x=0.8, z=0.6)   # the vehicle drifted while odometry was stale
-    graph.spin_until(lambda: len(graph.references) > n + 3, 'references again')
+    # the vehicle drifted while odometry was stale (published until it is taken: a stall can make it stale again)
+    graph.odom_until(lambda: len(graph.references) > n + 3, 'references again', x=0.8, z=0.6)
     for ref in graph.references:
         assert np.allclose(conv.vec3(ref.points[0].transforms[0].translation), [0.0, 0.0, 1.0])
     values = {kv.key: kv.value for kv in graph.node_status().values}
