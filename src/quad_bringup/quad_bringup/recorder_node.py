@@ -16,6 +16,7 @@ gets its first message: how `quadflight fly` knows the latched plan is in the ba
 
 import importlib
 import signal
+import struct
 import sys
 import time
 
@@ -38,6 +39,13 @@ from quad_common.params import Param, ParameterSet
 STATUS_PERIOD_S = 1.0
 ACK_FLUSH_S = 0.05  # wall time: the newest odometry is acknowledged at least this often (a stopping simulator)
 ODOM = 'odom'
+CLOCK = contract.CLOCK
+
+
+def _clock_ns(data: bytes) -> int:
+    """The time of a serialized rosgraph_msgs/Clock (CDR: 4-byte encapsulation, then sec int32, nanosec uint32)."""
+    sec, nanosec = struct.unpack_from('<iI' if data[1] == 1 else '>iI', data, 4)
+    return sec * 1_000_000_000 + nanosec
 
 PARAMS = [
     Param('output_dir', '', 'bag directory to create (must not exist yet)', read_only=True),
@@ -70,6 +78,9 @@ class RecorderNode(Node):
         self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
         self._raw_subscriptions = {}
         self._pending = []
+        # the lockstep steps it acknowledges: the newest odom and /clock stamps both taken (a step's /clock follows
+        # its odom on the wire; acknowledging odom alone let the simulator exit with its last /clock unsent)
+        self._paced_newest_ns = {t: -1 for t in (ODOM, CLOCK) if t in self.params['topics']}
         for topic in self.params['topics']:
             spec = DEFAULT_TOPICS.get(topic)
             if spec is None:
@@ -98,8 +109,10 @@ class RecorderNode(Node):
 
         def on_message(data: bytes, topic=topic):
             self.bag.write(topic, time.time_ns(), data)
-            if topic == ODOM:
-                self.ack.taken(cdr.header_stamp_ns(data, Odometry))
+            if topic in self._paced_newest_ns:
+                stamp_ns = cdr.header_stamp_ns(data, Odometry) if topic == ODOM else _clock_ns(data)
+                self._paced_newest_ns[topic] = max(self._paced_newest_ns[topic], stamp_ns)
+                self.ack.taken(min(self._paced_newest_ns.values()))
                 if self.ack_after:  # nothing acknowledged until the bag has these (e.g. the latched plan)
                     self.ack.hold(any(self.bag.counts.get(t, 0) == 0 for t in self.ack_after))
             if self.bag.counts[topic] == 1:

@@ -10,7 +10,7 @@ start-up order does not matter, and a controller whose first tick is after t = 0
 Followers (lockstep_followers, quad_common.lockstep): each step also waits, without a timeout, until every
 follower has acknowledged odometry within FOLLOWER_LAG_STEPS of it, so a recorder that falls behind slows the run
 instead of losing samples; on SIGINT/SIGTERM the loop stops advancing, publishes its final counts on diagnostics
-and waits (up to DRAIN_TIMEOUT_S) for the followers to acknowledge its last odometry.
+and waits for the followers to acknowledge its last step (as long as they make progress: DRAIN_STALL_S).
 A setpoint stamped more than one period ahead of sim time is refused (counted, warned): taken as "the newest",
 it would make every later, correctly stamped one look old.
 realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * elapsed wall time.
@@ -49,7 +49,7 @@ from quad_sim.simulator import SimulationStopped, Simulator
 NAME = 'sim_node'
 DIAGNOSTICS_PERIOD_S = 1.0  # sim time
 STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first step until a setpoint arrives
-DRAIN_TIMEOUT_S = 1.0       # wall time, at shutdown, for the followers to acknowledge the last odometry
+DRAIN_STALL_S = 30.0        # wall time, at shutdown, a follower may go without acknowledging anything new
 FOLLOWER_WARN_S = 5.0       # wall time waiting for a follower before each warning naming it
 LOST_STEP_TIMEOUT_S = 0.02  # wall time per step for a setpoint once one missed lockstep_timeout_s
 
@@ -354,15 +354,27 @@ class SimNode(Node):
         return True
 
     def drain(self, executor):
-        """At a stop: the final counts on diagnostics, then wait (bounded) for the followers to take the last
-        odometry, so a recorder stopped after the simulator holds everything it published."""
+        """At a stop: the final counts on diagnostics, then wait for the followers to take the last step, so a
+        recorder stopped after the simulator holds everything it published (what is still in this process's
+        writers is lost when it exits). However slow a follower is, the wait goes on while its acknowledgements
+        advance; it ends when one made no progress for DRAIN_STALL_S or left the graph (fly's stop ladder,
+        SIGTERM then SIGKILL, bounds it too)."""
         if not rclpy.ok(context=self.context):
             return
         self.publish_diagnostics()
         last = self.last_odom_ns
-        if self.followers and not self._await_followers(executor, last, DRAIN_TIMEOUT_S):
-            self.get_logger().warn(f'{", ".join(self.followers_behind(last))} had not taken the last odometry '
-                                   f'(t = {last * 1e-9:.3f} s) within {DRAIN_TIMEOUT_S} s of the stop')
+        acked, progress_s = dict(self.acked_ns), time.monotonic()
+        while (behind := self.followers_behind(last)) and rclpy.ok(context=self.context):
+            now = time.monotonic()
+            if self.acked_ns != acked:
+                acked, progress_s = dict(self.acked_ns), now
+            gone = [f for f in behind if self.count_publishers(lockstep.ack_topic(f)) == 0]
+            if gone or now - progress_s > DRAIN_STALL_S:
+                why = 'left the graph' if gone else f'acknowledged nothing new for {DRAIN_STALL_S} s'
+                self.get_logger().warn(f'{", ".join(gone or behind)} {why} before taking the last odometry '
+                                       f'(t = {last * 1e-9:.3f} s): the bag may miss the last steps')
+                return
+            executor.spin_once(timeout_sec=0.05)
 
     def _controller_present(self) -> bool:
         """A setpoint publisher that also listens to odom and /clock is on the graph (it may not tick at t = 0)."""

@@ -8,12 +8,15 @@ ERROR diagnostics status; the previous trajectory stays published (latched) and 
 import dataclasses
 
 import numpy as np
+import rclpy.time
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
@@ -28,7 +31,6 @@ from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SEED_CONTROL_POINTS, l
 
 PATH_RATE_HZ = 20.0   # trajectory/path and the marker line: for viewing, not for control
 DIAG_NAME = 'trajectory_node: trajectory'
-CLOCK_POLL_S = 0.01   # steady time between looks for the first /clock (use_sim_time)
 
 PARAMS = [
     Param('mission_file', '', 'mission YAML (docs/missions.md); when set, its waypoints, options, vehicle and world '
@@ -85,12 +87,13 @@ class TrajectoryNode(Node):
         self.request = None         # (waypoints, yaw) of the plan in force
         self.last_status = diagnostics.status(DIAG_NAME, diagnostics.WARN, 'no trajectory yet')
         self.unpublished = None     # a plan made before the first /clock (use_sim_time), published once time runs
-        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.first_clock_ns = None  # use_sim_time: the first /clock seen (it may be 0: a simulator's step 0)
         self.clock_wait = None
         if self._time_stopped():
             self.get_logger().info('use_sim_time: waiting for the first /clock before publishing a plan')
-            self.clock_wait = self.create_timer(CLOCK_POLL_S, self._on_clock_wait, clock=self.steady)
-        self.create_timer(1.0, self._publish_diagnostics, clock=self.steady)
+            self.clock_wait = self.create_subscription(ClockMsg, c.CLOCK, self._on_first_clock,
+                                                       QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.create_timer(1.0, self._publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
         if self.mission:
             self._plan_and_publish(self.mission.waypoints, self.mission.yaw, raise_errors=True)
         elif self.params['waypoints']:
@@ -160,13 +163,17 @@ class TrajectoryNode(Node):
 
     def _time_stopped(self) -> bool:
         """use_sim_time before the first /clock: the node clock reads 0, a plan stamped now + delay would
-        begin in the past once simulated time arrives."""
-        return self.get_parameter('use_sim_time').value and self.get_clock().now().nanoseconds == 0
+        begin in the past once simulated time arrives (a simulator started long before)."""
+        return (self.get_parameter('use_sim_time').value and self.first_clock_ns is None
+                and self.get_clock().now().nanoseconds == 0)
 
-    def _on_clock_wait(self):
-        if self._time_stopped():
-            return
-        self.destroy_timer(self.clock_wait)
+    def _now_ns(self) -> int:
+        """The node clock, never before the first /clock seen (its time source may not have taken it yet)."""
+        return max(self.get_clock().now().nanoseconds, self.first_clock_ns or 0)
+
+    def _on_first_clock(self, msg: ClockMsg):
+        self.first_clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        self.destroy_subscription(self.clock_wait)
         self.clock_wait = None
         if self.unpublished is not None:
             result, self.unpublished = self.unpublished, None
@@ -178,7 +185,7 @@ class TrajectoryNode(Node):
             self.last_status = diagnostics.status(DIAG_NAME, diagnostics.WARN, 'planned; waiting for /clock')
             return
         frame = self.params['frame_id']
-        now = self.get_clock().now()
+        now = rclpy.time.Time(nanoseconds=self._now_ns(), clock_type=self.get_clock().clock_type)
         start = (now + Duration(nanoseconds=int(self.params['start_delay_s'] * 1e9))).to_msg()
         traj = result.trajectory
         self.traj_pub.publish(sampled_to_msg(traj.to_sampled(self.params['sample_rate_hz']), start, frame))
