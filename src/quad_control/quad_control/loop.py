@@ -19,7 +19,8 @@ position_controller_node and the offline flight loop (quad_bringup.closed_loop) 
   refused (the loop keeps what it tracked before; a fault names the distance), never flown as a step.
 - dt = clamp(t - t_previous, 0, 2 / rate_hz), 0 at the first tick.
 - Lockstep: the tick at t runs with the odometry stamped >= t, deferred until that arrives (a newer tick
-  supersedes a pending one); wait_for_trajectory also defers it until a plan is here and the vehicle is engaged.
+  supersedes a pending one), and until the vehicle is engaged (the simulator engages at once, so a lockstep run
+  never depends on when that message arrives); wait_for_trajectory also defers it until a plan is here.
 """
 
 import math
@@ -149,7 +150,9 @@ class ControlLoop:
         """Lockstep: the pending tick at t runs as soon as the odometry stamped >= t is here."""
         if self.pending_tick_ns is None or self.odom is None:
             return None
-        if self.wait_for_trajectory and (not self.engaged or (self.trajectory is None and self.next_plan is None)):
+        if not self.engaged:   # the simulator engages at once: a lockstep run never depends on when that arrives
+            return None
+        if self.wait_for_trajectory and self.trajectory is None and self.next_plan is None:
             return None
         if self.odom[0] < self.pending_tick_ns:
             return None

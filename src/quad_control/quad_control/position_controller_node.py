@@ -337,11 +337,9 @@ class PositionControllerNode(Node):
             else 0.0
 
     def publish_diagnostics(self, fault: str | None = None):
-        """The periodic status; `fault` (a refused input) makes this one ERROR with that message. The periodic one
-        waits for time to exist (use_sim_time before the first /clock); a fault is reported at once."""
+        """The periodic status; `fault` (a refused input) makes this one ERROR with that message. Before the first
+        /clock (use_sim_time) it is stamped 0, ROS's "no time yet", so a start-up can be followed."""
         now_ns = self.get_clock().now().nanoseconds
-        if fault is None and now_ns == 0 and self.get_parameter('use_sim_time').value:
-            return
         timeout_s = self.params['odom_timeout_s']
         deferred_s = (self.steady.now().nanoseconds - self.pending_since_ns) * 1e-9
         level, message = diagnostics.OK, self.loop.mode(now_ns)

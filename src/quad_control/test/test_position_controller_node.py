@@ -81,6 +81,9 @@ class Graph:
     def step(self, t_s, **odom):
         """One simulator step: odom then /clock at t_s; returns the reference position tracked at t_s."""
         self.publish_odom(t_s, **odom)
+        if not self.node.loop.lockstep:   # the tick runs on the /clock: it must find this odometry taken
+            stamp_ns = round(t_s * 1e9)
+            self.spin_until(lambda: self.node.loop.odom is not None and self.node.loop.odom[0] == stamp_ns, 'odom')
         self.publish_clock(t_s)
         stamp = conv.s_to_stamp(t_s)
         self.spin_until(lambda: any(m.header.stamp == stamp for m in self.references), f'reference at {t_s}')
@@ -384,8 +387,9 @@ def test_odometry_from_the_future_is_refused_and_a_later_valid_one_applied(graph
 def test_plan_runs_only_while_engaged_and_starts_from_the_vehicle(graph):
     """Issue 21: before the hand-over the setpoints hover where the vehicle is and the plan's clock does not run;
     at engagement the controller holds where the vehicle is and a plan whose stamp has passed begins its own
-    start delay later; the end of the hand-over pauses it, the next engagement resumes it from there."""
-    graph.start(engaged=False, use_sim_time=True, lockstep=True)
+    start delay later; the end of the hand-over pauses it, the next engagement resumes it from there. Not lockstep:
+    a bridge's controller ticks before the hand-over (lockstep ticks wait for the simulator's engagement)."""
+    graph.start(engaged=False, use_sim_time=True, lockstep=False, odom_timeout_s=10.0)
     assert np.allclose(graph.step(1.0, x=0.3, z=0.7), [0.3, 0, 0.7])       # not engaged: where the vehicle is
     graph.traj_pub.publish(_line_trajectory([0.0, 0.0, 1.0], 2.0))        # received at 1.0: its start delay 1 s
     graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')

@@ -137,7 +137,7 @@ def _fly_once(steps=200, real_controller=False, inject=None, params=()):
                                     module='quad_control.position_controller_node'))
             # the controller must have the (latched) trajectory before sim time reaches its start (0.2 s: a
             # fraction of a wall second with the compiled sim): start the sim once its diagnostics say so
-            graph.spin_until(lambda: _controller_mode(graph) == 'hold (trajectory not started)')
+            graph.spin_until(lambda: _controller_mode(graph) == 'not engaged (following the vehicle), plan waiting')
         procs.append(_start_sim(env, 'initial_position:=[0.0, 0.0, 1.0]', 'lockstep_timeout_s:=5.0',
                                 f'lockstep_followers:={FOLLOWER}', *params))
         try:
