@@ -80,10 +80,13 @@ class Graph:
 
     def step(self, t_s, **odom):
         """One simulator step: odom then /clock at t_s; returns the reference position tracked at t_s."""
-        self.publish_odom(t_s, **odom)
-        if not self.node.loop.lockstep:   # the tick runs on the /clock: it must find this odometry taken
+        if not self.node.loop.lockstep:   # the tick runs on the /clock: it must find this odometry taken, and
+            self.publish_clock(t_s - 0.005)  # odometry more than a period ahead of the clock is refused
             stamp_ns = round(t_s * 1e9)
+            self.publish_odom(t_s, **odom)
             self.spin_until(lambda: self.node.loop.odom is not None and self.node.loop.odom[0] == stamp_ns, 'odom')
+        else:
+            self.publish_odom(t_s, **odom)
         self.publish_clock(t_s)
         stamp = conv.s_to_stamp(t_s)
         self.spin_until(lambda: any(m.header.stamp == stamp for m in self.references), f'reference at {t_s}')
