@@ -114,8 +114,11 @@ def test_fly_refuses_an_infeasible_plan_before_starting_anything(tmp_path):
     result = fly(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0, out=tmp_path / 'run'), log=lines.append)
     assert result.exit_code == EXIT_REFUSED and 'not feasible on crazyflie' in result.reason
     assert '--fly-anyway' in result.reason and not (tmp_path / 'run').exists()   # no graph, no run directory
+    fastest = plan_mission(load_mission(FIGURE8), speed_mps=2.0, time_allocation='fastest').trajectory.duration_s
+    assert f'--time-allocation fastest flies it in {fastest:.2f} s' in result.reason   # the alternative and its time
     text = '\n'.join(lines)
-    assert 'tilt: needs 48' in text and 'time_allocation: limits fits' in text
+    assert 'tilt: needs 48' in text and f'time_allocation fastest fits: {fastest:.2f} s planned' in text
+    assert 'time_allocation limits fits' in text
 
 
 def test_fly_anyway_and_the_missions_own_choice(tmp_path):
@@ -123,10 +126,11 @@ def test_fly_anyway_and_the_missions_own_choice(tmp_path):
     anyway = FlightOptions(FIGURE8, controller='se3', speed_mps=2.0, fly_anyway=True)
     flown = preflight_options(anyway, mission, log=lambda line: None)
     assert flown.time_allocation is None and flown.rule.source == 'vehicle crazyflie'  # its completion: rule
-    asks = dataclasses.replace(mission, if_infeasible='limits')
     lines = []
-    chosen = preflight_options(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0), asks, log=lines.append)
-    assert chosen.time_allocation == 'limits' and 'as the mission asks' in lines[-1]
+    for choice in ('limits', 'fastest'):
+        asks = dataclasses.replace(mission, if_infeasible=choice)
+        chosen = preflight_options(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0), asks, log=lines.append)
+        assert chosen.time_allocation == choice and 'as the mission asks' in lines[-1]
     feasible = FlightOptions(MAZE, controller='pd', speed_mps=0.5)
     assert preflight_options(feasible, validate(feasible), log=lines.append).time_allocation is None
     assert lines[-1].startswith('feasible on crazyflie: tilt 2.1')

@@ -1,0 +1,253 @@
+"""The `fastest` time allocation: the shortest total time whose plan the vehicle can fly with a margin.
+
+Problem: over the segment times T (the points, the method and the waypoint constraint fixed),
+minimise sum_i T_i subject to every sample of every segment meeting feasibility.py's checks (tilt,
+collective thrust, rotor speed and thrust, tilt + attitude-lag x tilt rate) against the vehicle's limits
+less `margin` (feasibility.margined_limits): the same checks, at the same 32 samples a segment, that
+`quadflight plan` and `fly` run before flight, so the result passes them by construction.
+
+Method (a sequential linear programme in x = log T, every iterate kept feasible by exact uniform scaling):
+- Uniform scaling is exact (planner._limit_times): times k T give p(t / k), so acceleration, jerk and snap
+  at a segment's samples divide by k^2, k^3, k^4 without a new solve. `feasible_scale` finds the smallest
+  k with every sample inside the limits by bisection in log k, only over the samples that fail at the
+  bracket's low end (the needs fall monotonically towards hover as k grows, so no other can bind).
+- Start: the better of the sqrt and proportional shapes, each scaled to the limits.
+- Step: g_i = the worst normalised need of segment i (need / limit - 1 for an upper limit, (limit - need) /
+  range for a lower one; <= 0 is feasible). A change of T_j moves the spline mostly near segment j (the
+  influence of a joint decays geometrically along a minimum-derivative spline), so the Jacobian dg/dx is
+  banded: BAND segments either side, measured by finite differences with 2 BAND + 1 perturbed solves
+  (every (2 BAND + 1)-th segment at once). The linear programme min sum_j T_j d_j s.t. g + J d <= 0,
+  |d_j| <= trust radius (HiGHS, sparse) gives the step; the new shape is scaled to the limits again and kept
+  when its total time is shorter (the trust radius grows), else the radius shrinks.
+- Stop: after MAX_ITERATIONS steps, or when the radius falls below MIN_TRUST (a local optimum of the
+  sampled problem to about 0.1 % in time).
+
+Short first and last legs: the start and the end are at rest, and a short leg between rest and cruise asks
+for a spike of acceleration; here that spike is a sample like any other, so the margin bounds it (the legs
+are lengthened until it fits) instead of the plan's average speed.
+"""
+
+import numpy as np
+
+from quad_trajectory import feasibility, solver, timing
+from quad_trajectory.polynomial import PiecewisePolynomial
+
+BAND = 3                 # segments either side in the banded Jacobian
+MAX_ITERATIONS = 10
+MIN_TRUST = 2e-3         # log-time trust radius below which the search stops
+FIRST_TRUST = 0.3
+GROW, SHRINK = 2.0, 0.4
+STALL_GAIN = 2e-4        # a step predicted to gain less than this fraction of the time ends the search
+LOOP_SAMPLES = 16        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
+SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
+EQUALISE_ROUNDS = 3      # start: each segment scaled to its own limit, this many times
+NEAR = 1.0               # (check, sample) pairs within NEAR x the trust radius of their limit enter the step
+DIFF_STEP = 1e-3         # log-time step of the finite differences
+_ROOT_ITERATIONS = 60     # of the scale's root finding (Illinois), to _ROOT_TOLERANCE in log k
+_ROOT_TOLERANCE = 1e-7
+_SAFETY = 1.0 + 1e-7     # the returned scale a hair above the bisection's feasible end
+DEFAULT_MARGIN = 0.1
+
+
+class Constraints:
+    """The margined limits of one vehicle as normalised per-sample violations (<= 0 feasible)."""
+
+    def __init__(self, vehicle, margin=DEFAULT_MARGIN, samples_per_segment=feasibility.SAMPLES_PER_SEGMENT):
+        self.vehicle = vehicle
+        self.limits = feasibility.margined_limits(vehicle, margin)
+        rotor_range = vehicle.k_eta * (vehicle.rotor_speed_max_radps ** 2 - vehicle.rotor_speed_min_radps ** 2)
+        self._range = {'thrust_min': vehicle.thrust_max_n - vehicle.thrust_min_n, 'rotor_thrust_min': rotor_range}
+        self.s = np.linspace(0.0, 1.0, samples_per_segment)
+        self.margin = margin
+
+    def check_hover(self):
+        """ValueError naming the check when hover itself is outside the margined limits (then no slow-down fits)."""
+        zero = np.zeros((1, 3, 1))
+        needs = feasibility.needs_from_derivatives(zero, zero, zero, self.vehicle)
+        for name, (limit, unit, upper) in self.limits.items():
+            need = float(needs[name][0, 0])
+            if need > limit if upper else need < limit:
+                raise ValueError(f'margin = {self.margin:g} leaves {self.vehicle.name} no hover: {name} needs '
+                                 f'{need:.4g} {unit} at hover, the limit less the margin is {limit:.4g} {unit}')
+
+    def violations(self, a, j, snap) -> np.ndarray:
+        """The normalised violation of each check at each sample: (checks, m, S)."""
+        needs = feasibility.needs_from_derivatives(a, j, snap, self.vehicle)
+        return np.stack([needs[name] / limit - 1.0 if upper else (limit - needs[name]) / self._range[name]
+                         for name, (limit, _, upper) in self.limits.items()])
+
+    def violation(self, a, j, snap) -> np.ndarray:
+        """The worst check's normalised violation at each sample: (m, S)."""
+        return self.violations(a, j, snap).max(axis=0)
+
+    def derivatives(self, trajectory):
+        return feasibility.derivatives(trajectory, slice(None), self.s)
+
+    def sample_violations(self, trajectory) -> np.ndarray:
+        return self.violations(*self.derivatives(trajectory))
+
+    def feasible_scale(self, trajectory) -> float:
+        """The smallest k such that the plan with times k T meets every limit at every sample.
+
+        Each need falls monotonically towards its hover value as k grows, so a sample feasible at some k is
+        feasible above it: a bracket [lo, hi] (hi feasible) is found from k = 1 outwards, and the root is
+        found over only the samples that fail at lo."""
+        a, j, snap = self.derivatives(trajectory)
+
+        def worst(k, a, j, snap):
+            return self.violation(a / k ** 2, j / k ** 3, snap / k ** 4).max(axis=1)
+
+        w = worst(1.0, a, j, snap)
+        if w.max() > 0.0:
+            lo, bad = 1.0, w > 0.0
+            a, j, snap = a[bad], j[bad], snap[bad]
+            hi = 1.0
+            while True:
+                hi *= 1.0 + max(w.max(), 0.05)
+                if worst(hi, a, j, snap).max() <= 0.0:
+                    break
+                if hi > 1e6:
+                    raise ValueError('no uniform slow-down of this plan fits the vehicle')
+        else:
+            hi, lo = 1.0, 1.0
+            factor = max(1.0 + w.max(), 0.25) ** 0.5 * 0.99   # the needs grow at least ~ 1 / k^2 below hover
+            while True:
+                lo *= factor
+                w = worst(lo, a, j, snap)
+                if w.max() > 0.0:
+                    break
+                hi, factor = lo, 0.8
+                if lo < 1e-6:
+                    return lo
+            bad = w > 0.0
+            a, j, snap = a[bad], j[bad], snap[bad]
+
+        def f(log_k):
+            return float(worst(np.exp(log_k), a, j, snap).max())
+
+        # Illinois regula falsi on the worst violation over log k: bracketing, so it converges like bisection
+        # at worst, and in a handful of evaluations on this smooth, monotone function
+        x0, x1 = np.log(lo), np.log(hi)
+        f0, f1 = f(x0), f(x1)
+        side = 0
+        for _ in range(_ROOT_ITERATIONS):
+            if x1 - x0 < _ROOT_TOLERANCE:
+                break
+            x = x1 - f1 * (x1 - x0) / (f1 - f0) if f1 != f0 else 0.5 * (x0 + x1)
+            x = min(max(x, x0 + 0.01 * (x1 - x0)), x1 - 0.01 * (x1 - x0))
+            fx = f(x)
+            if fx <= 0.0:
+                x1, f1 = x, fx
+                if side == 1:
+                    f0 *= 0.5
+                side = 1
+            else:
+                x0, f0 = x, fx
+                if side == -1:
+                    f1 *= 0.5
+                side = -1
+        return float(np.exp(x1)) * _SAFETY
+
+    def segment_scales(self, trajectory, iterations=SEGMENT_BISECTIONS) -> np.ndarray:
+        """Per segment, the k that would make that segment's own samples just feasible with times k T (its
+        neighbours' coupling ignored): bisection in log k, all segments at once. (M,)"""
+        a, j, snap = self.derivatives(trajectory)
+        lo, hi = np.full(a.shape[0], -3.0), np.full(a.shape[0], 3.0)
+        for _ in range(iterations):
+            mid = 0.5 * (lo + hi)
+            k = np.exp(mid)[:, None, None]
+            ok = self.violation(a / k ** 2, j / k ** 3, snap / k ** 4).max(axis=1) <= 0.0
+            hi, lo = np.where(ok, mid, hi), np.where(ok, lo, mid)
+        return np.exp(hi)
+
+
+def _linearised_constraints(solve, x, v, constraints, near):
+    """Rows v_r + J_r d <= 0 of every (check, sample) within `near` of its limit (v > -near): J = dv/dx by
+    finite differences, BAND segments either side of each perturbed one (2 BAND + 1 solves); returns
+    (J sparse, v_r). Every near sample is a row, not only each segment's peak: the peak moves between samples
+    as the times change, and a programme that sees only the peaks steps into the samples it does not see."""
+    from scipy.sparse import csr_matrix
+
+    m = x.size
+    active = v > -near
+    row_of = np.full(v.shape, -1)
+    row_of[active] = np.arange(np.count_nonzero(active))
+    width = 2 * BAND + 1
+    rows, cols, vals = [], [], []
+    idx = np.arange(m)
+    for color in range(min(width, m)):
+        moved = idx[color::width]
+        xp = x.copy()
+        xp[moved] += DIFF_STEP
+        dv = (constraints.sample_violations(solve(np.exp(xp))) - v) / DIFF_STEP
+        for off in range(-BAND, BAND + 1):
+            i = moved + off
+            keep = (i >= 0) & (i < m)
+            sub = row_of[:, i[keep], :]
+            mask = sub >= 0
+            rows.append(sub[mask])
+            cols.append(np.broadcast_to(moved[keep][None, :, None], sub.shape)[mask])
+            vals.append(dv[:, i[keep], :][mask])
+    J = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                   shape=(int(active.sum()), m))
+    return J, v[active]
+
+
+def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=DEFAULT_MARGIN, start_shapes=None,
+                  log=None):
+    """Segment times (M,) of the shortest plan found whose every sample meets the vehicle's limits less
+    `margin`, for these points, method and waypoint constraint. See the module docstring."""
+    from scipy.optimize import linprog
+
+    points = np.asarray(points, dtype=float)
+    system = solver.System(len(points) - 1, solver.ORDERS[method], mode)
+
+    def solve(T):
+        return PiecewisePolynomial(T, system.solve(T, points, banded=True))
+
+    constraints = Constraints(vehicle, margin, LOOP_SAMPLES)
+    constraints.check_hover()
+    shapes = start_shapes if start_shapes is not None else (timing.sqrt_allocation(points, 1.0),)
+    best = None
+    for shape in shapes:
+        T = np.asarray(shape, dtype=float)
+        for _ in range(EQUALISE_ROUNDS + 1):
+            trajectory = solve(T)
+            candidate = T * constraints.feasible_scale(trajectory)
+            if best is None or candidate.sum() < best.sum():
+                best = candidate
+            T = T * constraints.segment_scales(trajectory)
+    T = best
+    trust = FIRST_TRUST
+    v = constraints.sample_violations(solve(T))
+    J = None
+    for iteration in range(MAX_ITERATIONS):
+        if trust < MIN_TRUST:
+            break
+        if J is None:   # kept while steps from the same point are refused
+            J, g = _linearised_constraints(solve, np.log(T), v, constraints, min(NEAR * trust, 1.0))
+        res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
+        if res.status != 0:
+            trust *= SHRINK
+            continue
+        predicted = -float(T @ res.x)        # the time the linearised step saves
+        if predicted < STALL_GAIN * T.sum():
+            break
+        shape = T * np.exp(res.x)
+        candidate = shape * constraints.feasible_scale(solve(shape))
+        actual = T.sum() - candidate.sum()
+        if log is not None:
+            log(f'fastest: step {iteration}: trust {trust:.3g}, {T.sum():.4f} s -> {candidate.sum():.4f} s '
+                f'(predicted {T.sum() - predicted:.4f} s)')
+        ratio = actual / predicted
+        if ratio > 0.0:
+            T, J = candidate, None
+            v = constraints.sample_violations(solve(T))
+        # the usual trust-region update on how well the linear model predicted the gain
+        step = float(np.abs(res.x).max())
+        if ratio < 0.25:
+            trust = SHRINK * step
+        elif ratio > 0.75 and step > 0.99 * trust:
+            trust = min(GROW * trust, 1.0)
+    # the search samples LOOP_SAMPLES points a segment; the plan is checked (and flown) at feasibility.py's
+    return T * Constraints(vehicle, margin).feasible_scale(solve(T))
