@@ -66,8 +66,9 @@ def test_flown_mission_carries_the_time_allocation_and_plans_the_same(tmp_path):
 
 
 def test_unknown_time_allocation_refused_naming_it():
-    with pytest.raises(MissionRefused, match="--time-allocation 'fastest'"):
-        validate(FlightOptions(MAZE, controller='pd', time_allocation='fastest'))
+    with pytest.raises(MissionRefused, match="--time-allocation 'fastests' refused: must be one of .*, fastest"):
+        validate(FlightOptions(MAZE, controller='pd', time_allocation='fastests'))
+    assert validate(FlightOptions(MAZE, controller='pd', time_allocation='fastest')).name == 'maze'
 
 
 def test_72ms_motors_on_long_100_at_2_mps_do_not_spin():
