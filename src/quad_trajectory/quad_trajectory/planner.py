@@ -322,7 +322,8 @@ def allocation_lines(result: 'PlanResult', vehicle: Vehicle | None = None) -> li
                 f'({lim["a_max_source"]}), planned to {100 * _LIMIT_TARGET:.0f} % of each: peak speed {v:.3f} m/s '
                 f'({100 * v / lim["v_max_mps"]:.0f} %), peak acceleration {a:.3f} m/s^2 '
                 f'({100 * a / lim["a_max_mps2"]:.0f} %)'
-                + ('' if vehicle is None else '; with the vehicle, slowed down uniformly where needed until it passes its feasibility check')]
+                + ('' if vehicle is None else
+                   '; with the vehicle, slowed down uniformly where needed until it passes its feasibility check')]
     if o.time_allocation == 'fastest' and vehicle is not None:
         report = feasibility.check(t, vehicle, margin=o.margin)
         used = ', '.join(f'{k} {report.peaks[k]:.4g} / {lim:.4g} {unit}' for k, (lim, unit) in report.limits.items())

@@ -20,9 +20,10 @@ def crazyflie():
     return load_vehicle(DEFAULT_VEHICLE_PATH)
 
 
-def uniform_to_margin(points, T, vehicle, margin, o=PlanOptions()):
+def uniform_to_margin(points, T, vehicle, margin, o=None):
     """The shape T scaled uniformly to the smallest factor feasibility.check passes with `margin`: a bisection
     written here on the check itself (nothing of fastest.py)."""
+    o = o or PlanOptions()
     def ok(k):
         return feasibility.check(solve(points, k * T, o.method, o.waypoint_constraint), vehicle, margin=margin).ok
     lo, hi = 0.01, 100.0
