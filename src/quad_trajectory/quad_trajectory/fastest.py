@@ -23,12 +23,17 @@ uniform scaling.
   programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust radius
   of its limit, |d_j| <= trust radius (HiGHS), gives the step; the new shape is scaled to the limits again and
   kept when its total time is shorter; the trust radius follows how well the programme predicted the gain.
+  A plan longer than LP_BLOCK + 2 LP_OVERLAP segments solves the programme in overlapping windows (_lp_step).
+  BAND = 5 matters: with 3, the finite differences alias the influence of segments 4 away (about 20 % error
+  in the Jacobian) and the search stalls 2-3 % short of the optimum on slalom_dense.
   Every near sample is a row, not only each segment's peak: the peak moves between samples as the times
   change, and a programme that sees only the peaks steps into the samples it does not see.
 - Stop: after MAX_ITERATIONS steps, when the radius falls below MIN_TRUST, or when the programme predicts
   less than STALL_GAIN of the total time.
-Cost per step: 2 BAND + 2 solves, as many need evaluations, one LP. Measured against a brute-force reference
-(scipy SLSQP over all times, every sample a constraint, several starts) in bench/bench_fastest.py.
+The search samples LOOP_SAMPLES points a segment (fewer rows in each programme), the result is then scaled to
+pass at feasibility.py's 32. Cost per step: 2 BAND + 2 solves, as many need evaluations, one LP. Measured
+against a brute-force reference (scipy SLSQP over all times, every sample a constraint, several starts) in
+bench/bench_fastest.py.
 
 Short first and last legs: a leg from rest to cruise asks for a spike of acceleration when it is given the
 same time as its neighbours (the sqrt profile on long_100: 3.9 m/s^2 against 0.2 mid-flight). Here that spike
@@ -40,13 +45,14 @@ import numpy as np
 from quad_trajectory import feasibility, solver, timing
 from quad_trajectory.polynomial import PiecewisePolynomial
 
-BAND = 3                 # segments either side in the banded Jacobian
-MAX_ITERATIONS = 10
+BAND = 5                 # segments either side in the banded Jacobian
+LP_BLOCK, LP_OVERLAP = 150, 25   # a long plan's step: blocks of 150 segments, each with 25 either side
+MAX_ITERATIONS = 20
 MIN_TRUST = 2e-3         # log-time trust radius below which the search stops
 FIRST_TRUST = 0.3
 GROW, SHRINK = 2.0, 0.4
 STALL_GAIN = 2e-4        # a step predicted to gain less than this fraction of the time ends the search
-LOOP_SAMPLES = 16        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
+LOOP_SAMPLES = 10        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
 SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
 EQUALISE_ROUNDS = 3      # start: each segment scaled to its own limit, this many times
 NEAR = 1.0               # (check, sample) pairs within NEAR x the trust radius of their limit enter the step
@@ -178,35 +184,60 @@ def _linearised_constraints(solve, x, v, constraints, near):
 
     m = x.size
     active = v > -near
-    row_of = np.full(v.shape, -1)
-    row_of[active] = np.arange(np.count_nonzero(active))
+    segment = np.nonzero(active)[1]          # the segment of each row
+    row = np.arange(segment.size)
     width = 2 * BAND + 1
     rows, cols, vals = [], [], []
-    idx = np.arange(m)
     for color in range(min(width, m)):
-        moved = idx[color::width]
         xp = x.copy()
-        xp[moved] += DIFF_STEP
-        dv = (constraints.sample_violations(solve(np.exp(xp))) - v) / DIFF_STEP
-        for off in range(-BAND, BAND + 1):
-            i = moved + off
-            keep = (i >= 0) & (i < m)
-            sub = row_of[:, i[keep], :]
-            mask = sub >= 0
-            rows.append(sub[mask])
-            cols.append(np.broadcast_to(moved[keep][None, :, None], sub.shape)[mask])
-            vals.append(dv[:, i[keep], :][mask])
-    J = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                   shape=(int(active.sum()), m))
+        xp[color::width] += DIFF_STEP
+        dv = (constraints.sample_violations(solve(np.exp(xp)))[active] - v[active]) / DIFF_STEP
+        # the perturbed segment within BAND of each row's segment: the one congruent to color modulo width
+        moved = segment + (color - segment + BAND) % width - BAND
+        keep = (moved >= 0) & (moved < m)
+        rows.append(row[keep])
+        cols.append(moved[keep])
+        vals.append(dv[keep])
+    J = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(segment.size, m))
     return J, v[active]
+
+
+def _lp_step(T, J, g, trust):
+    """The step d: min sum_j T_j d_j s.t. g + J d <= 0, |d_j| <= trust (HiGHS), or None if it fails.
+
+    J is banded, so a long plan is cut into blocks of LP_BLOCK segments, each solved with LP_OVERLAP segments
+    either side (rows entirely inside that window, the rest of d held at 0) and keeping its own block's part:
+    the cost stays linear in the segments where one programme over all of them grows faster. d = 0 is feasible
+    in every window (the current plan is), so each has a solution; the joined step is then judged like any other.
+    """
+    from scipy.optimize import linprog
+
+    m = T.size
+    if m <= LP_BLOCK + 2 * LP_OVERLAP:
+        res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
+        return res.x if res.status == 0 else None
+    rows = np.repeat(np.arange(J.shape[0]), np.diff(J.indptr))
+    first = np.full(J.shape[0], m)
+    last = np.full(J.shape[0], -1)
+    np.minimum.at(first, rows, J.indices)
+    np.maximum.at(last, rows, J.indices)
+    d = np.zeros(m)
+    for start in range(0, m, LP_BLOCK):
+        stop = min(start + LP_BLOCK, m)
+        lo, hi = max(0, start - LP_OVERLAP), min(m, stop + LP_OVERLAP)
+        inside = np.nonzero((first >= lo) & (last < hi))[0]
+        res = linprog(T[lo:hi], A_ub=J[inside][:, lo:hi], b_ub=-g[inside], bounds=(-trust, trust), method='highs',
+                      options={'presolve': False})
+        if res.status != 0:
+            return None
+        d[start:stop] = res.x[start - lo:stop - lo]
+    return d
 
 
 def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=DEFAULT_MARGIN, start_shapes=None,
                   log=None):
     """Segment times (M,) of the shortest plan found whose every sample meets the vehicle's limits less
     `margin`, for these points, method and waypoint constraint. See the module docstring."""
-    from scipy.optimize import linprog
-
     points = np.asarray(points, dtype=float)
     system = solver.System(len(points) - 1, solver.ORDERS[method], mode)
 
@@ -234,14 +265,14 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
             break
         if J is None:   # kept while steps from the same point are refused
             J, g = _linearised_constraints(solve, np.log(T), v, constraints, min(NEAR * trust, 1.0))
-        res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
-        if res.status != 0:
+        d = _lp_step(T, J, g, trust)
+        if d is None:
             trust *= SHRINK
             continue
-        predicted = -float(T @ res.x)        # the time the linearised step saves
+        predicted = -float(T @ d)        # the time the linearised step saves
         if predicted < STALL_GAIN * T.sum():
             break
-        shape = T * np.exp(res.x)
+        shape = T * np.exp(d)
         trajectory = solve(shape)
         k = constraints.feasible_scale(trajectory)
         candidate = shape * k
@@ -255,7 +286,7 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
             a, j, snap = constraints.derivatives(trajectory)
             v = constraints.violations(a / k ** 2, j / k ** 3, snap / k ** 4)
         # the usual trust-region update on how well the linear model predicted the gain
-        step = float(np.abs(res.x).max())
+        step = float(np.abs(d).max())
         if ratio < 0.25:
             trust = SHRINK * step
         elif ratio > 0.75 and step > 0.99 * trust:
