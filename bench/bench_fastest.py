@@ -238,6 +238,9 @@ def main():
               f'({"feasible" if r["sqrt_ok"] else "NOT feasible"}) | {r["limits_s"]:.2f} | {r["uniform_s"]:.2f} | '
               f'{r["fastest_s"]:.3f}{"" if r["ok"] else " (FAILS its check)"} | {fmt(r.get("reference_s"), ".3f")} | '
               f'{fmt(ratio, ".4f")} | {1000 * r["fastest_cpu_s"]:.0f} | {fmt(r.get("reference_cpu_s"), ".1f")} |')
+    ratios = [r['fastest_s'] / r['reference_s'] for r in plans if 'reference_s' in r]
+    print(f'\nWorst fastest / reference: {max(ratios):.4f} over {len(ratios)} missions (goal <= 1.03: '
+          f'{"met" if max(ratios) <= 1.03 else "NOT met"}).')
     print('\nCompute time of the allocation alone (fastest.fastest_times, CPU of this process, median of '
           f'{RUNS}; imports excluded) on bench_plan\'s survey missions (legs 0.4-1.2 m turning 0.7 rad). '
           'Goal: < 0.1 s for 100 segments, < 2 s for 1000.\n')
@@ -246,6 +249,10 @@ def main():
     for r in sizes:
         print(f'| {r["segments"]} | {r["cpu_s"]:.3f} | {r["wall_s"]:.3f} | {r["fastest_s"]:.2f} | '
               f'{r["uniform_s"]:.2f} | {r["fastest_s"] / r["uniform_s"]:.3f} | {"yes" if r["ok"] else "NO"} |')
+    for n, goal in ((100, 0.1), (1000, 2.0)):
+        cpu = next(r['cpu_s'] for r in sizes if r['segments'] == n)
+        print(f'{n} segments: {cpu:.2f} s CPU against the goal of {goal:g} s: '
+              + ('met.' if cpu <= goal else f'NOT met, {cpu / goal:.1f}x over.'))
     print('\nFlown with `--time-allocation fastest` and the default se3 profile (config/control_se3.yaml): the '
           'offline loop on the nominal Crazyflie and each plant family member (config/plant_family.yaml), and '
           '`quadflight fly` through the ROS graph. Goal: completes, RMSE < 2 cm and peak tilt < '
@@ -258,6 +265,15 @@ def main():
               f'{fmt(r["planned_s"], ".2f")} | {fmt(r["actual_s"], ".2f")} | '
               f'{fmt(r["rmse_m"] and 100 * r["rmse_m"], ".2f")} | {fmt(r["max_m"] and 100 * r["max_m"], ".2f")} | '
               f'{fmt(r["tilt_deg"], ".1f")} |')
+    nominal = [r for r in flown if r['plant'] == 'nominal']
+    members = [r for r in flown if r['plant'] != 'nominal']
+    worst_nominal = max(r['rmse_m'] for r in nominal)
+    worst_member = max(members, key=lambda r: r['rmse_m'])
+    print(f'\nAll {len(flown)} flights completed: {"yes" if all(r["completed"] for r in flown) else "NO"}. '
+          f'Nominal: worst RMSE {100 * worst_nominal:.2f} cm (goal < 2), peak tilt '
+          f'{max(r["tilt_deg"] for r in nominal):.1f} deg (goal < {limits["tilt"][0]:.1f}); plant members: worst '
+          f'RMSE {100 * worst_member["rmse_m"]:.2f} cm ({worst_member["mission"]}, {worst_member["plant"]}; goal < 5), '
+          f'peak tilt {max(r["tilt_deg"] for r in members):.1f} deg (the vehicle\'s {vehicle.max_tilt_deg:g} deg).')
 
 
 if __name__ == '__main__':
