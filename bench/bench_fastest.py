@@ -249,6 +249,7 @@ def main():
     for r in sizes:
         print(f'| {r["segments"]} | {r["cpu_s"]:.3f} | {r["wall_s"]:.3f} | {r["fastest_s"]:.2f} | '
               f'{r["uniform_s"]:.2f} | {r["fastest_s"] / r["uniform_s"]:.3f} | {"yes" if r["ok"] else "NO"} |')
+    print()
     for n, goal in ((100, 0.1), (1000, 2.0)):
         cpu = next(r['cpu_s'] for r in sizes if r['segments'] == n)
         print(f'{n} segments: {cpu:.2f} s CPU against the goal of {goal:g} s: '
