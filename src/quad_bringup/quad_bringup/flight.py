@@ -132,8 +132,8 @@ def flight_vehicle(options: FlightOptions, mission):
 def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptions:
     """What the vehicle decides before anything starts: the completion rule (its YAML's `completion:` under the
     command line's values, unless a rule was given) and the plan's feasibility (quad_trajectory.feasibility),
-    logged; an infeasible plan is refused (MissionRefused) unless fly_anyway, or replaced by the limits
-    allocation when that fits and the mission asks for it (trajectory.if_infeasible: limits)."""
+    logged; an infeasible plan is refused (MissionRefused, naming fastest and its time) unless fly_anyway, or
+    replaced by the allocation the mission asks for (trajectory.if_infeasible: fastest or limits) when it fits."""
     from quad_trajectory.feasibility import preflight
     from quad_trajectory.mission import plan_mission
 
@@ -148,10 +148,15 @@ def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptio
         log(line)
     if report.ok or options.fly_anyway:
         return options
-    if report.fits is not None and mission.if_infeasible == report.fits:
-        log(f'flying time_allocation {report.fits}, as the mission asks (trajectory.if_infeasible)')
-        return dataclasses.replace(options, time_allocation=report.fits)
-    raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above); --fly-anyway flies it all the same')
+    chosen = report.alternative(mission.if_infeasible)
+    if chosen is not None:
+        log(f'flying time_allocation {chosen[0]} ({chosen[1]:.2f} s planned), as the mission asks '
+            f'(trajectory.if_infeasible)')
+        return dataclasses.replace(options, time_allocation=chosen[0])
+    fastest = report.alternative('fastest')
+    instead = (f'; --time-allocation fastest flies it in {fastest[1]:.2f} s within the limits' if fastest else '')
+    raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above){instead}; --fly-anyway flies it all '
+                         f'the same')
 
 
 def OPTION_RANGES(options: FlightOptions):  # noqa: N802 (a table)

@@ -66,8 +66,9 @@ def test_flown_mission_carries_the_time_allocation_and_plans_the_same(tmp_path):
 
 
 def test_unknown_time_allocation_refused_naming_it():
-    with pytest.raises(MissionRefused, match="--time-allocation 'fastest'"):
-        validate(FlightOptions(MAZE, controller='pd', time_allocation='fastest'))
+    with pytest.raises(MissionRefused, match="--time-allocation 'fastests' refused: must be one of .*, fastest"):
+        validate(FlightOptions(MAZE, controller='pd', time_allocation='fastests'))
+    assert validate(FlightOptions(MAZE, controller='pd', time_allocation='fastest')).name == 'maze'
 
 
 def test_72ms_motors_on_long_100_at_2_mps_do_not_spin():
@@ -114,8 +115,11 @@ def test_fly_refuses_an_infeasible_plan_before_starting_anything(tmp_path):
     result = fly(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0, out=tmp_path / 'run'), log=lines.append)
     assert result.exit_code == EXIT_REFUSED and 'not feasible on crazyflie' in result.reason
     assert '--fly-anyway' in result.reason and not (tmp_path / 'run').exists()   # no graph, no run directory
+    fastest = plan_mission(load_mission(FIGURE8), speed_mps=2.0, time_allocation='fastest').trajectory.duration_s
+    assert f'--time-allocation fastest flies it in {fastest:.2f} s' in result.reason   # the alternative and its time
     text = '\n'.join(lines)
-    assert 'tilt: needs 48' in text and 'time_allocation: limits fits' in text
+    assert 'tilt: needs 48' in text and f'time_allocation fastest fits: {fastest:.2f} s planned' in text
+    assert 'time_allocation limits fits' in text
 
 
 def test_fly_anyway_and_the_missions_own_choice(tmp_path):
@@ -123,10 +127,11 @@ def test_fly_anyway_and_the_missions_own_choice(tmp_path):
     anyway = FlightOptions(FIGURE8, controller='se3', speed_mps=2.0, fly_anyway=True)
     flown = preflight_options(anyway, mission, log=lambda line: None)
     assert flown.time_allocation is None and flown.rule.source == 'vehicle crazyflie'  # its completion: rule
-    asks = dataclasses.replace(mission, if_infeasible='limits')
     lines = []
-    chosen = preflight_options(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0), asks, log=lines.append)
-    assert chosen.time_allocation == 'limits' and 'as the mission asks' in lines[-1]
+    for choice in ('limits', 'fastest'):
+        asks = dataclasses.replace(mission, if_infeasible=choice)
+        chosen = preflight_options(FlightOptions(FIGURE8, controller='se3', speed_mps=2.0), asks, log=lines.append)
+        assert chosen.time_allocation == choice and 'as the mission asks' in lines[-1]
     feasible = FlightOptions(MAZE, controller='pd', speed_mps=0.5)
     assert preflight_options(feasible, validate(feasible), log=lines.append).time_allocation is None
     assert lines[-1].startswith('feasible on crazyflie: tilt 2.1')

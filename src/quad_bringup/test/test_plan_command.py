@@ -98,3 +98,43 @@ def test_many_waypoints_plan_end_to_end(tmp_path):
     np.testing.assert_allclose(data['waypoints'], np.round(w, 4))
     traj = PiecewisePolynomial.from_dict(data)
     np.testing.assert_allclose(traj.evaluate(traj.breaks_s)[:, :3], np.round(w, 4), atol=1e-6)
+
+
+# --- time allocation: plan takes every option fly does (issue 22: plan advised an option it did not accept) ----
+
+def _choices(command, option='--time-allocation'):
+    from quad_bringup.cli import build_parser
+    sub = next(a for a in build_parser(command)._actions if getattr(a, 'choices', None) and command in a.choices)
+    return next(a for a in sub.choices[command]._actions if option in a.option_strings).choices
+
+
+def test_plan_and_fly_accept_the_same_time_allocations_and_fastest_round_trips(tmp_path, capsys):
+    from quad_bringup.cli import build_parser
+    from quad_bringup.commands.fly import options_from
+    assert tuple(_choices('plan')) == tuple(_choices('fly')) and 'fastest' in _choices('plan')
+    fly_args = build_parser('fly').parse_args(['fly', DEFAULT_MISSION_PATH, '--time-allocation', 'fastest'])
+    assert options_from(fly_args).time_allocation == 'fastest'
+    out = tmp_path / 'fast.json'
+    assert main(['plan', DEFAULT_MISSION_PATH, '--time-allocation', 'fastest', '--out', str(out)]) == 0
+    printed = capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert data['time_allocation'] == 'fastest' and "fastest: the shortest plan found within crazyflie's" in printed
+    seed = tmp_path / 'seed.json'
+    assert main(['plan', DEFAULT_MISSION_PATH, '--speed', '2', '--out', str(seed)]) == 0
+    assert data['summary']['time_planned_s'] < json.loads(seed.read_text())['summary']['time_planned_s']
+
+
+def test_plan_refuses_an_unknown_time_allocation(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(['plan', DEFAULT_MISSION_PATH, '--time-allocation', 'fastests'])
+    assert exit_info.value.code == 2 and "invalid choice: 'fastests'" in capsys.readouterr().err
+
+
+def test_plan_prints_the_refusal_advice_naming_fastest(capsys):
+    figure8 = DEFAULT_MISSION_PATH.replace('maze.yaml', 'figure8.yaml')
+    assert main(['plan', figure8, '--speed', '2']) == 0      # written either way; fly refuses it
+    printed = capsys.readouterr().out
+    assert 'NOT feasible on crazyflie' in printed and 'time_allocation fastest fits: ' in printed
+    advice = next(line for line in printed.splitlines() if line.startswith('time_allocation fastest fits'))
+    assert main(['plan', figure8, *advice.split(': ')[2].split(', or')[0].split()]) == 0   # the advice, taken
+    assert 'feasible on crazyflie' in capsys.readouterr().out

@@ -62,6 +62,8 @@ def test_grid_is_the_product_of_the_axes_and_random_samples_it_reproducibly():
     ({'disturbances': [{'name': 'w', 'wind_mps': [1.0, 0.0]}]}, 'wind_mps'),
     ({'missions': ['config/missions/nowhere.yaml']}, 'nowhere.yaml'),
     ({'missions': [{'file': 'config/missions/window.yaml', 'speed_mps': 0}]}, 'speed_mps = 0'),
+    ({'missions': [{'file': 'config/missions/window.yaml', 'time_allocation': 'fastests'}]},
+     "time_allocation = 'fastests' must be one of .*fastest"),
     ({'seeds': 0}, 'seeds = 0'),
     ({'sample': 'random'}, 'samples = None'),
     ({'controllers': ['pd', 'pd']}, 'names must differ'),
@@ -69,6 +71,19 @@ def test_grid_is_the_product_of_the_axes_and_random_samples_it_reproducibly():
 def test_bad_spec_refused_naming_the_field_and_value(change, message):
     with pytest.raises(runs.SpecError, match=message):
         sweep.expand({**SPEC, **change})
+
+
+def test_a_spec_flies_fastest_offline_and_records_it(tmp_path):
+    spec = {**SPEC, 'missions': [{'file': 'config/missions/window.yaml', 'time_allocation': 'fastest'}],
+            'controllers': ['se3'], 'vehicles': [{'name': 'nominal'}], 'disturbances': ['none'], 'seeds': 1}
+    grid = sweep.expand(spec)
+    assert [p['time_allocation'] for p in grid] == ['fastest']
+    row = runs.run_one(grid[0])
+    from quad_common.paths import resolve_config
+    from quad_trajectory.mission import load_mission, plan_mission
+    planned = plan_mission(load_mission(resolve_config('config/missions/window.yaml')), time_allocation='fastest')
+    assert row['params']['time_allocation'] == 'fastest' and not row['failed']
+    assert row['time_planned_s'] == pytest.approx(planned.trajectory.duration_s, abs=0.02)
 
 
 def test_the_key_covers_every_parameter():

@@ -74,27 +74,35 @@ class Feasibility:
 
 @dataclass
 class Preflight:
-    """The check of the plan to be flown, and when it fails, whether the limits-aware allocation fits."""
+    """The check of the plan to be flown, and when it fails, the allocations that pass the same check."""
     feasibility: Feasibility
     time_allocation: str
     speed_mps: float
     planned_s: float
-    fits: str | None = None            # 'limits' when that allocation passes the same check
-    fits_planned_s: float | None = None
+    alternatives: list = field(default_factory=list)   # (allocation, planned s, note) that pass, fastest first
 
     @property
     def ok(self) -> bool:
         return self.feasibility.ok
 
+    @property
+    def fits(self) -> str | None:
+        """The first allocation that passes (fastest when it was planned), else None."""
+        return self.alternatives[0][0] if self.alternatives else None
+
+    def alternative(self, allocation: str):
+        """(allocation, planned s, note) of `allocation` when it passes, else None."""
+        return next((a for a in self.alternatives if a[0] == allocation), None)
+
     def lines(self) -> list[str]:
         out = self.feasibility.lines()
-        if not self.ok and self.time_allocation != 'limits':
+        if not self.ok:
             what = (f"the seed's sqrt profile at {self.speed_mps:g} m/s" if self.time_allocation == 'sqrt'
                     else f'time_allocation {self.time_allocation} at {self.speed_mps:g} m/s')
             out.append(f'{what} asks more than {self.feasibility.vehicle} gives ({self.planned_s:.2f} s planned)')
-            if self.fits:
-                out.append(f'time_allocation: {self.fits} fits ({self.fits_planned_s:.2f} s planned): '
-                           f'--time-allocation {self.fits}, or trajectory.if_infeasible: {self.fits} in the mission')
+            for name, planned_s, note in self.alternatives:
+                out.append(f'time_allocation {name} fits: {planned_s:.2f} s planned{note}: --time-allocation {name}, '
+                           f'or trajectory.if_infeasible: {name} in the mission')
         return out
 
 
@@ -116,12 +124,10 @@ def attitude_lag_s(vehicle) -> float:
     return float(vehicle.motor_time_constant_s) + own
 
 
-def _needs(trajectory, vehicle, segments, s):
-    """Per-sample needs over `segments` (arrays (m, S)): tilt deg, thrust N, busiest rotor rad/s, idlest rotor
-    thrust N, tilt + lag x tilt rate (deg)."""
-    a = trajectory.grid_values(2, s, segments, axes=3) + (GRAVITY_MPS2 * _E3)[None, :, None]
-    j = trajectory.grid_values(3, s, segments, axes=3)
-    snap = trajectory.grid_values(4, s, segments, axes=3)
+def needs_from_derivatives(a, j, snap, vehicle) -> dict:
+    """Per-sample needs from acceleration a, jerk j and snap (arrays (m, 3, S), a without gravity): tilt deg,
+    thrust N, busiest rotor rad/s, idlest rotor thrust N, tilt + lag x tilt rate (deg); each (m, S)."""
+    a = a + (GRAVITY_MPS2 * _E3)[None, :, None]
     c = np.maximum(np.sqrt(np.einsum('mas,mas->ms', a, a)), 1e-9)
     zb = a / c[:, None, :]
     zj = np.einsum('mas,mas->ms', zb, j)
@@ -140,22 +146,40 @@ def _needs(trajectory, vehicle, segments, s):
             'rotor_thrust_min': idlest, 'attitude_lag': lagged}
 
 
-def check(trajectory, vehicle, samples_per_segment: int = SAMPLES_PER_SEGMENT) -> Feasibility:
-    """Check a PiecewisePolynomial plan against a quad_common Vehicle; see the module docstring."""
-    limits = {  # check -> (limit, unit, True where the need must stay below the limit)
-        'tilt': (vehicle.max_tilt_deg, 'deg', True),
-        'thrust_max': (vehicle.thrust_max_n, 'N', True),
-        'thrust_min': (vehicle.thrust_min_n, 'N', False),
-        'rotor_speed_max': (vehicle.rotor_speed_max_radps, 'rad/s', True),
-        'rotor_thrust_min': (vehicle.k_eta * vehicle.rotor_speed_min_radps ** 2, 'N', False),
-        'attitude_lag': (vehicle.max_tilt_deg, 'deg', True),
+def derivatives(trajectory, segments, s):
+    """Acceleration, jerk and snap (x, y, z) at normalised times s of `segments`: three arrays (m, 3, S)."""
+    return tuple(trajectory.grid_values(order, s, segments, axes=3) for order in (2, 3, 4))
+
+
+def margined_limits(vehicle, margin: float = 0.0) -> dict:
+    """check -> (limit, unit, True where the need must stay below it), `margin` (a fraction) inside the
+    vehicle's own limits: an upper limit times (1 - margin); a lower one raised by margin x its range (thrust:
+    thrust_min + margin (thrust_max - thrust_min); a rotor's thrust likewise between its speed limits)."""
+    if not 0.0 <= margin < 1.0:
+        raise ValueError(f'margin = {margin!r} must be a fraction in [0, 1)')
+    rotor_min = vehicle.k_eta * vehicle.rotor_speed_min_radps ** 2
+    rotor_max = vehicle.k_eta * vehicle.rotor_speed_max_radps ** 2
+    keep = 1.0 - margin
+    return {
+        'tilt': (keep * vehicle.max_tilt_deg, 'deg', True),
+        'thrust_max': (keep * vehicle.thrust_max_n, 'N', True),
+        'thrust_min': (vehicle.thrust_min_n + margin * (vehicle.thrust_max_n - vehicle.thrust_min_n), 'N', False),
+        'rotor_speed_max': (keep * vehicle.rotor_speed_max_radps, 'rad/s', True),
+        'rotor_thrust_min': (rotor_min + margin * (rotor_max - rotor_min), 'N', False),
+        'attitude_lag': (keep * vehicle.max_tilt_deg, 'deg', True),
     }
+
+
+def check(trajectory, vehicle, samples_per_segment: int = SAMPLES_PER_SEGMENT, margin: float = 0.0) -> Feasibility:
+    """Check a PiecewisePolynomial plan against a quad_common Vehicle (its limits less `margin`, see limits());
+    see the module docstring."""
+    limits = margined_limits(vehicle, margin)
     s = np.linspace(0.0, 1.0, samples_per_segment)
     worst = {k: (-np.inf if upper else np.inf, 0, 0.0) for k, (_, _, upper) in limits.items()}  # value, seg, tau
     over = dict.fromkeys(limits, 0)
     for start in range(0, trajectory.n_segments, _CHUNK):
         part = slice(start, min(start + _CHUNK, trajectory.n_segments))
-        for name, values in _needs(trajectory, vehicle, part, s).items():
+        for name, values in needs_from_derivatives(*derivatives(trajectory, part, s), vehicle).items():
             limit, _, upper = limits[name]
             flat = values.argmax() if upper else values.argmin()
             i, k = np.unravel_index(flat, values.shape)
@@ -175,8 +199,8 @@ def check(trajectory, vehicle, samples_per_segment: int = SAMPLES_PER_SEGMENT) -
 
 
 def preflight(mission, result, vehicle=None, speed_mps=None) -> Preflight:
-    """Check `result` (mission.plan_mission's) on `vehicle` (default the mission's); when it fails and was not
-    planned limits-aware, plan the mission with time_allocation limits and say whether that fits."""
+    """Check `result` (mission.plan_mission's) on `vehicle` (default the mission's); when it fails, plan the
+    mission with time_allocation fastest (and limits) and keep each that passes the same check."""
     import dataclasses
 
     from quad_trajectory.mission import plan_mission
@@ -184,8 +208,17 @@ def preflight(mission, result, vehicle=None, speed_mps=None) -> Preflight:
     vehicle = vehicle or mission.vehicle
     o = result.options
     report = Preflight(check(result.trajectory, vehicle), o.time_allocation, o.speed_mps, result.trajectory.duration_s)
-    if not report.ok and o.time_allocation != 'limits':
-        alt = plan_mission(dataclasses.replace(mission, vehicle=vehicle), speed_mps=speed_mps, time_allocation='limits')
+    if report.ok:
+        return report
+    for name in ('fastest', 'limits'):
+        if name == o.time_allocation:
+            continue
+        try:
+            alt = plan_mission(dataclasses.replace(mission, vehicle=vehicle), speed_mps=speed_mps, time_allocation=name)
+        except ValueError:
+            continue
         if check(alt.trajectory, vehicle).ok:
-            report.fits, report.fits_planned_s = 'limits', alt.trajectory.duration_s
+            note = (f' (as fast as {vehicle.name} flies it with {100 * alt.options.margin:g} % of each limit to spare)'
+                    if name == 'fastest' else '')
+            report.alternatives.append((name, alt.trajectory.duration_s, note))
     return report

@@ -21,8 +21,9 @@ _REPO_CONFIG = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '
 DEFAULT_VEHICLE_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'vehicles', 'crazyflie.yaml'))
 DEFAULT_MISSION_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'missions', 'maze.yaml'))
 _TRAJECTORY_KEYS = {'method', 'waypoint_constraint', 'speed', 'time_allocation', 'control_points', 'limits',
-                    'avoid_collisions', 'rho', 'if_infeasible'}
-IF_INFEASIBLE = ('refuse', 'limits')   # what fly does with a plan the vehicle cannot fly (quad_trajectory.feasibility)
+                    'avoid_collisions', 'rho', 'margin', 'if_infeasible'}
+# what fly does with a plan the vehicle cannot fly (quad_trajectory.feasibility): refuse it, or fly that allocation
+IF_INFEASIBLE = ('refuse', 'fastest', 'limits')
 _LIMIT_KEYS = {'v_max_mps', 'a_max_mps2'}
 
 
@@ -38,7 +39,7 @@ class Mission:
     world: World | None = None
     world_path: str | None = None
     extra: dict = field(default_factory=dict)   # top-level keys owned by other tools (fly, sim)
-    if_infeasible: str = 'refuse'               # trajectory.if_infeasible: refuse, or fly the limits allocation
+    if_infeasible: str = 'refuse'               # trajectory.if_infeasible: refuse, or fly fastest / limits
 
     @property
     def initial_position(self) -> np.ndarray:
@@ -88,6 +89,7 @@ def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
             time_allocation=traj.get('time_allocation', defaults.time_allocation),
             control_points=_control_points(traj.get('control_points'), path),
             v_max_mps=limits.get('v_max_mps'), a_max_mps2=limits.get('a_max_mps2'), rho=traj.get('rho'),
+            margin=traj.get('margin', defaults.margin),
             robot_radius_m=data.get('robot_radius_m', defaults.robot_radius_m),
             avoid_collisions=bool(traj.get('avoid_collisions', defaults.avoid_collisions)))
         if 'vehicle' in data:

@@ -11,7 +11,7 @@ import numpy as np
 
 from quad_common.vehicle import Vehicle
 from quad_common.world import World
-from quad_trajectory import collision, feasibility, solver, timing
+from quad_trajectory import collision, fastest, feasibility, solver, timing
 from quad_trajectory.polynomial import PiecewisePolynomial
 
 MERGE_DISTANCE_M = 1e-3
@@ -29,11 +29,12 @@ class PlanOptions:
     method: str = 'minsnap'                    # minaccel | minjerk | minsnap
     waypoint_constraint: str = 'continuity'    # continuity | stop
     speed_mps: float = 0.5                     # the seed's speed constant
-    time_allocation: str = 'sqrt'              # sqrt | proportional | limits | optimal
+    time_allocation: str = 'sqrt'              # sqrt | proportional | limits | optimal | fastest
     control_points: tuple = ()                 # fractions along each segment, the seed's (0.1, 0.9)
     v_max_mps: float | None = None             # limits; None: timing.DEFAULT_V_MAX_MPS
     a_max_mps2: float | None = None            # limits; None: from the vehicle's thrust-to-weight
     rho: float | None = None                   # optimal: weight of total time; None: 2r - 1
+    margin: float = fastest.DEFAULT_MARGIN     # fastest: the fraction of each vehicle limit left unused
     robot_radius_m: float = 0.0
     avoid_collisions: bool = True              # insert points and replan until collision-free
 
@@ -157,6 +158,10 @@ def validate_options(o: PlanOptions, vehicle: Vehicle | None = None) -> PlanOpti
                              f'g (thrust/weight - 1) = {cap:.2f} m/s^2')
     if o.rho is not None:
         _finite_number('rho', o.rho)
+    if not (isinstance(o.margin, (int, float)) and not isinstance(o.margin, bool) and 0.0 <= o.margin < 1.0):
+        raise ValueError(f'margin = {o.margin!r} must be a fraction in [0, 1) (0.1: 10 % of each limit unused)')
+    if o.time_allocation == 'fastest' and vehicle is None:
+        raise ValueError('time_allocation = fastest needs a vehicle (its limits are what it flies to)')
     return o
 
 
@@ -289,22 +294,58 @@ def _optimal_times(points, durations, o: PlanOptions):
     return np.exp(res.x)
 
 
+def limits_of(o: PlanOptions, vehicle: Vehicle | None = None) -> dict:
+    """What `limits` plans to: {'v_max_mps', 'a_max_mps2'} with where each comes from ('v_max_source', ...).
+    These are maxima (the mission's trajectory.limits, else the defaults), not the average speed."""
+    if o.v_max_mps is not None:
+        v_max, v_source = o.v_max_mps, 'trajectory.limits.v_max_mps'
+    else:
+        v_max, v_source = timing.DEFAULT_V_MAX_MPS, 'the default (trajectory.limits.v_max_mps not set)'
+    if o.a_max_mps2 is not None:
+        a_max, a_source = o.a_max_mps2, 'trajectory.limits.a_max_mps2'
+    elif vehicle is not None:
+        a_max = timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
+        a_source = (f'{timing.ACCELERATION_SHARE:g} g (thrust/weight - 1) of {vehicle.name}, thrust/weight '
+                    f'{vehicle.thrust_to_weight:.2f}')
+    else:
+        raise ValueError('time_allocation = limits needs limits.a_max_mps2 or a vehicle')
+    return {'v_max_mps': float(v_max), 'v_max_source': v_source, 'a_max_mps2': float(a_max), 'a_max_source': a_source}
+
+
+def allocation_lines(result: 'PlanResult', vehicle: Vehicle | None = None) -> list[str]:
+    """What the allocation planned to and how much of it the plan uses (limits and fastest; else none)."""
+    o, t = result.options, result.trajectory
+    if o.time_allocation == 'limits':
+        lim = limits_of(o, vehicle)
+        v, a = t.max_speed(), t.max_acceleration()
+        return [f'limits: v_max {lim["v_max_mps"]:g} m/s ({lim["v_max_source"]}), a_max {lim["a_max_mps2"]:.3g} m/s^2 '
+                f'({lim["a_max_source"]}), planned to {100 * _LIMIT_TARGET:.0f} % of each: peak speed {v:.3f} m/s '
+                f'({100 * v / lim["v_max_mps"]:.0f} %), peak acceleration {a:.3f} m/s^2 '
+                f'({100 * a / lim["a_max_mps2"]:.0f} %)'
+                + ('' if vehicle is None else
+                   '; with the vehicle, slowed down uniformly where needed until it passes its feasibility check')]
+    if o.time_allocation == 'fastest' and vehicle is not None:
+        report = feasibility.check(t, vehicle, margin=o.margin)
+        used = ', '.join(f'{k} {report.peaks[k]:.4g} / {lim:.4g} {unit}' for k, (lim, unit) in report.limits.items())
+        return [f'fastest: the shortest plan found within {vehicle.name}\'s limits less {100 * o.margin:g} % '
+                f'(need / limit: {used})']
+    return []
+
+
 def allocate_times(points, o: PlanOptions, vehicle: Vehicle | None = None) -> np.ndarray:
     if o.time_allocation == 'proportional':
         return timing.proportional_allocation(points, o.speed_mps)
     T = timing.sqrt_allocation(points, o.speed_mps)
     if o.time_allocation == 'limits':
-        v_max = _LIMIT_TARGET * (o.v_max_mps if o.v_max_mps is not None else timing.DEFAULT_V_MAX_MPS)
-        if o.a_max_mps2 is not None:
-            a_max = _LIMIT_TARGET * o.a_max_mps2
-        elif vehicle is not None:
-            a_max = _LIMIT_TARGET * timing.vehicle_acceleration_limit(vehicle.thrust_to_weight)
-        else:
-            raise ValueError('time_allocation = limits needs limits.a_max_mps2 or a vehicle')
-        T = _limit_times(points, T, o, v_max, a_max)
+        lim = limits_of(o, vehicle)
+        T = _limit_times(points, T, o, _LIMIT_TARGET * lim['v_max_mps'], _LIMIT_TARGET * lim['a_max_mps2'])
         return T if vehicle is None else _fit_vehicle(points, T, o, vehicle)
     if o.time_allocation == 'optimal':
         return _optimal_times(points, T, o)
+    if o.time_allocation == 'fastest':
+        if vehicle is None:
+            raise ValueError('time_allocation = fastest needs a vehicle (its limits are what it flies to)')
+        return fastest.fastest_times(points, vehicle, o.method, o.waypoint_constraint, o.margin)
     return T
 
 

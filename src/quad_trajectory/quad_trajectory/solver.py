@@ -48,42 +48,96 @@ def _inner_block(r: int, mode: str):
     return rows
 
 
+# Up to this many unknowns (2rM) numpy's dense LU is as fast as the banded one and spares the import of
+# scipy.linalg (~0.15 s of CPU, most of a small plan's run time).
+DENSE_MAX_UNKNOWNS = 512
+
+
+class System:
+    """The rows of A for m segments, order r and a waypoint mode, assembled once; only the continuity rows'
+    factors (T_right / T_left)^j depend on the times, so `triplets(T)` costs one vectorised power per solve
+    (the time allocations solve the same points with many different times)."""
+
+    def __init__(self, m: int, r: int, mode: str):
+        if mode not in MODES:
+            raise ValueError(f'waypoint_constraint = {mode!r} must be one of {", ".join(MODES)}')
+        self.m, self.r, n = m, r, 2 * r
+        d0, d1 = _boundary_rows(n)
+        rows, cols, vals, joint, power, point_rows, point_index = [], [], [], [], [], [], []
+
+        def add(row, col0, coef, scale_power=0):
+            nz = np.nonzero(coef)[0]
+            rows.append(np.repeat(row, nz.size))
+            cols.append((col0[:, None] + nz[None, :]).reshape(-1))
+            vals.append(np.tile(coef[nz], np.size(row)))
+            joint.append(np.repeat(row * 0 + (col0 // n if scale_power else -1), nz.size))
+            power.append(np.full(np.size(row) * nz.size, scale_power))
+
+        one = np.zeros(1, dtype=int)
+        for j in range(r):  # start block: rows 0..r-1
+            add(np.array([j]), one, d0[j])
+        point_rows.append([0])
+        point_index.append([0])
+        inner = np.arange(1, m)
+        for q, (terms, rhs_is_point) in enumerate(_inner_block(r, mode)):
+            row = r + (inner - 1) * n + q
+            for side, j, at_end, sign in terms:
+                coef = sign * (d1[j] if at_end else d0[j])
+                # continuity: d^j/ds^j of the left segment scaled by (T_right / T_left)^j
+                scaled = at_end and j > 0 and len(terms) > 1
+                add(row, (inner - 1 + side) * n, coef, j if scaled else 0)
+            if rhs_is_point:
+                point_rows.append(row)
+                point_index.append(inner)
+        for j in range(r):  # end block
+            add(np.array([n * m - r + j]), np.array([(m - 1) * n]), d1[j])
+        point_rows.append([n * m - r])
+        point_index.append([m])
+        self.rows, self.cols = np.concatenate(rows), np.concatenate(cols)
+        self.base = np.concatenate(vals)
+        self.joint, self.power = np.concatenate(joint), np.concatenate(power)
+        self.scaled = np.nonzero(self.power)[0]
+        self.point_rows, self.point_index = np.concatenate(point_rows), np.concatenate(point_index)
+        self.lower = int(np.max(self.rows - self.cols))
+        self.upper = int(np.max(self.cols - self.rows))
+        self._band_rows = self.upper + self.rows - self.cols
+
+    def triplets(self, durations_s):
+        """(rows, cols, vals) of A for these segment times."""
+        T = np.asarray(durations_s, dtype=float)
+        vals = self.base.copy()
+        k = self.joint[self.scaled]
+        vals[self.scaled] *= (T[k + 1] / T[k]) ** self.power[self.scaled]
+        return self.rows, self.cols, vals
+
+    def rhs(self, points) -> np.ndarray:
+        P = np.asarray(points, dtype=float)
+        b = np.zeros((2 * self.r * self.m, P.shape[1]))
+        b[self.point_rows] = P[self.point_index]
+        return b
+
+    def solve(self, durations_s, points, banded: bool | None = None) -> np.ndarray:
+        """Coefficients (M, K, 2r) in powers of local time: banded LU (dense LU when A is small, unless banded)."""
+        T = np.asarray(durations_s, dtype=float)
+        rows, cols, vals = self.triplets(T)
+        b = self.rhs(points)
+        if (b.shape[0] <= DENSE_MAX_UNKNOWNS) if banded is None else not banded:
+            a = np.zeros((b.shape[0], b.shape[0]))
+            a[rows, cols] = vals
+            return _to_time_powers(np.linalg.solve(a, b), T, self.r)
+        from scipy.linalg import solve_banded
+
+        ab = np.zeros((self.lower + self.upper + 1, b.shape[0]))
+        ab[self._band_rows, cols] = vals
+        x = solve_banded((self.lower, self.upper), ab, b, overwrite_ab=True, overwrite_b=True, check_finite=False)
+        return _to_time_powers(x, T, self.r)
+
+
 def assemble(durations_s, points, r: int, mode: str):
     """Sparse triplets (rows, cols, vals) of A (size 2rM) and the right-hand side b (2rM, K)."""
-    if mode not in MODES:
-        raise ValueError(f'waypoint_constraint = {mode!r} must be one of {", ".join(MODES)}')
     T = np.asarray(durations_s, dtype=float)
-    P = np.asarray(points, dtype=float)
-    m, n = T.size, 2 * r
-    d0, d1 = _boundary_rows(n)
-    rows, cols, vals = [], [], []
-    b = np.zeros((n * m, P.shape[1]))
-
-    def add(row, col0, coef):
-        nz = np.nonzero(np.atleast_2d(coef).any(axis=0))[0]
-        rows.append(np.repeat(row, nz.size))
-        cols.append((col0[:, None] + nz[None, :]).reshape(-1))
-        vals.append(np.broadcast_to(coef[..., nz], (np.size(row), nz.size)).reshape(-1))
-
-    one = np.zeros(1, dtype=int)
-    for j in range(r):  # start block: rows 0..r-1
-        add(np.array([j]), one, d0[j])
-        b[j] = P[0] if j == 0 else 0.0
-    inner = np.arange(1, m)
-    for q, (terms, rhs_is_point) in enumerate(_inner_block(r, mode)):
-        row = r + (inner - 1) * n + q
-        for side, j, at_end, sign in terms:
-            coef = sign * (d1[j] if at_end else d0[j])
-            if at_end and j > 0 and len(terms) > 1:  # continuity: scale d^j/ds^j by (T_right / T_left)^j
-                coef = coef[None, :] * ((T[inner] / T[inner - 1]) ** j)[:, None]
-            add(row, (inner - 1 + side) * n, coef)
-        if rhs_is_point:
-            b[row] = P[inner]
-    for j in range(r):  # end block
-        row = np.array([n * m - r + j])
-        add(row, np.array([(m - 1) * n]), d1[j])
-        b[row] = P[m] if j == 0 else 0.0
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), b
+    system = System(T.size, r, mode)
+    return (*system.triplets(T), system.rhs(points))
 
 
 def _to_time_powers(x, durations_s, r):
@@ -93,26 +147,10 @@ def _to_time_powers(x, durations_s, r):
     return c / durations_s[:, None, None] ** np.arange(n)[None, None, :]
 
 
-# Up to this many unknowns (2rM) numpy's dense LU is as fast as the banded one and spares the import of
-# scipy.linalg (~0.15 s of CPU, most of a small plan's run time).
-DENSE_MAX_UNKNOWNS = 512
-
-
 def solve_banded_coefficients(durations_s, points, r: int, mode: str) -> np.ndarray:
     """O(M): banded LU of A (dense LU when A is small). Returns coefficients (M, K, 2r) in powers of local time."""
     T = np.asarray(durations_s, dtype=float)
-    rows, cols, vals, b = assemble(T, points, r, mode)
-    if b.shape[0] <= DENSE_MAX_UNKNOWNS:
-        a = np.zeros((b.shape[0], b.shape[0]))
-        a[rows, cols] = vals
-        return _to_time_powers(np.linalg.solve(a, b), T, r)
-    from scipy.linalg import solve_banded
-
-    lower, upper = int(np.max(rows - cols)), int(np.max(cols - rows))
-    ab = np.zeros((lower + upper + 1, b.shape[0]))
-    ab[upper + rows - cols, cols] = vals
-    x = solve_banded((lower, upper), ab, b, overwrite_ab=True, overwrite_b=True, check_finite=False)
-    return _to_time_powers(x, T, r)
+    return System(T.size, r, mode).solve(T, points)
 
 
 def solve_dense_reference(durations_s, points, r: int, mode: str) -> np.ndarray:

@@ -4,14 +4,15 @@
   segments in proportion to sqrt(segment length): long straight segments fly faster, short ones
   (usually turns) slower.
 - proportional: T_i = l_i / speed (constant average speed).
-- limits and optimal refine a start allocation with the solver in the loop (planner.py).
+- limits and optimal refine a start allocation with the solver in the loop (planner.py); fastest flies as fast
+  as the vehicle's limits less a margin allow (fastest.py).
 """
 
 import numpy as np
 
 from quad_common.types import GRAVITY_MPS2
 
-ALLOCATIONS = ('sqrt', 'proportional', 'limits', 'optimal')
+ALLOCATIONS = ('sqrt', 'proportional', 'limits', 'optimal', 'fastest')
 # Share of the vehicle's spare thrust the plan may use; the rest is left to the feedback controller.
 ACCELERATION_SHARE = 0.5
 DEFAULT_V_MAX_MPS = 2.0

@@ -51,6 +51,8 @@ PARAMS = [
     Param('a_max_mps2', 0.0, 'time_allocation limits: max acceleration; 0 = half the vehicle\'s spare thrust',
           min=0.0, max=100.0),
     Param('rho', 0.0, 'time_allocation optimal: weight of total time; 0 = 2r-1', min=0.0),
+    Param('margin', planner.PlanOptions.margin, 'time_allocation fastest: the fraction of each vehicle limit left '
+          'unused (tilt, thrust, rotor speed, lag-inclusive tilt)', min=0.0, max=0.9),
     Param('sample_rate_hz', 100.0, 'rate of the points in `trajectory`', min=100.0, max=10000.0),
     Param('start_delay_s', 1.0, 'trajectory start = node clock now + this', min=0.0, max=3600.0),
     Param('frame_id', 'map', 'frame of every output'),
@@ -116,6 +118,7 @@ class TrajectoryNode(Node):
             time_allocation=v['time_allocation'],
             control_points=tuple(v['control_point_fractions']) if v['control_points'] else (),
             v_max_mps=v['v_max_mps'] or None, a_max_mps2=v['a_max_mps2'] or None, rho=v['rho'] or None,
+            margin=v['margin'],
             robot_radius_m=v['robot_radius_m'], avoid_collisions=v['avoid_collisions'])
 
     def _check(self, values):

@@ -75,20 +75,36 @@ def test_attitude_lag_is_the_ramp_lag_of_the_loop(crazyflie):
     assert [e.check for e in lagged.exceeded] == ['attitude_lag']   # the tilt alone (16 deg) would fit
 
 
-def test_preflight_names_the_limits_allocation_and_it_fits(crazyflie):
+def test_preflight_names_fastest_with_its_time_and_limits_and_both_fit(crazyflie):
     mission = load_mission(FIGURE8)
     report = feasibility.preflight(mission, plan_mission(mission, speed_mps=2.0), speed_mps=2.0)
-    assert not report.ok and report.fits == 'limits' and report.fits_planned_s > report.planned_s
+    fastest, limits = report.alternative('fastest'), report.alternative('limits')
+    assert not report.ok and report.fits == 'fastest' and [a[0] for a in report.alternatives] == ['fastest', 'limits']
+    assert report.planned_s < fastest[1] < limits[1]       # slower than the infeasible plan, faster than limits
     text = '\n'.join(report.lines())
     assert "the seed's sqrt profile at 2 m/s asks more than crazyflie gives" in text
-    assert 'time_allocation: limits fits' in text
-    limits = plan_mission(mission, speed_mps=2.0, time_allocation='limits')
-    assert feasibility.check(limits.trajectory, crazyflie).ok
+    assert f'time_allocation fastest fits: {fastest[1]:.2f} s planned' in text and '--time-allocation fastest' in text
+    assert 'time_allocation limits fits' in text
+    for name in ('fastest', 'limits'):
+        assert feasibility.check(plan_mission(mission, speed_mps=2.0, time_allocation=name).trajectory, crazyflie).ok
+
+
+def test_margin_narrows_every_limit(crazyflie):
+    lim = feasibility.margined_limits(crazyflie, 0.1)
+    assert lim['tilt'][0] == pytest.approx(31.5) and lim['attitude_lag'][0] == pytest.approx(31.5)
+    assert lim['thrust_max'][0] == pytest.approx(0.9 * crazyflie.thrust_max_n)
+    assert lim['rotor_speed_max'][0] == pytest.approx(2250.0)
+    assert lim['thrust_min'][0] == pytest.approx(0.1 * crazyflie.thrust_max_n)        # rotor_speed_min is 0
+    assert lim['rotor_thrust_min'][0] == pytest.approx(0.1 * crazyflie.k_eta * 2500.0 ** 2)
+    assert feasibility.margined_limits(crazyflie)['tilt'][0] == 35.0
+    with pytest.raises(ValueError, match='margin = 1.0 must be a fraction'):
+        feasibility.margined_limits(crazyflie, 1.0)
 
 
 def test_mission_if_infeasible_is_validated():
     base = {'waypoints': [[0, 0, 1], [1, 0, 1]]}
     assert mission_from_dict(base).if_infeasible == 'refuse'
     assert mission_from_dict({**base, 'trajectory': {'if_infeasible': 'limits'}}).if_infeasible == 'limits'
-    with pytest.raises(ValueError, match="trajectory.if_infeasible = 'slow' must be one of refuse, limits"):
+    assert mission_from_dict({**base, 'trajectory': {'if_infeasible': 'fastest'}}).if_infeasible == 'fastest'
+    with pytest.raises(ValueError, match="trajectory.if_infeasible = 'slow' must be one of refuse, fastest, limits"):
         mission_from_dict({**base, 'trajectory': {'if_infeasible': 'slow'}})

@@ -3,8 +3,9 @@
 import sys
 from pathlib import Path
 
+from quad_bringup.commands.plan import add_time_allocation_argument
 from quad_bringup.commands.report import add_completion_arguments, completion_overrides
-from quad_bringup.flight import CONTROLLERS, TIME_ALLOCATIONS, FlightOptions, fly
+from quad_bringup.flight import CONTROLLERS, FlightOptions, fly
 from quad_bringup.report import metrics_table
 
 
@@ -14,8 +15,7 @@ def add_arguments(parser):
                         help="position controller (default: the control profile's, else pd)")
     parser.add_argument('--speed', type=float, metavar='V',
                         help='average speed constant in m/s (overrides the mission)')
-    parser.add_argument('--time-allocation', choices=TIME_ALLOCATIONS,
-                        help="segment times (overrides the mission's; limits: within trajectory.limits)")
+    add_time_allocation_argument(parser)
     parser.add_argument('--out', type=Path, help='run directory (default runs/<mission>-<controller>-<timestamp>)')
     parser.add_argument('--vehicle', type=Path, help='vehicle YAML for controller and simulator')
     parser.add_argument('--plant', metavar='MEMBER',

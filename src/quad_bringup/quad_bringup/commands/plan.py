@@ -1,4 +1,4 @@
-"""`quadflight plan MISSION.yaml --out traj.json [--csv RATE]`: plan only, no flight.
+"""`quadflight plan MISSION.yaml --out traj.json [--csv RATE] [--speed V] [--time-allocation A]`: plan only, no flight.
 
 The JSON is docs/design.md's plan layout ({"waypoints", "segments": [{"duration", "coefficients": {x, y, z, yaw}}]},
 coefficients in ascending powers of local time) plus the plan's options, merges and summary.
@@ -11,6 +11,16 @@ import numpy as np
 
 from quad_trajectory.feasibility import preflight
 from quad_trajectory.mission import load_mission, plan_mission
+from quad_trajectory.planner import allocation_lines
+from quad_trajectory.timing import ALLOCATIONS
+
+
+def add_time_allocation_argument(parser):
+    """--time-allocation, the same option for plan and fly."""
+    parser.add_argument('--time-allocation', choices=ALLOCATIONS,
+                        help="segment times (overrides the mission's): sqrt (the seed's), proportional, limits "
+                             '(within trajectory.limits), optimal (min snap for the total time), fastest (as fast as '
+                             "the vehicle's limits less trajectory.margin allow)")
 
 
 def add_arguments(parser):
@@ -19,6 +29,7 @@ def add_arguments(parser):
     parser.add_argument('--csv', type=float, metavar='RATE',
                         help='also write samples at RATE Hz next to --out (.csv): t, position, velocity, acceleration')
     parser.add_argument('--speed', type=float, metavar='V', help='average speed in m/s (overrides the mission)')
+    add_time_allocation_argument(parser)
 
 
 def write_csv(path: Path, trajectory, rate_hz: float):
@@ -44,7 +55,8 @@ def run(args) -> int:
         return 2
     try:
         mission = load_mission(args.mission)
-        result = plan_mission(mission, speed_mps=args.speed)
+        overrides = {'time_allocation': args.time_allocation} if args.time_allocation else {}
+        result = plan_mission(mission, speed_mps=args.speed, **overrides)
         if args.csv is not None:
             result.trajectory.sample_times(args.csv)   # validates the rate before anything is written
     except ValueError as exc:
@@ -55,6 +67,8 @@ def run(args) -> int:
     if result.inserted_points:
         print(f'note: {result.inserted_points} points inserted to avoid obstacles')
     print(summary_table(result))
+    for line in allocation_lines(result, mission.vehicle):
+        print(line)
     if mission.vehicle is not None:   # the plan is written either way; fly refuses what fails here
         print('\n'.join(preflight(mission, result, speed_mps=args.speed).lines()))
     if args.out is not None:

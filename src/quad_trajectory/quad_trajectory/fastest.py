@@ -1,0 +1,295 @@
+"""The `fastest` time allocation: the shortest total time whose plan the vehicle can fly with a margin.
+
+Problem: over the segment times T (points, method and waypoint constraint fixed), minimise sum_i T_i subject
+to every sample of every segment meeting feasibility.py's checks (tilt, collective thrust, rotor speed and
+thrust, tilt + attitude lag x tilt rate) against the vehicle's limits less `margin` (feasibility.margined_limits:
+an upper limit times 1 - margin, a lower one raised by margin x its range). The result is scaled to pass them
+at feasibility.py's own 32 samples a segment, the check `quadflight plan` and `fly` run before flight.
+
+Method: a trust-region sequential linear programme in x = log T, every iterate made exactly feasible by
+uniform scaling.
+- Uniform scaling is exact (planner._limit_times): times k T give p(t / k), so acceleration, jerk and snap at
+  a segment's samples divide by k^2, k^3, k^4 without a new solve. `feasible_scale` finds the smallest k with
+  every sample inside the limits: each need falls monotonically towards its hover value as k grows, so a
+  bracket is found from k = 1 outwards and the root (Illinois regula falsi in log k) only over the samples that
+  fail at the bracket's low end.
+- Start: the sqrt shape, then EQUALISE_ROUNDS rounds of T_i <- T_i k_i with k_i the scale that makes segment i
+  alone just feasible (its neighbours' coupling ignored; a vectorised bisection for all segments at once); the
+  shortest of these, scaled, starts the search.
+- Step: the normalised violation of each check at each sample, v (need / limit - 1 above, (limit - need) /
+  range below; <= 0 feasible). A change of T_j moves the spline mostly near segment j (a joint's influence
+  decays geometrically along a minimum-derivative spline), so dv/dx is banded: BAND segments either side,
+  by finite differences with 2 BAND + 1 solves (every (2 BAND + 1)-th segment perturbed at once). The linear
+  programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust radius
+  of its limit, |d_j| <= trust radius (HiGHS), gives the step; the new shape is scaled to the limits again and
+  kept when its total time is shorter; the trust radius follows how well the programme predicted the gain.
+  A plan longer than LP_BLOCK + 2 LP_OVERLAP segments solves the programme in overlapping windows (_lp_step).
+  BAND = 5 matters: with 3, the finite differences alias the influence of segments 4 away (about 20 % error
+  in the Jacobian) and the search stalls 2-3 % short of the optimum on slalom_dense.
+  Every near sample is a row, not only each segment's peak: the peak moves between samples as the times
+  change, and a programme that sees only the peaks steps into the samples it does not see.
+- Stop: after MAX_ITERATIONS steps, when the radius falls below MIN_TRUST, or when the programme predicts
+  less than STALL_GAIN of the total time.
+The search samples LOOP_SAMPLES points a segment (fewer rows in each programme), the result is then scaled to
+pass at feasibility.py's 32. Cost per step: 2 BAND + 2 solves, as many need evaluations, one LP. Measured
+against a brute-force reference (scipy SLSQP over all times, every sample a constraint, several starts) in
+bench/bench_fastest.py.
+
+Short first and last legs: a leg from rest to cruise asks for a spike of acceleration when it is given the
+same time as its neighbours (the sqrt profile on long_100: 3.9 m/s^2 against 0.2 mid-flight). Here that spike
+is a sample like any other, so the first and last legs are lengthened until it fits the same limits as the rest.
+"""
+
+import numpy as np
+
+from quad_trajectory import feasibility, solver, timing
+from quad_trajectory.polynomial import PiecewisePolynomial
+
+BAND = 5                 # segments either side in the banded Jacobian
+LP_BLOCK, LP_OVERLAP = 150, 25   # a long plan's step: blocks of 150 segments, each with 25 either side
+MAX_ITERATIONS = 20
+MIN_TRUST = 2e-3         # log-time trust radius below which the search stops
+FIRST_TRUST = 0.3
+GROW, SHRINK = 2.0, 0.4
+STALL_GAIN = 2e-4        # a step predicted to gain less than this fraction of the time ends the search
+LOOP_SAMPLES = 10        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
+SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
+EQUALISE_ROUNDS = 3      # start: each segment scaled to its own limit, this many times
+NEAR = 1.0               # (check, sample) pairs within NEAR x the trust radius of their limit enter the step
+DIFF_STEP = 1e-3         # log-time step of the finite differences
+_ROOT_ITERATIONS = 60     # of the scale's root finding (Illinois), to _ROOT_TOLERANCE in log k
+_ROOT_TOLERANCE = 1e-7
+_SAFETY = 1.0 + 1e-7     # the returned scale a hair above the root finder's feasible end
+DEFAULT_MARGIN = 0.1
+
+
+class Constraints:
+    """The margined limits of one vehicle as normalised per-sample violations (<= 0 feasible)."""
+
+    def __init__(self, vehicle, margin=DEFAULT_MARGIN, samples_per_segment=feasibility.SAMPLES_PER_SEGMENT):
+        self.vehicle = vehicle
+        self.limits = feasibility.margined_limits(vehicle, margin)
+        rotor_range = vehicle.k_eta * (vehicle.rotor_speed_max_radps ** 2 - vehicle.rotor_speed_min_radps ** 2)
+        self._range = {'thrust_min': vehicle.thrust_max_n - vehicle.thrust_min_n, 'rotor_thrust_min': rotor_range}
+        self.s = np.linspace(0.0, 1.0, samples_per_segment)
+        self.margin = margin
+
+    def check_hover(self):
+        """ValueError naming the check when hover itself is outside the margined limits (then no slow-down fits)."""
+        zero = np.zeros((1, 3, 1))
+        needs = feasibility.needs_from_derivatives(zero, zero, zero, self.vehicle)
+        for name, (limit, unit, upper) in self.limits.items():
+            need = float(needs[name][0, 0])
+            if need > limit if upper else need < limit:
+                raise ValueError(f'margin = {self.margin:g} leaves {self.vehicle.name} no hover: {name} needs '
+                                 f'{need:.4g} {unit} at hover, the limit less the margin is {limit:.4g} {unit}')
+
+    def violations(self, a, j, snap) -> np.ndarray:
+        """The normalised violation of each check at each sample: (checks, m, S)."""
+        needs = feasibility.needs_from_derivatives(a, j, snap, self.vehicle)
+        return np.stack([needs[name] / limit - 1.0 if upper else (limit - needs[name]) / self._range[name]
+                         for name, (limit, _, upper) in self.limits.items()])
+
+    def violation(self, a, j, snap) -> np.ndarray:
+        """The worst check's normalised violation at each sample: (m, S)."""
+        return self.violations(a, j, snap).max(axis=0)
+
+    def derivatives(self, trajectory):
+        return feasibility.derivatives(trajectory, slice(None), self.s)
+
+    def sample_violations(self, trajectory) -> np.ndarray:
+        return self.violations(*self.derivatives(trajectory))
+
+    def feasible_scale(self, trajectory) -> float:
+        """The smallest k such that the plan with times k T meets every limit at every sample.
+
+        Each need falls monotonically towards its hover value as k grows, so a sample feasible at some k is
+        feasible above it: a bracket [lo, hi] (hi feasible) is found from k = 1 outwards, and the root is
+        found over only the samples that fail at lo."""
+        a, j, snap = self.derivatives(trajectory)
+
+        def worst(k, a, j, snap):
+            return self.violation(a / k ** 2, j / k ** 3, snap / k ** 4).max(axis=1)
+
+        w = worst(1.0, a, j, snap)
+        if w.max() > 0.0:
+            lo, bad = 1.0, w > 0.0
+            a, j, snap = a[bad], j[bad], snap[bad]
+            hi = 1.0
+            while True:
+                hi *= 1.0 + max(w.max(), 0.05)
+                if worst(hi, a, j, snap).max() <= 0.0:
+                    break
+                if hi > 1e6:
+                    raise ValueError('no uniform slow-down of this plan fits the vehicle')
+        else:
+            hi, lo = 1.0, 1.0
+            factor = max(1.0 + w.max(), 0.25) ** 0.5 * 0.99   # the needs grow at least ~ 1 / k^2 below hover
+            while True:
+                lo *= factor
+                w = worst(lo, a, j, snap)
+                if w.max() > 0.0:
+                    break
+                hi, factor = lo, 0.8
+                if lo < 1e-6:
+                    return lo
+            bad = w > 0.0
+            a, j, snap = a[bad], j[bad], snap[bad]
+
+        def f(log_k):
+            return float(worst(np.exp(log_k), a, j, snap).max())
+
+        # Illinois regula falsi on the worst violation over log k: bracketing, so it converges like bisection
+        # at worst, and in a handful of evaluations on this smooth, monotone function
+        x0, x1 = np.log(lo), np.log(hi)
+        f0, f1 = f(x0), f(x1)
+        side = 0
+        for _ in range(_ROOT_ITERATIONS):
+            if x1 - x0 < _ROOT_TOLERANCE:
+                break
+            x = x1 - f1 * (x1 - x0) / (f1 - f0) if f1 != f0 else 0.5 * (x0 + x1)
+            x = min(max(x, x0 + 0.01 * (x1 - x0)), x1 - 0.01 * (x1 - x0))
+            fx = f(x)
+            if fx <= 0.0:
+                x1, f1 = x, fx
+                if side == 1:
+                    f0 *= 0.5
+                side = 1
+            else:
+                x0, f0 = x, fx
+                if side == -1:
+                    f1 *= 0.5
+                side = -1
+        return float(np.exp(x1)) * _SAFETY
+
+    def segment_scales(self, trajectory, iterations=SEGMENT_BISECTIONS) -> np.ndarray:
+        """Per segment, the k that would make that segment's own samples just feasible with times k T (its
+        neighbours' coupling ignored): bisection in log k, all segments at once. (M,)"""
+        a, j, snap = self.derivatives(trajectory)
+        lo, hi = np.full(a.shape[0], -3.0), np.full(a.shape[0], 3.0)
+        for _ in range(iterations):
+            mid = 0.5 * (lo + hi)
+            k = np.exp(mid)[:, None, None]
+            ok = self.violation(a / k ** 2, j / k ** 3, snap / k ** 4).max(axis=1) <= 0.0
+            hi, lo = np.where(ok, mid, hi), np.where(ok, lo, mid)
+        return np.exp(hi)
+
+
+def _linearised_constraints(solve, x, v, constraints, near):
+    """Rows v_r + J_r d <= 0 of every (check, sample) within `near` of its limit (v > -near): J = dv/dx by
+    finite differences, BAND segments either side of each perturbed one (2 BAND + 1 solves); returns
+    (J sparse, v_r). Every near sample is a row, not only each segment's peak: the peak moves between samples
+    as the times change, and a programme that sees only the peaks steps into the samples it does not see."""
+    from scipy.sparse import csr_matrix
+
+    m = x.size
+    active = v > -near
+    segment = np.nonzero(active)[1]          # the segment of each row
+    row = np.arange(segment.size)
+    width = 2 * BAND + 1
+    rows, cols, vals = [], [], []
+    for color in range(min(width, m)):
+        xp = x.copy()
+        xp[color::width] += DIFF_STEP
+        dv = (constraints.sample_violations(solve(np.exp(xp)))[active] - v[active]) / DIFF_STEP
+        # the perturbed segment within BAND of each row's segment: the one congruent to color modulo width
+        moved = segment + (color - segment + BAND) % width - BAND
+        keep = (moved >= 0) & (moved < m)
+        rows.append(row[keep])
+        cols.append(moved[keep])
+        vals.append(dv[keep])
+    J = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(segment.size, m))
+    return J, v[active]
+
+
+def _lp_step(T, J, g, trust):
+    """The step d: min sum_j T_j d_j s.t. g + J d <= 0, |d_j| <= trust (HiGHS), or None if it fails.
+
+    J is banded, so a long plan is cut into blocks of LP_BLOCK segments, each solved with LP_OVERLAP segments
+    either side (rows entirely inside that window, the rest of d held at 0) and keeping its own block's part:
+    the cost stays linear in the segments where one programme over all of them grows faster. d = 0 is feasible
+    in every window (the current plan is), so each has a solution; the joined step is then judged like any other.
+    """
+    from scipy.optimize import linprog
+
+    m = T.size
+    if m <= LP_BLOCK + 2 * LP_OVERLAP:
+        res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
+        return res.x if res.status == 0 else None
+    rows = np.repeat(np.arange(J.shape[0]), np.diff(J.indptr))
+    first = np.full(J.shape[0], m)
+    last = np.full(J.shape[0], -1)
+    np.minimum.at(first, rows, J.indices)
+    np.maximum.at(last, rows, J.indices)
+    d = np.zeros(m)
+    for start in range(0, m, LP_BLOCK):
+        stop = min(start + LP_BLOCK, m)
+        lo, hi = max(0, start - LP_OVERLAP), min(m, stop + LP_OVERLAP)
+        inside = np.nonzero((first >= lo) & (last < hi))[0]
+        res = linprog(T[lo:hi], A_ub=J[inside][:, lo:hi], b_ub=-g[inside], bounds=(-trust, trust), method='highs',
+                      options={'presolve': False})
+        if res.status != 0:
+            return None
+        d[start:stop] = res.x[start - lo:stop - lo]
+    return d
+
+
+def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=DEFAULT_MARGIN, start_shapes=None,
+                  log=None):
+    """Segment times (M,) of the shortest plan found whose every sample meets the vehicle's limits less
+    `margin`, for these points, method and waypoint constraint. See the module docstring."""
+    points = np.asarray(points, dtype=float)
+    system = solver.System(len(points) - 1, solver.ORDERS[method], mode)
+
+    def solve(T):
+        return PiecewisePolynomial(T, system.solve(T, points, banded=True))
+
+    constraints = Constraints(vehicle, margin, LOOP_SAMPLES)
+    constraints.check_hover()
+    shapes = start_shapes if start_shapes is not None else (timing.sqrt_allocation(points, 1.0),)
+    best = None
+    for shape in shapes:
+        T = np.asarray(shape, dtype=float)
+        for _ in range(EQUALISE_ROUNDS + 1):
+            trajectory = solve(T)
+            candidate = T * constraints.feasible_scale(trajectory)
+            if best is None or candidate.sum() < best.sum():
+                best = candidate
+            T = T * constraints.segment_scales(trajectory)
+    T = best
+    trust = FIRST_TRUST
+    v = constraints.sample_violations(solve(T))
+    J = None
+    for iteration in range(MAX_ITERATIONS):
+        if trust < MIN_TRUST:
+            break
+        if J is None:   # kept while steps from the same point are refused
+            J, g = _linearised_constraints(solve, np.log(T), v, constraints, min(NEAR * trust, 1.0))
+        d = _lp_step(T, J, g, trust)
+        if d is None:
+            trust *= SHRINK
+            continue
+        predicted = -float(T @ d)        # the time the linearised step saves
+        if predicted < STALL_GAIN * T.sum():
+            break
+        shape = T * np.exp(d)
+        trajectory = solve(shape)
+        k = constraints.feasible_scale(trajectory)
+        candidate = shape * k
+        actual = T.sum() - candidate.sum()
+        if log is not None:
+            log(f'fastest: step {iteration}: trust {trust:.3g}, {T.sum():.4f} s -> {candidate.sum():.4f} s '
+                f'(predicted {T.sum() - predicted:.4f} s)')
+        ratio = actual / predicted
+        if ratio > 0.0:   # the plan with times k shape is the shape's, its derivatives divided by k^2, k^3, k^4
+            T, J = candidate, None
+            a, j, snap = constraints.derivatives(trajectory)
+            v = constraints.violations(a / k ** 2, j / k ** 3, snap / k ** 4)
+        # the usual trust-region update on how well the linear model predicted the gain
+        step = float(np.abs(d).max())
+        if ratio < 0.25:
+            trust = SHRINK * step
+        elif ratio > 0.75 and step > 0.99 * trust:
+            trust = min(GROW * trust, 1.0)
+    # the search samples LOOP_SAMPLES points a segment; the plan is checked (and flown) at feasibility.py's
+    return T * Constraints(vehicle, margin).feasible_scale(solve(T))
