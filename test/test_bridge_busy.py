@@ -5,20 +5,24 @@ stale; and (13.3) a plan that starts away from the vehicle is refused, the hold 
 event, and a plan that starts at the vehicle is flown."""
 
 import json
-import sys
 import threading
 import time
 from collections import deque
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
-import rclpy
-from bridge_graph import VEHICLE_PARAMS, Tap, free_udp_port, hover_in_offboard, mavlink, running_graph
+from bridge_graph import (
+    VEHICLE_PARAMS,
+    Tap,
+    bridge_in_this_process,
+    free_udp_port,
+    hover_in_offboard,
+    mavlink,
+    running_graph,
+)
 from rclpy.duration import Duration
-from rclpy.parameter import Parameter
 
-from quad_bridge import frames, mavlink_bridge_node
+from quad_bridge import frames
 from quad_common import contract, rotations
 from quad_common import conversions as conv
 from quad_common.conversions import stamp_to_s
@@ -48,39 +52,6 @@ REFUSAL_WAIT_S = 20.0  # a refusal comes at the plan's start (0.5 s after public
 def graph(tmp_path):
     with running_graph(tmp_path) as g:
         yield g
-
-
-@contextmanager
-def bridge_in_this_process(observer, namespace, url, **params):
-    """MavlinkBridge built and spun as its main() does (its executor, the GIL switch interval), inside the test
-    process so a test can load that executor; yields the node."""
-    switch = sys.getswitchinterval()
-    sys.setswitchinterval(mavlink_bridge_node.GIL_SWITCH_INTERVAL_S)
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=observer.context.get_domain_id())
-    node = mavlink_bridge_node.MavlinkBridge(context=context, namespace=namespace, parameter_overrides=[
-        Parameter(k, value=v) for k, v in {'fcu_url': url, **params}.items()])
-    executor = mavlink_bridge_node.make_executor(node)
-    executor.add_node(node)
-
-    def spin():
-        while context.ok():
-            try:
-                executor.spin_once(timeout_sec=0.1)
-            except Exception:
-                if context.ok():
-                    raise
-
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    try:
-        yield node
-    finally:
-        node.destroy_node()
-        context.try_shutdown()
-        thread.join(timeout=5)
-        executor.shutdown()
-        sys.setswitchinterval(switch)
 
 
 class ExecutorLoad:

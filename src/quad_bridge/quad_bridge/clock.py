@@ -9,10 +9,15 @@ Two estimates of offset = local - autopilot (ns):
 TIMESYNC is used while it agrees with the message times (its stamps never after an arrival, nor more than
 max_disagreement_s before the earliest); otherwise the filter. jitter_ms is the standard deviation of the
 chosen estimate's recent samples.
+
+Thread-safe: the receive thread feeds it while diagnostics (the supervisor, the services) read it; every method
+holds one lock (iterating a window while the receive thread appended to it raised "deque mutated during
+iteration" and killed the bridge in `offboard`, issue 28).
 """
 
 import collections
 import math
+import threading
 
 import numpy as np
 
@@ -32,10 +37,15 @@ class ClockMapper:
         self._sync = collections.deque()     # (local ns, rtt ns, offset ns)
         self.source = 'none'
         self._last = {}                      # stream -> (remote us, local ns) of its last mapping
+        self._lock = threading.Lock()
 
     def observe(self, remote_us: int, arrival_ns: int):
         """A message stamped remote_us (autopilot boot time, us) arrived at local arrival_ns."""
         sample = arrival_ns - int(remote_us) * 1000
+        with self._lock:
+            self._observe(sample, arrival_ns)
+
+    def _observe(self, sample, arrival_ns):
         self._oneway.append((arrival_ns, sample))
         while self._minima and self._minima[-1][1] >= sample:
             self._minima.pop()
@@ -46,8 +56,9 @@ class ClockMapper:
         rtt = reply_local_ns - ts1_local_ns
         if rtt < 0 or tc1_remote_ns <= 0:
             return
-        self._sync.append((reply_local_ns, rtt, (ts1_local_ns + reply_local_ns) // 2 - tc1_remote_ns))
-        self._trim(reply_local_ns)
+        with self._lock:
+            self._sync.append((reply_local_ns, rtt, (ts1_local_ns + reply_local_ns) // 2 - tc1_remote_ns))
+            self._trim(reply_local_ns)
 
     def _trim(self, now_ns):
         horizon = now_ns - self.window_ns
@@ -56,6 +67,10 @@ class ClockMapper:
                 q.popleft()
 
     def offset_ns(self) -> int | None:
+        with self._lock:
+            return self._offset_ns()
+
+    def _offset_ns(self) -> int | None:
         floor = self._minima[0][1] if self._minima else None
         if self._sync:
             best = min(self._sync, key=lambda s: s[1])[2]
@@ -73,14 +88,16 @@ class ClockMapper:
         earlier-measured message of the same stream (an offset update must not put odometry out of order). Per
         stream: messages of different kinds carry different times of the same instant (PX4's HIGHRES_IMU
         time_usec is ahead of LOCAL_POSITION_NED's whole time_boot_ms), so one guard for all would skip."""
-        offset = self.offset_ns()
-        local = arrival_ns if offset is None else min(int(remote_us) * 1000 + offset, arrival_ns)
-        last_remote, last_local = self._last.get(stream, (-1, -1))
-        if remote_us >= last_remote and local < last_local:
-            local = min(last_local, arrival_ns)
-        self._last[stream] = (int(remote_us), local)
-        return local
+        with self._lock:
+            offset = self._offset_ns()
+            local = arrival_ns if offset is None else min(int(remote_us) * 1000 + offset, arrival_ns)
+            last_remote, last_local = self._last.get(stream, (-1, -1))
+            if remote_us >= last_remote and local < last_local:
+                local = min(last_local, arrival_ns)
+            self._last[stream] = (int(remote_us), local)
+            return local
 
     def jitter_ms(self) -> float:
-        samples = [s[2] for s in self._sync] if self.source == 'timesync' else [s[1] for s in self._oneway]
+        with self._lock:
+            samples = [s[2] for s in self._sync] if self.source == 'timesync' else [s[1] for s in self._oneway]
         return float(np.std(samples) / 1e6) if len(samples) > 1 else math.nan

@@ -3,6 +3,7 @@ setpoints go out. Times are plain seconds from a monotonic clock passed in by th
 
 import collections
 import hashlib
+import threading
 
 MAV_AUTOPILOT_INVALID = 8
 # MAV_TYPE values that are not a vehicle: GCS 6, onboard controller 18, gimbal 26, ADS-B 27, camera 30,
@@ -16,7 +17,9 @@ def is_vehicle_heartbeat(mav_type: int, autopilot: int) -> bool:
 
 
 class LinkState:
-    """WAITING (no vehicle heartbeat yet) -> UP -> LOST (no heartbeat for link_timeout_s) -> UP again."""
+    """WAITING (no vehicle heartbeat yet) -> UP -> LOST (no heartbeat for link_timeout_s) -> UP again.
+    The receive thread reports heartbeats, the supervisor asks for the verdict: both under one lock, so a heartbeat
+    that arrives while the verdict is taken is never lost in between."""
 
     WAITING, UP, LOST = 'waiting', 'up', 'lost'
 
@@ -26,25 +29,28 @@ class LinkState:
         self.last_heartbeat_s = None
         self.losses = 0
         self.reconnects = 0
+        self._lock = threading.Lock()
 
     def heartbeat(self, now_s: float) -> str | None:
         """Record a vehicle heartbeat; returns 'connected' / 'reconnected' on a transition."""
-        self.last_heartbeat_s = now_s
-        if self.state == self.UP:
-            return None
-        event = 'connected' if self.state == self.WAITING else 'reconnected'
-        if self.state == self.LOST:
-            self.reconnects += 1
-        self.state = self.UP
-        return event
+        with self._lock:
+            self.last_heartbeat_s = now_s
+            if self.state == self.UP:
+                return None
+            event = 'connected' if self.state == self.WAITING else 'reconnected'
+            if self.state == self.LOST:
+                self.reconnects += 1
+            self.state = self.UP
+            return event
 
     def update(self, now_s: float) -> str | None:
         """Returns 'lost' once when the last heartbeat is older than link_timeout_s."""
-        if self.state == self.UP and now_s - self.last_heartbeat_s > self.link_timeout_s:
-            self.state = self.LOST
-            self.losses += 1
-            return 'lost'
-        return None
+        with self._lock:
+            if self.state == self.UP and now_s - self.last_heartbeat_s > self.link_timeout_s:
+                self.state = self.LOST
+                self.losses += 1
+                return 'lost'
+            return None
 
 
 class RateMeter:

@@ -186,8 +186,8 @@ class MavlinkBridge(Node):
             lost, self.lost_while_handed_over = self.lost_while_handed_over, False
             mode = self._stale_action_mode() if lost else None
             current = self.vehicle.status.mode
+            self.stale_events += mode is not None
         if mode is not None:
-            self.stale_events += 1
             self.get_logger().error(f'link back after a loss that ended the hand-over, the vehicle still in {current} '
                                     f'flying our last setpoint: commanding {mode}')
             self.set_mode(mode, wait=False)

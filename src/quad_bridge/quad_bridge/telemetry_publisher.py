@@ -67,7 +67,8 @@ class TelemetryPublisher:
         t_us = time_us(msg) if kind in TIMESTAMPED else None
         if t_us:
             self.clock.observe(t_us, arrival_ns)
-        self.streams.arrived(kind, now_s)
+        with self.vehicle.lock:   # the supervisor reads what arrived (StreamSelector: the caller serialises)
+            self.streams.arrived(kind, now_s)
         handler(msg, self.clock.to_local_ns(t_us, arrival_ns, kind) if t_us else arrival_ns)
 
     def info(self, now_s: float) -> dict:
