@@ -21,6 +21,7 @@ BATTERY = 'battery'
 CLOCK = '/clock'
 TF = '/tf'
 DIAGNOSTICS = 'diagnostics'
+ENGAGED = 'vehicle/engaged'  # std_msgs/Bool, latched: True while the vehicle flies our setpoints (bridge: hand-over active; simulator: always)
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,7 @@ TOPICS = {t.name: t for t in (
     Topic(CLOCK, 'rosgraph_msgs/msg/Clock'),
     Topic(TF, 'tf2_msgs/msg/TFMessage', depth=100),
     Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray'),
+    Topic(ENGAGED, 'std_msgs/msg/Bool', latched=True, depth=1),
 )}
 
 
