@@ -75,6 +75,7 @@ class TelemetryPublisher:
         """Diagnostics values: which clock and messages are used, what never arrived."""
         st = self.streams
         return {'clock': self.clock.source, 'clock_offset_jitter_ms': f'{self.clock.jitter_ms():.3f}',
+                'clock_drift_ppm': f'{self.clock.drift_ppm():.0f}',
                 'odometry_source': '+'.join(st.current('odometry')) if st else '',
                 'imu_source': '+'.join(st.current('imu')) if st else '',
                 'missing_streams': ','.join(st.missing(now_s)) if st else '',

@@ -147,3 +147,47 @@ def test_a_stream_never_goes_back_when_another_stream_is_mapped_ahead_of_it():
     clock.to_local_ns(40_400, 95 * MS, 'HIGHRES_IMU')              # the IMU of the next instant, 0.4 ms ahead
     second = clock.to_local_ns(40_000, 95 * MS, 'LOCAL_POSITION_NED')      # 41 ms < 70 ms: held at 70
     assert second == first
+
+
+def _drifting_link(rate, seconds, latency_ms=20.0, timesync=True, stall_at_s=None, seed=1):
+    """A 50 Hz stream from an autopilot whose clock runs at `rate` of ours (offset 3 s at our t = 0), each message
+    latency_ms + up to 2 ms late (a 0.5 s stall holds everything from stall_at_s), and a TIMESYNC every second
+    (1-4 ms round trip, asymmetric); returns (clock, [(remote us, stamp ns, truth ns)])."""
+    import random
+    rng = random.Random(seed)
+    clock, out = ClockMapper(), []
+    origin = 10**18
+    for k in range(int(seconds * 50)):
+        t_ns = origin + k * 20 * MS                         # our time of the measurement (the truth)
+        remote_us = int((3e9 + rate * (t_ns - origin)) / 1000)
+        delay = latency_ms * MS + rng.uniform(0, 2) * MS
+        if stall_at_s is not None and stall_at_s <= k / 50 < stall_at_s + 0.5:
+            delay += (stall_at_s + 0.5 - k / 50) * 1e9
+        arrival = t_ns + int(delay)
+        clock.observe(remote_us, arrival)
+        out.append((remote_us, clock.to_local_ns(remote_us, arrival), t_ns))
+        if timesync and k % 50 == 25:
+            up, down = rng.uniform(0.5, 3) * MS, rng.uniform(0.5, 1) * MS
+            tc1 = int(3e9 + rate * (t_ns + up - origin))
+            clock.timesync(t_ns, tc1, int(t_ns + up + down))
+    return clock, out
+
+
+@pytest.mark.parametrize('rate', [0.985, 0.93, 1.00005])
+def test_a_drifting_autopilot_clock_is_followed_with_timesync(rate):
+    """PX4 SIH's clock ran at 0.984-0.993 of ours (0.93 under load), a crystal drifts by tens of ppm: after the fit
+    has 2 s, every stamp within 3 ms of the truth (the old window minimum: up to drift x 10 s early)."""
+    clock, out = _drifting_link(rate, 20.0)
+    errors = [(stamp - truth) / MS for remote, stamp, truth in out[150:]]
+    assert clock.source == 'timesync'
+    assert clock.drift_ppm() == pytest.approx(1e6 * (1 / rate - 1), abs=100.0)
+    assert max(abs(e) for e in errors) < 3.0, (min(errors), max(errors))
+
+
+def test_without_timesync_the_filter_follows_the_drift_a_latency_late_through_a_stall():
+    """No TIMESYNC: the filter's line is the smallest delay late (20 ms), never early, and half a second in which
+    every message was held back (a stalled link) does not move it."""
+    clock, out = _drifting_link(0.985, 20.0, timesync=False, stall_at_s=12.0)
+    errors = [(stamp - truth) / MS for remote, stamp, truth in out[150:] if not 12.0 <= (truth - 10**18) / 1e9 < 13.0]
+    assert clock.source == 'arrival minimum filter'
+    assert all(19.0 < e < 23.0 for e in errors), (min(errors), max(errors))

@@ -117,7 +117,10 @@ class MavlinkVehicle:
         if args.signing_key_file:  # signs what it sends and accepts only messages signed with the same key
             self.conn.setup_signing(load_signing_key(args.signing_key_file), sign_outgoing=True)
         self.mav = self.conn.mav
+        if not (math.isfinite(args.clock_rate) and 0.5 <= args.clock_rate <= 2.0):
+            raise ValueError(f'--clock-rate = {args.clock_rate!r} must be a number in [0.5, 2]')
         self.t0 = time.monotonic()
+        self.wall0_ns = time.time_ns()   # the wall clock at t0 (the test's truth for the boot clock)
         self.log_index = 0
         self.last_update_s = 0.0
         self._snap = None
@@ -128,8 +131,9 @@ class MavlinkVehicle:
         return time.monotonic() - self.t0
 
     def boot_s(self, t_s):
-        """The vehicle's boot clock (time_boot_ms / time_usec / TIMESYNC) at emulator time t_s."""
-        return t_s + self.args.boot_offset_s
+        """The vehicle's boot clock (time_boot_ms / time_usec / TIMESYNC) at emulator time t_s: it runs at
+        clock_rate of ours (PX4 SIH's ran at 0.984-0.993 of wall time, 0.93 under load)."""
+        return self.args.boot_offset_s + self.args.clock_rate * t_s
 
     # --- loop -------------------------------------------------------------------------------------------
 
@@ -418,6 +422,8 @@ def build_parser():
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')
     ap.add_argument('--boot-offset-s', type=float, default=37.0, help='the vehicle booted this long before us')
+    ap.add_argument('--clock-rate', type=float, default=1.0,
+                    help="the vehicle's clock rate against ours (PX4 SIH ran 0.984-0.993 of wall time), 0.5..2")
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--physics-rate-hz', type=float, default=500.0)
     ap.add_argument('--loop-rate-hz', type=float, default=100.0)
@@ -439,6 +445,8 @@ def main(args=None):
         print(f'mavlink_vehicle: {exc}', file=sys.stderr)
         return 2
     print(f'mavlink_vehicle: {args.autopilot} on {args.url}', flush=True)
+    print(f'mavlink_vehicle: boot clock = {args.boot_offset_s} s + {args.clock_rate} x (wall clock - '
+          f'{vehicle.wall0_ns} ns)', flush=True)
     try:
         vehicle.run()
     except KeyboardInterrupt:
