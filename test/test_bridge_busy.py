@@ -294,3 +294,48 @@ def test_start_step_refused_hold_kept_after_stale_odometry_and_a_start_at_the_ve
         assert controller['refused_start_steps'] == '1' and float(controller['start_step_m']) < max_step   # taken
     finally:
         tap.close()
+
+
+RECEIVE_STALL_S = 2.6   # longer than link_timeout_s (2.0): the receive thread held, the vehicle alive meanwhile
+
+
+def test_a_stalled_receive_thread_keeps_a_live_link_and_the_hand_over(graph):
+    """Issue 28.4, a busy companion computer: with the emulated PX4 hovering in offboard, the bridge's receive
+    thread is held for RECEIVE_STALL_S (a handler that took that long; its messages wait in the socket). The
+    link was declared lost after link_timeout_s by the supervisor's clock, ending the hand-over (PX4 SIH under
+    load: AUTO.LAND mid-flight); the vehicle never went silent, so the link stays up, nothing is lost, the
+    hand-over goes on. A real silence is still found: test_bridge_link's cut."""
+    from bridge_graph import SetpointPublisher
+    from std_srvs.srv import SetBool
+    procs, observer = graph
+    port = free_udp_port()
+    procs.vehicle('px4', f'udpout:127.0.0.1:{port}')
+    with bridge_in_this_process(observer, procs.namespace, f'udpin:127.0.0.1:{port}') as bridge:
+        observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+        setpoints = SetpointPublisher(observer)
+        try:
+            observer.wait_for(bridge.streamer.fresh, 'setpoints at the bridge')
+            result = observer.call('offboard', SetBool.Request(data=True))
+            assert result.success, result.message
+            observer.wait_for(lambda: observer.link()[1].get('mode') == 'OFFBOARD', 'mode OFFBOARD')
+            handler, stalled, resumed = bridge.client._on_message, threading.Event(), threading.Event()
+
+            def stall_once(msg):
+                if not stalled.is_set() and msg.get_type() == 'HEARTBEAT':
+                    stalled.set()
+                    resumed.wait(RECEIVE_STALL_S)   # nothing sets it: the receive thread held this long
+                handler(msg)
+                if stalled.is_set() and not resumed.is_set():
+                    resumed.set()
+
+            bridge.client._on_message = stall_once
+            observer.wait_for(resumed.is_set, 'the receive thread held and running again')
+            with observer.lock:
+                published = len(observer.diagnostics.get('mavlink_bridge: link', []))
+            observer.wait_for(lambda: len(observer.diagnostics.get('mavlink_bridge: link', [])) > published + 1,
+                              'diagnostics after the stall')
+            losses, phase, reason = bridge.link.losses, bridge.vehicle.handover.phase, bridge.vehicle.handover.reason
+        finally:
+            setpoints.stop()
+    print(f'after a {RECEIVE_STALL_S} s receive-thread stall: {losses} link losses, hand-over {phase} ({reason})')
+    assert losses == 0 and phase == 'active', reason

@@ -53,7 +53,8 @@ PARAMS = [
           min=0.02, max=10.0, read_only=True),
     Param('stale_action', 'land', 'what a stale stream commands: land | hold (ArduPilot always lands)',
           choices=('land', 'hold')),
-    Param('link_timeout_s', 2.0, 'no vehicle heartbeat for this long: link lost', min=0.2, max=30.0),
+    Param('link_timeout_s', 2.0, 'nothing from the vehicle for this long (as the receive thread read it): link lost',
+          min=0.2, max=30.0),
     Param('hover_throttle', 0.5,
           'normalised thrust that hovers the vehicle (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER)',
           min=0.05, max=0.95, read_only=True),
@@ -200,11 +201,11 @@ class MavlinkBridge(Node):
         while not self.stopping.wait(SUPERVISOR_PERIOD_S):
             try:
                 now = self.now_s()
-                if self.link.update(now) == 'lost':
+                if self.link.update(now, self.client.drained_s - self.t0) == 'lost':
                     with self.vehicle.lock:
                         if self.vehicle.handover.end('link lost'):
                             self.lost_while_handed_over = True
-                    self.get_logger().error(f'vehicle heartbeat lost (none for {self.params["link_timeout_s"]} s)')
+                    self.get_logger().error(f'vehicle link lost (nothing for {self.params["link_timeout_s"]} s)')
                     self.publish_diagnostics()
                 streams = self.telemetry.streams
                 if streams is not None and self.link.state == LinkState.UP:
@@ -368,6 +369,9 @@ class MavlinkBridge(Node):
     # --- vehicle -> ROS (receive thread: decodes and publishes itself, never waits on the executor) ----
 
     def on_mavlink(self, msg):
+        if msg.get_srcSystem() == self.vehicle.status.system and \
+                msg.get_srcComponent() == self.params['target_component']:
+            self.link.message(self.now_s(), msg.get_seq())
         if msg.get_type() == 'HEARTBEAT':
             self.on_heartbeat(msg)
         elif msg.get_srcSystem() == self.vehicle.status.system:  # only our vehicle's telemetry is used
@@ -433,7 +437,7 @@ class MavlinkBridge(Node):
             'vehicle_params': ', '.join(f'{k}={v:g}' for k, v in sorted(s.params.items())),
             'param_problems': '; '.join(check.problems) if check else '',
             'param_notes': '; '.join(check.notes) if check else '',
-            'packet_loss_pct': f'{self.client.packet_loss_pct():.2f}', 'losses': self.link.losses,
+            'packet_loss_pct': f'{self.link.packet_loss_pct():.2f}', 'losses': self.link.losses,
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
             'handler_errors': self.client.handler_errors})
         st = self.streamer

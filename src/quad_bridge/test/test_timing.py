@@ -92,6 +92,23 @@ def test_a_new_setpoint_goes_out_at_once_and_the_keep_alive_only_fills_gaps():
     assert s.keepalives == 1 and len(quiet) == 1 and quiet[0][1] > 0.5
 
 
+def test_setpoints_that_stop_are_stale_setpoint_timeout_s_after_the_last_one():
+    """The controller stops at 1.0 s: the keep-alive re-sends the last setpoint, and the stale report comes when
+    that setpoint is timeout_s old (1.5 s), not when the wire has been quiet for timeout_s after the last
+    re-send (2.0 s, as PX4 SIH showed: 2 x setpoint_timeout_s); the keep-alive's own wait wakes it in time."""
+    clock, quiet = FakeClock(), []
+    s = SetpointStreamer(lambda sp: None, lambda: True, 50.0, 0.5, lambda *a: quiet.append((clock.t, *a)),
+                         clock=clock)
+    for k in range(51):
+        clock.t = 0.02 * k
+        s.submit(k)
+    while not quiet and clock.t < 3.0:
+        clock.t += min(s._tick(), 0.05)
+    at, wire_age, input_age = quiet[0]
+    assert 1.5 < at <= 1.5 + 0.002 and wire_age < 0.05 and input_age > 0.5
+    assert s.keepalives >= 20
+
+
 def test_a_stopped_hand_over_with_fresh_input_is_reported_as_a_quiet_wire():
     clock, quiet = FakeClock(), []
     allowed = threading.Event()
