@@ -29,6 +29,7 @@ from quad_vehicle_emu import ned  # noqa: E402
 from quad_vehicle_emu import protocol as p  # noqa: E402
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, default_tau_s, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
+from quad_vehicle_emu.estimator import Estimate  # noqa: E402
 
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
 HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
@@ -104,6 +105,9 @@ class MavlinkVehicle:
         self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
+        self.estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
+                                 args.estimator_wander_tau_s, args.seed)
+        self.estimated = self.sim.state   # what the autopilot believes (its hold and its telemetry fly this)
         self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
         self.rng = random.Random(args.seed)
         self.queue = []              # ArduPilot: packed messages waiting for the next burst
@@ -146,7 +150,8 @@ class MavlinkVehicle:
             self.control(now)
             lag_steps = int((now - self.sim.time_s) * self.args.physics_rate_hz)
             self.sim.advance_steps(min(max(lag_steps, 0), 5 * steps_per_tick))
-            self.telemetry.push(now, (self.sim.state, self.sim.specific_force_body_mps2.copy()))
+            self.estimated = self.estimate.step(now, self.sim.state)
+            self.telemetry.push(now, (self.estimated, self.sim.specific_force_body_mps2.copy()))
             self.send_telemetry(now)
             self.send_log()
             sleep_s = self.sim.time_s + tick_s - self.now_s()
@@ -156,7 +161,7 @@ class MavlinkVehicle:
     def control(self, now):
         dt = min(max(now - self.last_update_s, 0.0), 0.1)
         self.last_update_s = now
-        state = self.sim.state
+        state = self.estimated
         target = self.ap.update(state, self.sim.landed, now, dt)
         self.sim.armed = target is not None
         if target is None:
@@ -424,6 +429,14 @@ def build_parser():
     ap.add_argument('--boot-offset-s', type=float, default=37.0, help='the vehicle booted this long before us')
     ap.add_argument('--clock-rate', type=float, default=1.0,
                     help="the vehicle's clock rate against ours (PX4 SIH ran 0.984-0.993 of wall time), 0.5..2")
+    ap.add_argument('--estimator-lag-s', type=float, default=0.0,
+                    help="the autopilot's position/velocity estimate trails the truth this much (PX4 SIH: 0.15)")
+    ap.add_argument('--estimator-wander-m', type=float, default=0.0,
+                    help="RMS of the estimate's horizontal position wander per axis (PX4 SIH: 0.4-0.8 m off)")
+    ap.add_argument('--estimator-wander-z-m', type=float, default=0.0,
+                    help="RMS of the estimate's height wander (PX4 SIH: 0.3-1.3 m)")
+    ap.add_argument('--estimator-wander-tau-s', type=float, default=60.0,
+                    help="the wander's correlation time (PX4 SIH: about 0.5 m a minute)")
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--physics-rate-hz', type=float, default=500.0)
     ap.add_argument('--loop-rate-hz', type=float, default=100.0)
