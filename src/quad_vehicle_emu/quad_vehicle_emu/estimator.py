@@ -5,8 +5,8 @@ the estimate, so what a position controller flies is the estimate, and the truth
 Wander: per axis a first-order Gauss-Markov process (correlation time tau_s, standard deviation wander_m
 horizontally, wander_z_m vertically), w' = -w / tau + sqrt(2 sigma^2 / tau) n(t), stepped exactly:
 w(t + dt) = a w(t) + sigma sqrt(1 - a^2) n,  a = exp(-dt / tau). PX4 SIH: 0.4-0.8 m RMS off the truth (height
-0.3-1.3 m), wandering about 0.5 m a minute, 0.15 s behind. Defaults (lag 0, no wander): the estimate is the
-truth.
+0.3-1.3 m), wandering about 0.5 m a minute, 0.15 s behind. The wander starts at 0 (the estimator initialised
+where the vehicle stands). Defaults (lag 0, no wander): the estimate is the truth.
 """
 
 import collections
@@ -29,7 +29,7 @@ class Estimate:
         self.lag_s, self.tau_s = float(lag_s), float(tau_s)
         self.sigma = np.array([wander_m, wander_m, wander_z_m], dtype=float)
         self.rng = np.random.default_rng(seed)
-        self.wander = self.sigma * self.rng.standard_normal(3)
+        self.wander = np.zeros(3)   # initialised where the vehicle stands, wandering from there
         self.last_s = None
         self._history = collections.deque()   # (time s, position, velocity) of the truth
 
