@@ -38,20 +38,26 @@ BUCKET_S = 0.25        # the minimum-delay filter keeps one minimum per this muc
 MIN_FIT_POINTS = 4     # a drift is fitted from this many points ...
 MIN_FIT_SPAN_S = 2.0   # ... spanning this much autopilot time (else the offset is taken as constant)
 OUTLIER_NS = 2_000_000  # a bucket minimum this far above the line was a delayed bucket (a stall, a burst)
+MAX_DRIFT = 0.2        # a fitted drift beyond 20 % (PX4 SIH under load: 7.5 %) is noise, not a clock
 
 
 def _line(remote_ns, offset_ns):
-    """(r_ref, offset at r_ref, drift, residuals) of the least-squares line offset = a + drift (r - r_ref), r_ref
-    the newest point; drift 0 and the smallest offset when the points are too few or too close together."""
+    """(r_ref, offset at r_ref, drift, residuals, drift standard error) of the least-squares line
+    offset = a + drift (r - r_ref), r_ref the newest point; drift 0 (standard error inf) and the smallest offset
+    when the points are too few, too close together, or say a drift no clock has."""
     r = np.asarray(remote_ns, dtype=np.int64)
     off = np.asarray(offset_ns, dtype=np.int64)
     r_ref, off_ref = int(r[-1]), int(off.min())
     x = (r - r_ref) / 1e9
     y = (off - off_ref).astype(float)
-    if len(r) < MIN_FIT_POINTS or x[-1] - x[0] < MIN_FIT_SPAN_S:
-        return r_ref, off_ref, 0.0, y
+    if len(r) < MIN_FIT_POINTS or x.max() - x.min() < MIN_FIT_SPAN_S:
+        return r_ref, off_ref, 0.0, y, math.inf
     slope, intercept = np.polyfit(x, y, 1)
-    return r_ref, off_ref + int(round(intercept)), float(slope) / 1e9, y - (intercept + slope * x)
+    residuals = y - (intercept + slope * x)
+    se = math.sqrt(float(residuals @ residuals) / (len(x) - 2) / float(((x - x.mean()) ** 2).sum())) / 1e9
+    if abs(slope / 1e9) > MAX_DRIFT:
+        return r_ref, off_ref, 0.0, y, math.inf
+    return r_ref, off_ref + int(round(intercept)), float(slope) / 1e9, residuals, se
 
 
 class ClockMapper:
@@ -117,31 +123,34 @@ class ClockMapper:
         remote = [m[1] for m in self._minima]
         offset = [m[2] for m in self._minima]
         fit = _line(remote, offset)
-        if fit[2] != 0.0:   # drop delayed buckets, refit on the lower envelope
+        if math.isfinite(fit[4]):   # drop delayed buckets, refit on the lower envelope
             keep = fit[3] <= np.median(fit[3]) + OUTLIER_NS
             if keep.sum() >= MIN_FIT_POINTS:
                 fit = _line(np.asarray(remote)[keep], np.asarray(offset)[keep])
         return fit
 
-    def _sync_line(self, drift_fallback):
+    def _sync_line(self, floor):
+        """TIMESYNC's line; when its drift is known worse than the filter's (too few answers, or round trips
+        long and uneven on a loaded machine: 0.3-0.6 s gave +21000 ppm on a clock without drift), the answer
+        with the shortest round trip carried by the filter's drift (the drift is one fact of the two clocks)."""
         if not self._sync:
             return None
         shortest = min(s[1] for s in self._sync)
         good = [s for s in self._sync if s[1] <= 2 * shortest + ONE_MS_NS]
         fit = _line([s[2] for s in good], [s[3] for s in good])
-        if fit[2] == 0.0:   # too few answers for a drift of their own: the best one, carried by the filter's
+        if floor is not None and floor[4] < fit[4]:
             best = min(good, key=lambda s: s[1])
-            return best[2], best[3], drift_fallback, fit[3]
+            return best[2], best[3], floor[2], fit[3], floor[4]
         return fit
 
     def _lines(self):
         if self._fits is None:
             floor = self._floor_line()
-            self._fits = (floor, self._sync_line(floor[2] if floor else 0.0))
+            self._fits = (floor, self._sync_line(floor))
         return self._fits
 
     def _chosen(self):
-        """The line in use (r_ref, offset_ref, drift, residuals), or None; sets source."""
+        """The line in use (r_ref, offset_ref, drift, residuals, drift standard error), or None; sets source."""
         floor, sync = self._lines()
         if sync is not None:
             if floor is None:
@@ -202,5 +211,5 @@ class ClockMapper:
 
 
 def _at(line, remote_ns: int) -> int:
-    r_ref, off_ref, drift, _ = line
+    r_ref, off_ref, drift = line[:3]
     return off_ref + int(round(drift * (remote_ns - r_ref)))
