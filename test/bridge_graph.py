@@ -17,6 +17,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -386,6 +387,40 @@ def hover_in_offboard(procs, observer, flavour, port, **graph):
     """start_vehicle_graph(..., **graph), then enter_offboard: the vehicle hovering under our controller."""
     start_vehicle_graph(procs, flavour, port, **graph)
     enter_offboard(observer, flavour)
+
+
+@contextmanager
+def bridge_in_this_process(observer, namespace, url, **params):
+    """MavlinkBridge built and spun as its main() does (its executor, the GIL switch interval), inside the test
+    process so a test can load that executor; yields the node."""
+    from quad_bridge import mavlink_bridge_node
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(mavlink_bridge_node.GIL_SWITCH_INTERVAL_S)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=observer.context.get_domain_id())
+    node = mavlink_bridge_node.MavlinkBridge(context=context, namespace=namespace, parameter_overrides=[
+        Parameter(k, value=v) for k, v in {'fcu_url': url, **params}.items()])
+    executor = mavlink_bridge_node.make_executor(node)
+    executor.add_node(node)
+
+    def spin():
+        while context.ok():
+            try:
+                executor.spin_once(timeout_sec=0.1)
+            except Exception:
+                if context.ok():
+                    raise
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        context.try_shutdown()
+        thread.join(timeout=5)
+        executor.shutdown()
+        sys.setswitchinterval(switch)
 
 
 @contextmanager

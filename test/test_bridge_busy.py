@@ -5,20 +5,24 @@ stale; and (13.3) a plan that starts away from the vehicle is refused, the hold 
 event, and a plan that starts at the vehicle is flown."""
 
 import json
-import sys
 import threading
 import time
 from collections import deque
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
-import rclpy
-from bridge_graph import VEHICLE_PARAMS, Tap, free_udp_port, hover_in_offboard, mavlink, running_graph
+from bridge_graph import (
+    VEHICLE_PARAMS,
+    Tap,
+    bridge_in_this_process,
+    free_udp_port,
+    hover_in_offboard,
+    mavlink,
+    running_graph,
+)
 from rclpy.duration import Duration
-from rclpy.parameter import Parameter
 
-from quad_bridge import frames, mavlink_bridge_node
+from quad_bridge import frames
 from quad_common import contract, rotations
 from quad_common import conversions as conv
 from quad_common.conversions import stamp_to_s
@@ -48,39 +52,6 @@ REFUSAL_WAIT_S = 20.0  # a refusal comes at the plan's start (0.5 s after public
 def graph(tmp_path):
     with running_graph(tmp_path) as g:
         yield g
-
-
-@contextmanager
-def bridge_in_this_process(observer, namespace, url, **params):
-    """MavlinkBridge built and spun as its main() does (its executor, the GIL switch interval), inside the test
-    process so a test can load that executor; yields the node."""
-    switch = sys.getswitchinterval()
-    sys.setswitchinterval(mavlink_bridge_node.GIL_SWITCH_INTERVAL_S)
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=observer.context.get_domain_id())
-    node = mavlink_bridge_node.MavlinkBridge(context=context, namespace=namespace, parameter_overrides=[
-        Parameter(k, value=v) for k, v in {'fcu_url': url, **params}.items()])
-    executor = mavlink_bridge_node.make_executor(node)
-    executor.add_node(node)
-
-    def spin():
-        while context.ok():
-            try:
-                executor.spin_once(timeout_sec=0.1)
-            except Exception:
-                if context.ok():
-                    raise
-
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    try:
-        yield node
-    finally:
-        node.destroy_node()
-        context.try_shutdown()
-        thread.join(timeout=5)
-        executor.shutdown()
-        sys.setswitchinterval(switch)
 
 
 class ExecutorLoad:
@@ -323,3 +294,48 @@ def test_start_step_refused_hold_kept_after_stale_odometry_and_a_start_at_the_ve
         assert controller['refused_start_steps'] == '1' and float(controller['start_step_m']) < max_step   # taken
     finally:
         tap.close()
+
+
+RECEIVE_STALL_S = 2.6   # longer than link_timeout_s (2.0): the receive thread held, the vehicle alive meanwhile
+
+
+def test_a_stalled_receive_thread_keeps_a_live_link_and_the_hand_over(graph):
+    """Issue 28.4, a busy companion computer: with the emulated PX4 hovering in offboard, the bridge's receive
+    thread is held for RECEIVE_STALL_S (a handler that took that long; its messages wait in the socket). The
+    link was declared lost after link_timeout_s by the supervisor's clock, ending the hand-over (PX4 SIH under
+    load: AUTO.LAND mid-flight); the vehicle never went silent, so the link stays up, nothing is lost, the
+    hand-over goes on. A real silence is still found: test_bridge_link's cut."""
+    from bridge_graph import SetpointPublisher
+    from std_srvs.srv import SetBool
+    procs, observer = graph
+    port = free_udp_port()
+    procs.vehicle('px4', f'udpout:127.0.0.1:{port}')
+    with bridge_in_this_process(observer, procs.namespace, f'udpin:127.0.0.1:{port}') as bridge:
+        observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+        setpoints = SetpointPublisher(observer)
+        try:
+            observer.wait_for(bridge.streamer.fresh, 'setpoints at the bridge')
+            result = observer.call('offboard', SetBool.Request(data=True))
+            assert result.success, result.message
+            observer.wait_for(lambda: observer.link()[1].get('mode') == 'OFFBOARD', 'mode OFFBOARD')
+            handler, stalled, resumed = bridge.client._on_message, threading.Event(), threading.Event()
+
+            def stall_once(msg):
+                if not stalled.is_set() and msg.get_type() == 'HEARTBEAT':
+                    stalled.set()
+                    resumed.wait(RECEIVE_STALL_S)   # nothing sets it: the receive thread held this long
+                handler(msg)
+                if stalled.is_set() and not resumed.is_set():
+                    resumed.set()
+
+            bridge.client._on_message = stall_once
+            observer.wait_for(resumed.is_set, 'the receive thread held and running again')
+            with observer.lock:
+                published = len(observer.diagnostics.get('mavlink_bridge: link', []))
+            observer.wait_for(lambda: len(observer.diagnostics.get('mavlink_bridge: link', [])) > published + 1,
+                              'diagnostics after the stall')
+            losses, phase, reason = bridge.link.losses, bridge.vehicle.handover.phase, bridge.vehicle.handover.reason
+        finally:
+            setpoints.stop()
+    print(f'after a {RECEIVE_STALL_S} s receive-thread stall: {losses} link losses, hand-over {phase} ({reason})')
+    assert losses == 0 and phase == 'active', reason

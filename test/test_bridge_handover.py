@@ -147,7 +147,7 @@ def test_a_link_loss_that_ends_the_hand_over_brings_the_stale_action_when_the_li
     finally:
         publisher.stop()
     log = procs.log('bridge')
-    assert 'vehicle heartbeat lost' in log
+    assert 'vehicle link lost' in log
     assert 'link back after a loss that ended the hand-over, the vehicle still in GUIDED_NOGPS' in log
     assert 'not flying our setpoints' not in log     # the quiet stream during the loss: nothing could be commanded
 

@@ -47,7 +47,7 @@ def test_link_loss_is_reported_and_recovered(graph):
         observer.wait_for(lambda: count('losses') > losses, 'the loss of the stopped vehicle')
         procs.vehicle('px4', f'udpout:127.0.0.1:{relay.port}')
         observer.wait_for(lambda: count('reconnects') > reconnects, 'the restarted vehicle')
-        assert 'heartbeat lost' in procs.log('bridge') and 'reconnected' in procs.log('bridge')
+        assert 'vehicle link lost' in procs.log('bridge') and 'reconnected' in procs.log('bridge')
     finally:
         relay.close()
 

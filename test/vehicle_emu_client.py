@@ -14,7 +14,7 @@ from bridge_graph import ROOT, VEHICLE_FILE, free_udp_port, python_env  # noqa: 
 from pymavlink import mavutil  # noqa: E402
 
 WAIT_S = 60.0
-PX4_MODES = {'OFFBOARD': 6 << 16, 'AUTO.LOITER': 4 << 16 | 3 << 24, 'AUTO.LAND': 4 << 16 | 6 << 24}
+PX4_MODES = {'OFFBOARD': 6 << 16, 'POSCTL': 3 << 16, 'AUTO.LOITER': 4 << 16 | 3 << 24, 'AUTO.LAND': 4 << 16 | 6 << 24}
 
 
 def free_tcp_port() -> int:

@@ -55,7 +55,8 @@ PARAMS = [
           min=0.02, max=10.0, read_only=True),
     Param('stale_action', 'land', 'what a stale stream commands: land | hold (ArduPilot always lands)',
           choices=('land', 'hold')),
-    Param('link_timeout_s', 2.0, 'no vehicle heartbeat for this long: link lost', min=0.2, max=30.0),
+    Param('link_timeout_s', 2.0, 'nothing from the vehicle for this long (as the receive thread read it): link lost',
+          min=0.2, max=30.0),
     Param('hover_throttle', 0.5,
           'normalised thrust that hovers the vehicle (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER)',
           min=0.05, max=0.95, read_only=True),
@@ -207,8 +208,8 @@ class MavlinkBridge(Node):
             lost, self.lost_while_handed_over = self.lost_while_handed_over, False
             mode = self._stale_action_mode() if lost else None
             current = self.vehicle.status.mode
+            self.stale_events += mode is not None
         if mode is not None:
-            self.stale_events += 1
             self.get_logger().error(f'link back after a loss that ended the hand-over, the vehicle still in {current} '
                                     f'flying our last setpoint: commanding {mode}')
             self.set_mode(mode, wait=False)
@@ -222,11 +223,11 @@ class MavlinkBridge(Node):
             try:
                 now = self.now_s()
                 self.update_engaged()
-                if self.link.update(now) == 'lost':
+                if self.link.update(now, self.client.drained_s - self.t0) == 'lost':
                     with self.vehicle.lock:
                         if self.vehicle.handover.end('link lost'):
                             self.lost_while_handed_over = True
-                    self.get_logger().error(f'vehicle heartbeat lost (none for {self.params["link_timeout_s"]} s)')
+                    self.get_logger().error(f'vehicle link lost (nothing for {self.params["link_timeout_s"]} s)')
                     self.update_engaged()
                     self.publish_diagnostics()
                 streams = self.telemetry.streams
@@ -394,6 +395,9 @@ class MavlinkBridge(Node):
     # --- vehicle -> ROS (receive thread: decodes and publishes itself, never waits on the executor) ----
 
     def on_mavlink(self, msg):
+        if msg.get_srcSystem() == self.vehicle.status.system and \
+                msg.get_srcComponent() == self.params['target_component']:
+            self.link.message(self.now_s(), msg.get_seq())
         if msg.get_type() == 'HEARTBEAT':
             self.on_heartbeat(msg)
         elif msg.get_srcSystem() == self.vehicle.status.system:  # only our vehicle's telemetry is used
@@ -461,7 +465,7 @@ class MavlinkBridge(Node):
             'vehicle_params': ', '.join(f'{k}={v:g}' for k, v in sorted(s.params.items())),
             'param_problems': '; '.join(check.problems) if check else '',
             'param_notes': '; '.join(check.notes) if check else '',
-            'packet_loss_pct': f'{self.client.packet_loss_pct():.2f}', 'losses': self.link.losses,
+            'packet_loss_pct': f'{self.link.packet_loss_pct():.2f}', 'losses': self.link.losses,
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
             'handler_errors': self.client.handler_errors})
         st = self.streamer

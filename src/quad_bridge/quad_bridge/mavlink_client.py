@@ -4,7 +4,9 @@ COMMAND_LONG calls that wait for their COMMAND_ACK on an event (never on the soc
 MAVLink 2 is forced: MAVLINK20 must be set before pymavlink's dialect is first imported.
 """
 
+import math
 import os
+import select
 import threading
 import time
 
@@ -54,6 +56,7 @@ class MavlinkClient:
         self._thread = None
         self.bad_data = 0         # unparsable bytes / failed CRC
         self.handler_errors = 0   # exceptions from on_message or the parser, survived
+        self.drained_s = -math.inf  # monotonic time at which the receive thread had read all the link delivered
 
     def start(self):
         self._running = True
@@ -71,9 +74,6 @@ class MavlinkClient:
         """mav.<name>_send(*args) under the send lock (pymavlink's encoder is not thread-safe)."""
         with self._send_lock:
             getattr(self.conn.mav, name + '_send')(*args)
-
-    def packet_loss_pct(self) -> float:
-        return float(self.conn.packet_loss())
 
     def command_long(self, target_system, target_component, command, params, timeout_s=None):
         """Sends COMMAND_LONG; with timeout_s, waits for the matching COMMAND_ACK and returns its result
@@ -128,7 +128,8 @@ class MavlinkClient:
                 self.handler_errors += 1
                 time.sleep(0.01)
                 continue
-            if msg is None:
+            if msg is None:   # nothing for the whole timeout: everything delivered has been read
+                self.drained_s = time.monotonic()
                 continue
             if msg.get_type() == 'BAD_DATA':
                 self.bad_data += 1
@@ -150,3 +151,17 @@ class MavlinkClient:
                 self._on_message(msg)
             except Exception:
                 self.handler_errors += 1
+            self._note_drained()
+
+    def _note_drained(self):
+        """drained_s = now when nothing is waiting to be read (socket and parser); a receive thread that is behind
+        leaves it in the past (LinkState decides a loss only past it)."""
+        fd = getattr(self.conn, 'fd', None)
+        if fd is None or self.conn.mav.buf_len() > 0:
+            return
+        try:
+            readable = select.select([fd], [], [], 0)[0]
+        except (OSError, ValueError):
+            return
+        if not readable:
+            self.drained_s = time.monotonic()

@@ -85,8 +85,10 @@ class SetpointStreamer:
             self._wake.clear()
 
     def _tick(self) -> float:
-        """Re-send when a period passed without a send; report once when the wire goes quiet for timeout_s (the
-        vehicle keeps flying the last setpoint meanwhile). Returns the next wait."""
+        """Re-send when a period passed without a send; report once when the setpoints stopped for timeout_s, or
+        the wire went quiet for timeout_s (the vehicle keeps flying the last setpoint meanwhile). The setpoints'
+        own age decides, not the wire's: the keep-alive re-sends the last one until it is timeout_s old, and
+        waiting for the wire to go quiet after that took 2 x timeout_s (issue 28). Returns the next wait."""
         report = None
         with self.lock:
             now = self.clock()
@@ -95,10 +97,11 @@ class SetpointStreamer:
                 self._emit(now)
                 self.keepalives += 1
             wire_age = now - self.sent_s
-            if wire_age > self.timeout_s and self.sent_s > self.reported_sent_s:
+            if (wire_age > self.timeout_s or input_age > self.timeout_s) and self.sent_s > self.reported_sent_s:
                 self.reported_sent_s, report = self.sent_s, (wire_age, input_age)
             next_send = self.sent_s + self.period_s - now
-            next_quiet = self.sent_s + self.timeout_s - now if self.sent_s > self.reported_sent_s else self.period_s
+            next_quiet = (min(self.sent_s, self.received_s) + self.timeout_s - now
+                          if self.sent_s > self.reported_sent_s else self.period_s)
         if report is not None:
             self._on_stale(*report)
         return min(next_send if next_send > 0 else self.period_s, next_quiet + 1e-4, self.period_s)

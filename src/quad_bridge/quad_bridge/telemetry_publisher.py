@@ -67,13 +67,15 @@ class TelemetryPublisher:
         t_us = time_us(msg) if kind in TIMESTAMPED else None
         if t_us:
             self.clock.observe(t_us, arrival_ns)
-        self.streams.arrived(kind, now_s)
+        with self.vehicle.lock:   # the supervisor reads what arrived (StreamSelector: the caller serialises)
+            self.streams.arrived(kind, now_s)
         handler(msg, self.clock.to_local_ns(t_us, arrival_ns, kind) if t_us else arrival_ns)
 
     def info(self, now_s: float) -> dict:
         """Diagnostics values: which clock and messages are used, what never arrived."""
         st = self.streams
         return {'clock': self.clock.source, 'clock_offset_jitter_ms': f'{self.clock.jitter_ms():.3f}',
+                'clock_drift_ppm': f'{self.clock.drift_ppm():.0f}',
                 'odometry_source': '+'.join(st.current('odometry')) if st else '',
                 'imu_source': '+'.join(st.current('imu')) if st else '',
                 'missing_streams': ','.join(st.missing(now_s)) if st else '',

@@ -58,6 +58,38 @@ def test_link_state_machine():
     assert (link.losses, link.reconnects, link.state) == (1, 1, LinkState.UP)
 
 
+def test_a_receive_thread_that_is_behind_never_declares_a_live_link_lost():
+    """A busy companion computer: the receive thread last read the vehicle at 10.0 s and has not drained the
+    link since (it is behind or not scheduled): at 12.5 s, past link_timeout_s by the clock, nothing is declared;
+    once it has drained past the deadline with nothing more from the vehicle, the loss is; telemetry between
+    heartbeats keeps the link alive by itself."""
+    link = LinkState(link_timeout_s=2.0)
+    link.heartbeat(10.0)
+    assert link.update(12.5, drained_s=10.0) is None        # the old verdict: 'lost' (2.5 s without a heartbeat)
+    assert link.update(12.6, drained_s=11.9) is None
+    assert link.update(12.7, drained_s=12.1) == 'lost'
+    live = LinkState(link_timeout_s=1.0)
+    live.heartbeat(0.0)
+    for k in range(1, 150):                                 # 50 Hz telemetry, no second heartbeat for 3 s
+        live.message(0.02 * k, k % 256)
+        assert live.update(0.02 * k, drained_s=0.02 * k) is None
+
+
+def test_packet_loss_from_sequence_numbers():
+    """2 of 302 packets lost; a duplicate and a late packet lose nothing (pymavlink's count: each ~255 lost),
+    and the 8-bit wrap is no loss."""
+    link = LinkState(link_timeout_s=1.0)
+    link.heartbeat(0.0)
+    seqs = [k % 256 for k in range(300)]
+    del seqs[100], seqs[200]                                # two lost
+    seqs.insert(50, seqs[49])                               # a duplicate
+    seqs[150], seqs[151] = seqs[151], seqs[150]             # two swapped: one late
+    for seq in seqs:
+        link.message(0.0, seq)
+    assert link.sequence.reordered == 2
+    assert link.packet_loss_pct() == pytest.approx(100 * 3 / (len(seqs) + 3))   # the swap counts its gap once
+
+
 def test_vehicle_heartbeats_and_autopilot_choice():
     assert is_vehicle_heartbeat(2, 12)                    # quadrotor, PX4
     assert not is_vehicle_heartbeat(6, 8)                 # GCS

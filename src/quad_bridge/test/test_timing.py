@@ -92,6 +92,23 @@ def test_a_new_setpoint_goes_out_at_once_and_the_keep_alive_only_fills_gaps():
     assert s.keepalives == 1 and len(quiet) == 1 and quiet[0][1] > 0.5
 
 
+def test_setpoints_that_stop_are_stale_setpoint_timeout_s_after_the_last_one():
+    """The controller stops at 1.0 s: the keep-alive re-sends the last setpoint, and the stale report comes when
+    that setpoint is timeout_s old (1.5 s), not when the wire has been quiet for timeout_s after the last
+    re-send (2.0 s, as PX4 SIH showed: 2 x setpoint_timeout_s); the keep-alive's own wait wakes it in time."""
+    clock, quiet = FakeClock(), []
+    s = SetpointStreamer(lambda sp: None, lambda: True, 50.0, 0.5, lambda *a: quiet.append((clock.t, *a)),
+                         clock=clock)
+    for k in range(51):
+        clock.t = 0.02 * k
+        s.submit(k)
+    while not quiet and clock.t < 3.0:
+        clock.t += min(s._tick(), 0.05)
+    at, wire_age, input_age = quiet[0]
+    assert 1.5 < at <= 1.5 + 0.002 and wire_age < 0.05 and input_age > 0.5
+    assert s.keepalives >= 20
+
+
 def test_a_stopped_hand_over_with_fresh_input_is_reported_as_a_quiet_wire():
     clock, quiet = FakeClock(), []
     allowed = threading.Event()
@@ -147,3 +164,58 @@ def test_a_stream_never_goes_back_when_another_stream_is_mapped_ahead_of_it():
     clock.to_local_ns(40_400, 95 * MS, 'HIGHRES_IMU')              # the IMU of the next instant, 0.4 ms ahead
     second = clock.to_local_ns(40_000, 95 * MS, 'LOCAL_POSITION_NED')      # 41 ms < 70 ms: held at 70
     assert second == first
+
+
+def _drifting_link(rate, seconds, latency_ms=20.0, timesync=True, stall_at_s=None, seed=1, reply_ms=(0.5, 3.0)):
+    """A 50 Hz stream from an autopilot whose clock runs at `rate` of ours (offset 3 s at our t = 0), each message
+    latency_ms + up to 2 ms late (a 0.5 s stall holds everything from stall_at_s), and a TIMESYNC every second
+    (the request up to reply_ms late at the autopilot, the reply 0.5-1 ms: asymmetric); returns (clock, [(remote
+    us, stamp ns, truth ns)])."""
+    import random
+    rng = random.Random(seed)
+    clock, out = ClockMapper(), []
+    origin = 10**18
+    for k in range(int(seconds * 50)):
+        t_ns = origin + k * 20 * MS                         # our time of the measurement (the truth)
+        remote_us = int((3e9 + rate * (t_ns - origin)) / 1000)
+        delay = latency_ms * MS + rng.uniform(0, 2) * MS
+        if stall_at_s is not None and stall_at_s <= k / 50 < stall_at_s + 0.5:
+            delay += (stall_at_s + 0.5 - k / 50) * 1e9
+        arrival = t_ns + int(delay)
+        clock.observe(remote_us, arrival)
+        out.append((remote_us, clock.to_local_ns(remote_us, arrival), t_ns))
+        if timesync and k % 50 == 25:
+            up, down = rng.uniform(*reply_ms) * MS, rng.uniform(0.5, 1) * MS
+            tc1 = int(3e9 + rate * (t_ns + up - origin))
+            clock.timesync(t_ns, tc1, int(t_ns + up + down))
+    return clock, out
+
+
+@pytest.mark.parametrize('rate', [0.985, 0.93, 1.00005])
+def test_a_drifting_autopilot_clock_is_followed_with_timesync(rate):
+    """PX4 SIH's clock ran at 0.984-0.993 of ours (0.93 under load), a crystal drifts by tens of ppm: after the fit
+    has 2 s, every stamp within 3 ms of the truth (the old window minimum: up to drift x 10 s early)."""
+    clock, out = _drifting_link(rate, 20.0)
+    errors = [(stamp - truth) / MS for remote, stamp, truth in out[150:]]
+    assert clock.source == 'timesync'
+    assert clock.drift_ppm() == pytest.approx(1e6 * (1 / rate - 1), abs=100.0)
+    assert max(abs(e) for e in errors) < 3.0, (min(errors), max(errors))
+
+
+def test_without_timesync_the_filter_follows_the_drift_a_latency_late_through_a_stall():
+    """No TIMESYNC: the filter's line is the smallest delay late (20 ms), never early, and half a second in which
+    every message was held back (a stalled link) does not move it."""
+    clock, out = _drifting_link(0.985, 20.0, timesync=False, stall_at_s=12.0)
+    errors = [(stamp - truth) / MS for remote, stamp, truth in out[150:] if not 12.0 <= (truth - 10**18) / 1e9 < 13.0]
+    assert clock.source == 'arrival minimum filter'
+    assert all(19.0 < e < 23.0 for e in errors), (min(errors), max(errors))
+
+
+def test_timesync_answered_late_on_a_loaded_machine_does_not_invent_a_drift():
+    """A clock without drift whose TIMESYNC answers come 100-400 ms late and uneven (a starved autopilot process):
+    a line through them alone said +21000 ppm (seen under load 10); the drift is taken from the estimate that
+    knows it better, the message times' minima (their offset stays ambiguous: answers that late and uneven cannot
+    say whether the request or the reply was slow)."""
+    for seed in (1, 2, 3):   # a line through TIMESYNC alone: -289, -2978, 9 ppm
+        clock, _ = _drifting_link(1.0, 20.0, reply_ms=(100.0, 400.0), seed=seed)
+        assert abs(clock.drift_ppm()) < 100.0, seed

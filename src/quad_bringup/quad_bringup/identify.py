@@ -19,11 +19,18 @@ measured state), simulated or flown on a real vehicle through the bridge:
 Confidence: each estimate is repeated on BLOCKS contiguous parts of the flight; the 95 % interval is the
 whole-flight estimate +- t(0.975, n - 1) s / sqrt(n) over the n parts that had enough excitation (errors in
 neighbouring samples are correlated, so the residuals of one fit would understate it).
+
+Window: only the time in which the vehicle flew our setpoints is scored (a bridge bag also holds the ground, the
+pre-stream and the autopilot's own AUTO.LAND, where the controller commands what the vehicle never flies): the
+bag's `vehicle/engaged` messages, else the bridge's hand-over diagnostics, cut the commands by their record
+times; a simulator's bag (sim time, or /clock) is engaged throughout; a bag of a real vehicle that says neither
+is refused. Fits whose R^2 or interval say the model does not hold are refused (quality_refusal).
 """
 
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import yaml
 from scipy import optimize, signal, stats
 
 from quad_common.types import GRAVITY_MPS2
@@ -34,6 +41,14 @@ BLOCKS = 6
 MIN_EXCITATION_RAD = np.deg2rad(0.5)   # command standard deviation a block needs to be fitted
 WINDOW_S = 0.5               # thrust-scale windows
 MIN_SPAN_S = 3.0
+# Quality gates (quality_refusal). On the issue-28 bags: the OFFBOARD window fitted R^2 0.99, the landing phase
+# 0.11-0.32 with a thrust scale of 0.55-0.78 (+-15 %); the plant family's flights fit R^2 > 0.95 and +-1 %.
+MIN_FIT_R2 = 0.8
+MAX_LAG_CI_REL = 0.5         # width of the lag's 95 % interval / the lag
+MAX_THRUST_CI_REL = 0.05     # half width of the thrust scale's 95 % interval / the scale
+EXCITE = ('fly a manoeuvre that tilts the vehicle while it flies our setpoints (offboard), e.g. a 3 m square or '
+          'a figure8 at 0.8-1 m/s, and record all of it')
+WALL_CLOCK_NS = 10**18       # stamps past 2001: a wall clock, not a simulator's time from 0
 
 
 @dataclass
@@ -104,12 +119,57 @@ def _resample(t_cmd, cmd, t_odom, measured, t0, t1):
     return grid, cmd[index], np.interp(grid, t_odom, measured)
 
 
+def _record_spans(events, close_at_last_true):
+    """[(start, end)] bag-time spans in which events (time ns, bool) say true; close_at_last_true: end at the last
+    true report (periodic reports: the end lies between it and the next false), else at the first false."""
+    spans, start, last_true = [], None, None
+    for t, on in events:
+        if on:
+            start = t if start is None else start
+            last_true = t
+        elif start is not None:
+            spans.append((start, last_true if close_at_last_true else t))
+            start = None
+    if start is not None:
+        spans.append((start, last_true if close_at_last_true else np.iinfo(np.int64).max))
+    return spans
+
+
+def engaged_window(flight) -> dict:
+    """The longest span (header-stamp time) in which the vehicle flew our setpoints: {'t0', 't1', 'source'}.
+    Commands belong to a span by their record time (the engaged messages and diagnostics carry no stamp of the
+    commands' clock; a simulator's bag is stamped in sim time, recorded in wall time)."""
+    if flight.engaged:
+        spans, source = _record_spans(flight.engaged, close_at_last_true=False), 'vehicle/engaged'
+    elif flight.handover:
+        spans = _record_spans([(t, phase == 'active') for t, phase in flight.handover], close_at_last_true=True)
+        source = 'the bridge\'s hand-over diagnostics'
+    elif len(flight.clock_stamps_ns) or flight.odom_t[0] * 1e9 < WALL_CLOCK_NS:
+        return {'t0': float(flight.cmd_t[0]), 't1': float(flight.cmd_t[-1]), 'source': 'simulator (engaged throughout)'}
+    else:
+        raise ValueError('the bag does not say when the vehicle flew our setpoints (no vehicle/engaged messages, '
+                         'no mavlink_bridge hand-over diagnostics), so the ground, the pre-stream and the autopilot\'s '
+                         'own landing would be scored: record vehicle/engaged and diagnostics with the flight '
+                         '(quadflight record records both)')
+    best = None
+    for start, end in spans:
+        inside = flight.cmd_t[(flight.cmd_record_ns >= start) & (flight.cmd_record_ns <= end)]
+        if len(inside) > 1 and (best is None or inside[-1] - inside[0] > best[1] - best[0]):
+            best = (float(inside.min()), float(inside.max()))
+    if best is None:
+        raise ValueError(f'the vehicle never flew our setpoints while cmd/attitude_thrust was recorded ({source}): '
+                         f'nothing to identify; {EXCITE}')
+    return {'t0': best[0], 't1': best[1], 'source': source}
+
+
 def _span(flight):
-    t0 = max(flight.cmd_t[0], flight.odom_t[0])
-    t1 = min(flight.cmd_t[-1], flight.odom_t[-1])
+    window = engaged_window(flight)
+    t0 = max(flight.cmd_t[0], flight.odom_t[0], window['t0'])
+    t1 = min(flight.cmd_t[-1], flight.odom_t[-1], window['t1'])
     if t1 - t0 < MIN_SPAN_S:
-        raise ValueError(f'the bag has {max(t1 - t0, 0):.2f} s with both cmd/attitude_thrust and odom; '
-                         f'identification needs at least {MIN_SPAN_S} s of flight')
+        raise ValueError(f'the bag has {max(t1 - t0, 0):.2f} s with both cmd/attitude_thrust and odom while the '
+                         f'vehicle flew our setpoints ({window["source"]}); identification needs at least '
+                         f'{MIN_SPAN_S} s: {EXCITE}')
     return t0, t1
 
 
@@ -171,20 +231,67 @@ def identify(flight) -> dict:
         raise ValueError('the bag has no commanded attitude (topic cmd/attitude_thrust): nothing to identify')
     roll, pitch = identify_attitude(flight, 0), identify_attitude(flight, 1)
     thrust = identify_thrust(flight)
+    window = engaged_window(flight)
+    t0, t1 = _airborne(flight, *_span(flight))
     return {'roll': asdict(roll), 'pitch': asdict(pitch), 'thrust': asdict(thrust),
-            'attitude_lead_s': 0.5 * (roll.lag_s + pitch.lag_s), 'thrust_scale': thrust.thrust_scale}
+            'attitude_lead_s': 0.5 * (roll.lag_s + pitch.lag_s), 'thrust_scale': thrust.thrust_scale,
+            'window': {'source': window['source'], 'start_s': t0, 'end_s': t1, 'duration_s': t1 - t0}}
+
+
+def quality_refusal(result: dict) -> str | None:
+    """One line saying why the fits must not be used (a lag model that does not explain the measured angles, an
+    interval too wide to trust, a thrust scale the controller cannot take), or None when they hold."""
+    for axis in ('roll', 'pitch'):
+        a = result[axis]
+        low, high = a['lag_ci95_s']
+        if not a['fit_r2'] >= MIN_FIT_R2:
+            return (f'the {axis} fit explains R^2 {a["fit_r2"]:.2f} < {MIN_FIT_R2} of the measured {axis} (the vehicle '
+                    f'did not fly these commands): {EXCITE}')
+        if not high - low <= MAX_LAG_CI_REL * a['lag_s']:
+            return (f'the {axis} lag {a["lag_s"]:.3f} s has a 95 % interval {low:.3f}-{high:.3f} s over '
+                    f'{a["blocks"]} parts, wider than {MAX_LAG_CI_REL:.0%} of it: {EXCITE}')
+    t = result['thrust']
+    low, high = t['thrust_scale_ci95']
+    k = t['thrust_scale']
+    if not (0.5 <= k <= 2.0 and 0.5 * (high - low) <= MAX_THRUST_CI_REL * k):
+        return (f'the thrust scale {k:.3f} (95 % {low:.3f}-{high:.3f}) is outside 0.5-2 or known no better than '
+                f'+-{MAX_THRUST_CI_REL:.0%}: {EXCITE}')
+    return None
 
 
 def profile(result: dict, base: dict | None = None) -> dict:
-    """A position_controller params file: `base` (a control profile's content) with the identified
-    attitude_lead_s and thrust_scale, plus the identification itself under `identification`."""
+    """A position_controller params file: `base` (a control profile's content, without a top-level
+    `identification` block that older versions wrote: rcl refuses any key beside a node's ros__parameters)
+    with the identified attitude_lead_s and thrust_scale."""
     out = {k: v for k, v in (base or {}).items() if k != 'identification'}
     params = dict(out.get('position_controller', {}).get('ros__parameters', {}))
     params['attitude_lead_s'] = round(float(result['attitude_lead_s']), 4)
     params['thrust_scale'] = round(float(result['thrust_scale']), 4)
     out['position_controller'] = {'ros__parameters': params}
-    out['identification'] = _plain(result)
     return out
+
+
+IDENTIFICATION_HEADER = '# identification:'
+
+
+def profile_text(written: dict, facts: dict, title: str) -> str:
+    """The profile file: `title` and the identification facts as YAML comments (rcl and the launch files read
+    only the parameters; read_identification reads the facts back), then the parameters."""
+    facts_yaml = yaml.safe_dump({'identification': _plain(facts)}, sort_keys=False).splitlines()[1:]
+    comments = [f'# {title}', IDENTIFICATION_HEADER, *(f'#{line}' for line in facts_yaml)]
+    return '\n'.join(comments) + '\n' + yaml.safe_dump(written, sort_keys=False)
+
+
+def read_identification(text: str) -> dict:
+    """The facts profile_text wrote into a profile's comments."""
+    lines = text.splitlines()
+    start = lines.index(IDENTIFICATION_HEADER)
+    block = []
+    for line in lines[start + 1:]:
+        if not line.startswith('#  '):
+            break
+        block.append(line[1:])
+    return yaml.safe_load('identification:\n' + '\n'.join(block))['identification']
 
 
 def _plain(value):

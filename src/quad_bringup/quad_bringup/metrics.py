@@ -104,6 +104,9 @@ class Flight:
     clock_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     sim_published: tuple | None = None           # (stamp ns, steps) of the newest `sim_node: published`
     truncated: dict | None = None                # a killed recorder's bag: where it was cut (recorder.Repair)
+    cmd_record_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # bag time of each cmd
+    engaged: list = field(default_factory=list)  # (bag time ns, bool) of each vehicle/engaged message
+    handover: list = field(default_factory=list)  # (bag time ns, phase) of the bridge's `handover` diagnostics
 
 
 GAP_FACTOR = 1.5  # an odometry interval longer than this many typical periods is a gap

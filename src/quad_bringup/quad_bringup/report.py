@@ -27,7 +27,7 @@ from quad_bringup.metrics import (  # noqa: F401  (re-exported: the report's API
 )
 from quad_bringup.recorder import open_bag_reader, typestore
 from quad_common import contract, conversions, rotations
-from quad_common.contract import DIAGNOSTICS, ODOM, TRAJECTORY
+from quad_common.contract import DIAGNOSTICS, ENGAGED, ODOM, TRAJECTORY
 from quad_common.contract import SETPOINT as COMMAND
 from quad_common.contract import TRAJECTORY_MARKERS as MARKERS
 from quad_common.contract import TRAJECTORY_WAYPOINTS as WAYPOINTS
@@ -36,6 +36,7 @@ from quad_common.diagnostics import ERROR, level_of
 ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from rosbags
 CLOCK = contract.CLOCK
 SIM_PUBLISHED = 'sim_node: published'
+HANDOVER_KEY = 'handover'   # the bridge's setpoints status: the hand-over phase (quad_bridge.handover)
 
 
 _namespaced = contract.matches
@@ -44,13 +45,13 @@ _namespaced = contract.matches
 def load_flight(bag_dir) -> Flight:
     """Extract a Flight from a bag; raises ValueError naming what is missing."""
     ts = typestore()
-    odom, cmds, latest, clock = [], [], {}, []
+    odom, cmds, latest, clock, engaged, handover = [], [], {}, [], [], []
     errors, collision, published = [], None, None
     reader, repair = open_bag_reader(bag_dir)
     try:
-        wanted = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK)
+        wanted = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK, ENGAGED)
         connections = [c for c in reader.connections if any(_namespaced(c.topic, w) for w in wanted)]
-        for conn, _, raw in reader.messages(connections=connections):
+        for conn, record_ns, raw in reader.messages(connections=connections):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
             topic = next(w for w in wanted if _namespaced(conn.topic, w))
             if topic == ODOM:
@@ -64,9 +65,14 @@ def load_flight(bag_dir) -> Flight:
                 except ValueError:
                     continue
                 cmds.append((conversions.stamp_to_s(msg.header.stamp), setpoint.specific_force_mps2,
-                             setpoint.quaternion))
+                             setpoint.quaternion, record_ns))
+            elif topic == ENGAGED:
+                engaged.append((record_ns, bool(msg.data)))
             elif topic == DIAGNOSTICS:
                 for st in msg.status:
+                    phase = next((kv.value for kv in st.values if kv.key == HANDOVER_KEY), None)
+                    if phase is not None:
+                        handover.append((record_ns, phase))
                     if st.name == SIM_PUBLISHED:
                         steps = int({kv.key: kv.value for kv in st.values}.get('steps', -1))
                         if published is None or _ns(msg.header.stamp) >= published[0]:
@@ -91,7 +97,7 @@ def load_flight(bag_dir) -> Flight:
         euler=rotations.to_euler(np.array([o[1].quaternion for o in odom])),
         collision_time_s=collision, errors=errors, odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
         clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
-        truncated=None if repair is None else repair.as_dict())
+        truncated=None if repair is None else repair.as_dict(), engaged=sorted(engaged), handover=sorted(handover))
     if TRAJECTORY in latest:
         flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
     if WAYPOINTS in latest:
@@ -107,6 +113,7 @@ def load_flight(bag_dir) -> Flight:
         flight.cmd_t = np.array([c[0] for c in cmds])
         flight.cmd_specific_force = np.array([c[1] for c in cmds])
         flight.cmd_euler = rotations.to_euler(np.array([c[2] for c in cmds]))
+        flight.cmd_record_ns = np.array([c[3] for c in cmds], dtype=np.int64)
     return flight
 
 

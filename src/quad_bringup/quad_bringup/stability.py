@@ -97,7 +97,7 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
                     yaw_rate=0.0)
     period_s = 1.0 / rate_hz
     steps = sim.steps_in(round(period_s * physics_rate_hz) / physics_rate_hz)
-    telemetry.push(0.0, sim.odometry_state())
+    telemetry.push(-latency_s, sim.odometry_state())   # at rest there since before the first read
     every = max(int(round(rate_hz / telemetry_rate_hz)), 1)
     positions, euler = [], []
     stopped = None

@@ -4,11 +4,12 @@ own loop (quad_sim.stability.attitude_lag_s), the thrust scale of its mass / thr
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import yaml
 
 from quad_bringup.closed_loop import LoopOptions, fly_offline
-from quad_bringup.identify import identify
+from quad_bringup.identify import identify, quality_refusal, read_identification
 from quad_bringup.report import load_flight
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.vehicle import load_vehicle
@@ -68,13 +69,16 @@ def test_cli_writes_a_profile_the_controller_flies(tmp_path, lag_bag):
     assert 'margin (1.5x the lag 0.1' in done.stdout and '0.050 s, pid): ' in done.stdout
     assert 'telemetry latency 0.100 s' in done.stdout and ': settled' in done.stdout
     written = yaml.safe_load(out.read_text())
+    assert list(written) == ['position_controller']   # rcl takes nothing beside a node's ros__parameters
     params = written['position_controller']['ros__parameters']
     assert params['controller'] == 'pid' and params['attitude_lead_s'] == pytest.approx(0.15, rel=0.15)
     assert params['thrust_scale'] == pytest.approx(1.0, abs=0.01)
     assert params['kp_x'] == yaml.safe_load(resolve_config('config/control_real.yaml').read_text())[
         'position_controller']['ros__parameters']['kp_x']
-    margin = written['identification']['margin']
-    assert margin['lag_s'] == pytest.approx(1.5 * written['identification']['attitude_lead_s'], abs=1e-3)
+    facts = read_identification(out.read_text())
+    margin = facts['margin']
+    assert margin['lag_s'] == pytest.approx(1.5 * facts['attitude_lead_s'], abs=1e-3)
+    assert facts['window']['source'] == 'simulator (engaged throughout)' and facts['roll']['fit_r2'] > 0.9
     assert margin['latency_s'] == pytest.approx(0.1) and margin['oscillation_deg'] < 0.5
 
 
@@ -110,3 +114,168 @@ def test_a_bag_without_commands_is_refused_by_name(tmp_path):
     done = subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'identify', str(bag)],
                           capture_output=True, text=True, cwd=REPO_ROOT)
     assert done.returncode == 1 and 'quadflight identify:' in done.stderr and 'odom' in done.stderr
+
+
+def test_the_written_profile_loads_in_a_node_started_with_params_file(tmp_path, lag_bag):
+    """rcl refuses any key beside a node's ros__parameters ("Cannot have a value before ros__parameters"): the
+    profile identify writes starts position_controller with --params-file and sets what identify found."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from quad_common.testing import isolated_domain
+    out = tmp_path / 'profile.yaml'
+    done = identify_cli(lag_bag, '--out', out)
+    assert done.returncode == 0, done.stderr
+    params = yaml.safe_load(out.read_text())['position_controller']['ros__parameters']
+    with isolated_domain() as (domain, env):
+        node_proc = subprocess.Popen([sys.executable, '-m', 'quad_control.position_controller_node', '--ros-args',
+                                      '--params-file', str(out)], env=env, cwd=REPO_ROOT, stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True)
+        context = rclpy.Context()
+        rclpy.init(context=context, domain_id=domain)
+        try:
+            node = rclpy.create_node('profile_check', context=context)
+            client = AsyncParameterClient(node, 'position_controller')
+            names = ['controller', 'attitude_lead_s', 'thrust_scale', 'kp_x']
+            for _ in range(60):   # until it offers its parameters, or it exited (a params file rcl refused)
+                if client.wait_for_services(timeout_sec=1.0) or node_proc.poll() is not None:
+                    break
+            assert node_proc.poll() is None, f'position_controller {_ended(node_proc)}'
+            assert client.services_are_ready(), 'position_controller never offered its parameters'
+            future = client.get_parameters(names)
+            executor = SingleThreadedExecutor(context=context)
+            executor.add_node(node)
+            executor.spin_until_future_complete(future, timeout_sec=30.0)
+            values = [v for v in (p.string_value or p.double_value for p in future.result().values)]
+        finally:
+            context.try_shutdown()
+            node_proc.terminate()
+            node_proc.wait(timeout=20)
+    assert values == [params[n] for n in names]
+
+
+def _ended(proc):
+    if proc.poll() is None:
+        return 'still running'
+    return f'exited {proc.returncode}: {proc.stdout.read()[-2000:]}'
+
+
+# --- the window in which the vehicle flew our setpoints (issue 28) ----------------------------------------
+
+EPOCH_NS = 1_796_000_000 * 10**9   # a bridge flight is stamped with the wall clock
+RECORD_DELAY_NS = 3_000_000       # a message reaches the recorder 3 ms after its stamp
+GROUND_S = 4.0                    # before the hand-over: on the ground, the controller's output not flown
+LANDING_S = 12.0                  # after it: the autopilot's AUTO.LAND and the ground, the controller still talking
+
+
+def _bridge_bag(tmp_path, flown, window='engaged', engaged_through_landing=False):
+    """The flight of `flown` (a closed_loop bag) as a bridge flight's bag: wall-clock stamps, GROUND_S on the ground
+    before it and LANDING_S after it in which the controller commands 16-27 m/s^2 and +-8 deg that the vehicle,
+    descending and then standing, never flies (issue 28's landing phase), and `window`: 'engaged' (vehicle/engaged
+    true from the hand-over's start to its end), 'diagnostics' (the bridge's 1 Hz hand-over status) or None."""
+    from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, open_bag_reader, typestore
+    from quad_common import contract
+    ts, T = typestore(), typestore().types
+    reader, _ = open_bag_reader(flown)
+    msgs = {'odom': [], 'cmd/attitude_thrust': []}
+    try:
+        for conn, t_ns, raw in reader.messages():
+            msgs[conn.topic].append((t_ns, ts.deserialize_cdr(raw, conn.msgtype)))
+    finally:
+        reader.close()
+    t_first = min(t for t, _ in msgs['odom'])
+    t_last = max(t for t, _ in msgs['odom'])
+    shift = EPOCH_NS + int(GROUND_S * 1e9) - t_first
+    bag = tmp_path / f'bridge-{window}-{engaged_through_landing}'
+    out = BagRecorder(bag)
+    for topic in ('odom', 'cmd/attitude_thrust', contract.ENGAGED, contract.DIAGNOSTICS):
+        out.add_topic(topic, DEFAULT_TOPICS[topic])
+
+    def write(topic, stamp_ns, msg, msgtype):
+        if hasattr(msg, 'header'):
+            msg.header.stamp = T['builtin_interfaces/msg/Time'](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+        out.write(topic, stamp_ns + RECORD_DELAY_NS, ts.serialize_cdr(msg, msgtype))
+
+    first_odom, first_cmd = msgs['odom'][0][1], msgs['cmd/attitude_thrust'][0][1]
+    last_odom = msgs['odom'][-1][1]
+    period_ns = 10_000_000
+    for k in range(int(GROUND_S * 100)):   # on the ground, level, the controller asking for a little thrust
+        t = EPOCH_NS + k * period_ns
+        write('odom', t, first_odom, 'nav_msgs/msg/Odometry')
+        write('cmd/attitude_thrust', t, first_cmd, 'sensor_msgs/msg/Imu')
+    for topic, kind in (('odom', 'nav_msgs/msg/Odometry'), ('cmd/attitude_thrust', 'sensor_msgs/msg/Imu')):
+        for t, msg in msgs[topic]:
+            write(topic, t + shift, msg, kind)
+    end_ns = t_last + shift
+    z0 = last_odom.pose.pose.position.z
+    for k in range(1, int(LANDING_S * 100)):   # AUTO.LAND at 0.5 m/s to the ground, then standing there
+        t = end_ns + k * period_ns
+        odom = ts.deserialize_cdr(ts.serialize_cdr(last_odom, 'nav_msgs/msg/Odometry'), 'nav_msgs/msg/Odometry')
+        odom.pose.pose.orientation = T['geometry_msgs/msg/Quaternion'](0.0, 0.0, 0.0, 1.0)
+        odom.pose.pose.position.z = max(z0 - 0.5 * k * 0.01, 0.0)
+        odom.twist.twist.linear = T['geometry_msgs/msg/Vector3'](0.0, 0.0, -0.5 if odom.pose.pose.position.z else 0.0)
+        odom.twist.twist.angular = T['geometry_msgs/msg/Vector3'](0.0, 0.0, 0.0)
+        write('odom', t, odom, 'nav_msgs/msg/Odometry')
+        cmd = ts.deserialize_cdr(ts.serialize_cdr(first_cmd, 'sensor_msgs/msg/Imu'), 'sensor_msgs/msg/Imu')
+        roll = np.radians(8.0) * np.sin(2 * np.pi * 0.4 * k * 0.01)
+        cmd.orientation = T["geometry_msgs/msg/Quaternion"](float(np.sin(roll / 2)), 0.0, 0.0,
+                                                            float(np.cos(roll / 2)))
+        cmd.linear_acceleration.z = 16.0 + 11.0 * (k / (LANDING_S * 100))
+        write('cmd/attitude_thrust', t, cmd, 'sensor_msgs/msg/Imu')
+    start_ns = EPOCH_NS + int(GROUND_S * 1e9)
+    if window == 'engaged':
+        for t, on in ((EPOCH_NS, False), (start_ns, True), (end_ns, False)):
+            if on or not engaged_through_landing or t == EPOCH_NS:
+                write(contract.ENGAGED, t, T['std_msgs/msg/Bool'](data=on), 'std_msgs/msg/Bool')
+    elif window == 'diagnostics':
+        KeyValue, Status = T['diagnostic_msgs/msg/KeyValue'], T['diagnostic_msgs/msg/DiagnosticStatus']
+        for t in range(EPOCH_NS + 500_000_000, end_ns + int(LANDING_S * 1e9), 1_000_000_000):
+            phase = 'active' if start_ns <= t <= end_ns else 'idle'
+            status = Status(level=0, name='mavlink_bridge: setpoints', message='', hardware_id='',
+                            values=[KeyValue(key='handover', value=phase)])
+            array = T['diagnostic_msgs/msg/DiagnosticArray'](header=first_odom.header, status=[status])
+            write(contract.DIAGNOSTICS, t, array, 'diagnostic_msgs/msg/DiagnosticArray')
+    out.close()
+    return bag, (start_ns - EPOCH_NS) / 1e9, (end_ns - EPOCH_NS) / 1e9
+
+
+@pytest.mark.parametrize('window', ['engaged', 'diagnostics'])
+def test_a_bridge_bag_is_scored_only_where_the_vehicle_flew_our_setpoints(tmp_path, lag_bag, window):
+    """The flight between the ground and the autopilot's landing, cut by vehicle/engaged (or, without it, the
+    bridge's hand-over diagnostics): the lag of the member's own loop within 15 %, thrust scale 1, fits that
+    hold; the landing phase never enters the window."""
+    bag, start_s, end_s = _bridge_bag(tmp_path, lag_bag, window)
+    truth_s = attitude_lag_s(load_vehicle(CRAZYFLIE, plant='autopilot_lag'))
+    result = identify(load_flight(bag))
+    w = result['window']
+    print(window, w, {a: (result[a]['lag_s'], result[a]['fit_r2']) for a in ('roll', 'pitch')}, result['thrust'])
+    assert w['source'] == ('vehicle/engaged' if window == 'engaged' else "the bridge's hand-over diagnostics")
+    epoch_s = EPOCH_NS / 1e9
+    assert start_s - 1e-3 <= w['start_s'] - epoch_s and w['end_s'] - epoch_s <= end_s + 0.01
+    assert w['duration_s'] > (end_s - start_s) - (2.5 if window == 'diagnostics' else 0.5)
+    for axis in ('roll', 'pitch'):
+        assert result[axis]['lag_s'] == pytest.approx(truth_s, rel=0.15)
+    assert result['thrust_scale'] == pytest.approx(1.0, abs=0.01)
+    assert quality_refusal(result) is None
+
+
+def test_fits_that_scored_the_landing_are_refused_saying_why(tmp_path, lag_bag):
+    """vehicle/engaged true through the landing (a window that is wrong): the fits do not hold, and the CLI says
+    so in one line with the manoeuvre to fly, writing nothing."""
+    bag, *_ = _bridge_bag(tmp_path, lag_bag, 'engaged', engaged_through_landing=True)
+    result = identify(load_flight(bag))
+    reason = quality_refusal(result)
+    print(reason, {a: (result[a]['lag_s'], result[a]['fit_r2']) for a in ('roll', 'pitch')}, result['thrust'])
+    assert reason is not None and 'fly a manoeuvre' in reason
+    out = tmp_path / 'profile.yaml'
+    done = identify_cli(bag, '--out', out)
+    assert done.returncode == 1 and not out.exists()
+    assert done.stderr.count('\n') == 1 and f'refused to write {out}: ' in done.stderr and reason in done.stderr
+
+
+def test_a_bridge_bag_that_cannot_be_windowed_is_refused(tmp_path, lag_bag):
+    bag, *_ = _bridge_bag(tmp_path, lag_bag, window=None)
+    done = identify_cli(bag)
+    assert done.returncode == 1, done.stdout
+    assert 'does not say when the vehicle flew our setpoints' in done.stderr and 'vehicle/engaged' in done.stderr

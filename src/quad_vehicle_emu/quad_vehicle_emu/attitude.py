@@ -132,7 +132,10 @@ class DelayLine:
         self._samples.append((time_s, value))
 
     def read(self, now_s: float):
-        """(sample time, value) of the newest sample not younger than delay_s; None before the first."""
+        """(sample time, value) of the newest sample not younger than delay_s; None while none is that old (a
+        fresh vehicle does not send its first samples early: the telemetry is delay_s old from the first)."""
         while len(self._samples) > 1 and self._samples[1][0] <= now_s - self.delay_s:
             self._samples.popleft()
-        return self._samples[0] if self._samples else None
+        if not self._samples or self._samples[0][0] > now_s - self.delay_s:
+            return None
+        return self._samples[0]

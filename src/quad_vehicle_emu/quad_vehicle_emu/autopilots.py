@@ -142,6 +142,11 @@ class Autopilot:
         R = np.column_stack([np.cross(y_b, z_b), y_b, z_b])
         return Target(rotations.from_matrix(R), float(np.linalg.norm(thrust)))
 
+    def _descend_level(self, state: State, descent_rate_mps: float) -> Target:
+        """Level at the current yaw, descending at descent_rate_mps, nothing holding it horizontally (it drifts)."""
+        thrust = GRAVITY_MPS2 + p.PSC_VELZ_P * (-descent_rate_mps - state.velocity[2])
+        return Target(rotations.from_yaw(_yaw(state.quaternion)), float(max(thrust, 0.2 * GRAVITY_MPS2)))
+
     @staticmethod
     def _idle(state) -> Target:
         return Target(rotations.from_yaw(_yaw(state.quaternion)), 0.0)
@@ -270,14 +275,15 @@ class Px4(Autopilot):
 
     def update(self, state: State, landed: bool, now_s: float, dt_s: float = 0.01) -> Target | None:
         landed_s = self._landed_for(landed, now_s)
-        if self.armed and self.mode in ('AUTO.LAND', 'AUTO.PRECLAND') and landed_s > self.params['COM_DISARM_LAND']:
+        if self.armed and self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', *p.PX4_NEEDS_MANUAL_CONTROL) and \
+                landed_s > self.params['COM_DISARM_LAND']:
             self._arm(False, now_s, 'landed')   # COM_DISARM_LAND after the land detector
         if not self.armed:
             return None
         if self.user_mode == 'OFFBOARD' and self.failsafe_mode is None and not self.offboard_signal(now_s):
+            # commander/failsafe/failsafe.cpp fromOffboardLossActParam; framework.cpp modeCanRun leaves manual
+            # control out ("handled separately"), so Position (0) runs POSCTL without RC too
             action = p.PX4_OFFBOARD_LOSS_ACTIONS[int(self.params['COM_OBL_RC_ACT'])]
-            if action in p.PX4_NEEDS_MANUAL_CONTROL:
-                action = 'AUTO.LOITER'          # failsafe framework: no RC -> fall through to Hold
             if action == 'DISARM':
                 self._arm(False, now_s, 'offboard lost')
                 return None
@@ -289,6 +295,10 @@ class Px4(Autopilot):
                 q = state.quaternion
             # PX4 multicopter: normalised collective thrust, linear about hover (no tilt compensation)
             return Target(q, thrust * GRAVITY_MPS2 / self.hover_throttle, rates)
+        if self.mode in p.PX4_NEEDS_MANUAL_CONTROL:
+            # a stick mode with no sticks (the emulator has no RC): as PX4 v1.16 SIH flew it with the bridge
+            # killed, descending level, nothing holding it horizontally (it drifted 3 m; issue 28)
+            return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
         if self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.RTL'):
             return self._idle(state) if landed and self.hold_position is not None and landed_s > 0.5 else \
                 self._hold(state, self.params['MPC_LAND_SPEED'])

@@ -29,6 +29,7 @@ from quad_vehicle_emu import ned  # noqa: E402
 from quad_vehicle_emu import protocol as p  # noqa: E402
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, default_tau_s, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
+from quad_vehicle_emu.estimator import Estimate  # noqa: E402
 
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
 HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
@@ -104,6 +105,9 @@ class MavlinkVehicle:
         self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
+        self.estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
+                                 args.estimator_wander_tau_s, args.seed)
+        self.estimated = self.sim.state   # what the autopilot believes (its hold and its telemetry fly this)
         self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
         self.rng = random.Random(args.seed)
         self.queue = []              # ArduPilot: packed messages waiting for the next burst
@@ -117,7 +121,10 @@ class MavlinkVehicle:
         if args.signing_key_file:  # signs what it sends and accepts only messages signed with the same key
             self.conn.setup_signing(load_signing_key(args.signing_key_file), sign_outgoing=True)
         self.mav = self.conn.mav
+        if not (math.isfinite(args.clock_rate) and 0.5 <= args.clock_rate <= 2.0):
+            raise ValueError(f'--clock-rate = {args.clock_rate!r} must be a number in [0.5, 2]')
         self.t0 = time.monotonic()
+        self.wall0_ns = time.time_ns()   # the wall clock at t0 (the test's truth for the boot clock)
         self.log_index = 0
         self.last_update_s = 0.0
         self._snap = None
@@ -128,8 +135,9 @@ class MavlinkVehicle:
         return time.monotonic() - self.t0
 
     def boot_s(self, t_s):
-        """The vehicle's boot clock (time_boot_ms / time_usec / TIMESYNC) at emulator time t_s."""
-        return t_s + self.args.boot_offset_s
+        """The vehicle's boot clock (time_boot_ms / time_usec / TIMESYNC) at emulator time t_s: it runs at
+        clock_rate of ours (PX4 SIH's ran at 0.984-0.993 of wall time, 0.93 under load)."""
+        return self.args.boot_offset_s + self.args.clock_rate * t_s
 
     # --- loop -------------------------------------------------------------------------------------------
 
@@ -142,7 +150,8 @@ class MavlinkVehicle:
             self.control(now)
             lag_steps = int((now - self.sim.time_s) * self.args.physics_rate_hz)
             self.sim.advance_steps(min(max(lag_steps, 0), 5 * steps_per_tick))
-            self.telemetry.push(now, (self.sim.state, self.sim.specific_force_body_mps2.copy()))
+            self.estimated = self.estimate.step(now, self.sim.state)
+            self.telemetry.push(now, (self.estimated, self.sim.specific_force_body_mps2.copy()))
             self.send_telemetry(now)
             self.send_log()
             sleep_s = self.sim.time_s + tick_s - self.now_s()
@@ -152,7 +161,7 @@ class MavlinkVehicle:
     def control(self, now):
         dt = min(max(now - self.last_update_s, 0.0), 0.1)
         self.last_update_s = now
-        state = self.sim.state
+        state = self.estimated
         target = self.ap.update(state, self.sim.landed, now, dt)
         self.sim.armed = target is not None
         if target is None:
@@ -418,6 +427,16 @@ def build_parser():
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')
     ap.add_argument('--boot-offset-s', type=float, default=37.0, help='the vehicle booted this long before us')
+    ap.add_argument('--clock-rate', type=float, default=1.0,
+                    help="the vehicle's clock rate against ours (PX4 SIH ran 0.984-0.993 of wall time), 0.5..2")
+    ap.add_argument('--estimator-lag-s', type=float, default=0.0,
+                    help="the autopilot's position/velocity estimate trails the truth this much (PX4 SIH: 0.15)")
+    ap.add_argument('--estimator-wander-m', type=float, default=0.0,
+                    help="RMS of the estimate's horizontal position wander per axis (PX4 SIH: 0.4-0.8 m off)")
+    ap.add_argument('--estimator-wander-z-m', type=float, default=0.0,
+                    help="RMS of the estimate's height wander (PX4 SIH: 0.3-1.3 m)")
+    ap.add_argument('--estimator-wander-tau-s', type=float, default=60.0,
+                    help="the wander's correlation time (PX4 SIH: about 0.5 m a minute)")
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--physics-rate-hz', type=float, default=500.0)
     ap.add_argument('--loop-rate-hz', type=float, default=100.0)
@@ -439,6 +458,8 @@ def main(args=None):
         print(f'mavlink_vehicle: {exc}', file=sys.stderr)
         return 2
     print(f'mavlink_vehicle: {args.autopilot} on {args.url}', flush=True)
+    print(f'mavlink_vehicle: boot clock = {args.boot_offset_s} s + {args.clock_rate} x (wall clock - '
+          f'{vehicle.wall0_ns} ns)', flush=True)
     try:
         vehicle.run()
     except KeyboardInterrupt:

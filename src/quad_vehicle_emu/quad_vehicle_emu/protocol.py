@@ -93,7 +93,7 @@ PX4_PREVENT_ARMING = frozenset({'AUTO.RTL', 'AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.
 PX4_NEEDS_MANUAL_CONTROL = frozenset({'MANUAL', 'ALTCTL', 'POSCTL', 'ACRO', 'STABILIZED'})
 # COM_OBL_RC_ACT, "Set offboard loss failsafe mode" (src/modules/commander/commander_params.c / PX4 parameter
 # reference): 0 Position, 1 Altitude, 2 Manual, 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm.
-PX4_OFFBOARD_LOSS_ACTIONS = {0: 'POSCTL', 1: 'ALTCTL', 2: 'MANUAL', 3: 'AUTO.RTL', 4: 'AUTO.LAND',
+PX4_OFFBOARD_LOSS_ACTIONS = {0: 'POSCTL', 1: 'ALTCTL', 2: 'STABILIZED', 3: 'AUTO.RTL', 4: 'AUTO.LAND',
                              5: 'AUTO.LOITER', 6: 'TERMINATE', 7: 'DISARM'}
 # "The vehicle must be receiving a stream of setpoints before arming in offboard mode or switching to offboard
 # mode when flying ... at > 2 Hz" (PX4 user guide, flight_modes/offboard.md). The commander's own check

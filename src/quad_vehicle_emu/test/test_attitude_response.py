@@ -49,6 +49,9 @@ def test_delay_line_returns_the_sample_delay_s_old():
         line.push(k * 0.01, k)
     t, value = line.read(0.19)
     assert t == pytest.approx(0.14) and value == 14
+    fresh = DelayLine(0.05)
+    fresh.push(0.0, 0)
+    assert fresh.read(0.04) is None and fresh.read(0.05) == (0.0, 0)   # never a sample younger than the delay
 
 
 def test_bad_time_constants_are_refused_naming_the_value():

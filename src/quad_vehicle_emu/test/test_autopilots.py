@@ -54,4 +54,4 @@ def test_px4_failsafe_waits_for_com_of_loss_t_not_for_the_stream_rate():
     px4.update(HOVERING, False, 2.0)          # a 1.4 s gap: the rate is 0 Hz, but COM_OF_LOSS_T is 3 s
     assert px4.mode == 'OFFBOARD'
     px4.update(HOVERING, False, 3.7)
-    assert px4.mode == 'AUTO.LOITER'
+    assert px4.mode == 'POSCTL'               # COM_OBL_RC_ACT 0 (Position): POSCTL, also without RC

@@ -1,14 +1,14 @@
 """`quadflight identify BAG [--base PROFILE] [--out FILE] [--latency-s S] [--vehicle FILE]`: the vehicle's attitude
-lag and thrust scale from a flight bag (sim or a real vehicle through the bridge), written as a control profile
-(quad_bringup.identify) only when that profile has margin on the lag it measured (quad_bringup.stability)."""
+lag and thrust scale from a flight bag (sim or a real vehicle through the bridge; only the window in which the
+vehicle flew our setpoints), written as a control profile (quad_bringup.identify) only when the fits hold and
+that profile has margin on the lag it measured (quad_bringup.stability)."""
 
 import sys
 from pathlib import Path
 
-import yaml
 from rosbags.rosbag2 import ReaderError
 
-from quad_bringup.identify import identify, profile
+from quad_bringup.identify import identify, profile, profile_text, quality_refusal
 from quad_bringup.report import load_flight
 from quad_common.yaml_io import load_yaml
 
@@ -52,6 +52,9 @@ def run(args) -> int:
     except (FileNotFoundError, ValueError, ReaderError) as exc:
         print(f'quadflight identify: {exc}', file=sys.stderr)
         return 1
+    w = result['window']
+    print(f'window: {w["duration_s"]:.1f} s in which the vehicle flew our setpoints ({w["source"]}), '
+          f'{w["start_s"]:.2f}-{w["end_s"]:.2f} s')
     for axis in ('roll', 'pitch'):
         a = result[axis]
         print(f'{axis:5s}: lag {a["lag_s"]:.3f} s (95 % {a["lag_ci95_s"][0]:.3f}-{a["lag_ci95_s"][1]:.3f}, '
@@ -65,6 +68,10 @@ def run(args) -> int:
     print(f'margin ({MARGIN_LAG}x the lag {result["attitude_lead_s"]:.3f} s, {MARGIN_LATENCY}x the telemetry latency '
           f'{args.latency_s:.3f} s, {controller}): {margin.describe()}')
     out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
+    refusal = quality_refusal(result)
+    if refusal:
+        print(f'quadflight identify: refused to write {out}: {refusal}', file=sys.stderr)
+        return 1
     if not margin.settled:
         lost = f', {margin.stopped}' if margin.stopped else ''
         hint = f' (e.g. --base {DEFAULT_BASE})' if args.base else ''
@@ -74,11 +81,11 @@ def run(args) -> int:
               f'quarter, oscillation {margin.oscillation_deg:.2f} deg rms{lost}): start from softer gains{hint}',
               file=sys.stderr)
         return 1
-    written['identification']['margin'] = {'lag_s': round(margin.lag_s, 4), 'latency_s': round(margin.latency_s, 4),
-                                           'late_tilt_deg': round(margin.late_tilt_deg, 3),
-                                           'oscillation_deg': round(margin.oscillation_deg, 3),
-                                           'offset_m': round(margin.offset_m, 4)}
-    out.write_text(f'# quadflight identify {bag}\n' + yaml.safe_dump(written, sort_keys=False))
+    facts = {**result, 'margin': {'lag_s': round(margin.lag_s, 4), 'latency_s': round(margin.latency_s, 4),
+                                  'late_tilt_deg': round(margin.late_tilt_deg, 3),
+                                  'oscillation_deg': round(margin.oscillation_deg, 3),
+                                  'offset_m': round(margin.offset_m, 4)}}
+    out.write_text(profile_text(written, facts, f'quadflight identify {bag}'))
     print(f'profile: {out} (attitude_lead_s {written["position_controller"]["ros__parameters"]["attitude_lead_s"]}, '
           f'thrust_scale {written["position_controller"]["ros__parameters"]["thrust_scale"]})')
     return 0
