@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import pytest
+import rclpy
 from bridge_graph import free_udp_port, python_env, running_graph
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool
@@ -35,7 +36,9 @@ def test_bad_setpoints_are_counted_and_the_geofence_lands(graph):
     procs.bridge(f'udpin:127.0.0.1:{port}', max_tilt_deg=30.0, geofence_enabled=True,
                  geofence_min_m='[-5.0, -5.0, -1.0]', geofence_max_m='[5.0, 5.0, 3.0]')
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the armed vehicle')
-    pub = observer.node.create_publisher(Imu, 'cmd/attitude_thrust', 10)
+    controller = rclpy.create_node('position_controller', namespace=observer.node.get_namespace(),
+                                   context=observer.context)   # the bridge's setpoint_source
+    pub = controller.create_publisher(Imu, 'cmd/attitude_thrust', 10)
 
     def counts():
         entries = observer.diagnostics.get('mavlink_bridge: setpoints')

@@ -82,6 +82,9 @@ PARAMS = [
     Param('geofence_max_m', [50.0, 50.0, 30.0], 'geofence box upper corner (map, ENU)', length=3),
     Param('signing_key_file', '', 'MAVLink 2 signing key file (64 hex chars or a passphrase); empty = unsigned',
           read_only=True),
+    Param('setpoint_source', 'position_controller',
+          'the only node whose cmd/attitude_thrust is flown (relative: in the bridge\'s namespace); empty = any '
+          'publisher of the domain', read_only=True),
 ]
 OFFBOARD_MIN_STREAM_HZ = 5.0  # sent before asking PX4 for OFFBOARD (it needs > 2 Hz)
 PRESTREAM_WAIT_S = 2.0
@@ -334,7 +337,9 @@ class MavlinkBridge(Node):
         if check.problems:
             return self._refuse(response, 'offboard refused: ' + '; '.join(check.problems))
         if not self.streamer.fresh():
-            return self._refuse(response, 'no live setpoint stream: publish cmd/attitude_thrust first')
+            refused = self.setpoints.refused_sources()
+            return self._refuse(response, 'no live setpoint stream: publish cmd/attitude_thrust first' + (
+                f' (refused, not setpoint_source {self.params["setpoint_source"]}: {refused})' if refused else ''))
         target = backend.offboard_mode
         with self.vehicle.lock:
             self.vehicle.handover.request(target, backend.prestream, self.now_s())
@@ -438,7 +443,8 @@ class MavlinkBridge(Node):
             'handler_errors': self.client.handler_errors})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
-        sp_level = diagnostics.WARN if self.stale_events or self.geofence.breached else diagnostics.OK
+        sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')
+                    else diagnostics.OK)
         setpoints = diagnostics.status(f'{NAME}: setpoints', sp_level, reason, {
             'handover': phase, 'target_mode': target, 'handovers_ended': ended,
             'streaming': phase != 'idle' and self.may_stream(), 'rate_hz': f'{st.rate_hz():.1f}',
