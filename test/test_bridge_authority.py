@@ -81,3 +81,38 @@ def test_the_fast_dds_of_the_pypi_wheels_has_no_dds_security(tmp_path, ros_env):
     out = subprocess.run([sys.executable, '-c', 'import rclpy; rclpy.init(args=["--ros-args", "--enclave", "/probe"]);'
                           ' rclpy.create_node("probe")'], env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode != 0 and "doesn't have the security libraries" in out.stderr, out.stderr[-2000:]
+
+
+def test_a_second_vehicle_on_the_link_is_refused_and_reported(tmp_path):
+    """Issue 27.2: an emulator left running on the bridge's port, with the same system id (telemetry would mix:
+    odometry jumping between the two) or another one (target_system 0 may have taken the wrong vehicle)."""
+    from bridge_graph import free_udp_port, running_graph
+    with running_graph(tmp_path) as (procs, observer):
+        port = free_udp_port()
+        procs.vehicle('px4', f'udpout:127.0.0.1:{port}')
+        procs.bridge(f'udpin:127.0.0.1:{port}')
+        observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+        assert observer.link()[1]['link_refusal'] == '' and observer.link()[1]['other_vehicles'] == ''
+
+        procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=(0.0, -127.0, 0.0), name='stray')
+        observer.wait_for(lambda: 'two vehicles send as system 1' in observer.link()[1].get('link_refusal', ''),
+                          'the duplicate system 1 to be reported')
+        answer = observer.call('arm', SetBool.Request(data=True))
+        assert not answer.success and 'two vehicles send as system 1' in answer.message, answer.message
+        procs.stop('stray')
+        observer.wait_for(lambda: observer.link()[1].get('link_refusal') == '', 'the stray vehicle to be gone')
+
+        procs.vehicle('px4', f'udpout:127.0.0.1:{port}', name='stray', extra=('--system-id', '2'))
+        observer.wait_for(lambda: observer.link()[1].get('other_vehicles') == '2', 'vehicle 2 to be reported')
+        assert 'set target_system' in observer.link()[1]['link_refusal']
+        answer = observer.call('arm', SetBool.Request(data=True))
+        assert not answer.success and 'set target_system' in answer.message, answer.message
+
+        procs.stop('bridge')
+        with observer.lock:
+            observer.diagnostics.clear()
+        procs.bridge(f'udpin:127.0.0.1:{port}', target_system=1)   # the operator names the vehicle to fly
+        observer.wait_for(lambda: observer.link()[1].get('other_vehicles') == '2', 'vehicle 2 reported again')
+        assert observer.link()[1]['link_refusal'] == '' and observer.link()[1]['target_system'] == '1'
+        answer = observer.call('arm', SetBool.Request(data=True))
+        assert answer.success, answer.message

@@ -27,6 +27,7 @@ from quad_bridge.backend import (
 from quad_bridge.backends import BACKENDS, resolve
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
+from quad_bridge.peers import LinkPeers
 from quad_bridge.safety import Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import TelemetryPublisher, stamp
@@ -118,6 +119,7 @@ class MavlinkBridge(Node):
         if p['target_system']:
             self.vehicle.status.system = p['target_system']
         self.link = LinkState(p['link_timeout_s'])
+        self.peers = LinkPeers()
         self.geofence = Geofence(p['geofence_enabled'], p['geofence_min_m'], p['geofence_max_m'])
         self.t0 = time.monotonic()
         self.stale_events = 0
@@ -147,7 +149,23 @@ class MavlinkBridge(Node):
     # --- setpoint path (quad_bridge.setpoint_path): may it stream, what a quiet wire commands ----------
 
     def may_stream(self) -> bool:
-        return self.link.state == LinkState.UP and not self.geofence.breached and self.vehicle.may_stream()
+        return (self.link.state == LinkState.UP and not self.geofence.breached and self.vehicle.may_stream()
+                and not self.link_refusal())
+
+    def link_refusal(self) -> str:
+        """Why no vehicle on this link may be commanded (quad_bridge.peers), or ''."""
+        return self.peers.refusal(self.vehicle.status.system, self.params['target_component'],
+                                  bool(self.params['target_system']), self.now_s())
+
+    def check_link_peers(self):
+        """A second vehicle as our target, or an ambiguous target: the hand-over ends (supervisor)."""
+        why = self.link_refusal()
+        if why:
+            with self.vehicle.lock:
+                ended = self.vehicle.handover.end(why)
+            if ended:
+                self.get_logger().error(why)
+                self.publish_diagnostics()
 
     def on_stream_quiet(self, wire_age_s, input_age_s):
         """Nothing went out for setpoint_timeout_s: a vehicle in a mode that obeys SET_ATTITUDE_TARGET keeps flying
@@ -216,6 +234,7 @@ class MavlinkBridge(Node):
                     for group, messages in fallbacks:
                         self.get_logger().warn(streams.notes[-1])
                         self.request_messages(messages, self.group_rate_hz(group))
+                self.check_link_peers()
                 if now >= next_beat:
                     next_beat = now + 1.0
                     self.heartbeat_tick()
@@ -295,6 +314,10 @@ class MavlinkBridge(Node):
         if self.link.state != LinkState.UP:
             response.success, response.message = False, f'link {self.link.state}'
             return False
+        why = self.link_refusal()
+        if why:
+            response.success, response.message = False, why
+            return False
         return True
 
     @staticmethod
@@ -373,7 +396,10 @@ class MavlinkBridge(Node):
     # --- vehicle -> ROS (receive thread: decodes and publishes itself, never waits on the executor) ----
 
     def on_mavlink(self, msg):
-        if msg.get_type() == 'HEARTBEAT':
+        heartbeat = msg.get_type() == 'HEARTBEAT'
+        self.peers.seen(msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq(), self.now_s(),
+                        heartbeat and is_vehicle_heartbeat(msg.type, msg.autopilot))
+        if heartbeat:
             self.on_heartbeat(msg)
         elif msg.get_srcSystem() == self.vehicle.status.system:  # only our vehicle's telemetry is used
             self.telemetry.handle(msg, self.now_s())
@@ -429,8 +455,10 @@ class MavlinkBridge(Node):
             check = self.param_check
         level = {LinkState.UP: diagnostics.OK, LinkState.WAITING: diagnostics.WARN}.get(self.link.state,
                                                                                         diagnostics.ERROR)
-        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems)):
+        others, refusal = self.peers.other_vehicles(s.system, now), self.link_refusal()
+        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others):
             level = diagnostics.WARN
+        level = diagnostics.ERROR if refusal else level
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
             'target_system': s.system, 'autopilot': s.backend.name if s.backend else '?', 'mode': s.mode,
             'armed': s.armed, 'prearm_ready': '' if s.prearm_ready is None else s.prearm_ready,
@@ -440,7 +468,8 @@ class MavlinkBridge(Node):
             'param_notes': '; '.join(check.notes) if check else '',
             'packet_loss_pct': f'{self.client.packet_loss_pct():.2f}', 'losses': self.link.losses,
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
-            'handler_errors': self.client.handler_errors})
+            'handler_errors': self.client.handler_errors, 'other_vehicles': ', '.join(map(str, others)),
+            'link_refusal': refusal})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
         sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')
