@@ -308,8 +308,13 @@ class MavlinkBridge(Node):
 
     def _ready(self, response):
         s = self.vehicle.status
+        signing = self.client.signing_problem()
         if s.system is None or s.backend is None:
-            response.success, response.message = False, 'no vehicle heartbeat yet'
+            response.success, response.message = False, 'no vehicle heartbeat yet' + (f': {signing}' if signing
+                                                                                      else '')
+            return False
+        if signing:
+            response.success, response.message = False, signing
             return False
         if self.link.state != LinkState.UP:
             response.success, response.message = False, f'link {self.link.state}'
@@ -458,7 +463,7 @@ class MavlinkBridge(Node):
         others, refusal = self.peers.other_vehicles(s.system, now), self.link_refusal()
         if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others):
             level = diagnostics.WARN
-        level = diagnostics.ERROR if refusal else level
+        level = diagnostics.ERROR if refusal or self.client.signing_problem() else level
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
             'target_system': s.system, 'autopilot': s.backend.name if s.backend else '?', 'mode': s.mode,
             'armed': s.armed, 'prearm_ready': '' if s.prearm_ready is None else s.prearm_ready,
@@ -469,7 +474,8 @@ class MavlinkBridge(Node):
             'packet_loss_pct': f'{self.client.packet_loss_pct():.2f}', 'losses': self.link.losses,
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
             'handler_errors': self.client.handler_errors, 'other_vehicles': ', '.join(map(str, others)),
-            'link_refusal': refusal})
+            'link_refusal': refusal, 'signing': self.client.signing_problem() or
+            ('on' if self.client.signing else 'off')})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
         sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')

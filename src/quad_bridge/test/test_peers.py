@@ -52,3 +52,11 @@ def test_other_vehicles_are_reported_and_refuse_only_a_first_heartbeat_target():
     assert 'set target_system' in peers.refusal(1, 1, False, 1.0)
     assert peers.refusal(1, 1, True, 1.0) == ''
     assert peers.other_vehicles(1, 5.0) == []
+
+
+def test_signing_problems_name_signing():
+    from quad_bridge.signing import signing_problem
+    assert 'signing_key_file is empty' in signing_problem(False, 5, 0, 0)
+    assert 'failed the MAVLink 2 signature check' in signing_problem(True, 5, 5, 0)
+    assert 'the vehicle does not sign' in signing_problem(True, 0, 0, 7)
+    assert signing_problem(True, 5, 0, 0) == '' and signing_problem(False, 0, 0, 0) == ''
