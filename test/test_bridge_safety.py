@@ -92,7 +92,8 @@ def test_signed_link(graph, tmp_path):
             assert answer.success, answer.message
             assert observer.link()[1]['signing'] == 'on'
         else:
-            observer.wait_for(lambda says=says: says in observer.link()[1].get('signing', ''), f'signing reported: {says}')
+            observer.wait_for(lambda says=says: says in observer.link()[1].get('signing', ''),
+                              f'signing reported: {says}')
             answer = observer.call('arm', SetBool.Request(data=True))
             assert not answer.success and says in answer.message, answer.message
             procs.stop('bridge')
