@@ -28,6 +28,8 @@ from pathlib import Path
 import yaml
 
 from quad_bringup import processes
+from quad_bringup.inputs import check_inputs
+from quad_bringup.limits import refusal
 from quad_bringup.recorder import DEFAULT_TOPICS
 from quad_bringup.report import Completion, load_flight, record_summary, write_report
 from quad_common import contract
@@ -103,15 +105,19 @@ def validate(options: FlightOptions):
                              f'{", ".join(TIME_ALLOCATIONS)}')
     if options.controller not in CONTROLLERS:
         raise MissionRefused(f'--controller {options.controller!r} refused: must be one of {", ".join(CONTROLLERS)}')
-    for name, value, low, high, unit in OPTION_RANGES(options):
-        if value is not None and not low < value <= high:
-            raise MissionRefused(f'{name} {value} refused: must be > {low:g} and <= {high:g}{unit}')
+    for key, value in OPTION_VALUES(options):
+        if reason := refusal(key, value):
+            raise MissionRefused(reason)
     path = Path(options.mission)
     if not path.is_file():
         raise MissionRefused(f'mission {path}: no such file')
     for name, value in (('--vehicle', options.vehicle), ('--control-profile', options.control_profile)):
         if value is not None and not Path(value).is_file():
             raise MissionRefused(f'{name} {value}: no such file')
+    try:
+        check_inputs(options)   # the control profile, the disturbance profile
+    except ValueError as exc:
+        raise MissionRefused(str(exc)) from None
     if options.plant:
         from quad_common.vehicle import load_plant_family
         try:
@@ -160,16 +166,13 @@ def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptio
     raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above); --fly-anyway flies it all the same')
 
 
-def OPTION_RANGES(options: FlightOptions):  # noqa: N802 (a table)
-    """(option, value, exclusive low, inclusive high, unit) of every numeric option."""
-    return [('--speed', options.speed_mps, 0.0, 100.0, ' m/s'),
-            ('--time-limit-factor', options.time_limit_factor, 0.0, 1000.0, ''),
-            ('--position-tolerance', _completion_value(options, 'position_tolerance_m'), 0.0, 100.0, ' m'),
-            ('--speed-tolerance', _completion_value(options, 'speed_tolerance_mps'), 0.0, 100.0, ' m/s'),
-            ('--settle', _completion_value(options, 'settle_s'), -1e-12, 1e6, ' s'),
-            ('divergence_m', options.divergence_m, 0.0, 1e6, ' m'),
-            ('startup_timeout_s', options.startup_timeout_s, 0.0, 1e6, ' s'),
-            ('stall_timeout_s', options.stall_timeout_s, 0.0, 1e6, ' s')]
+def OPTION_VALUES(options: FlightOptions):  # noqa: N802 (a table)
+    """(quad_bringup.limits key, value) of every numeric option."""
+    return [('speed_mps', options.speed_mps), ('time_limit_factor', options.time_limit_factor),
+            *((key, _completion_value(options, key)) for key in ('position_tolerance_m', 'speed_tolerance_mps',
+                                                                  'settle_s')),
+            ('divergence_m', options.divergence_m), ('startup_timeout_s', options.startup_timeout_s),
+            ('stall_timeout_s', options.stall_timeout_s)]
 
 
 def _completion_value(options: FlightOptions, key: str):

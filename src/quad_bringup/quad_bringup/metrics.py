@@ -56,7 +56,10 @@ class Completion:
         values.update(chosen)
         if chosen:
             sources.append('command line')
+        from quad_bringup.limits import LIMITS
         for key, value in values.items():
+            if key in chosen and (reason := LIMITS[key].check(value)):   # the limits fly applies too
+                raise ValueError(reason)
             where = f'vehicle {vehicle.name}: completion.{key}' if key not in chosen else key
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
                     or value < 0 or (value == 0 and key != 'settle_s'):

@@ -83,7 +83,7 @@ def test_cli_refuses_a_profile_without_margin(tmp_path, lag_bag):
     out = tmp_path / 'fast.yaml'
     done = identify_cli(lag_bag, '--base', resolve_config('config/control_fast.yaml'), '--out', out,
                         '--latency-s', '0.05')
-    assert done.returncode == 1, done.stdout
+    assert done.returncode == 2, done.stdout
     assert not out.exists()
     message = done.stderr
     assert f'refused to write {out}' in message and 'se3' in message and 'control_fast.yaml' in message
@@ -98,7 +98,7 @@ def test_cli_refuses_a_profile_without_margin(tmp_path, lag_bag):
 
 def test_cli_refuses_a_bad_latency_by_name(lag_bag):
     done = identify_cli(lag_bag, '--latency-s', 'nan')
-    assert done.returncode == 1 and '--latency-s = nan' in done.stderr
+    assert done.returncode == 2 and '--latency-s nan refused' in done.stderr
 
 
 def test_a_bag_without_commands_is_refused_by_name(tmp_path):
@@ -109,4 +109,4 @@ def test_a_bag_without_commands_is_refused_by_name(tmp_path):
     recorder.close()
     done = subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'identify', str(bag)],
                           capture_output=True, text=True, cwd=REPO_ROOT)
-    assert done.returncode == 1 and 'quadflight identify:' in done.stderr and 'odom' in done.stderr
+    assert done.returncode == 2 and 'quadflight identify:' in done.stderr and 'odom' in done.stderr

@@ -1,0 +1,120 @@
+"""Bad input refused before anything starts, in one line naming the field and the value, exit 2, nothing left
+behind and no input modified (issue 27, items 5, 6, 8, 10, 11, 12). Each failed on the code before."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from quad_bringup import cli
+from quad_bringup.profiles import check_control_profile
+from quad_common.paths import REPO_ROOT
+
+MISSION = 'name: tiny\nwaypoints:\n  - [0.0, 0.0, 1.0]\n  - [1.0, 0.0, 1.0]\ntrajectory:\n  speed: 0.5\n'
+
+
+def _main(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.fixture
+def mission(tmp_path):
+    path = tmp_path / 'm.yaml'
+    path.write_text(MISSION)
+    return path
+
+
+def test_plan_out_onto_its_mission_is_refused_and_the_mission_kept(capsys, mission):
+    code, _, err = _main(capsys, 'plan', mission, '--out', mission)
+    assert code == 2 and 'it is the mission, an input' in err
+    assert mission.read_text() == MISSION
+    code, _, err = _main(capsys, 'plan', mission, '--out', mission.with_suffix('.json'), '--csv', '10')
+    assert code == 0 and json.loads(mission.with_suffix('.json').read_text())['segments']
+    csv_onto_mission = mission.with_name('m.csv')   # --csv writes next to --out: m.csv
+    shutil.copy(mission, csv_onto_mission)
+    code, _, err = _main(capsys, 'plan', csv_onto_mission, '--out', mission.with_name('m.json'), '--csv', '10')
+    assert code == 2 and '--csv (next to --out)' in err and csv_onto_mission.read_text() == MISSION
+
+
+def test_plan_csv_rows_are_bounded_before_anything_is_written(capsys, tmp_path):
+    far = tmp_path / 'far.yaml'
+    far.write_text(MISSION.replace('[1.0, 0.0, 1.0]', '[1.0e9, 0.0, 1.0]'))
+    out = tmp_path / 'far.json'
+    code, _, err = _main(capsys, 'plan', far, '--out', out, '--csv', '1')
+    assert code == 2 and 'rows, above 1,000,000' in err and 'Traceback' not in err
+    assert not out.exists() and not out.with_suffix('.csv').exists()
+    code, _, err = _main(capsys, 'plan', far, '--out', out, '--csv', '1e12')
+    assert code == 2 and '--csv 1e+12 refused: must be a number > 0 and <= 1e+06 Hz' in err
+
+
+def test_plan_takes_flys_limits_and_refuses_a_directory(capsys, mission, tmp_path):
+    code, _, err = _main(capsys, 'plan', mission, '--speed', '1e12')
+    assert code == 2 and '--speed 1e+12 refused: must be a number > 0 and <= 100 m/s' in err
+    code, _, err = _main(capsys, 'plan', tmp_path)
+    assert code == 2 and 'a directory, not a mission file' in err and len(err.strip().splitlines()) == 1
+
+
+def test_ctrl_c_during_plan_is_one_line_and_exit_130(capsys, mission, monkeypatch):
+    import quad_bringup.commands.plan as plan
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(plan, 'plan_mission', interrupted)
+    code, _, err = _main(capsys, 'plan', mission)
+    assert code == 130 and err.strip() == 'quadflight plan: interrupted'
+
+
+def test_identify_never_replaces_a_file_it_did_not_write(capsys, tmp_path):
+    precious = tmp_path / 'notes.yaml'
+    precious.write_text('mine: true\n')
+    code, _, err = _main(capsys, 'identify', tmp_path / 'bag', '--out', precious)
+    assert code == 2 and 'not written by quadflight identify' in err and precious.read_text() == 'mine: true\n'
+    code, _, err = _main(capsys, 'identify', tmp_path / 'bag', '--latency-s', '-1')
+    assert code == 2 and '--latency-s -1 refused' in err
+
+
+def test_report_refusals_leave_no_directory_and_share_flys_limits(capsys, tmp_path):
+    not_a_bag = tmp_path / 'not_a_bag'
+    not_a_bag.mkdir()
+    (not_a_bag / 'readme.txt').write_text('hello')
+    out = tmp_path / 'report_out'
+    code, _, err = _main(capsys, 'report', not_a_bag, '--out', out)
+    assert code == 2 and 'Traceback' not in err and not out.exists()
+    code, _, err = _main(capsys, 'report', not_a_bag, '--position-tolerance', '1e9')
+    assert code == 2 and '--position-tolerance 1e+09 refused: must be a number > 0 and <= 100 m' in err
+    code, _, err = _main(capsys, 'report', not_a_bag, '--settle', '-1')
+    assert code == 2 and '--settle -1 refused: must be a number >= 0' in err
+
+
+PROFILES = {  # file content -> what the refusal names
+    'position_controller:\n  ros__parameters:\n    kp_xx: 50.0\n': "kp_xx = 50.0 refused: not a parameter of "
+                                                                   "position_controller (did you mean 'kp_x'?)",
+    'position_controller:\n  ros__parameters:\n    kp_x: -5.0\n': 'kp_x = -5.0 refused: must be >= 0.0',
+    'position_control:\n  ros__parameters:\n    kp_x: 5.0\n': 'no position_controller: key (found position_control)',
+    'name: q\nmass_kg: 1.5\narm_length_m: 0.2\n': 'a vehicle file (mass_kg, arm_length_m), not a control profile',
+}
+
+
+@pytest.mark.parametrize('content', list(PROFILES))
+def test_fly_checks_the_control_profile_before_anything_starts(capsys, tmp_path, content):
+    profile = tmp_path / 'profile.yaml'
+    profile.write_text(content)
+    run_dir = tmp_path / 'run'
+    code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--control-profile', profile,
+                         '--out', run_dir)
+    assert code == 2 and PROFILES[content] in err and not run_dir.exists()
+
+
+def test_fly_checks_the_disturbances_before_anything_starts(capsys, tmp_path):
+    code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--disturbances', 'hurricane',
+                         '--out', tmp_path / 'run')
+    assert code == 2 and "--disturbances: disturbances = 'hurricane': no such profile" in err
+    assert not (tmp_path / 'run').exists()
+
+
+@pytest.mark.parametrize('profile', sorted(p.name for p in (REPO_ROOT / 'config').glob('control*.yaml')))
+def test_every_shipped_control_profile_passes_the_check(profile):
+    assert check_control_profile(Path(REPO_ROOT / 'config' / profile))
