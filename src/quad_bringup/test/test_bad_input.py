@@ -118,3 +118,61 @@ def test_fly_checks_the_disturbances_before_anything_starts(capsys, tmp_path):
 @pytest.mark.parametrize('profile', sorted(p.name for p in (REPO_ROOT / 'config').glob('control*.yaml')))
 def test_every_shipped_control_profile_passes_the_check(profile):
     assert check_control_profile(Path(REPO_ROOT / 'config' / profile))
+
+
+def test_typos_of_known_keys_are_refused_naming_the_key(capsys, tmp_path):
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text(MISSION + 'robot_raduis_m: 0.2\n')
+    code, _, err = _main(capsys, 'plan', typo)
+    assert code == 2 and "robot_raduis_m = 0.2 is not a known key (did you mean 'robot_radius_m'?)" in err
+    vehicle = tmp_path / 'v.yaml'
+    vehicle.write_text((REPO_ROOT / 'config/vehicles/px4_quad.yaml').read_text() + 'mass_kgg: 2.0\n')
+    typo.write_text(MISSION + f'vehicle: {vehicle}\n')
+    code, _, err = _main(capsys, 'plan', typo)
+    assert code == 2 and "mass_kgg = 2.0 is not a known key (did you mean 'mass_kg'?)" in err
+
+
+def test_an_exponent_without_a_dot_is_a_number():
+    import tempfile
+
+    from quad_common.yaml_io import load_yaml
+    from quad_trajectory.mission import load_mission
+    with tempfile.NamedTemporaryFile('w', suffix='.yaml') as f:
+        f.write(MISSION.replace('speed: 0.5', 'speed: 5e-1') + 'extra_numbers: [1e9, 2E3, -1e-2, 1.5e3]\n')
+        f.flush()
+        assert load_yaml(f.name)['extra_numbers'] == [1e9, 2e3, -1e-2, 1.5e3]
+        assert load_mission(f.name).options.speed_mps == 0.5
+
+
+SWEEP = {'missions': ['config/missions/stop_every_waypoint.yaml'], 'controllers': ['pd'], 'seeds': 1}
+
+
+@pytest.mark.parametrize('argv, says', [
+    (['--workers', '-1'], '--workers -1 refused: must be an integer >= 1'),
+    (['--scheduler', 'notaurl'], "--scheduler 'notaurl' refused"),
+])
+def test_sweep_and_tune_refusals_are_one_line_and_leave_nothing(capsys, tmp_path, argv, says):
+    spec = tmp_path / 'spec.yaml'
+    spec.write_text(json.dumps(SWEEP))
+    out = tmp_path / 'out'
+    code, _, err = _main(capsys, 'sweep', spec, '--out', out, *argv)
+    assert code == 2 and says in err and 'Traceback' not in err and not out.exists()
+
+
+def test_sweep_out_must_be_a_writable_directory(capsys, tmp_path):
+    spec = tmp_path / 'spec.yaml'
+    spec.write_text(json.dumps(SWEEP))
+    code, _, err = _main(capsys, 'sweep', spec, '--out', spec)
+    assert code == 2 and 'a file, not a directory' in err and json.loads(spec.read_text()) == SWEEP
+    code, _, err = _main(capsys, 'sweep', spec, '--out', '/proc/quadflight_out')
+    assert code == 2 and 'cannot create or write it' in err
+
+
+def test_tune_checks_its_optimizer_and_leaves_no_spec_behind(capsys, tmp_path):
+    spec = tmp_path / 'tune.yaml'
+    spec.write_text(json.dumps({'controller': 'pd', 'parameters': {'kp_xy': [1.0, 40.0]},
+                                'missions': ['config/missions/stop_every_waypoint.yaml'],
+                                'optimizer': {'maxiter': -1}}))
+    out = tmp_path / 'out'
+    code, _, err = _main(capsys, 'tune', spec, '--out', out, '--workers', '1')
+    assert code == 2 and 'optimizer.maxiter = -1 refused: must be an integer >= 1' in err and not out.exists()

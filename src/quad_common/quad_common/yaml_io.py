@@ -21,6 +21,9 @@ _FLOAT, _INT, _SEQ = 'tag:yaml.org,2002:float', 'tag:yaml.org,2002:int', 'tag:ya
 
 # A plain decimal that YAML 1.1's resolver (float tried before int) tags float when it has a dot, else int.
 _DECIMAL = re.compile(r'[-+]?(?:[0-9]+\.[0-9]*(?:[eE][-+][0-9]+)?|0|[1-9][0-9]*)$')
+# What YAML 1.1 leaves a string but YAML 1.2 and every user read as a float: 1e9, 2.5e3, 1.0e9 (issue 27.12:
+# `speed: 1e9` was refused as the string '1e9')
+_EXPONENT = re.compile(r'[-+]?[0-9]+(?:\.[0-9]*)?[eE][-+]?[0-9]+$')
 
 
 class NumbersLoader(SAFE_LOADER):
@@ -32,6 +35,8 @@ class NumbersLoader(SAFE_LOADER):
     def resolve(self, kind, value, implicit):
         if kind is ScalarNode and implicit[0] and _DECIMAL.match(value):
             return _FLOAT if '.' in value else _INT
+        if kind is ScalarNode and implicit[0] and _EXPONENT.match(value):
+            return _FLOAT
         return super().resolve(kind, value, implicit)
 
     def construct_object(self, node, deep=False):
@@ -54,6 +59,18 @@ def _note_fallback():
         _noted.append(True)
         print('note: PyYAML has no libyaml C loader here; parsing YAML with the slower pure-Python loader',
               file=sys.stderr)
+
+
+def refuse_typos(data: dict, known, where: str):
+    """ValueError for a top-level key that is not known but nearly is (a typo: `robot_raduis_m`, `mass_kgg`);
+    other unknown keys stay the file's own (issue 27.9)."""
+    import difflib
+    for key in data:
+        if key in known or not isinstance(key, str):
+            continue
+        close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.8)
+        if close:
+            raise ValueError(f'{where}: {key} = {data[key]!r} is not a known key (did you mean {close[0]!r}?)')
 
 
 def load_yaml(path) -> dict:

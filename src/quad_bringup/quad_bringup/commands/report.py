@@ -62,7 +62,7 @@ def run(args) -> int:
             print(f'quadflight report: {exc}', file=sys.stderr)
             return 2
     if not bag.exists():
-        print(f'quadflight report: {bag}: no such bag directory', file=sys.stderr)
+        print(f'quadflight report: {bag}: no such directory', file=sys.stderr)
         return 2
     created = not out.exists()
     try:
