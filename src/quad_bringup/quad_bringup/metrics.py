@@ -106,6 +106,7 @@ class Flight:
     odom_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     clock_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     sim_published: tuple | None = None           # (stamp ns, steps) of the newest `sim_node: published`
+    collisions_known: bool = True                # False: nothing in the bag could report one (no simulator)
     truncated: dict | None = None                # a killed recorder's bag: where it was cut (recorder.Repair)
 
 
@@ -217,7 +218,7 @@ def compute_metrics(flight: Flight, rule: Completion = Completion(), published_s
         'max_error_m': float(np.max(err)),
         'waypoint_miss_max_m': float(max(misses)),
         'completed': t_done is not None and not collided,
-        'collided': collided,
+        'collided': collided if collided or flight.collisions_known else None,   # None: n/a (a real flight)
         'collision_time_s': None if not collided else flight.collision_time_s - t0,
         'final_error_m': float(np.linalg.norm(flight.position[-1] - final)),
         'max_speed_mps': float(np.max(np.linalg.norm(flight.velocity[window], axis=1))),

@@ -91,6 +91,7 @@ def load_flight(bag_dir) -> Flight:
         euler=rotations.to_euler(np.array([o[1].quaternion for o in odom])),
         collision_time_s=collision, errors=errors, odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
         clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
+        collisions_known=bool(clock) or published is not None or collision is not None,   # a simulator's bag
         truncated=None if repair is None else repair.as_dict())
     if TRAJECTORY in latest:
         flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
@@ -129,7 +130,8 @@ def metrics_table(metrics: dict) -> str:
     """The seed's Table 1/2 columns plus errors, as a markdown table (also what `fly` prints)."""
     head = '| ' + ' | '.join(title for _, title, _ in TABLE_COLUMNS) + ' |'
     rule = '|' + '|'.join('---:' for _ in TABLE_COLUMNS) + '|'
-    row = '| ' + ' | '.join(fmt.format(metrics[key]) for key, _, fmt in TABLE_COLUMNS) + ' |'
+    row = '| ' + ' | '.join('n/a' if metrics[key] is None else fmt.format(metrics[key])
+                            for key, _, fmt in TABLE_COLUMNS) + ' |'
     return '\n'.join([head, rule, row])
 
 

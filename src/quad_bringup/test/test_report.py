@@ -14,7 +14,14 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 from quad_bringup.commands import report as report_command
 from quad_bringup.recorder import typestore
-from quad_bringup.report import Completion, closest_approach, compute_metrics, load_flight, write_report
+from quad_bringup.report import (
+    Completion,
+    closest_approach,
+    compute_metrics,
+    load_flight,
+    metrics_table,
+    write_report,
+)
 
 L_M, T_S, DELAY_S, T0_S, RATE_HZ = 2.0, 4.0, 0.5, 10.0, 100
 MISSED_WAYPOINT = (1.0, 0.03, 1.0)  # 3 cm beside the straight path
@@ -102,7 +109,8 @@ def make_bag(path, storage=StoragePlugin.MCAP, end_s=T0_S + T_S + 2.0, collision
             ('trajectory', 'trajectory_msgs/msg/MultiDOFJointTrajectory'),
             ('trajectory/waypoints', 'nav_msgs/msg/Path'),
             ('trajectory/markers', 'visualization_msgs/msg/MarkerArray'), ('odom', 'nav_msgs/msg/Odometry'),
-            ('cmd/attitude_thrust', 'sensor_msgs/msg/Imu'), ('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray')]}
+            ('cmd/attitude_thrust', 'sensor_msgs/msg/Imu'), ('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray'),
+            ('/clock', 'rosgraph_msgs/msg/Clock')]}
 
         def write(topic, t, msg):
             writer.write(conns[topic], int(t * 1e9), ts.serialize_cdr(msg, conns[topic].msgtype))
@@ -113,6 +121,8 @@ def make_bag(path, storage=StoragePlugin.MCAP, end_s=T0_S + T_S + 2.0, collision
         for k in range(int((T0_S - 1) * RATE_HZ), int(round(end_s * RATE_HZ)) + 1):
             write('odom', k / RATE_HZ, odom(k / RATE_HZ))
             write('cmd/attitude_thrust', k / RATE_HZ, command(k / RATE_HZ))
+            if not real:   # a simulator's bag: sim_node's /clock (a real vehicle's graph has none)
+                write('/clock', k / RATE_HZ, M['rosgraph_msgs/msg/Clock'](clock=stamp(ts, k / RATE_HZ)))
         if collision_at_s is not None:
             kv = M['diagnostic_msgs/msg/KeyValue']
             status = M['diagnostic_msgs/msg/DiagnosticStatus'](
@@ -175,6 +185,16 @@ def test_collision_from_diagnostics(tmp_path):
     assert metrics['completed'] is False
     assert metrics['collision_time_s'] == at_s - T0_S
     assert metrics['errors'] == ['1.50 s sim_node: collision: hit obstacle 0']
+
+
+def test_a_bag_without_a_simulator_does_not_say_it_did_not_collide(tmp_path):
+    """Issue 27.13: a bridge bag has no collision information: `Collided` is n/a, not False."""
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag', end_s=REAL_LAND_S + 4.0, real=True)),
+                              Completion(settle_s=2.0))
+    assert metrics['collided'] is None
+    assert metrics_table(metrics).rstrip(' |').endswith('| n/a')
+    sim = compute_metrics(load_flight(make_bag(tmp_path / 'sim')), Completion())
+    assert sim['collided'] is False and metrics_table(sim).rstrip(' |').endswith('| False')
 
 
 def test_closest_approach_uses_segments():
