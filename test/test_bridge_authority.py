@@ -116,3 +116,31 @@ def test_a_second_vehicle_on_the_link_is_refused_and_reported(tmp_path):
         assert observer.link()[1]['link_refusal'] == '' and observer.link()[1]['target_system'] == '1'
         answer = observer.call('arm', SetBool.Request(data=True))
         assert answer.success, answer.message
+
+
+def test_quadflight_arm_offboard_land_call_the_bridge_without_the_ros2_cli(tmp_path):
+    """The README's walk-through on a machine without ROS: `quadflight arm|offboard|land` (issue 27, friction)."""
+    import subprocess
+    from pathlib import Path
+
+    from bridge_graph import free_udp_port, running_graph
+    quadflight = str(Path(__file__).resolve().parent.parent / 'quadflight')
+    with running_graph(tmp_path) as (procs, observer):
+        port = free_udp_port()
+        procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=(0.0, 0.0, 0.0))
+        procs.bridge(f'udpin:127.0.0.1:{port}')
+        observer.wait_for(lambda: observer.link()[0] == 'link up', 'link up')
+        ns = observer.node.get_namespace()
+
+        def call(*args):
+            return subprocess.run([quadflight, *args, '--namespace', ns, '--timeout-s', '60'], env=procs.env,
+                                  capture_output=True, text=True, timeout=120)
+        armed = call('arm')
+        assert armed.returncode == 0 and 'accepted: arm: MAV_RESULT_ACCEPTED' in armed.stdout, armed.stderr
+        refused = call('offboard')   # no controller publishing: refused, exit 1, the bridge's reason
+        assert refused.returncode == 1 and 'no live setpoint stream' in refused.stderr, refused.stderr
+        landed = call('land')
+        assert landed.returncode == 0 and 'mode AUTO.LAND' in landed.stdout, landed.stderr
+        nobody = subprocess.run([quadflight, 'land', '--namespace', '/nobody', '--timeout-s', '2'], env=procs.env,
+                                capture_output=True, text=True, timeout=60)
+        assert nobody.returncode == 2 and 'no mavlink_bridge offers /nobody/land' in nobody.stderr

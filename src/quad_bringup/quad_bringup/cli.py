@@ -20,6 +20,10 @@ SUBCOMMANDS = {
                                              'seeds: one table, a summary, figures'),
     'tune': ('quad_bringup.commands.tune', "search a controller's gains for a robust cost over missions and a "
                                            'plant family; write the profile, verify it through the graph'),
+    'arm': ('quad_bringup.commands.vehicle', 'the bridge\'s arm service (--off disarms); no ros2 CLI needed'),
+    'offboard': ('quad_bringup.commands.vehicle', 'the bridge\'s offboard service: hand the vehicle to the '
+                                                  'controller (--off ends it)'),
+    'land': ('quad_bringup.commands.vehicle', 'the bridge\'s land service'),
 }
 
 
