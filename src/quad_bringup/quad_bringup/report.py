@@ -138,13 +138,15 @@ def metrics_table(metrics: dict) -> str:
 def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
     lines = [f'# {title}', '']
     info = {k: metrics[k] for k in ('mission', 'controller', 'speed_mps', 'outcome') if k in metrics}
+    if info.get('speed_mps', 0) is None:   # no --speed: the mission's own speed profile was flown
+        info['speed_mps'] = "the mission's (no --speed)"
     lines += [f'- {k}: {v}' for k, v in info.items()]
     lines += ['', '## Table (the seed\'s Table 1/2 columns and errors)', '', metrics_table(metrics), '',
               f'Completion: within {metrics["completion_rule"]["position_tolerance_m"]} m of the final waypoint at '
               f'speed <= {metrics["completion_rule"]["speed_tolerance_mps"]} m/s '
               f'({metrics["completion_rule"].get("source", "built-in defaults")}). '
               f'{_scored_text(metrics)} Time actual - planned: '
-              f'{metrics["time_over_s"]:.3f} s; final error {metrics["final_error_m"]:.4f} m; max speed '
+              f'{metrics["time_over_s"]:.3f} s{_early_text(metrics)}; final error {metrics["final_error_m"]:.4f} m; max speed '
               f'{metrics["max_speed_mps"]:.2f} m/s; max tilt {metrics["max_tilt_deg"]:.1f} deg.', '']
     lines += ['## Record', '', record_summary(metrics['record']), '']
     if metrics.get('bag_truncated'):
@@ -153,6 +155,14 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
         lines += ['## Errors reported on diagnostics', ''] + [f'- {e}' for e in metrics['errors']] + ['']
     lines += ['## Figures', ''] + [f'![{Path(f).stem}]({f})' for f in figures] + ['']
     return '\n'.join(lines)
+
+
+def _early_text(metrics: dict) -> str:
+    """Why time actual can be shorter than time planned."""
+    if metrics['time_over_s'] >= 0 or not metrics.get('completed'):
+        return ''
+    return (' (time actual ends at completion: the vehicle within the position tolerance of the final waypoint '
+            'and below the speed tolerance, which the plan\'s slow final approach reaches before its end)')
 
 
 def _scored_text(metrics: dict) -> str:

@@ -197,6 +197,17 @@ def test_a_bag_without_a_simulator_does_not_say_it_did_not_collide(tmp_path):
     assert sim['collided'] is False and metrics_table(sim).rstrip(' |').endswith('| False')
 
 
+def test_report_says_whose_speed_and_why_time_actual_is_shorter(tmp_path):
+    """Issue 27 (newcomer friction): `speed_mps: None` for the default mission; time actual < planned unexplained."""
+    from quad_bringup.report import report_markdown
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag')), Completion(position_tolerance_m=0.2,
+                                                                                  speed_tolerance_mps=0.5))
+    assert metrics['completed'] and metrics['time_over_s'] < 0
+    text = report_markdown({**metrics, 'speed_mps': None, 'mission': 'm'}, [], 'r')
+    assert 'speed_mps: None' not in text and "speed_mps: the mission's (no --speed)" in text
+    assert 'time actual ends at completion' in text
+
+
 def test_closest_approach_uses_segments():
     path = np.array([[0.0, 0, 0], [1.0, 0, 0]])
     assert closest_approach(path, np.array([0.5, 0.2, 0])) == pytest.approx(0.2)
