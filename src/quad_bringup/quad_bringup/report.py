@@ -146,7 +146,8 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
               f'speed <= {metrics["completion_rule"]["speed_tolerance_mps"]} m/s '
               f'({metrics["completion_rule"].get("source", "built-in defaults")}). '
               f'{_scored_text(metrics)} Time actual - planned: '
-              f'{metrics["time_over_s"]:.3f} s{_early_text(metrics)}; final error {metrics["final_error_m"]:.4f} m; max speed '
+              f'{metrics["time_over_s"]:.3f} s{_early_text(metrics)}; final error {metrics["final_error_m"]:.4f} m; '
+              f'max speed '
               f'{metrics["max_speed_mps"]:.2f} m/s; max tilt {metrics["max_tilt_deg"]:.1f} deg.', '']
     lines += ['## Record', '', record_summary(metrics['record']), '']
     if metrics.get('bag_truncated'):
