@@ -176,3 +176,27 @@ def test_tune_checks_its_optimizer_and_leaves_no_spec_behind(capsys, tmp_path):
     out = tmp_path / 'out'
     code, _, err = _main(capsys, 'tune', spec, '--out', out, '--workers', '1')
     assert code == 2 and 'optimizer.maxiter = -1 refused: must be an integer >= 1' in err and not out.exists()
+
+
+def _foreign_bag(path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection('/chatter', 'std_msgs/msg/String', typestore=ts)
+        for i in range(5):
+            writer.write(conn, i * 10 ** 8, ts.serialize_cdr(ts.types['std_msgs/msg/String'](data='x'),
+                                                             'std_msgs/msg/String'))
+    return path
+
+
+def test_a_bag_of_foreign_topics_and_a_binary_mission_are_one_line_naming_the_file(capsys, tmp_path):
+    bag = _foreign_bag(tmp_path / 'foreign')
+    for argv in (['report', bag, '--out', tmp_path / 'rep'], ['identify', bag, '--out', tmp_path / 'p.yaml']):
+        code, _, err = _main(capsys, *argv)
+        assert code == 2 and str(bag) in err and 'in it' in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / 'rep').exists() and not (tmp_path / 'p.yaml').exists()
+    binary = tmp_path / 'binary.yaml'
+    binary.write_bytes(bytes(range(256)) * 4)
+    code, _, err = _main(capsys, 'plan', binary)
+    assert code == 2 and f'{binary}: not a text (UTF-8) file' in err

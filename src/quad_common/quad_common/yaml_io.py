@@ -83,6 +83,11 @@ def load_yaml(path) -> dict:
         raise ValueError(f'{path}: file not found') from None
     except yaml.YAMLError as exc:
         raise ValueError(f'{path}: not valid YAML: {exc}') from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f'{path}: not a text (UTF-8) file: byte {exc.start} is '
+                         f'0x{exc.object[exc.start]:02x}') from None
+    except IsADirectoryError:
+        raise ValueError(f'{path}: a directory, not a YAML file') from None
     if not isinstance(data, dict):
         raise ValueError(f'{path}: expected a mapping at the top level, got {type(data).__name__}')
     return data

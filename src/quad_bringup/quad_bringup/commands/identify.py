@@ -73,7 +73,8 @@ def run(args) -> int:
         margin = margin_hold(vehicle, controller, gains, result['attitude_lead_s'], args.latency_s,
                              thrust_error=result['thrust_scale'] - 1.0)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:
-        print(f'quadflight identify: {bag}: {exc or "no messages of the needed topics"}', file=sys.stderr)
+        why = str(exc) or 'none of the topics identify needs (odom, cmd/attitude_thrust) in it'
+        print(f'quadflight identify: {bag}: {why}', file=sys.stderr)
         return 2
     for axis in ('roll', 'pitch'):
         a = result[axis]

@@ -79,8 +79,8 @@ def run(args) -> int:
     except (OSError, ValueError, ReaderError, StopIteration) as exc:
         if created:   # a refusal leaves nothing behind (issue 27.11)
             shutil.rmtree(out, ignore_errors=True)
-        print(f'quadflight report: {bag}: {exc or "none of the flight topics (odom, trajectory) in it"}',
-              file=sys.stderr)
+        why = str(exc) or 'none of the flight topics (odom, trajectory, cmd/attitude_thrust) in it'
+        print(f'quadflight report: {bag}: {why}', file=sys.stderr)
         return 2
     print(metrics_table(metrics))
     print(f'report: {out / "report.md"}, metrics: {out / "metrics.json"}, figures: {out / "figures"}')
