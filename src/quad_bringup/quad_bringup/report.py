@@ -149,6 +149,7 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
               f'{metrics["time_over_s"]:.3f} s{_early_text(metrics)}; final error {metrics["final_error_m"]:.4f} m; '
               f'max speed '
               f'{metrics["max_speed_mps"]:.2f} m/s; max tilt {metrics["max_tilt_deg"]:.1f} deg.', '']
+    lines += [_start_text(metrics), '']
     lines += ['## Record', '', record_summary(metrics['record']), '']
     if metrics.get('bag_truncated'):
         lines += [truncation_summary(metrics['bag_truncated']), '']
@@ -156,6 +157,17 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
         lines += ['## Errors reported on diagnostics', ''] + [f'- {e}' for e in metrics['errors']] + ['']
     lines += ['## Figures', ''] + [f'![{Path(f).stem}]({f})' for f in figures] + ['']
     return '\n'.join(lines)
+
+
+def _start_text(metrics: dict) -> str:
+    """Where the vehicle was when the plan started (a bridge flight may begin away from it and join it)."""
+    offset, tolerance = metrics['start_offset_m'], metrics['completion_rule']['position_tolerance_m']
+    line = f'Start: the vehicle was {offset:.3f} m from the plan\'s first point when the plan began.'
+    if offset > tolerance:
+        line += (f' JOINED: more than the position tolerance ({tolerance} m), so the first errors are the join, not '
+                 'the tracking; start the plan where the vehicle hovers (the controller refuses a start farther '
+                 'than its max_start_step_m).')
+    return line
 
 
 def _early_text(metrics: dict) -> str:

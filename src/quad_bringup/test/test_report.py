@@ -208,6 +208,19 @@ def test_report_says_whose_speed_and_why_time_actual_is_shorter(tmp_path):
     assert 'time actual ends at completion' in text
 
 
+def test_report_says_when_the_flight_began_away_from_the_plan(tmp_path):
+    """Issue 27.13: a bridge flight started 0.5 m from the plan's start joined it silently."""
+    from quad_bringup.report import report_markdown
+    flight = load_flight(make_bag(tmp_path / 'bag'))
+    on_plan = compute_metrics(flight, Completion())
+    assert on_plan['start_offset_m'] < 0.01 and 'JOINED' not in report_markdown(on_plan, [], 'r')
+    flight.position = flight.position + np.array([0.0, 0.5, 0.0])
+    away = compute_metrics(flight, Completion())
+    assert away['start_offset_m'] == pytest.approx(0.5, abs=0.01)
+    assert 'was 0.500 m from the plan\'s first point' in report_markdown(away, [], 'r')
+    assert 'JOINED' in report_markdown(away, [], 'r')
+
+
 def test_closest_approach_uses_segments():
     path = np.array([[0.0, 0, 0], [1.0, 0, 0]])
     assert closest_approach(path, np.array([0.5, 0.2, 0])) == pytest.approx(0.2)
