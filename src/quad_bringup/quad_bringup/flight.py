@@ -33,6 +33,7 @@ from quad_bringup.limits import refusal
 from quad_bringup.recorder import DEFAULT_TOPICS
 from quad_bringup.report import Completion, load_flight, record_summary, write_report
 from quad_common import contract
+from quad_common.domain_probe import foreign_nodes
 from quad_common.domains import isolated_domain
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.yaml_io import load_yaml
@@ -164,6 +165,9 @@ def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptio
         log(f'flying time_allocation {report.fits}, as the mission asks (trajectory.if_infeasible)')
         return dataclasses.replace(options, time_allocation=report.fits)
     raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above); --fly-anyway flies it all the same')
+
+
+DOMAIN_PROBE_S = 0.5   # a ROS domain whose lock is free but holds nodes (a real bridge) is passed over
 
 
 def OPTION_VALUES(options: FlightOptions):  # noqa: N802 (a table)
@@ -371,7 +375,8 @@ def _fly(options: FlightOptions, log) -> FlightResult:
                                      run_dir / 'logs' / 'recorder.log')
     log(f'flying {options.mission} with {options.controller} -> {run_dir}')
     started = []
-    with isolated_domain() as (domain, env), _Interrupt() as interrupt:
+    with isolated_domain(probe=lambda d: foreign_nodes(d, DOMAIN_PROBE_S)) as (domain, env), \
+            _Interrupt() as interrupt:
         for node in [recorder, *nodes]:  # at once: imports and discovery overlap (module docstring)
             node.start(env)
             started.append(node)
