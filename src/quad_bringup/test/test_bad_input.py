@@ -200,3 +200,16 @@ def test_a_bag_of_foreign_topics_and_a_binary_mission_are_one_line_naming_the_fi
     binary.write_bytes(bytes(range(256)) * 4)
     code, _, err = _main(capsys, 'plan', binary)
     assert code == 2 and f'{binary}: not a text (UTF-8) file' in err
+
+
+def test_tune_out_a_file_and_a_closed_scheduler_leave_nothing(capsys, tmp_path):
+    spec = tmp_path / 'tune.yaml'
+    spec.write_text(json.dumps({'controller': 'pd', 'parameters': {'kp_xy': [1.0, 40.0]},
+                                'missions': ['config/missions/stop_every_waypoint.yaml']}))
+    code, _, err = _main(capsys, 'tune', spec, '--out', spec)
+    assert code == 2 and 'a file, not a directory' in err
+    sweep_spec = tmp_path / 'sweep.yaml'
+    sweep_spec.write_text(json.dumps(SWEEP))
+    out = tmp_path / 'out'
+    code, _, err = _main(capsys, 'sweep', sweep_spec, '--out', out, '--scheduler', 'tcp://127.0.0.1:9')
+    assert code == 2 and 'cannot connect' in err and not out.exists()   # no empty runs.csv / runs.jsonl
