@@ -20,8 +20,8 @@ class Limit:
                 and value <= self.high:
             return None
         shown = f'{value:g}' if number else repr(value)
-        return (f'{name or self.option} {shown} refused: must be a number {">=" if self.low_inclusive else ">"} '
-                f'{self.low:g} and <= {self.high:g}{" " + self.unit if self.unit else ""}')
+        return (f'{name or self.option} {shown} refused: must be {">=" if self.low_inclusive else ">"} '
+                f'{self.low:g} and <= {self.high:g}{" " + self.unit if self.unit else ""} (a number)')
 
 
 LIMITS = {

@@ -41,8 +41,8 @@ def test_speed_override_shortens_the_plan(tmp_path):
 
 
 @pytest.mark.parametrize('args,words', [
-    (['--speed', '0'], '--speed 0 refused: must be a number > 0'),
-    (['--out', 'X', '--csv', '-5'], '--csv -5 refused: must be a number > 0'),
+    (['--speed', '0'], '--speed 0 refused: must be > 0'),
+    (['--out', 'X', '--csv', '-5'], '--csv -5 refused: must be > 0'),
     (['--csv', '100'], '--csv needs --out'),
 ])
 def test_bad_plan_requests_exit_2_with_the_reason(tmp_path, capsys, args, words):

@@ -294,7 +294,7 @@ def test_real_vehicle_tolerances_from_its_yaml_complete_the_same_flight(tmp_path
         'vehicle px4_quad'
     # a command-line value overrides the vehicle's, and a bad one is named
     assert Completion.for_vehicle(px4, settle_s=5.0).source == 'vehicle px4_quad + command line'
-    with pytest.raises(ValueError, match=r'--position-tolerance -1 refused: must be a number > 0 and <= 100 m'):
+    with pytest.raises(ValueError, match=r'--position-tolerance -1 refused: must be > 0 and <= 100 m'):
         Completion.for_vehicle(px4, position_tolerance_m=-1.0)
     px4.extra['completion'] = {'position_tolerance': 0.1}
     with pytest.raises(ValueError, match=r'vehicle px4_quad: completion = .* may only hold position_tolerance_m'):

@@ -21,8 +21,7 @@ _FLOAT, _INT, _SEQ = 'tag:yaml.org,2002:float', 'tag:yaml.org,2002:int', 'tag:ya
 
 # A plain decimal that YAML 1.1's resolver (float tried before int) tags float when it has a dot, else int.
 _DECIMAL = re.compile(r'[-+]?(?:[0-9]+\.[0-9]*(?:[eE][-+][0-9]+)?|0|[1-9][0-9]*)$')
-# What YAML 1.1 leaves a string but YAML 1.2 and every user read as a float: 1e9, 2.5e3, 1.0e9 (issue 27.12:
-# `speed: 1e9` was refused as the string '1e9')
+# What YAML 1.1 (PyYAML) leaves a string but a reader takes for a number: 1e9, 2.5e3 (no dot or no exponent sign)
 _EXPONENT = re.compile(r'[-+]?[0-9]+(?:\.[0-9]*)?[eE][-+]?[0-9]+$')
 
 
@@ -35,8 +34,6 @@ class NumbersLoader(SAFE_LOADER):
     def resolve(self, kind, value, implicit):
         if kind is ScalarNode and implicit[0] and _DECIMAL.match(value):
             return _FLOAT if '.' in value else _INT
-        if kind is ScalarNode and implicit[0] and _EXPONENT.match(value):
-            return _FLOAT
         return super().resolve(kind, value, implicit)
 
     def construct_object(self, node, deep=False):
@@ -59,6 +56,18 @@ def _note_fallback():
         _noted.append(True)
         print('note: PyYAML has no libyaml C loader here; parsing YAML with the slower pure-Python loader',
               file=sys.stderr)
+
+
+def refuse_number_text(data: dict, keys, where: str):
+    """ValueError for a value YAML read as text that was meant as a number (`speed: 1e9` is the string '1e9' to
+    YAML 1.1; issue 27.12), naming the field and how to write it."""
+    for key in keys:
+        value = data.get(key)
+        if isinstance(value, str) and _EXPONENT.match(value.strip()):
+            mantissa, exponent = re.split('[eE]', value.strip())
+            sign = '' if exponent[0] in '+-' else '+'
+            raise ValueError(f'{where}{key} = {value!r} is text to YAML, not a number: write it with a dot and a '
+                             f'signed exponent, e.g. {float(mantissa):.1f}e{sign}{exponent}')
 
 
 def refuse_typos(data: dict, known, where: str):
