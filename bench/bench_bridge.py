@@ -234,7 +234,7 @@ def main():
     python_path = os.pathsep.join(os.path.join(src, p) for p in sorted(os.listdir(src)))
     bridge = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', 'fcu_url:=udpout:127.0.0.1:{port}',
               '-p', f'hover_throttle:={HOVER_THROTTLE}', '-p', 'autopilot:=px4', '-p', 'setpoint_rate_hz:=50.0',
-              '-p', 'setpoint_timeout_s:=1.0']
+              '-p', 'setpoint_timeout_s:=1.0', '-p', 'setpoint_source:=bench_bridge']  # the bench's node
     echo = [os.path.join(ROOT, 'bench', 'bridge_echo.py'), '{port}', str(HOVER_THROTTLE), '--ros-args']
     with isolated_domain() as (domain, env):
         env = dict(env, PYTHONPATH=python_path + os.pathsep + env.get('PYTHONPATH', ''))

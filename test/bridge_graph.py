@@ -217,15 +217,19 @@ class Tap:
 
 
 class SetpointPublisher:
-    """Publishes cmd/attitude_thrust at rate_hz from a thread (a running controller); attitude(q) and force can
+    """Publishes cmd/attitude_thrust at rate_hz from a thread, from a node of its own named `node_name` in the
+    observer's namespace (default: the bridge's setpoint_source, a running controller); attitude(q) and force can
     be changed while it runs."""
 
-    def __init__(self, observer, rate_hz=50.0, quaternion=(0.0, 0.0, 0.0, 1.0), force_mps2=9.81):
+    def __init__(self, observer, rate_hz=50.0, quaternion=(0.0, 0.0, 0.0, 1.0), force_mps2=9.81,
+                 node_name='position_controller'):
         from sensor_msgs.msg import Imu
 
         from quad_common.conversions import to_quaternion
         self._to_q, self._imu = to_quaternion, Imu
-        self.pub = observer.node.create_publisher(Imu, 'cmd/attitude_thrust', 10)
+        self.node = rclpy.create_node(node_name, namespace=observer.node.get_namespace(), context=observer.context,
+                                      start_parameter_services=False)
+        self.pub = self.node.create_publisher(Imu, 'cmd/attitude_thrust', 10)
         self.period_s, self.quaternion, self.force_mps2 = 1.0 / rate_hz, quaternion, force_mps2
         self.count = 0
         self.stop_event = threading.Event()
@@ -244,6 +248,7 @@ class SetpointPublisher:
     def stop(self):
         self.stop_event.set()
         self.thread.join(timeout=2)
+        self.node.destroy_node()
 
 
 class Observer:

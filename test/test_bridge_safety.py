@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import pytest
+import rclpy
 from bridge_graph import free_udp_port, python_env, running_graph
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool
@@ -35,7 +36,9 @@ def test_bad_setpoints_are_counted_and_the_geofence_lands(graph):
     procs.bridge(f'udpin:127.0.0.1:{port}', max_tilt_deg=30.0, geofence_enabled=True,
                  geofence_min_m='[-5.0, -5.0, -1.0]', geofence_max_m='[5.0, 5.0, 3.0]')
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the armed vehicle')
-    pub = observer.node.create_publisher(Imu, 'cmd/attitude_thrust', 10)
+    controller = rclpy.create_node('position_controller', namespace=observer.node.get_namespace(),
+                                   context=observer.context)   # the bridge's setpoint_source
+    pub = controller.create_publisher(Imu, 'cmd/attitude_thrust', 10)
 
     def counts():
         entries = observer.diagnostics.get('mavlink_bridge: setpoints')
@@ -69,20 +72,28 @@ def test_bad_start_up_parameters_exit_2_naming_the_field(ros_env, param, value):
 
 
 def test_signed_link(graph, tmp_path):
-    """A vehicle that accepts only signed messages obeys a bridge with its key and ignores one without."""
+    """A vehicle that accepts only signed messages obeys a bridge with its key; a bridge without a key or with
+    another key says it is signing (issue 27.3: they said "parameters not read" / "no vehicle heartbeat yet")."""
     procs, observer = graph
-    key = tmp_path / 'signing.key'
+    key, wrong = tmp_path / 'signing.key', tmp_path / 'wrong.key'
     key.write_text('a5' * 32)
+    wrong.write_text('5a' * 32)
     port = free_udp_port()
     procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=(0.0, 0.0, 0.0), extra=('--signing-key-file', str(key)))
-    procs.bridge(f'udpin:127.0.0.1:{port}', command_timeout_s=1.0)
-    observer.wait_for(lambda: observer.link()[0] == 'link up', 'the signed vehicle heard (unsigned bridge)')
-    answer = observer.call('arm', SetBool.Request(data=True))
-    assert not answer.success and 'no COMMAND_ACK' in answer.message
-    procs.stop('bridge')
-    with observer.lock:
-        observer.diagnostics.clear()
-    procs.bridge(f'udpin:127.0.0.1:{port}', command_timeout_s=1.0, signing_key_file=str(key))
-    observer.wait_for(lambda: observer.link()[0] == 'link up', 'the signed vehicle heard (signed bridge)')
-    answer = observer.call('arm', SetBool.Request(data=True))
-    assert answer.success, answer.message
+    for key_file, says in (('', 'signing_key_file is empty'), (str(wrong), 'failed the MAVLink 2 signature check'),
+                           (str(key), None)):
+        with observer.lock:
+            observer.diagnostics.clear()
+        procs.bridge(f'udpin:127.0.0.1:{port}', command_timeout_s=1.0,
+                     **({'signing_key_file': key_file} if key_file else {}))
+        if says is None:
+            observer.wait_for(lambda: observer.link()[0] == 'link up', 'the signed vehicle heard (signed bridge)')
+            answer = observer.call('arm', SetBool.Request(data=True))
+            assert answer.success, answer.message
+            assert observer.link()[1]['signing'] == 'on'
+        else:
+            observer.wait_for(lambda says=says: says in observer.link()[1].get('signing', ''),
+                              f'signing reported: {says}')
+            answer = observer.call('arm', SetBool.Request(data=True))
+            assert not answer.success and says in answer.message, answer.message
+            procs.stop('bridge')

@@ -29,6 +29,7 @@ from quad_bridge.backends import BACKENDS, resolve
 from quad_bridge.handover import ACTIVE
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
+from quad_bridge.peers import LinkPeers
 from quad_bridge.safety import Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import TelemetryPublisher, stamp
@@ -85,6 +86,9 @@ PARAMS = [
     Param('geofence_max_m', [50.0, 50.0, 30.0], 'geofence box upper corner (map, ENU)', length=3),
     Param('signing_key_file', '', 'MAVLink 2 signing key file (64 hex chars or a passphrase); empty = unsigned',
           read_only=True),
+    Param('setpoint_source', 'position_controller',
+          'the only node whose cmd/attitude_thrust is flown (relative: in the bridge\'s namespace); empty = any '
+          'publisher of the domain', read_only=True),
 ]
 OFFBOARD_MIN_STREAM_HZ = 5.0  # sent before asking PX4 for OFFBOARD (it needs > 2 Hz)
 PRESTREAM_WAIT_S = 2.0
@@ -118,6 +122,7 @@ class MavlinkBridge(Node):
         if p['target_system']:
             self.vehicle.status.system = p['target_system']
         self.link = LinkState(p['link_timeout_s'])
+        self.peers = LinkPeers()
         self.geofence = Geofence(p['geofence_enabled'], p['geofence_min_m'], p['geofence_max_m'])
         self.t0 = time.monotonic()
         self.stale_events = 0
@@ -151,7 +156,23 @@ class MavlinkBridge(Node):
     # --- setpoint path (quad_bridge.setpoint_path): may it stream, what a quiet wire commands ----------
 
     def may_stream(self) -> bool:
-        return self.link.state == LinkState.UP and not self.geofence.breached and self.vehicle.may_stream()
+        return (self.link.state == LinkState.UP and not self.geofence.breached and self.vehicle.may_stream()
+                and not self.link_refusal())
+
+    def link_refusal(self) -> str:
+        """Why no vehicle on this link may be commanded (quad_bridge.peers), or ''."""
+        return self.peers.refusal(self.vehicle.status.system, self.params['target_component'],
+                                  bool(self.params['target_system']), self.now_s())
+
+    def check_link_peers(self):
+        """A second vehicle as our target, or an ambiguous target: the hand-over ends (supervisor)."""
+        why = self.link_refusal()
+        if why:
+            with self.vehicle.lock:
+                ended = self.vehicle.handover.end(why)
+            if ended:
+                self.get_logger().error(why)
+                self.publish_diagnostics()
 
     def update_engaged(self):
         """vehicle/engaged (latched): true while the vehicle flies our setpoints, i.e. the hand-over is ACTIVE (the
@@ -237,6 +258,7 @@ class MavlinkBridge(Node):
                     for group, messages in fallbacks:
                         self.get_logger().warn(streams.notes[-1])
                         self.request_messages(messages, self.group_rate_hz(group))
+                self.check_link_peers()
                 if now >= next_beat:
                     next_beat = now + 1.0
                     self.heartbeat_tick()
@@ -310,11 +332,20 @@ class MavlinkBridge(Node):
 
     def _ready(self, response):
         s = self.vehicle.status
+        signing = self.client.signing_problem()
         if s.system is None or s.backend is None:
-            response.success, response.message = False, 'no vehicle heartbeat yet'
+            response.success, response.message = False, 'no vehicle heartbeat yet' + (f': {signing}' if signing
+                                                                                      else '')
+            return False
+        if signing:
+            response.success, response.message = False, signing
             return False
         if self.link.state != LinkState.UP:
             response.success, response.message = False, f'link {self.link.state}'
+            return False
+        why = self.link_refusal()
+        if why:
+            response.success, response.message = False, why
             return False
         return True
 
@@ -359,7 +390,9 @@ class MavlinkBridge(Node):
         if check.problems:
             return self._refuse(response, 'offboard refused: ' + '; '.join(check.problems))
         if not self.streamer.fresh():
-            return self._refuse(response, 'no live setpoint stream: publish cmd/attitude_thrust first')
+            refused = self.setpoints.refused_sources()
+            return self._refuse(response, 'no live setpoint stream: publish cmd/attitude_thrust first' + (
+                f' (refused, not setpoint_source {self.params["setpoint_source"]}: {refused})' if refused else ''))
         target = backend.offboard_mode
         with self.vehicle.lock:
             self.vehicle.handover.request(target, backend.prestream, self.now_s())
@@ -398,7 +431,10 @@ class MavlinkBridge(Node):
         if msg.get_srcSystem() == self.vehicle.status.system and \
                 msg.get_srcComponent() == self.params['target_component']:
             self.link.message(self.now_s(), msg.get_seq())
-        if msg.get_type() == 'HEARTBEAT':
+        heartbeat = msg.get_type() == 'HEARTBEAT'
+        self.peers.seen(msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq(), self.now_s(),
+                        heartbeat and is_vehicle_heartbeat(msg.type, msg.autopilot))
+        if heartbeat:
             self.on_heartbeat(msg)
         elif msg.get_srcSystem() == self.vehicle.status.system:  # only our vehicle's telemetry is used
             self.telemetry.handle(msg, self.now_s())
@@ -456,8 +492,10 @@ class MavlinkBridge(Node):
             check = self.param_check
         level = {LinkState.UP: diagnostics.OK, LinkState.WAITING: diagnostics.WARN}.get(self.link.state,
                                                                                         diagnostics.ERROR)
-        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems)):
+        others, refusal = self.peers.other_vehicles(s.system, now), self.link_refusal()
+        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others):
             level = diagnostics.WARN
+        level = diagnostics.ERROR if refusal or self.client.signing_problem() else level
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
             'target_system': s.system, 'autopilot': s.backend.name if s.backend else '?', 'mode': s.mode,
             'armed': s.armed, 'prearm_ready': '' if s.prearm_ready is None else s.prearm_ready,
@@ -467,10 +505,13 @@ class MavlinkBridge(Node):
             'param_notes': '; '.join(check.notes) if check else '',
             'packet_loss_pct': f'{self.link.packet_loss_pct():.2f}', 'losses': self.link.losses,
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
-            'handler_errors': self.client.handler_errors})
+            'handler_errors': self.client.handler_errors, 'other_vehicles': ', '.join(map(str, others)),
+            'link_refusal': refusal, 'signing': self.client.signing_problem() or
+            ('on' if self.client.signing else 'off')})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
-        sp_level = diagnostics.WARN if self.stale_events or self.geofence.breached else diagnostics.OK
+        sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')
+                    else diagnostics.OK)
         setpoints = diagnostics.status(f'{NAME}: setpoints', sp_level, reason, {
             'handover': phase, 'target_mode': target, 'handovers_ended': ended,
             'streaming': phase != 'idle' and self.may_stream(), 'rate_hz': f'{st.rate_hz():.1f}',

@@ -55,6 +55,8 @@ class MavlinkClient:
         self._running = False
         self._thread = None
         self.bad_data = 0         # unparsable bytes / failed CRC
+        self.bad_signature = 0    # of those: refused by MAVLink 2 signing (a wrong signature or none)
+        self.signing = signing_key is not None
         self.handler_errors = 0   # exceptions from on_message or the parser, survived
         self.drained_s = -math.inf  # monotonic time at which the receive thread had read all the link delivered
 
@@ -74,6 +76,12 @@ class MavlinkClient:
         """mav.<name>_send(*args) under the send lock (pymavlink's encoder is not thread-safe)."""
         with self._send_lock:
             getattr(self.conn.mav, name + '_send')(*args)
+
+    def signing_problem(self) -> str:
+        """quad_bridge.signing's verdict on this link's counts, or ''."""
+        from quad_bridge.signing import signing_problem
+        sig = self.conn.mav.signing
+        return signing_problem(self.signing, sig.sig_count, sig.badsig_count, self.bad_signature - sig.badsig_count)
 
     def command_long(self, target_system, target_component, command, params, timeout_s=None):
         """Sends COMMAND_LONG; with timeout_s, waits for the matching COMMAND_ACK and returns its result
@@ -133,6 +141,7 @@ class MavlinkClient:
                 continue
             if msg.get_type() == 'BAD_DATA':
                 self.bad_data += 1
+                self.bad_signature += getattr(msg, 'reason', '') == 'Invalid signature'
                 continue
             if msg.get_type() == 'COMMAND_ACK':
                 with self._acks_lock:

@@ -11,6 +11,7 @@ from sensor_msgs.msg import Imu
 from quad_bridge import frames
 from quad_bridge.mavlink_client import mavlink
 from quad_bridge.setpoint import check_setpoint
+from quad_bridge.setpoint_source import SetpointSource, fully_qualified
 from quad_bridge.streamer import SetpointStreamer
 from quad_common import cdr, contract
 from quad_common.hot_path import HotPathExecutor
@@ -40,8 +41,12 @@ class SetpointPath:
                                       start_parameter_services=False)
         self.sub = self.node.create_subscription(Imu, contract.SETPOINT, self.on_setpoint, SETPOINT_QUEUE_DEPTH,
                                                  raw=True)
-        self.executor = HotPathExecutor(lambda: ([self.sub], []), context=bridge.context)
-        self.executor.add_node(self.node)
+        source = fully_qualified(self.params['setpoint_source'], bridge.get_namespace())
+        self.source = SetpointSource(self.node, self.sub, source, self.log) if source else None
+        self.executor = HotPathExecutor(lambda: ([self.sub], []), context=bridge.context,
+                                        take=self.source.take if self.source else None)
+        if not self.source:   # the node has nothing but the setpoint subscription: with a source gate the stock
+            self.executor.add_node(self.node)   # executor's pass must never take a setpoint past it
         self.stopping = threading.Event()
         self.thread = threading.Thread(target=self._spin, name='setpoint-rx', daemon=True)
 
@@ -55,10 +60,17 @@ class SetpointPath:
         self.thread.join(timeout=2.0)
         self.executor.shutdown()
         self.node.destroy_node()
+        if self.source:
+            self.source.close()
 
     def counts(self) -> dict:
         with self.counts_lock:
-            return {'refused': self.refused, 'clamped': self.clamped, 'clamp_vertical_not_kept': self.clamp_short}
+            counts = {'refused': self.refused, 'clamped': self.clamped, 'clamp_vertical_not_kept': self.clamp_short}
+        return {**counts, **(self.source.counts() if self.source else {'setpoint_source': '(any publisher)'})}
+
+    def refused_sources(self) -> str:
+        """Who was refused as not setpoint_source (for a service's answer), or ''."""
+        return self.source.counts()['refused_publishers'] if self.source else ''
 
     def _spin(self):
         context = self.bridge.context

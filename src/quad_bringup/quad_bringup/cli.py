@@ -20,6 +20,10 @@ SUBCOMMANDS = {
                                              'seeds: one table, a summary, figures'),
     'tune': ('quad_bringup.commands.tune', "search a controller's gains for a robust cost over missions and a "
                                            'plant family; write the profile, verify it through the graph'),
+    'arm': ('quad_bringup.commands.vehicle', 'the bridge\'s arm service (--off disarms); no ros2 CLI needed'),
+    'offboard': ('quad_bringup.commands.vehicle', 'the bridge\'s offboard service: hand the vehicle to the '
+                                                  'controller (--off ends it)'),
+    'land': ('quad_bringup.commands.vehicle', 'the bridge\'s land service'),
 }
 
 
@@ -52,7 +56,15 @@ def main(argv=None) -> int:
     if not getattr(args, 'run', None):
         parser.print_help()
         return 0
-    return args.run(args)
+    try:
+        return args.run(args)
+    except KeyboardInterrupt:   # a command that keeps something on Ctrl-C catches it itself (fly, sweep, tune)
+        print(f'quadflight {args.command}: interrupted', file=sys.stderr)
+        return 130
+    except OSError as exc:      # one line, never a traceback (issue 27.10)
+        where = f'{exc.filename}: ' if exc.filename else ''
+        print(f'quadflight {args.command}: {where}{exc.strerror or exc}', file=sys.stderr)
+        return 2
 
 
 if __name__ == '__main__':

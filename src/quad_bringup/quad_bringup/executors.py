@@ -11,9 +11,13 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 
 
-def _ignore_sigint():
-    """Pool workers leave Ctrl-C to the parent, which cancels what has not started and keeps what finished."""
+def _worker_start():
+    """Pool workers leave Ctrl-C to the parent, which cancels what has not started and keeps what finished, and
+    die with their forkserver, which dies with the sweep (quad_bringup.pool_lifeline)."""
+    from quad_bringup.pool_lifeline import die_with_parent
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent()
 
 
 class LocalExecutor:
@@ -22,11 +26,18 @@ class LocalExecutor:
     def __init__(self, workers: int | None = None):
         import multiprocessing
 
+        from quad_bringup.pool_lifeline import POOL_PARENT_VARIABLE
+
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+            raise RuntimeError(f'--workers {workers} refused: must be an integer >= 1')
         self.workers = workers or os.cpu_count() or 1
         # forkserver, not fork: a parent that has run rclpy (Fast DDS threads) would hand its children a
         # half-copied middleware, and a `--graph` run in such a child hangs at its first ROS call
-        self._pool = concurrent.futures.ProcessPoolExecutor(self.workers, initializer=_ignore_sigint,
-                                                            mp_context=multiprocessing.get_context('forkserver'))
+        context = multiprocessing.get_context('forkserver')
+        os.environ[POOL_PARENT_VARIABLE] = str(os.getpid())
+        context.set_forkserver_preload(['__main__', 'quad_bringup.pool_lifeline'])
+        self._pool = concurrent.futures.ProcessPoolExecutor(self.workers, initializer=_worker_start,
+                                                            mp_context=context)
         self.description = f'local process pool, {self.workers} workers'
 
     def map_unordered(self, fn: Callable, items: Iterable, *args) -> Iterator:
@@ -51,9 +62,12 @@ class DaskExecutor:
             from dask.distributed import Client
         except ImportError as exc:
             raise RuntimeError(f'--scheduler needs dask[distributed] ({exc}); rerun `make venv`') from None
+        if '://' not in address or not address.split('://', 1)[1]:
+            raise RuntimeError(f'--scheduler {address!r} refused: give the scheduler\'s address, e.g. '
+                               'tcp://10.0.0.1:8786')
         try:
             self._client = Client(address, timeout='20s')
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, ValueError) as exc:
             raise RuntimeError(f'--scheduler {address}: cannot connect ({exc})') from None
         n = sum(w.get('nthreads', 1) for w in self._client.scheduler_info()['workers'].values())
         self.workers = n

@@ -56,7 +56,10 @@ class Completion:
         values.update(chosen)
         if chosen:
             sources.append('command line')
+        from quad_bringup.limits import LIMITS
         for key, value in values.items():
+            if key in chosen and (reason := LIMITS[key].check(value)):   # the limits fly applies too
+                raise ValueError(reason)
             where = f'vehicle {vehicle.name}: completion.{key}' if key not in chosen else key
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
                     or value < 0 or (value == 0 and key != 'settle_s'):
@@ -103,6 +106,7 @@ class Flight:
     odom_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     clock_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     sim_published: tuple | None = None           # (stamp ns, steps) of the newest `sim_node: published`
+    collisions_known: bool = True                # False: nothing in the bag could report one (no simulator)
     truncated: dict | None = None                # a killed recorder's bag: where it was cut (recorder.Repair)
     cmd_record_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # bag time of each cmd
     engaged: list = field(default_factory=list)  # (bag time ns, bool) of each vehicle/engaged message
@@ -217,9 +221,12 @@ def compute_metrics(flight: Flight, rule: Completion = Completion(), published_s
         'max_error_m': float(np.max(err)),
         'waypoint_miss_max_m': float(max(misses)),
         'completed': t_done is not None and not collided,
-        'collided': collided,
+        'collided': collided if collided or flight.collisions_known else None,   # None: n/a (a real flight)
         'collision_time_s': None if not collided else flight.collision_time_s - t0,
         'final_error_m': float(np.linalg.norm(flight.position[-1] - final)),
+        # issue 27.13: a flight that began away from the plan's start joins it, and its first errors are the join
+        'start_offset_m': float(np.linalg.norm(flight.position[int(np.argmin(np.abs(flight.odom_t - t0)))]
+                                               - flight.trajectory.position[0, :3])),
         'max_speed_mps': float(np.max(np.linalg.norm(flight.velocity[window], axis=1))),
         'max_tilt_deg': float(np.degrees(np.max(np.arccos(np.clip(
             np.cos(flight.euler[window, 0]) * np.cos(flight.euler[window, 1]), -1, 1))))),

@@ -97,6 +97,7 @@ def load_flight(bag_dir) -> Flight:
         euler=rotations.to_euler(np.array([o[1].quaternion for o in odom])),
         collision_time_s=collision, errors=errors, odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
         clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
+        collisions_known=bool(clock) or published is not None or collision is not None,   # a simulator's bag
         truncated=None if repair is None else repair.as_dict(), engaged=sorted(engaged), handover=sorted(handover))
     if TRAJECTORY in latest:
         flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
@@ -136,21 +137,26 @@ def metrics_table(metrics: dict) -> str:
     """The seed's Table 1/2 columns plus errors, as a markdown table (also what `fly` prints)."""
     head = '| ' + ' | '.join(title for _, title, _ in TABLE_COLUMNS) + ' |'
     rule = '|' + '|'.join('---:' for _ in TABLE_COLUMNS) + '|'
-    row = '| ' + ' | '.join(fmt.format(metrics[key]) for key, _, fmt in TABLE_COLUMNS) + ' |'
+    row = '| ' + ' | '.join('n/a' if metrics[key] is None else fmt.format(metrics[key])
+                            for key, _, fmt in TABLE_COLUMNS) + ' |'
     return '\n'.join([head, rule, row])
 
 
 def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
     lines = [f'# {title}', '']
     info = {k: metrics[k] for k in ('mission', 'controller', 'speed_mps', 'outcome') if k in metrics}
+    if info.get('speed_mps', 0) is None:   # no --speed: the mission's own speed profile was flown
+        info['speed_mps'] = "the mission's (no --speed)"
     lines += [f'- {k}: {v}' for k, v in info.items()]
     lines += ['', '## Table (the seed\'s Table 1/2 columns and errors)', '', metrics_table(metrics), '',
               f'Completion: within {metrics["completion_rule"]["position_tolerance_m"]} m of the final waypoint at '
               f'speed <= {metrics["completion_rule"]["speed_tolerance_mps"]} m/s '
               f'({metrics["completion_rule"].get("source", "built-in defaults")}). '
               f'{_scored_text(metrics)} Time actual - planned: '
-              f'{metrics["time_over_s"]:.3f} s; final error {metrics["final_error_m"]:.4f} m; max speed '
+              f'{metrics["time_over_s"]:.3f} s{_early_text(metrics)}; final error {metrics["final_error_m"]:.4f} m; '
+              f'max speed '
               f'{metrics["max_speed_mps"]:.2f} m/s; max tilt {metrics["max_tilt_deg"]:.1f} deg.', '']
+    lines += [_start_text(metrics), '']
     lines += ['## Record', '', record_summary(metrics['record']), '']
     if metrics.get('bag_truncated'):
         lines += [truncation_summary(metrics['bag_truncated']), '']
@@ -158,6 +164,25 @@ def report_markdown(metrics: dict, figures: list[str], title: str) -> str:
         lines += ['## Errors reported on diagnostics', ''] + [f'- {e}' for e in metrics['errors']] + ['']
     lines += ['## Figures', ''] + [f'![{Path(f).stem}]({f})' for f in figures] + ['']
     return '\n'.join(lines)
+
+
+def _start_text(metrics: dict) -> str:
+    """Where the vehicle was when the plan started (a bridge flight may begin away from it and join it)."""
+    offset, tolerance = metrics['start_offset_m'], metrics['completion_rule']['position_tolerance_m']
+    line = f'Start: the vehicle was {offset:.3f} m from the plan\'s first point when the plan began.'
+    if offset > tolerance:
+        line += (f' JOINED: more than the position tolerance ({tolerance} m), so the first errors are the join, not '
+                 'the tracking; start the plan where the vehicle hovers (the controller refuses a start farther '
+                 'than its max_start_step_m).')
+    return line
+
+
+def _early_text(metrics: dict) -> str:
+    """Why time actual can be shorter than time planned."""
+    if metrics['time_over_s'] >= 0 or not metrics.get('completed'):
+        return ''
+    return (' (time actual ends at completion: the vehicle within the position tolerance of the final waypoint '
+            'and below the speed tolerance, which the plan\'s slow final approach reaches before its end)')
 
 
 def _scored_text(metrics: dict) -> str:

@@ -254,21 +254,30 @@ def run_sweep(spec_path, out_dir, mode: str = 'offline', scheduler: str | None =
               workers: int | None = None, figures: bool = True, log=print) -> tuple[list[dict], list[dict]]:
     """Expands the spec, flies what is not yet in out_dir, writes summary and figures; returns (rows, summary)."""
     from quad_bringup.executors import make_executor
+    from quad_bringup.outputs import OutputDir, check_out_dir
 
     spec = load_spec(spec_path)
     params_list = expand(spec, mode)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / 'spec.yaml').write_text(yaml.safe_dump(spec, sort_keys=False))
-    table = RunTable(out_dir)
-    executor = make_executor(scheduler, workers)
-    log(f'sweep: {len(params_list)} runs ({mode}) on {executor.description} -> {out_dir}')
+    check_out_dir(out_dir)
+    executor = make_executor(scheduler, workers)   # a refused pool or scheduler leaves nothing behind
     try:
-        rows = execute(params_list, table, executor, 'sweep', graph_dir=str(out_dir / 'graph') if
-                       mode == 'graph' else None)
-    finally:
-        table.close()
+        lock = OutputDir(out_dir, 'sweep')
+    except SpecError:
         executor.close()
+        raise
+    try:
+        (out_dir / 'spec.yaml').write_text(yaml.safe_dump(spec, sort_keys=False))
+        table = RunTable(out_dir)
+        log(f'sweep: {len(params_list)} runs ({mode}) on {executor.description} -> {out_dir}')
+        try:
+            rows = execute(params_list, table, executor, 'sweep', graph_dir=str(out_dir / 'graph') if
+                           mode == 'graph' else None)
+        finally:
+            table.close()
+    finally:
+        executor.close()
+        lock.close()
     summary = write_summary(out_dir, rows)
     if figures:
         draw_figures(out_dir, rows)

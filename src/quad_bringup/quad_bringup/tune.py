@@ -79,6 +79,30 @@ def parse_parameters(entry, base: dict) -> list[tuple[str, tuple[str, ...], floa
     return out
 
 
+def check_optimizer(options: dict) -> dict:
+    """differential_evolution's settings within what it accepts (issue 27.9: maxiter -1 ran anyway)."""
+    def number(key, low, high, integer=False, low_inclusive=True):
+        value = options[key]
+        kind = int if integer else (int, float)
+        ok = isinstance(value, kind) and not isinstance(value, bool) and math.isfinite(value) and (
+            low <= value if low_inclusive else low < value) and value <= high
+        if not ok:
+            raise SpecError(f'optimizer.{key} = {value!r} refused: must be {"an integer" if integer else "a number"} '
+                            f'{">=" if low_inclusive else ">"} {low:g} and <= {high:g}')
+    number('maxiter', 1, 1e6, integer=True)
+    number('popsize', 1, 1e4, integer=True)
+    number('seed', 0, 2**32 - 1, integer=True)
+    number('tol', 0.0, 1e6)
+    number('recombination', 0.0, 1.0)
+    mutation = options['mutation']
+    values = mutation if isinstance(mutation, list) else [mutation]
+    ok = len(values) in (1, 2) and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < 2.0
+                                       for v in values) and (len(values) == 1 or values[0] <= values[1])
+    if not ok:
+        raise SpecError(f'optimizer.mutation = {mutation!r} refused: must be a number or [low, high] in [0, 2)')
+    return options
+
+
 class Tuning:
     """The parsed spec and the evaluation log (one entry per candidate profile evaluated)."""
 
@@ -91,13 +115,13 @@ class Tuning:
         self.cost = _mapping(spec, 'cost', COST_DEFAULTS)
         if self.cost['aggregate'] not in AGGREGATES:
             raise SpecError(f'cost.aggregate = {self.cost["aggregate"]!r} must be one of {", ".join(AGGREGATES)}')
-        self.optimizer = _mapping(spec, 'optimizer', OPTIMIZER_DEFAULTS)
+        self.optimizer = check_optimizer(_mapping(spec, 'optimizer', OPTIMIZER_DEFAULTS))
         self.verify = spec.get('verify', True)
         # the plant family and mission set: a sweep spec of one controller (validated the same way)
         grid = {k: spec[k] for k in ('missions', 'vehicles', 'disturbances', 'seeds', 'options') if k in spec}
         self.family = sweep.expand({**grid, 'controllers': [{'name': self.name, 'gains': self.base}]})
         self.out_dir, self.executor = out_dir, executor
-        self.table = sweep.RunTable(out_dir)
+        self.table = None   # run_tune opens it once the spec is accepted and the directory is ours
         self.evaluations = []
         self.calls = 0
 
@@ -174,14 +198,18 @@ def run_tune(spec_path, out_dir, scheduler=None, workers=None, verify=None, log=
     """Tunes, writes profile.yaml, cost.json, evaluations.csv (+ runs.csv/.jsonl) and, unless verify is False,
     verify.md (the best profile through the ROS graph on the mission set beside its offline result)."""
     from quad_bringup.executors import make_executor
+    from quad_bringup.outputs import OutputDir, check_out_dir
 
     spec = sweep.load_spec(spec_path)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / 'spec.yaml').write_text(yaml.safe_dump(spec, sort_keys=False))
+    check_out_dir(out_dir)
     executor = make_executor(scheduler, workers)
+    lock = None
     try:
-        tuning = Tuning(spec, out_dir, executor)
+        tuning = Tuning(spec, out_dir, executor)   # the spec checked before anything is written
+        lock = OutputDir(out_dir, 'tune')
+        (out_dir / 'spec.yaml').write_text(yaml.safe_dump(spec, sort_keys=False))
+        tuning.table = sweep.RunTable(out_dir)
         log(f'tune: {tuning.name} ({", ".join(p[0] for p in tuning.parameters)}) over {len(tuning.family)} runs '
             f'per candidate on {executor.description} -> {out_dir}')
         before, after, best, result = tuning.optimise()
@@ -200,11 +228,13 @@ def run_tune(spec_path, out_dir, scheduler=None, workers=None, verify=None, log=
                       f'use: quadflight fly MISSION --control-profile {out_dir / "profile.yaml"}')
         if verify if verify is not None else tuning.verify:
             summary['verify'] = verify_graph(tuning, best, out_dir, log)
+        (out_dir / 'cost.json').write_text(json.dumps(summary, indent=2, default=str) + '\n')
     finally:
         executor.close()
-        if 'tuning' in locals():
+        if 'tuning' in locals() and tuning.table is not None:
             tuning.table.close()
-    (out_dir / 'cost.json').write_text(json.dumps(summary, indent=2, default=str) + '\n')
+        if lock is not None:
+            lock.close()
     return summary
 
 

@@ -87,7 +87,7 @@ def test_cli_refuses_a_profile_without_margin(tmp_path, lag_bag):
     out = tmp_path / 'fast.yaml'
     done = identify_cli(lag_bag, '--base', resolve_config('config/control_fast.yaml'), '--out', out,
                         '--latency-s', '0.05')
-    assert done.returncode == 1, done.stdout
+    assert done.returncode == 2, done.stdout
     assert not out.exists()
     message = done.stderr
     assert f'refused to write {out}' in message and 'se3' in message and 'control_fast.yaml' in message
@@ -102,7 +102,7 @@ def test_cli_refuses_a_profile_without_margin(tmp_path, lag_bag):
 
 def test_cli_refuses_a_bad_latency_by_name(lag_bag):
     done = identify_cli(lag_bag, '--latency-s', 'nan')
-    assert done.returncode == 1 and '--latency-s = nan' in done.stderr
+    assert done.returncode == 2 and '--latency-s nan refused' in done.stderr
 
 
 def test_a_bag_without_commands_is_refused_by_name(tmp_path):
@@ -113,7 +113,7 @@ def test_a_bag_without_commands_is_refused_by_name(tmp_path):
     recorder.close()
     done = subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'identify', str(bag)],
                           capture_output=True, text=True, cwd=REPO_ROOT)
-    assert done.returncode == 1 and 'quadflight identify:' in done.stderr and 'odom' in done.stderr
+    assert done.returncode == 2 and 'quadflight identify:' in done.stderr and 'odom' in done.stderr
 
 
 def test_the_written_profile_loads_in_a_node_started_with_params_file(tmp_path, lag_bag):
@@ -270,12 +270,12 @@ def test_fits_that_scored_the_landing_are_refused_saying_why(tmp_path, lag_bag):
     assert reason is not None and 'fly a manoeuvre' in reason
     out = tmp_path / 'profile.yaml'
     done = identify_cli(bag, '--out', out)
-    assert done.returncode == 1 and not out.exists()
+    assert done.returncode == 2 and not out.exists()
     assert done.stderr.count('\n') == 1 and f'refused to write {out}: ' in done.stderr and reason in done.stderr
 
 
 def test_a_bridge_bag_that_cannot_be_windowed_is_refused(tmp_path, lag_bag):
     bag, *_ = _bridge_bag(tmp_path, lag_bag, window=None)
     done = identify_cli(bag)
-    assert done.returncode == 1, done.stdout
+    assert done.returncode == 2, done.stdout
     assert 'does not say when the vehicle flew our setpoints' in done.stderr and 'vehicle/engaged' in done.stderr

@@ -14,7 +14,14 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 from quad_bringup.commands import report as report_command
 from quad_bringup.recorder import typestore
-from quad_bringup.report import Completion, closest_approach, compute_metrics, load_flight, write_report
+from quad_bringup.report import (
+    Completion,
+    closest_approach,
+    compute_metrics,
+    load_flight,
+    metrics_table,
+    write_report,
+)
 
 L_M, T_S, DELAY_S, T0_S, RATE_HZ = 2.0, 4.0, 0.5, 10.0, 100
 MISSED_WAYPOINT = (1.0, 0.03, 1.0)  # 3 cm beside the straight path
@@ -102,7 +109,8 @@ def make_bag(path, storage=StoragePlugin.MCAP, end_s=T0_S + T_S + 2.0, collision
             ('trajectory', 'trajectory_msgs/msg/MultiDOFJointTrajectory'),
             ('trajectory/waypoints', 'nav_msgs/msg/Path'),
             ('trajectory/markers', 'visualization_msgs/msg/MarkerArray'), ('odom', 'nav_msgs/msg/Odometry'),
-            ('cmd/attitude_thrust', 'sensor_msgs/msg/Imu'), ('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray')]}
+            ('cmd/attitude_thrust', 'sensor_msgs/msg/Imu'), ('diagnostics', 'diagnostic_msgs/msg/DiagnosticArray'),
+            ('/clock', 'rosgraph_msgs/msg/Clock')]}
 
         def write(topic, t, msg):
             writer.write(conns[topic], int(t * 1e9), ts.serialize_cdr(msg, conns[topic].msgtype))
@@ -113,6 +121,8 @@ def make_bag(path, storage=StoragePlugin.MCAP, end_s=T0_S + T_S + 2.0, collision
         for k in range(int((T0_S - 1) * RATE_HZ), int(round(end_s * RATE_HZ)) + 1):
             write('odom', k / RATE_HZ, odom(k / RATE_HZ))
             write('cmd/attitude_thrust', k / RATE_HZ, command(k / RATE_HZ))
+            if not real:   # a simulator's bag: sim_node's /clock (a real vehicle's graph has none)
+                write('/clock', k / RATE_HZ, M['rosgraph_msgs/msg/Clock'](clock=stamp(ts, k / RATE_HZ)))
         if collision_at_s is not None:
             kv = M['diagnostic_msgs/msg/KeyValue']
             status = M['diagnostic_msgs/msg/DiagnosticStatus'](
@@ -175,6 +185,40 @@ def test_collision_from_diagnostics(tmp_path):
     assert metrics['completed'] is False
     assert metrics['collision_time_s'] == at_s - T0_S
     assert metrics['errors'] == ['1.50 s sim_node: collision: hit obstacle 0']
+
+
+def test_a_bag_without_a_simulator_does_not_say_it_did_not_collide(tmp_path):
+    """Issue 27.13: a bridge bag has no collision information: `Collided` is n/a, not False."""
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag', end_s=REAL_LAND_S + 4.0, real=True)),
+                              Completion(settle_s=2.0))
+    assert metrics['collided'] is None
+    assert metrics_table(metrics).rstrip(' |').endswith('| n/a')
+    sim = compute_metrics(load_flight(make_bag(tmp_path / 'sim')), Completion())
+    assert sim['collided'] is False and metrics_table(sim).rstrip(' |').endswith('| False')
+
+
+def test_report_says_whose_speed_and_why_time_actual_is_shorter(tmp_path):
+    """Issue 27 (newcomer friction): `speed_mps: None` for the default mission; time actual < planned unexplained."""
+    from quad_bringup.report import report_markdown
+    metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag')), Completion(position_tolerance_m=0.2,
+                                                                                  speed_tolerance_mps=0.5))
+    assert metrics['completed'] and metrics['time_over_s'] < 0
+    text = report_markdown({**metrics, 'speed_mps': None, 'mission': 'm'}, [], 'r')
+    assert 'speed_mps: None' not in text and "speed_mps: the mission's (no --speed)" in text
+    assert 'time actual ends at completion' in text
+
+
+def test_report_says_when_the_flight_began_away_from_the_plan(tmp_path):
+    """Issue 27.13: a bridge flight started 0.5 m from the plan's start joined it silently."""
+    from quad_bringup.report import report_markdown
+    flight = load_flight(make_bag(tmp_path / 'bag'))
+    on_plan = compute_metrics(flight, Completion())
+    assert on_plan['start_offset_m'] < 0.01 and 'JOINED' not in report_markdown(on_plan, [], 'r')
+    flight.position = flight.position + np.array([0.0, 0.5, 0.0])
+    away = compute_metrics(flight, Completion())
+    assert away['start_offset_m'] == pytest.approx(0.5, abs=0.01)
+    assert 'was 0.500 m from the plan\'s first point' in report_markdown(away, [], 'r')
+    assert 'JOINED' in report_markdown(away, [], 'r')
 
 
 def test_closest_approach_uses_segments():
@@ -250,7 +294,7 @@ def test_real_vehicle_tolerances_from_its_yaml_complete_the_same_flight(tmp_path
         'vehicle px4_quad'
     # a command-line value overrides the vehicle's, and a bad one is named
     assert Completion.for_vehicle(px4, settle_s=5.0).source == 'vehicle px4_quad + command line'
-    with pytest.raises(ValueError, match=r'position_tolerance_m = -1.0 must be a finite number > 0'):
+    with pytest.raises(ValueError, match=r'--position-tolerance -1 refused: must be > 0 and <= 100 m'):
         Completion.for_vehicle(px4, position_tolerance_m=-1.0)
     px4.extra['completion'] = {'position_tolerance': 0.1}
     with pytest.raises(ValueError, match=r'vehicle px4_quad: completion = .* may only hold position_tolerance_m'):

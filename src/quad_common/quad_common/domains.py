@@ -18,22 +18,30 @@ _PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILE
 
 
 @contextmanager
-def isolated_domain():
+def isolated_domain(probe=None):
     """Yields (domain_id, env) with env a copy of os.environ set for that domain.
 
     Also puts the discovery profile into os.environ (unless one is set): participants this process creates
-    afterwards announce as the children do (Fast DDS reads the profile at its first participant).
+    afterwards announce as the children do (Fast DDS reads the profile at its first participant). probe(domain)
+    -> node names (quad_common.domain_probe.foreign_nodes): a domain whose lock is free but which already holds
+    nodes, a graph started without our lock files (a real bridge), is passed over (issue 27.4).
     """
     if not any(os.environ.get(v) for v in _PROFILE_VARIABLES):
         os.environ.update(dict.fromkeys(_PROFILE_VARIABLES, FASTDDS_PROFILE))
     os.makedirs(_LOCK_DIR, exist_ok=True)
     start = os.getpid() % len(_DOMAINS)
+    occupied = []
     for i in range(len(_DOMAINS)):
         domain = _DOMAINS[(start + i) % len(_DOMAINS)]
         f = open(os.path.join(_LOCK_DIR, f'{domain}.lock'), 'w')
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
+            f.close()
+            continue
+        others = probe(domain) if probe else []
+        if others:
+            occupied.append(f'{domain} ({", ".join(others[:3])})')
             f.close()
             continue
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
@@ -43,4 +51,5 @@ def isolated_domain():
             fcntl.flock(f, fcntl.LOCK_UN)
             f.close()
         return
-    raise RuntimeError(f'no free ROS domain id in {_DOMAINS}: too many test graphs running')
+    raise RuntimeError(f'no free ROS domain id in {_DOMAINS}: too many test graphs running' +
+                       (f'; in use by graphs not started by quadflight: {", ".join(occupied)}' if occupied else ''))

@@ -47,13 +47,21 @@ def installed_rclpy_version() -> str:
 SLOW_PERIOD_S = 0.1
 
 
+def _take_message(sub):
+    msg_info = sub.handle.take_message(sub.msg_type, sub.raw)
+    return None if msg_info is None else msg_info[0]
+
+
 class HotPathExecutor(SingleThreadedExecutor):
-    def __init__(self, hot: Callable[[], tuple], *, slow_period_s: float = SLOW_PERIOD_S, context=None):
+    def __init__(self, hot: Callable[[], tuple], *, slow_period_s: float = SLOW_PERIOD_S, context=None,
+                 take: Callable | None = None):
         """hot() -> (subscriptions, timers) or (subscriptions, timers, guard conditions) of the tick; asked before
         every wait, as a node may replace them. Their callbacks take the message only (no MessageInfo; none for a
-        guard condition) and are plain functions (no coroutines)."""
+        guard condition) and are plain functions (no coroutines). take(subscription) -> message or None replaces
+        the plain take of a hot subscription (quad_bridge.setpoint_source: with the publisher's GID)."""
         super().__init__(context=context)
         self._hot = hot
+        self._take = take or _take_message
         self._slow_period_s = slow_period_s
         self._next_slow_s = 0.0
         self._wait_set = None
@@ -79,9 +87,9 @@ class HotPathExecutor(SingleThreadedExecutor):
         ready = wait_set.get_ready_entities('subscription')
         for sub in subscriptions:
             if sub.handle.pointer in ready:
-                msg_info = sub.handle.take_message(sub.msg_type, sub.raw)
-                if msg_info is not None:
-                    sub.callback(msg_info[0])
+                msg = self._take(sub)
+                if msg is not None:
+                    sub.callback(msg)
         if guards:  # a worker thread's result (e.g. a decoded trajectory)
             ready = wait_set.get_ready_entities('guard_condition')
             for gc in guards:

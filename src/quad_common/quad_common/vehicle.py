@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_common.types import GRAVITY_MPS2
-from quad_common.yaml_io import load_yaml
+from quad_common.yaml_io import load_yaml, refuse_typos
 
 
 @dataclass
@@ -182,6 +182,7 @@ def vehicle_from_dict(data: dict, path='vehicle') -> Vehicle:
     known = {'name', 'mass_kg', 'inertia_kgm2', 'arm_length_m', 'k_eta', 'k_m', 'rotor_speed_min_radps',
              'rotor_speed_max_radps', 'motor_time_constant_s', 'layout', 'max_tilt_deg', 'attitude_gains',
              'attitude_loop', 'mass_error', 'thrust_error'}
+    refuse_typos(data, known | {'aerodynamics', 'completion'}, str(path))   # sections other modules read
     v = Vehicle(
         name=str(data.get('name', path)),
         mass_kg=_positive(data, 'mass_kg', path),

@@ -21,6 +21,8 @@ _FLOAT, _INT, _SEQ = 'tag:yaml.org,2002:float', 'tag:yaml.org,2002:int', 'tag:ya
 
 # A plain decimal that YAML 1.1's resolver (float tried before int) tags float when it has a dot, else int.
 _DECIMAL = re.compile(r'[-+]?(?:[0-9]+\.[0-9]*(?:[eE][-+][0-9]+)?|0|[1-9][0-9]*)$')
+# What YAML 1.1 (PyYAML) leaves a string but a reader takes for a number: 1e9, 2.5e3 (no dot or no exponent sign)
+_EXPONENT = re.compile(r'[-+]?[0-9]+(?:\.[0-9]*)?[eE][-+]?[0-9]+$')
 
 
 class NumbersLoader(SAFE_LOADER):
@@ -56,6 +58,30 @@ def _note_fallback():
               file=sys.stderr)
 
 
+def refuse_number_text(data: dict, keys, where: str):
+    """ValueError for a value YAML read as text that was meant as a number (`speed: 1e9` is the string '1e9' to
+    YAML 1.1; issue 27.12), naming the field and how to write it."""
+    for key in keys:
+        value = data.get(key)
+        if isinstance(value, str) and _EXPONENT.match(value.strip()):
+            mantissa, exponent = re.split('[eE]', value.strip())
+            sign = '' if exponent[0] in '+-' else '+'
+            raise ValueError(f'{where}{key} = {value!r} is text to YAML, not a number: write it with a dot and a '
+                             f'signed exponent, e.g. {float(mantissa):.1f}e{sign}{exponent}')
+
+
+def refuse_typos(data: dict, known, where: str):
+    """ValueError for a top-level key that is not known but nearly is (a typo: `robot_raduis_m`, `mass_kgg`);
+    other unknown keys stay the file's own (issue 27.9)."""
+    import difflib
+    for key in data:
+        if key in known or not isinstance(key, str):
+            continue
+        close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.8)
+        if close:
+            raise ValueError(f'{where}: {key} = {data[key]!r} is not a known key (did you mean {close[0]!r}?)')
+
+
 def load_yaml(path) -> dict:
     path = os.fspath(path)
     try:
@@ -66,6 +92,11 @@ def load_yaml(path) -> dict:
         raise ValueError(f'{path}: file not found') from None
     except yaml.YAMLError as exc:
         raise ValueError(f'{path}: not valid YAML: {exc}') from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f'{path}: not a text (UTF-8) file: byte {exc.start} is '
+                         f'0x{exc.object[exc.start]:02x}') from None
+    except IsADirectoryError:
+        raise ValueError(f'{path}: a directory, not a YAML file') from None
     if not isinstance(data, dict):
         raise ValueError(f'{path}: expected a mapping at the top level, got {type(data).__name__}')
     return data

@@ -13,7 +13,7 @@ import numpy as np
 
 from quad_common.vehicle import Vehicle, load_vehicle
 from quad_common.world import World, load_world
-from quad_common.yaml_io import load_yaml
+from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos
 from quad_trajectory import planner
 
 SEED_CONTROL_POINTS = (0.1, 0.9)
@@ -63,11 +63,18 @@ def _control_points(value, path):
     raise ValueError(f'{path}: trajectory.control_points = {value!r} must be true, false or a list of fractions')
 
 
+MISSION_KEYS = frozenset({'name', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m'})
+
+
 def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
     """Validated Mission from a parsed mission file; relative paths are taken relative to `path`."""
+    refuse_typos(data, MISSION_KEYS, path)
+    refuse_number_text(data, ('robot_radius_m',), f'{path}: ')
     traj = data.get('trajectory') or {}
     if not isinstance(traj, dict):
         raise ValueError(f'{path}: trajectory = {traj!r} must be a mapping')
+    refuse_number_text(traj, ('speed', 'rho'), f'{path}: trajectory.')
+    refuse_number_text(traj.get('limits') or {}, ('v_max_mps', 'a_max_mps2'), f'{path}: trajectory.limits.')
     unknown = sorted(set(traj) - _TRAJECTORY_KEYS)
     if unknown:
         raise ValueError(f'{path}: trajectory.{unknown[0]} is not a known key '
@@ -106,7 +113,7 @@ def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
     if if_infeasible not in IF_INFEASIBLE:
         raise ValueError(f'{path}: trajectory.if_infeasible = {if_infeasible!r} must be one of '
                          f'{", ".join(IF_INFEASIBLE)}')
-    known = {'name', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m'}
+    known = MISSION_KEYS
     return Mission(path=path, name=str(data.get('name', os.path.splitext(os.path.basename(path))[0])),
                    waypoints=waypoints, yaw=yaw, options=options, vehicle=vehicle, vehicle_path=vehicle_path,
                    world=world, world_path=world_path, extra={k: v for k, v in data.items() if k not in known},

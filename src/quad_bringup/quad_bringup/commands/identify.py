@@ -16,6 +16,27 @@ DEFAULT_BASE = 'config/control_real.yaml'            # what the bridge launch fi
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'    # the bridge's and the emulator's vehicle
 
 
+HEADER = '# quadflight identify '   # the first line of every profile identify writes
+
+
+def out_refusal(out: Path, inputs) -> str | None:
+    """--out may replace only a profile identify wrote (issue 27.5: inputs are never modified)."""
+    from quad_bringup.inputs import same_file
+    for what, path in inputs:
+        if path is not None and same_file(out, path):
+            return f'--out {out} refused: it is the {what}, an input (never modified)'
+    if out.is_dir():
+        return f'--out {out} refused: a directory; name the profile file to write'
+    if out.exists():
+        try:
+            ours = out.read_text(errors='replace').startswith(HEADER)
+        except OSError:
+            ours = False
+        if not ours:
+            return f'--out {out} refused: the file exists and was not written by quadflight identify: choose another'
+    return None
+
+
 def add_arguments(parser):
     from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LATENCY_S
     parser.add_argument('bag', help='rosbag2 bag directory with cmd/attitude_thrust and odom (e.g. runs/NAME/bag)')
@@ -31,15 +52,17 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    import math
-
     from quad_bringup.closed_loop import control_profile
+    from quad_bringup.limits import refusal
     from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY, margin_hold
     from quad_common.paths import resolve_config
     bag = Path(args.bag)
-    if not (math.isfinite(args.latency_s) and 0.0 <= args.latency_s <= 1.0):
-        print(f'quadflight identify: --latency-s = {args.latency_s!r} must be a number in [0, 1] s', file=sys.stderr)
-        return 1
+    out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
+    reason = refusal('latency_s', args.latency_s) or out_refusal(out, [('bag', bag), ('--base', args.base),
+                                                                        ('--vehicle', args.vehicle)])
+    if reason:
+        print(f'quadflight identify: {reason}', file=sys.stderr)
+        return 2
     try:
         base = load_yaml(args.base if args.base else resolve_config(DEFAULT_BASE)) or {}
         vehicle = args.vehicle if args.vehicle else resolve_config(DEFAULT_VEHICLE)
@@ -49,9 +72,10 @@ def run(args) -> int:
         # the vehicle as identified (thrust scale k), flown by the profile that divides by k
         margin = margin_hold(vehicle, controller, gains, result['attitude_lead_s'], args.latency_s,
                              thrust_error=result['thrust_scale'] - 1.0)
-    except (FileNotFoundError, ValueError, ReaderError) as exc:
-        print(f'quadflight identify: {exc}', file=sys.stderr)
-        return 1
+    except (OSError, ValueError, ReaderError, StopIteration) as exc:
+        why = str(exc) or 'none of the topics identify needs (odom, cmd/attitude_thrust) in it'
+        print(f'quadflight identify: {bag}: {why}', file=sys.stderr)
+        return 2
     w = result['window']
     print(f'window: {w["duration_s"]:.1f} s in which the vehicle flew our setpoints ({w["source"]}), '
           f'{w["start_s"]:.2f}-{w["end_s"]:.2f} s')
@@ -67,11 +91,10 @@ def run(args) -> int:
           f'{100 * t["mass_error_equivalent"]:+.1f} %')
     print(f'margin ({MARGIN_LAG}x the lag {result["attitude_lead_s"]:.3f} s, {MARGIN_LATENCY}x the telemetry latency '
           f'{args.latency_s:.3f} s, {controller}): {margin.describe()}')
-    out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
-    refusal = quality_refusal(result)
-    if refusal:
-        print(f'quadflight identify: refused to write {out}: {refusal}', file=sys.stderr)
-        return 1
+    poor = quality_refusal(result)
+    if poor:
+        print(f'quadflight identify: refused to write {out}: {poor}', file=sys.stderr)
+        return 2
     if not margin.settled:
         lost = f', {margin.stopped}' if margin.stopped else ''
         hint = f' (e.g. --base {DEFAULT_BASE})' if args.base else ''
@@ -80,12 +103,16 @@ def run(args) -> int:
               f'{margin.latency_s:.3f} s of telemetry latency (tilt {margin.late_tilt_deg:.1f} deg over the last '
               f'quarter, oscillation {margin.oscillation_deg:.2f} deg rms{lost}): start from softer gains{hint}',
               file=sys.stderr)
-        return 1
+        return 2
     facts = {**result, 'margin': {'lag_s': round(margin.lag_s, 4), 'latency_s': round(margin.latency_s, 4),
                                   'late_tilt_deg': round(margin.late_tilt_deg, 3),
                                   'oscillation_deg': round(margin.oscillation_deg, 3),
                                   'offset_m': round(margin.offset_m, 4)}}
-    out.write_text(profile_text(written, facts, f'quadflight identify {bag}'))
+    try:
+        out.write_text(profile_text(written, facts, f'{HEADER.removeprefix("# ")}{bag}'))
+    except OSError as exc:
+        print(f'quadflight identify: --out {out}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
+        return 2
     print(f'profile: {out} (attitude_lead_s {written["position_controller"]["ros__parameters"]["attitude_lead_s"]}, '
           f'thrust_scale {written["position_controller"]["ros__parameters"]["thrust_scale"]})')
     return 0

@@ -49,16 +49,43 @@ def summary_table(result) -> str:
     return '\n'.join(f'{k:<{width}}  {v}' for k, v in rows)
 
 
+def refuse_overwriting_inputs(outputs, inputs) -> str | None:
+    """Inputs are never modified (issue 27.5): the refusal when an output path is one of the inputs."""
+    from quad_bringup.inputs import same_file
+    for name, out in outputs:
+        for what, path in inputs:
+            if out is not None and path is not None and same_file(out, path):
+                return f'{name} {out} refused: it is the {what}, an input (never modified): choose another path'
+    return None
+
+
 def run(args) -> int:
+    from quad_bringup.limits import csv_refusal, refusal
     if args.csv is not None and args.out is None:
         print('quadflight plan: --csv needs --out (the CSV goes next to it)', file=sys.stderr)
         return 2
+    csv_path = args.out.with_suffix('.csv') if args.csv is not None else None
+    reason = refusal('speed_mps', args.speed) or refusal('csv_rate_hz', args.csv) or refuse_overwriting_inputs(
+        [('--out', args.out), ('--csv (next to --out)', csv_path)], [('mission', args.mission)])
+    if not reason and not args.mission.is_file():
+        reason = f'mission {args.mission}: ' + ('a directory, not a mission file' if args.mission.is_dir() else
+                                                'no such file')
+    if reason:
+        print(f'quadflight plan: {reason}', file=sys.stderr)
+        return 2
     try:
         mission = load_mission(args.mission)
+        reason = refuse_overwriting_inputs([('--out', args.out), ('--csv (next to --out)', csv_path)],
+                                           [('mission\'s vehicle file', mission.vehicle_path),
+                                            ('mission\'s world file', mission.world_path)])
+        if reason:
+            raise ValueError(reason)
         overrides = {'time_allocation': args.time_allocation} if args.time_allocation else {}
         result = plan_mission(mission, speed_mps=args.speed, **overrides)
         if args.csv is not None:
-            result.trajectory.sample_times(args.csv)   # validates the rate before anything is written
+            reason = csv_refusal(args.csv, result.trajectory.duration_s)   # before anything is written
+            if reason:
+                raise ValueError(reason)
     except ValueError as exc:
         print(f'quadflight plan: {exc}', file=sys.stderr)
         return 2
@@ -80,7 +107,6 @@ def run(args) -> int:
             return 2
         print(f'wrote {args.out}')
         if args.csv is not None:
-            csv_path = args.out.with_suffix('.csv')
             write_csv(csv_path, result.trajectory, args.csv)
             print(f'wrote {csv_path}')
     return 0

@@ -1,6 +1,7 @@
 """`quadflight report BAG [--out DIR]`: metrics.json, report.md and figures/ from a rosbag2 bag."""
 
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -60,6 +61,10 @@ def run(args) -> int:
         except (OSError, ValueError) as exc:
             print(f'quadflight report: {exc}', file=sys.stderr)
             return 2
+    if not bag.exists():
+        print(f'quadflight report: {bag}: no such directory', file=sys.stderr)
+        return 2
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -71,8 +76,11 @@ def run(args) -> int:
         extra = {k: v for k, v in json.loads((out / 'metrics.json').read_text()).items() if k in keep}
     try:
         metrics = write_report(bag, out, extra, rule)
-    except (OSError, ValueError, ReaderError) as exc:
-        print(f'quadflight report: {exc}', file=sys.stderr)
+    except (OSError, ValueError, ReaderError, StopIteration) as exc:
+        if created:   # a refusal leaves nothing behind (issue 27.11)
+            shutil.rmtree(out, ignore_errors=True)
+        why = str(exc) or 'none of the flight topics (odom, trajectory, cmd/attitude_thrust) in it'
+        print(f'quadflight report: {bag}: {why}', file=sys.stderr)
         return 2
     print(metrics_table(metrics))
     print(f'report: {out / "report.md"}, metrics: {out / "metrics.json"}, figures: {out / "figures"}')

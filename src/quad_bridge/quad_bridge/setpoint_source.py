@@ -1,0 +1,155 @@
+"""Who may command the vehicle (rclpy): each `cmd/attitude_thrust` is taken with its publisher's GID and flown only
+when the ROS graph names that publisher's node `setpoint_source` (docs/bridge.md, "Who can command your vehicle").
+
+Why ctypes: rclpy 7.1.5's take returns the message info without the publisher's GID (source/received timestamps
+and sequence numbers only), but rmw's `rmw_message_info_t` carries it, so the take goes through rcl's own
+`rcl_take_serialized_message` with that struct (rmw 7.3 / Jazzy layout, RMW_GID_STORAGE_SIZE 16). The graph API
+(`get_publishers_info_by_topic`) maps the endpoint GID to its node. A node name is claimed, not proven: this
+stops any other node of the domain (a test tool, a second controller, a stray script) from flying the vehicle,
+never a deliberate impostor; two publishers claiming the name refuse both. Authentication needs SROS2.
+"""
+
+import ctypes
+import threading
+import time
+from collections.abc import Callable
+
+RMW_GID_STORAGE_SIZE = 16
+RCL_RET_OK = 0
+GRAPH_REFRESH_MIN_S = 0.1   # an unknown GID asks the graph at most this often (an intruder cannot flood it)
+
+
+def fully_qualified(name: str, namespace: str) -> str:
+    """`name` as a node's fully qualified name: a relative one is in `namespace` (the bridge's)."""
+    if not name or name.startswith('/'):
+        return name
+    return f'{namespace.rstrip("/")}/{name}'
+
+
+class SourceGate:
+    """Admits a publisher GID when the graph names its node `source` and no other publisher claims that name.
+    publishers() -> [(node fully qualified name, gid bytes)] of the topic now; clock() -> monotonic seconds. Pure
+    Python (no rclpy), one caller thread; counts() may be read from others."""
+
+    def __init__(self, source: str, publishers: Callable[[], list], clock=time.monotonic):
+        self.source, self._publishers, self._clock = source, publishers, clock
+        self._names = {}            # gid -> node name, as the graph last said
+        self._conflict = ()         # the GIDs of two or more publishers claiming `source`
+        self._refreshed_s = -float('inf')
+        self._lock = threading.Lock()
+        self.admitted = 0
+        self.refused = {}           # node name (or 'unknown publisher') -> setpoints refused
+
+    def admit(self, gid: bytes) -> bool:
+        name = self._names.get(gid)
+        if name is None and self._clock() - self._refreshed_s >= GRAPH_REFRESH_MIN_S:
+            self.refresh()
+            name = self._names.get(gid)
+        ok = name == self.source and not self._conflict
+        with self._lock:
+            if ok:
+                self.admitted += 1
+            else:
+                key = name or 'unknown publisher'
+                self.refused[key] = self.refused.get(key, 0) + 1
+        return ok
+
+    def refresh(self):
+        self._refreshed_s = self._clock()
+        pubs = self._publishers()
+        self._names = {bytes(gid): name for name, gid in pubs}
+        claiming = sorted({bytes(gid) for name, gid in pubs if name == self.source})
+        self._conflict = tuple(claiming) if len(claiming) > 1 else ()
+
+    def why_refused(self, gid: bytes) -> str:
+        name = self._names.get(gid)
+        if name == self.source and self._conflict:
+            return (f'{len(self._conflict)} publishers claim the node name {self.source}: refusing all of them '
+                    '(a duplicate controller or an impostor)')
+        who = name or 'a publisher the ROS graph does not name (yet)'
+        return f'setpoint from {who} refused: only {self.source} may command the vehicle (setpoint_source)'
+
+    def counts(self) -> dict:
+        with self._lock:
+            refused = dict(self.refused)
+        return {'setpoint_source': self.source, 'refused_source': sum(refused.values()),
+                'refused_publishers': ', '.join(f'{n} ({c})' for n, c in sorted(refused.items()))}
+
+
+class _Gid(ctypes.Structure):
+    _fields_ = [('implementation_identifier', ctypes.c_char_p), ('data', ctypes.c_uint8 * RMW_GID_STORAGE_SIZE)]
+
+
+class _MessageInfo(ctypes.Structure):   # rmw/types.h rmw_message_info_t
+    _fields_ = [('source_timestamp', ctypes.c_int64), ('received_timestamp', ctypes.c_int64),
+                ('publication_sequence_number', ctypes.c_uint64), ('reception_sequence_number', ctypes.c_uint64),
+                ('publisher_gid', _Gid), ('from_intra_process', ctypes.c_bool)]
+
+
+class _Allocator(ctypes.Structure):     # rcutils/allocator.h rcutils_allocator_t
+    _fields_ = [('allocate', ctypes.c_void_p), ('deallocate', ctypes.c_void_p), ('reallocate', ctypes.c_void_p),
+                ('zero_allocate', ctypes.c_void_p), ('state', ctypes.c_void_p)]
+
+
+class _SerializedMessage(ctypes.Structure):   # rcutils_uint8_array_t
+    _fields_ = [('buffer', ctypes.POINTER(ctypes.c_uint8)), ('buffer_length', ctypes.c_size_t),
+                ('buffer_capacity', ctypes.c_size_t), ('allocator', _Allocator)]
+
+
+class SerializedTake:
+    """take(subscription) -> (CDR bytes, publisher gid bytes) or None: rcl_take_serialized_message on the
+    subscription's rcl handle (the libraries rclpy has loaded), one reusable buffer. One thread at a time."""
+
+    def __init__(self, capacity: int = 1024):
+        self._rcl = ctypes.CDLL('librcl.so')
+        self._rcutils = ctypes.CDLL('librcutils.so')
+        self._rcl.rcl_take_serialized_message.argtypes = [ctypes.c_void_p] * 4
+        self._rcutils.rcutils_get_default_allocator.restype = _Allocator
+        self._allocator = self._rcutils.rcutils_get_default_allocator()
+        self._message = _SerializedMessage()
+        self._info = _MessageInfo()
+        if self._rcutils.rcutils_uint8_array_init(ctypes.byref(self._message), ctypes.c_size_t(capacity),
+                                                  ctypes.byref(self._allocator)) != RCL_RET_OK:
+            raise MemoryError('rcutils_uint8_array_init failed')
+
+    def __call__(self, subscription):
+        with subscription.handle:
+            ret = self._rcl.rcl_take_serialized_message(subscription.handle.pointer, ctypes.byref(self._message),
+                                                        ctypes.byref(self._info), None)
+        if ret != RCL_RET_OK:   # RCL_RET_SUBSCRIPTION_TAKE_FAILED: nothing there after all
+            return None
+        return (ctypes.string_at(self._message.buffer, self._message.buffer_length),
+                bytes(self._info.publisher_gid.data))
+
+    def close(self):
+        if self._message.buffer:
+            self._rcutils.rcutils_uint8_array_fini(ctypes.byref(self._message))
+            self._message.buffer = None
+
+
+class SetpointSource:
+    """The gate on the setpoint subscription of `node`: take(sub) for quad_common's HotPathExecutor, returning the
+    serialized setpoint only when its publisher is `source` (refusals counted and logged, throttled)."""
+
+    def __init__(self, node, subscription, source: str, log):
+        self.node, self.log = node, log
+        topic = subscription.topic_name
+        self.gate = SourceGate(source, lambda: [(fully_qualified(i.node_name, i.node_namespace), i.endpoint_gid)
+                                                for i in node.get_publishers_info_by_topic(topic)])
+        self._take = SerializedTake()
+
+    def take(self, subscription):
+        taken = self._take(subscription)
+        if taken is None:
+            return None
+        raw, gid = taken
+        if self.gate.admit(gid):
+            return raw
+        self.log.warn(self.gate.why_refused(gid), throttle_duration_sec=1.0)
+        return None
+
+    def counts(self) -> dict:
+        return self.gate.counts()
+
+    def close(self):
+        self._take.close()

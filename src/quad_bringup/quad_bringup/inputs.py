@@ -1,0 +1,33 @@
+"""fly's input files checked before anything starts (issue 27.8): the control profile (quad_bringup.profiles) and
+the disturbance profile name, which the graph's nodes would otherwise refuse only after the start (a run
+directory and an empty bag left, or the defaults flown with exit 0)."""
+
+
+def check_inputs(options):
+    """Raises ValueError naming the option, the file and the problem."""
+    from quad_bringup.profiles import check_control_profile
+    from quad_common.paths import resolve_config
+
+    if options.control_profile is not None:
+        try:
+            check_control_profile(options.control_profile)
+        except ValueError as exc:
+            raise ValueError(f'--control-profile {exc}') from None
+    if options.disturbances is not None:
+        from quad_sim.disturbances import load_profile
+
+        try:
+            load_profile(resolve_config('config/disturbances.yaml'), options.disturbances)
+        except ValueError as exc:
+            raise ValueError(f'--disturbances: {exc}') from None
+
+
+def same_file(a, b) -> bool:
+    """a and b name one file (or a does not exist yet and resolves to b's path)."""
+    import os
+    from pathlib import Path
+    a, b = Path(a), Path(b)
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()

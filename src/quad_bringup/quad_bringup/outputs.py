@@ -1,0 +1,49 @@
+"""A sweep's or tune's output directory: checked before anything is made (a file, an unwritable place: one line,
+nothing left; issue 27.10, 27.11) and held by one writer at a time (issue 27.7): an exclusive flock on
+OUT/.quadflight.lock for the command's life, which the kernel drops when the process ends, SIGKILL included."""
+
+import fcntl
+import os
+from pathlib import Path
+
+from quad_bringup.runs import SpecError
+
+LOCK_NAME = '.quadflight.lock'
+
+
+def check_out_dir(out: Path):
+    """Raises SpecError when `out` cannot be the output directory."""
+    if out.exists() and not out.is_dir():
+        raise SpecError(f'--out {out}: a file, not a directory: choose another --out')
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise SpecError(f'--out {out}: cannot create or write it ({parent} is not a writable directory)')
+
+
+class OutputDir:
+    """Makes `out` and holds its lock until close(); SpecError when another command holds it."""
+
+    def __init__(self, out, what: str):
+        self.path = Path(out)
+        check_out_dir(self.path)
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            self._fd = os.open(self.path / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise SpecError(f'--out {self.path}: cannot create or write it ({exc.strerror or exc})') from None
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(self._fd, 200, 0).decode(errors='replace').strip() or '?'
+            os.close(self._fd)
+            raise SpecError(f'--out {self.path}: another sweep or tune writes there now ({holder}): wait for it '
+                            'or choose another --out') from None
+        os.ftruncate(self._fd, 0)
+        os.pwrite(self._fd, f'{what} pid {os.getpid()}\n'.encode(), 0)
+
+    def close(self):
+        if self._fd is not None:
+            os.close(self._fd)   # the lock goes with the descriptor
+            self._fd = None

@@ -1,0 +1,210 @@
+"""Bad input refused before anything starts, in one line naming the field and the value, exit 2, nothing left
+behind and no input modified (issue 27, items 5, 6, 8, 10, 11, 12). Each failed on the code before."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from quad_bringup import cli
+from quad_bringup.profiles import check_control_profile
+from quad_common.paths import REPO_ROOT
+
+MISSION = 'name: tiny\nwaypoints:\n  - [0.0, 0.0, 1.0]\n  - [1.0, 0.0, 1.0]\ntrajectory:\n  speed: 0.5\n'
+
+
+def _main(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.fixture
+def mission(tmp_path):
+    path = tmp_path / 'm.yaml'
+    path.write_text(MISSION)
+    return path
+
+
+def test_plan_out_onto_its_mission_is_refused_and_the_mission_kept(capsys, mission):
+    code, _, err = _main(capsys, 'plan', mission, '--out', mission)
+    assert code == 2 and 'it is the mission, an input' in err
+    assert mission.read_text() == MISSION
+    code, _, err = _main(capsys, 'plan', mission, '--out', mission.with_suffix('.json'), '--csv', '10')
+    assert code == 0 and json.loads(mission.with_suffix('.json').read_text())['segments']
+    csv_onto_mission = mission.with_name('m.csv')   # --csv writes next to --out: m.csv
+    shutil.copy(mission, csv_onto_mission)
+    code, _, err = _main(capsys, 'plan', csv_onto_mission, '--out', mission.with_name('m.json'), '--csv', '10')
+    assert code == 2 and '--csv (next to --out)' in err and csv_onto_mission.read_text() == MISSION
+
+
+def test_plan_csv_rows_are_bounded_before_anything_is_written(capsys, tmp_path):
+    far = tmp_path / 'far.yaml'
+    far.write_text(MISSION.replace('[1.0, 0.0, 1.0]', '[1.0e9, 0.0, 1.0]'))
+    out = tmp_path / 'far.json'
+    code, _, err = _main(capsys, 'plan', far, '--out', out, '--csv', '1')
+    assert code == 2 and 'rows, above 1,000,000' in err and 'Traceback' not in err
+    assert not out.exists() and not out.with_suffix('.csv').exists()
+    code, _, err = _main(capsys, 'plan', far, '--out', out, '--csv', '1e12')
+    assert code == 2 and '--csv 1e+12 refused: must be > 0 and <= 1e+06 Hz' in err
+
+
+def test_plan_takes_flys_limits_and_refuses_a_directory(capsys, mission, tmp_path):
+    code, _, err = _main(capsys, 'plan', mission, '--speed', '1e12')
+    assert code == 2 and '--speed 1e+12 refused: must be > 0 and <= 100 m/s' in err
+    code, _, err = _main(capsys, 'plan', tmp_path)
+    assert code == 2 and 'a directory, not a mission file' in err and len(err.strip().splitlines()) == 1
+
+
+def test_ctrl_c_during_plan_is_one_line_and_exit_130(capsys, mission, monkeypatch):
+    import quad_bringup.commands.plan as plan
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(plan, 'plan_mission', interrupted)
+    code, _, err = _main(capsys, 'plan', mission)
+    assert code == 130 and err.strip() == 'quadflight plan: interrupted'
+
+
+def test_identify_never_replaces_a_file_it_did_not_write(capsys, tmp_path):
+    precious = tmp_path / 'notes.yaml'
+    precious.write_text('mine: true\n')
+    code, _, err = _main(capsys, 'identify', tmp_path / 'bag', '--out', precious)
+    assert code == 2 and 'not written by quadflight identify' in err and precious.read_text() == 'mine: true\n'
+    code, _, err = _main(capsys, 'identify', tmp_path / 'bag', '--latency-s', '-1')
+    assert code == 2 and '--latency-s -1 refused' in err
+
+
+def test_report_refusals_leave_no_directory_and_share_flys_limits(capsys, tmp_path):
+    not_a_bag = tmp_path / 'not_a_bag'
+    not_a_bag.mkdir()
+    (not_a_bag / 'readme.txt').write_text('hello')
+    out = tmp_path / 'report_out'
+    code, _, err = _main(capsys, 'report', not_a_bag, '--out', out)
+    assert code == 2 and 'Traceback' not in err and not out.exists()
+    code, _, err = _main(capsys, 'report', not_a_bag, '--position-tolerance', '1e9')
+    assert code == 2 and '--position-tolerance 1e+09 refused: must be > 0 and <= 100 m' in err
+    code, _, err = _main(capsys, 'report', not_a_bag, '--settle', '-1')
+    assert code == 2 and '--settle -1 refused: must be >= 0' in err
+
+
+PROFILES = {  # file content -> what the refusal names
+    'position_controller:\n  ros__parameters:\n    kp_xx: 50.0\n': "kp_xx = 50.0 refused: not a parameter of "
+                                                                   "position_controller (did you mean 'kp_x'?)",
+    'position_controller:\n  ros__parameters:\n    kp_x: -5.0\n': 'kp_x = -5.0 refused: must be >= 0.0',
+    'position_control:\n  ros__parameters:\n    kp_x: 5.0\n': 'no position_controller: key (found position_control)',
+    'name: q\nmass_kg: 1.5\narm_length_m: 0.2\n': 'a vehicle file (mass_kg, arm_length_m), not a control profile',
+}
+
+
+@pytest.mark.parametrize('content', list(PROFILES))
+def test_fly_checks_the_control_profile_before_anything_starts(capsys, tmp_path, content):
+    profile = tmp_path / 'profile.yaml'
+    profile.write_text(content)
+    run_dir = tmp_path / 'run'
+    code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--control-profile', profile,
+                         '--out', run_dir)
+    assert code == 2 and PROFILES[content] in err and not run_dir.exists()
+
+
+def test_fly_checks_the_disturbances_before_anything_starts(capsys, tmp_path):
+    code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--disturbances', 'hurricane',
+                         '--out', tmp_path / 'run')
+    assert code == 2 and "--disturbances: disturbances = 'hurricane': no such profile" in err
+    assert not (tmp_path / 'run').exists()
+
+
+@pytest.mark.parametrize('profile', sorted(p.name for p in (REPO_ROOT / 'config').glob('control*.yaml')))
+def test_every_shipped_control_profile_passes_the_check(profile):
+    assert check_control_profile(Path(REPO_ROOT / 'config' / profile))
+
+
+def test_typos_of_known_keys_are_refused_naming_the_key(capsys, tmp_path):
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text(MISSION + 'robot_raduis_m: 0.2\n')
+    code, _, err = _main(capsys, 'plan', typo)
+    assert code == 2 and "robot_raduis_m = 0.2 is not a known key (did you mean 'robot_radius_m'?)" in err
+    vehicle = tmp_path / 'v.yaml'
+    vehicle.write_text((REPO_ROOT / 'config/vehicles/px4_quad.yaml').read_text() + 'mass_kgg: 2.0\n')
+    typo.write_text(MISSION + f'vehicle: {vehicle}\n')
+    code, _, err = _main(capsys, 'plan', typo)
+    assert code == 2 and "mass_kgg = 2.0 is not a known key (did you mean 'mass_kg'?)" in err
+
+
+def test_a_number_yaml_reads_as_text_is_named_with_how_to_write_it(capsys, tmp_path):
+    text = tmp_path / 'text.yaml'
+    text.write_text(MISSION.replace('speed: 0.5', 'speed: 1e9'))
+    code, _, err = _main(capsys, 'plan', text)
+    assert code == 2 and "trajectory.speed = '1e9' is text to YAML, not a number" in err and '1.0e+9' in err
+
+
+SWEEP = {'missions': ['config/missions/stop_every_waypoint.yaml'], 'controllers': ['pd'], 'seeds': 1}
+
+
+@pytest.mark.parametrize('argv, says', [
+    (['--workers', '-1'], '--workers -1 refused: must be an integer >= 1'),
+    (['--scheduler', 'notaurl'], "--scheduler 'notaurl' refused"),
+])
+def test_sweep_and_tune_refusals_are_one_line_and_leave_nothing(capsys, tmp_path, argv, says):
+    spec = tmp_path / 'spec.yaml'
+    spec.write_text(json.dumps(SWEEP))
+    out = tmp_path / 'out'
+    code, _, err = _main(capsys, 'sweep', spec, '--out', out, *argv)
+    assert code == 2 and says in err and 'Traceback' not in err and not out.exists()
+
+
+def test_sweep_out_must_be_a_writable_directory(capsys, tmp_path):
+    spec = tmp_path / 'spec.yaml'
+    spec.write_text(json.dumps(SWEEP))
+    code, _, err = _main(capsys, 'sweep', spec, '--out', spec)
+    assert code == 2 and 'a file, not a directory' in err and json.loads(spec.read_text()) == SWEEP
+    code, _, err = _main(capsys, 'sweep', spec, '--out', '/proc/quadflight_out')
+    assert code == 2 and 'cannot create or write it' in err
+
+
+def test_tune_checks_its_optimizer_and_leaves_no_spec_behind(capsys, tmp_path):
+    spec = tmp_path / 'tune.yaml'
+    spec.write_text(json.dumps({'controller': 'pd', 'parameters': {'kp_xy': [1.0, 40.0]},
+                                'missions': ['config/missions/stop_every_waypoint.yaml'],
+                                'optimizer': {'maxiter': -1}}))
+    out = tmp_path / 'out'
+    code, _, err = _main(capsys, 'tune', spec, '--out', out, '--workers', '1')
+    assert code == 2 and 'optimizer.maxiter = -1 refused: must be an integer >= 1' in err and not out.exists()
+
+
+def _foreign_bag(path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection('/chatter', 'std_msgs/msg/String', typestore=ts)
+        for i in range(5):
+            writer.write(conn, i * 10 ** 8, ts.serialize_cdr(ts.types['std_msgs/msg/String'](data='x'),
+                                                             'std_msgs/msg/String'))
+    return path
+
+
+def test_a_bag_of_foreign_topics_and_a_binary_mission_are_one_line_naming_the_file(capsys, tmp_path):
+    bag = _foreign_bag(tmp_path / 'foreign')
+    for argv in (['report', bag, '--out', tmp_path / 'rep'], ['identify', bag, '--out', tmp_path / 'p.yaml']):
+        code, _, err = _main(capsys, *argv)
+        assert code == 2 and str(bag) in err and 'in it' in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / 'rep').exists() and not (tmp_path / 'p.yaml').exists()
+    binary = tmp_path / 'binary.yaml'
+    binary.write_bytes(bytes(range(256)) * 4)
+    code, _, err = _main(capsys, 'plan', binary)
+    assert code == 2 and f'{binary}: not a text (UTF-8) file' in err
+
+
+def test_tune_out_a_file_and_a_closed_scheduler_leave_nothing(capsys, tmp_path):
+    spec = tmp_path / 'tune.yaml'
+    spec.write_text(json.dumps({'controller': 'pd', 'parameters': {'kp_xy': [1.0, 40.0]},
+                                'missions': ['config/missions/stop_every_waypoint.yaml']}))
+    code, _, err = _main(capsys, 'tune', spec, '--out', spec)
+    assert code == 2 and 'a file, not a directory' in err
+    sweep_spec = tmp_path / 'sweep.yaml'
+    sweep_spec.write_text(json.dumps(SWEEP))
+    out = tmp_path / 'out'
+    code, _, err = _main(capsys, 'sweep', sweep_spec, '--out', out, '--scheduler', 'tcp://127.0.0.1:9')
+    assert code == 2 and 'cannot connect' in err and not out.exists()   # no empty runs.csv / runs.jsonl

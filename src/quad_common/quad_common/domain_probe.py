@@ -1,0 +1,24 @@
+"""Who is already in a ROS domain (rclpy): quad_common.domains.isolated_domain's probe for `fly` (issue 27.4)."""
+
+import time
+
+import rclpy
+
+
+def foreign_nodes(domain: int, wait_s: float) -> list[str]:
+    """Nodes already in ROS domain `domain` (a graph someone started without our lock files, e.g. a real bridge),
+    seen by a probe node for wait_s (Fast DDS answers a new participant at once)."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    try:
+        node = rclpy.create_node('quadflight_domain_probe', context=context, start_parameter_services=False,
+                                 enable_rosout=False)
+        deadline = time.monotonic() + wait_s
+        while True:
+            names = [f'{ns.rstrip("/")}/{n}' for n, ns in node.get_node_names_and_namespaces()
+                     if n != 'quadflight_domain_probe']
+            if names or time.monotonic() >= deadline:
+                return sorted(names)
+            time.sleep(0.05)
+    finally:
+        context.try_shutdown()
