@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 RMW_GID_STORAGE_SIZE = 16
 RCL_RET_OK = 0
-GRAPH_REFRESH_MIN_S = 0.1   # an unknown GID asks the graph at most this often (an intruder cannot flood it)
+GRAPH_REFRESH_MIN_S = 0.1   # an publisher not admitted asks the graph at most this often (an intruder cannot flood it)
 
 
 def fully_qualified(name: str, namespace: str) -> str:
@@ -42,7 +42,9 @@ class SourceGate:
 
     def admit(self, gid: bytes) -> bool:
         name = self._names.get(gid)
-        if name is None and self._clock() - self._refreshed_s >= GRAPH_REFRESH_MIN_S:
+        # Anything not admitted asks again (rate-limited): Fast DDS discovers an endpoint before its node's name
+        # (the graph says _NODE_NAME_UNKNOWN_ until ros_discovery_info arrives, seconds later on a busy machine).
+        if (name != self.source or self._conflict) and self._clock() - self._refreshed_s >= GRAPH_REFRESH_MIN_S:
             self.refresh()
             name = self._names.get(gid)
         ok = name == self.source and not self._conflict

@@ -56,3 +56,14 @@ def test_relative_source_names_are_in_the_bridges_namespace():
     assert fully_qualified('position_controller', '/') == '/position_controller'
     assert fully_qualified('position_controller', '/a/b') == '/a/b/position_controller'
     assert fully_qualified('/x/ctl', '/a') == '/x/ctl' and fully_qualified('', '/a') == ''
+
+
+def test_a_publisher_discovered_before_its_node_name_is_admitted_once_the_name_arrives():
+    """Fast DDS names an endpoint's node only when ros_discovery_info arrives (CI: refused for 90 s before)."""
+    graph = Graph(('/_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_', list(CONTROLLER)))
+    gate = _gate(graph)
+    assert not gate.admit(CONTROLLER)
+    graph.pubs[0] = ('/ns/position_controller', list(CONTROLLER))
+    assert not gate.admit(CONTROLLER) and graph.asked == 1   # within the refresh period: not asked again
+    graph.now_s += GRAPH_REFRESH_MIN_S
+    assert gate.admit(CONTROLLER) and graph.asked == 2
