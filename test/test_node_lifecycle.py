@@ -66,6 +66,28 @@ def test_a_second_sigint_during_shutdown_ends_the_node_cleanly(tmp_path, package
     assert proc.returncode == 0 and 'Traceback' not in out, out
 
 
+STARTUP_LINE_EXECUTABLES = [e for e in EXECUTABLES if e[1] != 'trajectory_node']   # it logs nothing at start
+
+
+@pytest.mark.parametrize('package,executable,needs', STARTUP_LINE_EXECUTABLES,
+                         ids=[e[1] for e in STARTUP_LINE_EXECUTABLES])
+def test_ctrl_c_while_the_node_is_still_starting_ends_it_cleanly(tmp_path, package, executable, needs):
+    """Both SIGINTs right after the node's first log line, while its executor is still being built (CI saw a
+    traceback, and -SIGINT from a signal arriving as the interpreter exits)."""
+    with isolated_domain() as (_, env):
+        proc = subprocess.Popen(_argv(package, executable, needs, tmp_path, f'starting_{executable}'), env=env,
+                                text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        try:
+            first = proc.stdout.readline()
+            proc.send_signal(signal.SIGINT)
+            time.sleep(SECOND_SIGINT_AFTER_S)   # the second Ctrl-C of the scenario, not a synchronisation
+            proc.send_signal(signal.SIGINT)
+            out, _ = proc.communicate(timeout=WAIT_S)
+        finally:
+            proc.kill()
+    assert proc.returncode == 0 and 'Traceback' not in out, first + out
+
+
 @pytest.mark.parametrize('package,executable,needs', EXECUTABLES, ids=[e[1] for e in EXECUTABLES])
 def test_a_missing_params_file_is_one_line_and_exit_2(tmp_path, package, executable, needs):
     missing = tmp_path / 'no_such_params.yaml'

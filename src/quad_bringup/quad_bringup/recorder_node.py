@@ -33,7 +33,7 @@ from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, instal
 from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.lifeline import bind_to_parent
-from quad_common.node_main import STOP_SIGNALS, rcl_reason
+from quad_common.node_main import STOP_SIGNALS, ignore_stop_signals, rcl_reason
 from quad_common.params import Param, ParameterSet
 
 STATUS_PERIOD_S = 1.0
@@ -185,6 +185,7 @@ def main(args=None):
         node.close_bag()
         node.destroy_node()
         rclpy.try_shutdown()
+        ignore_stop_signals()
 
 
 if __name__ == '__main__':

@@ -29,28 +29,70 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
     except _rclpy.RCLError as exc:
         print(f'[ERROR] [{name}]: {name} refused to start: {rcl_reason(exc)}', file=sys.stderr)
         sys.exit(2)
+    node = executor = None
     try:
         node = make_node()
-    except refused as exc:
-        rclpy.logging.get_logger(name).error(f'{name} refused to start: {exc}')
-        rclpy.try_shutdown()
-        sys.exit(2)
-    if own_signals:
-        node.stop_requested = lambda: bool(stop)
-    executor = make_executor(node) if make_executor else SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
+        if own_signals:
+            node.stop_requested = lambda: bool(stop)
+        if _stopping(stop):
+            return
+        executor = make_executor(node) if make_executor else SingleThreadedExecutor()
+        executor.add_node(node)
         spin(node, executor) if spin else executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:
-        if rclpy.ok():  # a signal's shutdown can surface as an RCLError inside the executor
+    except refused as exc:
+        if _stopping(stop):
+            _drop_rclpy_destructor_noise()
+            return
+        if node is not None:
             raise
+        rclpy.logging.get_logger(name).error(f'{name} refused to start: {exc}')
+        sys.exit(2)
+    except Exception:
+        # Ctrl-C while the node or its executor is still being built shuts the context down under them (rcl
+        # errors, invalid handles): a stop, not a crash. An error with nobody stopping us is a crash.
+        if not _stopping(stop):
+            raise
+        _drop_rclpy_destructor_noise()
     finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+        _finish(node, executor)
 
+
+def _stopping(stop) -> bool:
+    return bool(stop) or not rclpy.ok()
+
+
+def _drop_rclpy_destructor_noise():
+    """rclpy objects left half built when Ctrl-C shut the context down under them (an executor, a guard
+    condition) raise AttributeError from their __del__, which Python prints as a traceback at exit. They are
+    being dropped on purpose: say nothing about them; anything else unraisable is still printed."""
+    default_hook = sys.unraisablehook
+
+    def hook(unraisable):
+        if not getattr(unraisable.object, '__module__', '').startswith('rclpy.'):
+            default_hook(unraisable)
+
+    sys.unraisablehook = hook
+
+
+def _finish(node, executor):
+    try:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+        ignore_stop_signals()
+
+
+def ignore_stop_signals():
+    """Once shut down, further stop signals are moot: Python's finalization puts a handled SIGINT back to its
+    default action, so a second Ctrl-C arriving while the interpreter exits (`ros2 launch` forwards one) would
+    end the process with -SIGINT instead of 0. An ignored signal stays ignored."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
 
 def _init(args, own_signals, stop):
     if own_signals:
