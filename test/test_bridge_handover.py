@@ -94,6 +94,9 @@ def test_land_ends_the_hand_over_and_rearming_never_resumes_it(graph):
     publisher = SetpointPublisher(observer)
     try:
         _handed_over(procs, observer, tap, publisher, 'OFFBOARD')
+        answer = observer.call('arm', SetBool.Request(data=False))   # any node may call it: never in the air
+        assert not answer.success and 'call land first' in answer.message, answer.message
+        assert observer.link()[1]['armed'] == 'True'
         result = observer.call('land', Trigger.Request())
         assert result.success, result.message
         landed_s = time.monotonic()

@@ -369,6 +369,12 @@ class MavlinkBridge(Node):
                 reason = s.backend.arm_refusal(s.mode, self.vehicle.handover.active)
             if reason:
                 return self._refuse(response, f'arm refused: {reason}')
+        else:
+            with self.vehicle.lock:
+                flying_ours = self.vehicle.handover.active
+            if flying_ours:  # any node of the domain may call this service (docs/bridge.md, who can command)
+                return self._refuse(response, 'disarm refused: the vehicle is flying our setpoints; call land '
+                                              'first (a disarm in the air drops it)')
         result = self.client.command_long(self.vehicle.status.system, self.params['target_component'],
                                           mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1.0 if request.data else 0.0],
                                           self.params['command_timeout_s'])
