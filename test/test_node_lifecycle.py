@@ -49,21 +49,29 @@ def _wait_for_node(domain, name, proc):
         rclpy.shutdown(context=ctx)
 
 
-@pytest.mark.parametrize('package,executable,needs', EXECUTABLES, ids=[e[1] for e in EXECUTABLES])
-def test_a_second_sigint_during_shutdown_ends_the_node_cleanly(tmp_path, package, executable, needs):
-    name = f'launched_{executable}'
+def _ctrl_c_twice(tmp_path, package, executable, needs, name, when_started):
+    """Starts the node, waits for when_started(domain, proc), sends SIGINT twice (as `ros2 launch` does on
+    Ctrl-C) and returns (exit status, everything it printed)."""
     with isolated_domain() as (domain, env):
         proc = subprocess.Popen(_argv(package, executable, needs, tmp_path, name), env=env, text=True,
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
         try:
-            _wait_for_node(domain, name, proc)
+            first = when_started(domain, proc)
             proc.send_signal(signal.SIGINT)
             time.sleep(SECOND_SIGINT_AFTER_S)   # the second Ctrl-C of the scenario, not a synchronisation
             proc.send_signal(signal.SIGINT)
             out, _ = proc.communicate(timeout=WAIT_S)
         finally:
             proc.kill()
-    assert proc.returncode == 0 and 'Traceback' not in out, out
+    return proc.returncode, first + out
+
+
+@pytest.mark.parametrize('package,executable,needs', EXECUTABLES, ids=[e[1] for e in EXECUTABLES])
+def test_a_second_sigint_during_shutdown_ends_the_node_cleanly(tmp_path, package, executable, needs):
+    name = f'launched_{executable}'
+    code, out = _ctrl_c_twice(tmp_path, package, executable, needs, name,
+                              lambda domain, proc: _wait_for_node(domain, name, proc) or '')
+    assert code == 0 and 'Traceback' not in out, out
 
 
 STARTUP_LINE_EXECUTABLES = [e for e in EXECUTABLES if e[1] != 'trajectory_node']   # it logs nothing at start
@@ -74,18 +82,9 @@ STARTUP_LINE_EXECUTABLES = [e for e in EXECUTABLES if e[1] != 'trajectory_node']
 def test_ctrl_c_while_the_node_is_still_starting_ends_it_cleanly(tmp_path, package, executable, needs):
     """Both SIGINTs right after the node's first log line, while its executor is still being built (CI saw a
     traceback, and -SIGINT from a signal arriving as the interpreter exits)."""
-    with isolated_domain() as (_, env):
-        proc = subprocess.Popen(_argv(package, executable, needs, tmp_path, f'starting_{executable}'), env=env,
-                                text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-        try:
-            first = proc.stdout.readline()
-            proc.send_signal(signal.SIGINT)
-            time.sleep(SECOND_SIGINT_AFTER_S)   # the second Ctrl-C of the scenario, not a synchronisation
-            proc.send_signal(signal.SIGINT)
-            out, _ = proc.communicate(timeout=WAIT_S)
-        finally:
-            proc.kill()
-    assert proc.returncode == 0 and 'Traceback' not in out, first + out
+    code, out = _ctrl_c_twice(tmp_path, package, executable, needs, f'starting_{executable}',
+                              lambda domain, proc: proc.stdout.readline())
+    assert code == 0 and 'Traceback' not in out, out
 
 
 @pytest.mark.parametrize('package,executable,needs', EXECUTABLES, ids=[e[1] for e in EXECUTABLES])
