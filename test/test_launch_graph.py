@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ament_index_python.packages import get_package_prefix, get_package_share_directory
+from ament_index_python.packages import get_package_prefix
 from bridge_graph import VEHICLE_FILE, VEHICLE_PARAMS, WAIT_S, Observer, Processes, free_udp_port
 from launch_standin import evaluate
 from std_srvs.srv import SetBool
@@ -61,15 +61,6 @@ def test_launch_file_starts_installed_executables_with_existing_params_files(kin
         assert argv[1:4] == ['--ros-args', '-r', f'__node:={node.name}']
         files = argv[5::2]
         assert files and all(Path(f).is_file() for f in files) and argv[4::2] == ['--params-file'] * len(files)
-
-
-def test_every_config_file_is_installed_beside_the_launch_files():
-    """setup.py's config_files(): each file under config/ (the glob config/**/*.*) is in share/quad_bringup/config,
-    where an installed launch file's params files are found (quad_common.paths)."""
-    share = Path(get_package_share_directory('quad_bringup'))
-    wanted = sorted(p.relative_to(ROOT) for p in (ROOT / 'config').rglob('*.*') if p.is_file())
-    missing = [str(p) for p in wanted if not (share / p).is_file()]
-    assert wanted and not missing, f'not installed under {share} (colcon build): {missing}'
 
 
 def _merged(nodes) -> dict:

@@ -364,7 +364,7 @@ def _fly(options: FlightOptions, log) -> FlightResult:
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
                             time_limit_factor=options.time_limit_factor)
-        monitor = FlightMonitor(domain, judge, recorder_name=RECORDER)
+        monitor = FlightMonitor(domain, judge)
         clock.mark('flight monitor up')
         fault = None
         try:
@@ -560,7 +560,7 @@ def _await_landing(dead, judge, monitor, children, interrupt, log) -> dict:
     while time.monotonic() < deadline and interrupt.signum is None and not any(
             p.exit_code() is not None for p in others):
         monitor.spin_once(0.05)
-        level, message, values = monitor.sim_events.get('sim_node: failsafe', (None, '', {}))
+        level, message, values = monitor.sim_events.get(contract.SIM_FAILSAFE, (None, '', {}))
         if 'disarmed' in message:
             landed = values
             break

@@ -151,9 +151,6 @@ class Autopilot:
     def _idle(state) -> Target:
         return Target(rotations.from_yaw(_yaw(state.quaternion)), 0.0)
 
-    def stream_rate_hz(self, now_s):
-        return self.setpoints.rate_hz(now_s)
-
 
 # --- PX4 -------------------------------------------------------------------------------------------------
 
