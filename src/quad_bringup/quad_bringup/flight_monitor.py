@@ -13,7 +13,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_bringup.flight import MONITOR
+from quad_bringup.graph import MONITOR
 from quad_bringup.metrics import Completion
 from quad_common import cdr, contract, conversions, lockstep
 from quad_common.diagnostics import ERROR, level_of

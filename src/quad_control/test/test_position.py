@@ -8,9 +8,8 @@ import pytest
 
 from quad_common import rotations
 from quad_common.paths import resolve_config
-from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
-from quad_common.vehicle import AttitudeGains, load_vehicle
-from quad_control.attitude import attitude_moments
+from quad_common.types import GRAVITY_MPS2, Reference, State
+from quad_common.vehicle import load_vehicle
 from quad_control.position import Limits, PositionController, PositionGains
 
 G = GRAVITY_MPS2
@@ -255,19 +254,6 @@ def test_integral_removes_the_mass_mismatch_error_pd_does_not():
 
 
 # --- attitude law options ---------------------------------------------------------------------
-
-def test_attitude_so3_error_agrees_with_euler_near_hover():
-    inertia = VEHICLE.inertia_kgm2
-    sp = AttitudeSetpoint(quaternion=rotations.from_euler(0.01, -0.02, 0.5), body_rates=np.zeros(3))
-    q = rotations.from_euler(0.0, 0.0, 0.49)
-    euler = attitude_moments(q, np.zeros(3), sp, AttitudeGains(), inertia)
-    so3 = attitude_moments(q, np.zeros(3), sp, AttitudeGains(), inertia, attitude_error='so3')
-    assert np.allclose(euler, so3, rtol=0.05, atol=1e-3 * np.max(np.abs(euler)))
-    assert np.allclose(attitude_moments(sp.quaternion, np.zeros(3), sp, AttitudeGains(), inertia,
-                                        attitude_error='so3'), 0, atol=1e-15)
-    with pytest.raises(ValueError, match='quaternions'):
-        attitude_moments(q, np.zeros(3), sp, AttitudeGains(), inertia, attitude_error='quaternions')
-
 
 @pytest.mark.parametrize('law', ['pd', 'se3'])
 def test_attitude_lead_tilts_by_lead_times_jerk_and_leaves_thrust(law):
