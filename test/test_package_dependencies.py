@@ -74,3 +74,37 @@ def test_every_import_is_declared_with_a_valid_key(package):
     valid = set(PACKAGES) | ROS_PACKAGES | set(SYSTEM_KEYS.values())
     unknown = sorted(k for k in set().union(*deps.values()) if k not in valid)
     assert not unknown, f'{package}/package.xml: {unknown} are not rosdep keys (nor packages of this workspace)'
+
+
+def _module_imports() -> dict[str, set[str]]:
+    """Our module -> our modules it imports (at the top or inside a function: a lazy import is an arrow too)."""
+    paths = {'.'.join(p.relative_to(ROOT / 'src').parts[1:])[:-3].removesuffix('.__init__'): p
+             for p in (ROOT / 'src').glob('*/*/**/*.py') if p.relative_to(ROOT / 'src').parts[1] != 'test'}
+    arrows = {}
+    for name, path in paths.items():
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                found |= {a.name for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                found |= {node.module} | {f'{node.module}.{a.name}' for a in node.names}
+        arrows[name] = (found & paths.keys()) - {name}
+    return arrows
+
+
+def test_no_import_cycle_between_modules():
+    """Every import arrow points one way (depth-first search for a back edge); a cycle is named in full."""
+    arrows, done, path = _module_imports(), set(), []
+
+    def visit(module):
+        if module in path:
+            raise AssertionError('import cycle: ' + ' -> '.join(path[path.index(module):] + [module]))
+        if module not in done:
+            path.append(module)
+            for target in sorted(arrows[module]):
+                visit(target)
+            path.pop()
+            done.add(module)
+
+    for module in sorted(arrows):
+        visit(module)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_bringup.metrics import Completion, Flight, compute_metrics
-from quad_common import rotations
+from quad_common import contract, rotations
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
@@ -80,7 +80,7 @@ class FlightBag:
         from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, typestore
         self.ts = typestore()
         self.writer = BagRecorder(path)
-        for topic in ('odom', 'cmd/attitude_thrust'):
+        for topic in (contract.ODOM, contract.SETPOINT):
             self.writer.add_topic(topic, DEFAULT_TOPICS[topic])
 
     def _header(self, t_s, frame):
@@ -96,7 +96,7 @@ class FlightBag:
         q = state.quaternion
         v_body = rotations.to_matrix(q).T @ state.velocity
         odom = T['nav_msgs/msg/Odometry'](
-            header=self._header(t_s, 'map'), child_frame_id='base_link',
+            header=self._header(t_s, contract.WORLD_FRAME), child_frame_id=contract.BODY_FRAME,
             pose=T['geometry_msgs/msg/PoseWithCovariance'](
                 pose=T['geometry_msgs/msg/Pose'](position=T['geometry_msgs/msg/Point'](*map(float, state.position)),
                                                  orientation=quat(*map(float, q))), covariance=np.zeros(36)),
@@ -107,16 +107,16 @@ class FlightBag:
         rates = setpoint.body_rates if setpoint.body_rates is not None else np.zeros(3)
         rates_cov = np.zeros(9)
         if setpoint.body_rates is None:
-            rates_cov[0] = -1.0
+            rates_cov[0] = contract.UNSET_COVARIANCE
         imu = T['sensor_msgs/msg/Imu'](
-            header=self._header(t_s, 'base_link'), orientation=quat(*map(float, setpoint.quaternion)),
+            header=self._header(t_s, contract.BODY_FRAME), orientation=quat(*map(float, setpoint.quaternion)),
             orientation_covariance=np.zeros(9), angular_velocity=vec(*map(float, rates)),
             angular_velocity_covariance=rates_cov,
             linear_acceleration=vec(0.0, 0.0, float(setpoint.specific_force_mps2)),
             linear_acceleration_covariance=np.zeros(9))
         ns = int(round(t_s * 1e9))
-        self.writer.write('odom', ns, self.ts.serialize_cdr(odom, 'nav_msgs/msg/Odometry'))
-        self.writer.write('cmd/attitude_thrust', ns, self.ts.serialize_cdr(imu, 'sensor_msgs/msg/Imu'))
+        self.writer.write(contract.ODOM, ns, self.ts.serialize_cdr(odom, contract.TOPICS[contract.ODOM].msgtype))
+        self.writer.write(contract.SETPOINT, ns, self.ts.serialize_cdr(imu, contract.TOPICS[contract.SETPOINT].msgtype))
 
     def close(self):
         self.writer.close()

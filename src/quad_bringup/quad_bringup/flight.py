@@ -44,7 +44,6 @@ EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 RECORDER = 'recorder'
 CONTROLLER_NODE = 'position_controller'
-MONITOR = 'fly_monitor'           # the flight monitor's node name (a lockstep follower)
 LOCKSTEP_TIMEOUT_S = 3.0          # wall time sim_node waits for a setpoint before it takes the controller as gone
 LANDING_TIMEOUT_S = 60.0          # wall time fly waits for the failsafe's landing after the controller died
 STARTUP_NOTE_S = 1.0              # a start-up that takes longer says what it waits for
@@ -141,8 +140,7 @@ def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptio
     command line's values, unless a rule was given) and the plan's feasibility (quad_trajectory.feasibility),
     logged; an infeasible plan is refused (MissionRefused, naming fastest and its time) unless fly_anyway, or
     replaced by the allocation the mission asks for (trajectory.if_infeasible: fastest or limits) when it fits."""
-    from quad_trajectory.feasibility import preflight
-    from quad_trajectory.mission import plan_mission
+    from quad_trajectory.mission import plan_mission, preflight
 
     vehicle = flight_vehicle(options, mission)
     if options.rule is None:
@@ -213,7 +211,7 @@ def node_specs(options: FlightOptions) -> list:
     """The graph sim.launch.py starts (quad_bringup.graph.sim_graph, lockstep), plus what only fly has: the
     recorder and fly's monitor as the simulator's lockstep followers, a longer lockstep timeout (a loaded
     machine), and the sweep's or the command line's plant, disturbances and sim_node parameters."""
-    sim = {'lockstep_followers': f'{RECORDER},{MONITOR}', 'lockstep_timeout_s': LOCKSTEP_TIMEOUT_S}
+    sim = {'lockstep_followers': f'{RECORDER},{graph.MONITOR}', 'lockstep_timeout_s': LOCKSTEP_TIMEOUT_S}
     if options.disturbances is not None:
         sim['disturbances'] = options.disturbances
     if options.plant:
@@ -364,7 +362,7 @@ def _fly(options: FlightOptions, log) -> FlightResult:
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
                             time_limit_factor=options.time_limit_factor)
-        monitor = FlightMonitor(domain, judge, recorder_name=RECORDER)
+        monitor = FlightMonitor(domain, judge)
         clock.mark('flight monitor up')
         fault = None
         try:
@@ -560,7 +558,7 @@ def _await_landing(dead, judge, monitor, children, interrupt, log) -> dict:
     while time.monotonic() < deadline and interrupt.signum is None and not any(
             p.exit_code() is not None for p in others):
         monitor.spin_once(0.05)
-        level, message, values = monitor.sim_events.get('sim_node: failsafe', (None, '', {}))
+        level, message, values = monitor.sim_events.get(contract.SIM_FAILSAFE, (None, '', {}))
         if 'disarmed' in message:
             landed = values
             break

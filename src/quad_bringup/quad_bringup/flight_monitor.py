@@ -13,13 +13,11 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_bringup.flight import MONITOR
+from quad_bringup.graph import MONITOR
 from quad_bringup.metrics import Completion
 from quad_common import cdr, contract, conversions, lockstep
 from quad_common.diagnostics import ERROR, level_of
 from quad_common.hot_path import HotPathExecutor
-
-SIM_NODE = 'sim_node'
 
 
 @dataclass
@@ -96,9 +94,8 @@ class FlightJudge:
 class FlightMonitor:
     """An rclpy node in its own context feeding a FlightJudge."""
 
-    def __init__(self, domain_id: int, judge: FlightJudge, recorder_name: str):
+    def __init__(self, domain_id: int, judge: FlightJudge):
         self.judge = judge
-        self.recorder_name = recorder_name
         self.recorded = {}  # topic -> messages in the bag, from the recorder's status on diagnostics
         self.published = {}  # the simulator's `sim_node: published` values (steps, future_setpoints_refused)
         self.sim_events = {}  # diagnostics name -> (level, message, values) of the simulator's newest statuses
@@ -127,12 +124,12 @@ class FlightMonitor:
 
     def _on_diagnostics(self, msg):
         for st in msg.status:
-            if st.name == self.recorder_name:
+            if st.name == contract.RECORDER_STATUS:
                 self.recorded = {kv.key: int(kv.value) for kv in st.values}
-            elif st.name.startswith(SIM_NODE + ':'):
+            elif st.name.startswith(contract.SIM_STATUS.format('')):
                 values = {kv.key: kv.value for kv in st.values}
                 self.sim_events[st.name] = (level_of(st), st.message, values)
-                if st.name == f'{SIM_NODE}: published':
+                if st.name == contract.SIM_PUBLISHED:
                     self.published = {k: int(v) for k, v in values.items()}
             if level_of(st) == ERROR[0]:  # an event is a key of an ERROR status, not its name or message
                 t_s = contract.event_time_s({kv.key: kv.value for kv in st.values}, contract.COLLISION_TIME_S)

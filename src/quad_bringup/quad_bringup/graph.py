@@ -34,6 +34,7 @@ REAL_VEHICLE = 'vehicles/px4_quad.yaml'
 AUTOPILOTS = ('px4', 'ardupilot')
 SIM_MODES = ('lockstep', 'realtime')
 CONFIG_PATH_PARAMETERS = ('vehicle', 'disturbances_file')
+MONITOR = 'fly_monitor'   # fly's flight monitor node (quad_bringup.flight_monitor), a lockstep follower
 
 
 @dataclasses.dataclass(frozen=True)

@@ -143,7 +143,7 @@ class RecorderNode(Node):
     def publish_status(self):
         counts = {topic: self.bag.counts.get(topic, 0) for topic in self.params['topics']}
         self.status_pub.publish(diagnostics.array(self.get_clock().now().to_msg(), [diagnostics.status(
-            self.get_name(), diagnostics.OK, f'{self.bag.total} messages', counts)]))
+            contract.RECORDER_STATUS, diagnostics.OK, f'{self.bag.total} messages', counts)]))
 
     def close_bag(self):
         self.bag.close()

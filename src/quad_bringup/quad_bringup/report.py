@@ -35,7 +35,6 @@ from quad_common.diagnostics import ERROR, level_of
 
 ERROR_LEVEL = ERROR[0]  # diagnostic_msgs levels are bytes in rclpy, ints from rosbags
 CLOCK = contract.CLOCK
-SIM_PUBLISHED = 'sim_node: published'
 HANDOVER_KEY = 'handover'   # the bridge's setpoints status: the hand-over phase (quad_bridge.handover)
 
 
@@ -73,7 +72,7 @@ def load_flight(bag_dir) -> Flight:
                     phase = next((kv.value for kv in st.values if kv.key == HANDOVER_KEY), None)
                     if phase is not None:
                         handover.append((record_ns, phase))
-                    if st.name == SIM_PUBLISHED:
+                    if st.name == contract.SIM_PUBLISHED:
                         steps = int({kv.key: kv.value for kv in st.values}.get('steps', -1))
                         if published is None or _ns(msg.header.stamp) >= published[0]:
                             published = (_ns(msg.header.stamp), steps)

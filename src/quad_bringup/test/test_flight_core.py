@@ -92,7 +92,7 @@ def test_stop_escalates_and_leaves_no_process_of_the_group(tmp_path):
 def test_monitor_sees_which_topics_a_node_reads_before_the_graph_starts():
     """fly starts the graph only once the recorder's readers are on it (else a short flight outruns the bag)."""
     with isolated_domain() as (domain, _):
-        monitor = FlightMonitor(domain, judge_with_plan(), recorder_name='recorder')
+        monitor = FlightMonitor(domain, judge_with_plan())
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=domain)
         recorder = rclpy.create_node('recorder', context=ctx)

@@ -1,5 +1,6 @@
 """quadflight identify on rosbag2 bags flown by the plant family: the attitude lag within 15 % of the member's
-own loop (quad_sim.stability.attitude_lag_s), the thrust scale of its mass / thrust error, a usable profile."""
+own loop (quad_sim.attitude_poles.attitude_mean_delay_s), the thrust scale of its mass / thrust error, a usable
+profile."""
 
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from quad_bringup.identify import identify, quality_refusal, read_identification
 from quad_bringup.report import load_flight
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.vehicle import load_vehicle
-from quad_sim.stability import attitude_lag_s
+from quad_sim.attitude_poles import attitude_mean_delay_s
 
 MAZE = resolve_config('config/missions/maze.yaml')
 CRAZYFLIE = resolve_config('config/vehicles/crazyflie.yaml')
@@ -29,7 +30,7 @@ def flown_bag(tmp_path, member):
 @pytest.mark.parametrize('member', ['nominal', 'slow_motors_72ms', 'autopilot_so3', 'autopilot_lag'])
 def test_identified_attitude_lag_within_15_percent(tmp_path, member):
     vehicle = load_vehicle(CRAZYFLIE, plant=member)
-    truth_s = attitude_lag_s(vehicle)
+    truth_s = attitude_mean_delay_s(vehicle)
     result = identify(load_flight(flown_bag(tmp_path, member)))
     for axis in ('roll', 'pitch'):
         fit = result[axis]
@@ -246,7 +247,7 @@ def test_a_bridge_bag_is_scored_only_where_the_vehicle_flew_our_setpoints(tmp_pa
     bridge's hand-over diagnostics): the lag of the member's own loop within 15 %, thrust scale 1, fits that
     hold; the landing phase never enters the window."""
     bag, start_s, end_s = _bridge_bag(tmp_path, lag_bag, window)
-    truth_s = attitude_lag_s(load_vehicle(CRAZYFLIE, plant='autopilot_lag'))
+    truth_s = attitude_mean_delay_s(load_vehicle(CRAZYFLIE, plant='autopilot_lag'))
     result = identify(load_flight(bag))
     w = result['window']
     print(window, w, {a: (result[a]['lag_s'], result[a]['fit_r2']) for a in ('roll', 'pitch')}, result['thrust'])

@@ -9,7 +9,9 @@ from pathlib import Path
 
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
@@ -18,6 +20,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_bringup.commands.record import ros_arguments
 from quad_bringup.recorder import open_bag_reader, repair_bag, typestore
+from quad_common import contract
 from quad_common.testing import isolated_domain
 
 N_ODOM = 300
@@ -155,3 +158,26 @@ def test_recorder_refuses_an_existing_bag_directory(graph, tmp_path):
     out, _ = proc.communicate(timeout=TIMEOUT_S)
     assert proc.returncode == 2
     assert 'exists already' in out
+
+
+def test_recorder_status_goes_under_the_contracts_name_whatever_the_node_is_called(graph, tmp_path):
+    """fly's monitor reads the bag's counts from the status named contract.RECORDER_STATUS, not the node's name."""
+    node, env = graph
+    statuses = []
+    node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, lambda msg: statuses.extend(msg.status), 10)
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    args = ['__node:=bag_writer' if a == '__node:=recorder' else a for a in ros_arguments(tmp_path / 'bag', ['odom'])]
+    proc = subprocess.Popen([sys.executable, '-m', 'quad_bringup.recorder_node', *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + TIMEOUT_S
+        while not statuses:   # the recorder's status every STATUS_PERIOD_S: a message to wait on
+            assert time.monotonic() < deadline and proc.poll() is None, 'no status from the recorder'
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=TIMEOUT_S)
+        executor.shutdown()
+    assert [(s.name, {kv.key: kv.value for kv in s.values}) for s in statuses[:1]] == \
+        [(contract.RECORDER_STATUS, {'odom': '0'})], out

@@ -5,7 +5,7 @@ installed: machine code, cached on disk so a new process loads instead of recomp
 (numba missing, or NUMBA_DISABLE_JIT=1): one implementation of the physics either way.
 
 numba's cache checks only the file that defines a function, not the kernels it calls from other files
-(simulator.py inlines attitude.py, mixer.py and rigid_body.py). So the cache lives in a folder named by a
+(simulator.py inlines onboard_attitude.py, mixer.py and rigid_body.py). So the cache lives in a folder named by a
 hash of every kernel file of these packages (NUMBA_CACHE_DIR, unless set already): an edit anywhere
 recompiles instead of loading stale machine code.
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-KERNEL_PACKAGES = ('quad_common', 'quad_control', 'quad_sim')
+KERNEL_PACKAGES = ('quad_common', 'quad_sim')
 
 
 def _kernel_sources_hash() -> str:

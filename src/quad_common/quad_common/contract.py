@@ -85,6 +85,8 @@ COLLISION_TIME_S = 'collision_time_s'
 FAILSAFE_TIME_S = 'failsafe_time_s'
 STOP_TIME_S = 'stop_time_s'
 SIM_STATUS = 'sim_node: {}'        # .format('collision' | 'failsafe' | 'saturation' | 'stopped' | ...)
+SIM_PUBLISHED = SIM_STATUS.format('published')   # steps: distinct odom and /clock steps published
+SIM_FAILSAFE = SIM_STATUS.format('failsafe')     # FAILSAFE_TIME_S once the failsafe has landed the vehicle
 CONTROLLER_STATUS = 'position_controller: cmd/attitude_thrust'
 RECORDER_STATUS = 'recorder'       # one value per topic: messages written to the bag
 

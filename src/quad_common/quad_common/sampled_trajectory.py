@@ -100,6 +100,3 @@ class SampledTrajectory:
             p, v, a, j = (_FACTORS * s ** _POWERS) @ self._coef[k].T / (h ** np.arange(4))[:, None]
         return Reference(position=p[:3].copy(), velocity=v[:3].copy(), acceleration=a[:3].copy(),
                          jerk=j[:3].copy(), yaw=float(p[3]), yaw_rate=float(v[3]))
-
-    def end_reference(self) -> Reference:
-        return self.reference(self.times_s[-1])

@@ -81,7 +81,7 @@ class Vehicle:
         return self.mass_kg * (1.0 + self.mass_error)
 
     def effective_attitude_gains(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-axis (kp, kd) of the linearised onboard loop I phi'' = I (kp e - kd omega) (quad_sim.stability)."""
+        """Per-axis (kp, kd) of the linearised onboard loop I phi'' = I (kp e - kd omega) (quad_sim.attitude_poles)."""
         loop = self.attitude_loop
         if loop.type == 'so3_pd':
             return loop.angle_p * loop.rate_p, loop.rate_p.copy()

@@ -10,7 +10,6 @@ import json
 import os
 
 import numpy as np
-import yaml
 
 from quad_common.yaml_io import load_yaml
 
@@ -78,11 +77,3 @@ def load_world(path) -> World:
     else:
         data = load_yaml(path)
     return World.from_dict(data, name=path)
-
-
-def dump_world(world: World, path):
-    with open(path, 'w') as f:
-        if os.fspath(path).endswith('.json'):
-            json.dump(world.to_dict(), f, indent=1)
-        else:
-            yaml.safe_dump(world.to_dict(), f)

@@ -65,14 +65,32 @@ def test_setpoint_refusals_name_the_field_as_the_message_path_does():
         cdr.imu_to_setpoint(serialize_message(msg))
 
 
-def test_other_encodings_go_to_rclpy(monkeypatch):
-    """Anything but plain CDR little endian (here a big-endian header) is not read with the struct layout."""
+def _big_endian_odometry(msg) -> bytes:
+    """msg as plain CDR big endian (encapsulation 00 00, another host's byte order), written field by field."""
+    def string(text, offset):
+        return b'\x00' * (-offset % 4) + struct.pack('>I', len(text) + 1) + text.encode() + b'\x00'
+    body = struct.pack('>iI', msg.header.stamp.sec, msg.header.stamp.nanosec)
+    body += string(msg.header.frame_id, len(body))
+    body += string(msg.child_frame_id, len(body))
+    body += b'\x00' * (-len(body) % 8)
+    pose, twist = msg.pose.pose, msg.twist.twist
+    body += struct.pack('>7d36d', *conv.vec3(pose.position), pose.orientation.x, pose.orientation.y,
+                        pose.orientation.z, pose.orientation.w, *msg.pose.covariance)
+    body += struct.pack('>6d36d', *conv.vec3(twist.linear), *conv.vec3(twist.angular), *msg.twist.covariance)
+    return b'\x00\x00\x00\x00' + body
+
+
+def test_other_encodings_go_to_rclpy():
+    """Anything but plain CDR little endian (here big endian) is not read with the struct layout: rclpy decodes it
+    to the same state and stamp."""
     msg = conv.state_to_odometry(STATE, conv.s_to_stamp(1.5))
-    big_endian = b'\x00\x00\x00\x00' + struct.pack('>iI', 1, 500_000_000)
-    monkeypatch.setattr(cdr, 'deserialize_message', lambda raw, msg_type: msg)
+    big_endian = _big_endian_odometry(msg)
+    assert big_endian[:4] != cdr.CDR_LE and deserialize_message(big_endian, Odometry) == msg  # what rclpy reads
     stamp_ns, state = cdr.odometry_to_state(big_endian)
-    assert stamp_ns == 1_500_000_000 and np.array_equal(state.position, STATE.position)
-    assert cdr.header_stamp_ns(big_endian, Odometry) == 1_500_000_000
+    assert stamp_ns == 1_500_000_000 and cdr.header_stamp_ns(big_endian, Odometry) == 1_500_000_000
+    expected = conv.odometry_to_state(msg)
+    for name in ('position', 'velocity', 'quaternion', 'body_rates'):
+        assert np.array_equal(getattr(state, name), getattr(expected, name)), name
 
 
 @pytest.mark.parametrize('frame_id', ['map', 'mapp', ''])  # first point 8-aligned, 4 past it, 8-aligned

@@ -189,28 +189,6 @@ def geometric_setpoint(acc_des, state: State, ref: Reference, mass_kg: float, li
                             body_rates=rates), sat
 
 
-def pd(state: State, ref: Reference, gains: PositionGains, vehicle: Vehicle, limits: Limits | None = None):
-    """The seed's controller, eq. 1-5."""
-    check_finite(state, ref)
-    return seed_setpoint(desired_acceleration(state, ref, gains), ref.yaw, ref.yaw_rate, vehicle.mass_kg,
-                         limits or Limits.of(vehicle))
-
-
-def pid(state: State, ref: Reference, gains: PositionGains, vehicle: Vehicle, integral_m_s,
-        limits: Limits | None = None):
-    """Eq. 1-5 with the integral term; `integral_m_s` is the (already clamped) error integral."""
-    check_finite(state, ref)
-    return seed_setpoint(desired_acceleration(state, ref, gains, integral_m_s), ref.yaw, ref.yaw_rate,
-                         vehicle.mass_kg, limits or Limits.of(vehicle))
-
-
-def se3(state: State, ref: Reference, gains: PositionGains, vehicle: Vehicle, limits: Limits | None = None):
-    """Geometric tracking controller on SE(3), valid at large tilt."""
-    check_finite(state, ref)
-    return geometric_setpoint(desired_acceleration(state, ref, gains), state, ref, vehicle.mass_kg,
-                              limits or Limits.of(vehicle), use_jerk=gains.use_feedforward)
-
-
 class PositionController:
     """One of CONTROLLERS by name, holding the pid error integral (reset when a new trajectory starts)."""
 

@@ -8,10 +8,9 @@ import pytest
 
 from quad_common import rotations
 from quad_common.paths import resolve_config
-from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
-from quad_common.vehicle import AttitudeGains, load_vehicle
-from quad_control.attitude import attitude_moments
-from quad_control.position import Limits, PositionController, PositionGains, pd, pid, se3
+from quad_common.types import GRAVITY_MPS2, Reference, State
+from quad_common.vehicle import load_vehicle
+from quad_control.position import Limits, PositionController, PositionGains
 
 G = GRAVITY_MPS2
 VEHICLE = load_vehicle(resolve_config('config/vehicles/crazyflie.yaml'))
@@ -38,9 +37,23 @@ def _tilt_rad(q):
     return math.acos(np.clip(rotations.to_matrix(q)[2, 2], -1, 1))
 
 
+def _law(controller):
+    """law(state, ref, gains, vehicle, limits=None, integral=None): one PositionController.update, the production
+    entry, of a fresh controller; `integral` presets pid's error integral (dt = 0 leaves it as it is)."""
+    def law(state, ref, gains, vehicle, limits=None, integral=None):
+        ctl = PositionController(controller, gains, vehicle, limits)
+        if integral is not None:
+            ctl.integral_m_s = np.array(integral, dtype=float)
+        return ctl.update(state, ref, 0.0)
+    return law
+
+
+pd, pid, se3 = _law('pd'), _law('pid'), _law('se3')
+
+
 # --- hover and the seed's small-angle formulas ------------------------------------------------
 
-@pytest.mark.parametrize('law', [pd, se3, lambda s, r, g, v: pid(s, r, g, v, np.zeros(3))])
+@pytest.mark.parametrize('law', [pd, se3, pid])
 def test_hover_equilibrium(law):
     yaw = 0.7
     sp, sat = law(_state(quaternion=rotations.from_yaw(yaw)), _ref(yaw=yaw), SEED, VEHICLE)
@@ -87,7 +100,7 @@ def test_controllers_agree_near_hover():
         ref = _ref(acceleration=rng.normal(0, 0.01, 3), yaw=rng.uniform(-3, 3))
         state.quaternion = rotations.from_yaw(ref.yaw)
         a, _ = pd(state, ref, SEED, VEHICLE)
-        b, _ = pid(state, ref, SEED, VEHICLE, np.zeros(3))
+        b, _ = pid(state, ref, SEED, VEHICLE)
         c, _ = se3(state, ref, SEED, VEHICLE)
         assert np.array_equal(a.quaternion, b.quaternion) and a.specific_force_mps2 == b.specific_force_mps2
         # second order in the (~0.01 rad) tilt
@@ -108,7 +121,7 @@ def test_thrust_and_tilt_saturation_reported():
         sp, sat = law(_state(position=(-5, 3, 1)), _ref(), SEED, VEHICLE)
         max_tilt_rad = math.radians(VEHICLE.max_tilt_deg)  # pd clips |(roll, pitch)|, whose tilt is a bit less
         assert sat.tilt and 0.98 * max_tilt_rad < _tilt_rad(sp.quaternion) <= max_tilt_rad + 1e-12
-        sp, sat = law(_state(), _ref(), SEED, VEHICLE, Limits.of(VEHICLE, max_tilt_deg=10.0))
+        sp, sat = law(_state(), _ref(), SEED, VEHICLE, limits=Limits.of(VEHICLE, max_tilt_deg=10.0))
         assert not sat.any
 
 
@@ -182,7 +195,7 @@ def simulate(law, ref_fn, p0, v0, t_end_s, mass_true_kg=M, dt_s=0.005, integral=
         state = _state(position=x[0:3], velocity=x[3:6])
         ref = ref_fn(t)
         for _ in range(2):  # perfect attitude tracking: the vehicle is at the attitude it is commanded
-            sp, _ = pid(state, ref, SEED, VEHICLE, x[6:9]) if integral else law(state, ref, SEED, VEHICLE)
+            sp, _ = pid(state, ref, SEED, VEHICLE, integral=x[6:9]) if integral else law(state, ref, SEED, VEHICLE)
             state.quaternion = sp.quaternion
         thrust_n = sp.specific_force_mps2 * M
         acc = thrust_n / mass_true_kg * rotations.to_matrix(sp.quaternion)[:, 2] - [0, 0, G]
@@ -241,19 +254,6 @@ def test_integral_removes_the_mass_mismatch_error_pd_does_not():
 
 
 # --- attitude law options ---------------------------------------------------------------------
-
-def test_attitude_so3_error_agrees_with_euler_near_hover():
-    inertia = VEHICLE.inertia_kgm2
-    sp = AttitudeSetpoint(quaternion=rotations.from_euler(0.01, -0.02, 0.5), body_rates=np.zeros(3))
-    q = rotations.from_euler(0.0, 0.0, 0.49)
-    euler = attitude_moments(q, np.zeros(3), sp, AttitudeGains(), inertia)
-    so3 = attitude_moments(q, np.zeros(3), sp, AttitudeGains(), inertia, attitude_error='so3')
-    assert np.allclose(euler, so3, rtol=0.05, atol=1e-3 * np.max(np.abs(euler)))
-    assert np.allclose(attitude_moments(sp.quaternion, np.zeros(3), sp, AttitudeGains(), inertia,
-                                        attitude_error='so3'), 0, atol=1e-15)
-    with pytest.raises(ValueError, match='quaternions'):
-        attitude_moments(q, np.zeros(3), sp, AttitudeGains(), inertia, attitude_error='quaternions')
-
 
 @pytest.mark.parametrize('law', ['pd', 'se3'])
 def test_attitude_lead_tilts_by_lead_times_jerk_and_leaves_thrust(law):

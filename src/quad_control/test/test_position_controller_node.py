@@ -10,10 +10,8 @@ import threading
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -25,23 +23,20 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from quad_common import conversions as conv
 from quad_common import diagnostics
 from quad_common.sampled_trajectory import SampledTrajectory
-from quad_common.testing import isolated_domain
+from quad_common.testing import TIMEOUT_S, ProbeGraph, isolated_domain, probe_graph
 from quad_common.types import GRAVITY_MPS2, State
 from quad_control.position_controller_node import PositionControllerNode
 
 MASS_KG = 0.030  # config/vehicles/crazyflie.yaml
-TIMEOUT_S = 60.0
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-class Graph:
+class Graph(ProbeGraph):
     """The controller under test plus a probe node publishing odom, /clock, trajectory and recording outputs."""
 
     def __init__(self, ctx):
-        self.ctx = ctx
-        self.executor = SingleThreadedExecutor(context=ctx)
-        self.probe = rclpy.create_node('probe', context=ctx)
+        super().__init__(ctx)
         self.odom_pub = self.probe.create_publisher(Odometry, 'odom', RELIABLE)
         self.clock_pub = self.probe.create_publisher(Clock, '/clock', RELIABLE)
         self.traj_pub = self.probe.create_publisher(MultiDOFJointTrajectory, 'trajectory', LATCHED)
@@ -50,8 +45,6 @@ class Graph:
         self.probe.create_subscription(Imu, 'cmd/attitude_thrust', self.setpoints.append, RELIABLE)
         self.probe.create_subscription(MultiDOFJointTrajectory, 'control/reference', self.references.append, RELIABLE)
         self.probe.create_subscription(DiagnosticArray, 'diagnostics', self.diags.append, RELIABLE)
-        self.executor.add_node(self.probe)
-        self.node = None
 
     def start(self, engaged=True, **params):
         """The controller with `params`; engaged: vehicle/engaged is published true first (as a simulator does)."""
@@ -70,13 +63,6 @@ class Graph:
     def engage(self, engaged):
         self.engaged_pub.publish(Bool(data=engaged))
         self.spin_until(lambda: self.node.loop.engaged == engaged, f'engaged {engaged}')
-
-    def spin_until(self, condition, what='condition'):
-        deadline = self.probe.get_clock().now().nanoseconds + int(TIMEOUT_S * 1e9)
-        while not condition():
-            if self.probe.get_clock().now().nanoseconds > deadline:
-                raise AssertionError(f'timed out waiting for {what}')
-            self.executor.spin_once(timeout_sec=0.02)
 
     def step(self, t_s, **odom):
         """One simulator step: odom then /clock at t_s; returns the reference position tracked at t_s."""
@@ -114,25 +100,12 @@ class Graph:
         self.spin_until(lambda: len(self.diags) > n, 'diagnostics')
         return _status(self.diags[-1])
 
-    def close(self):
-        for n in (self.node, self.probe):
-            if n is not None:
-                self.executor.remove_node(n)
-                n.destroy_node()
-        self.executor.shutdown()
 
 
 @pytest.fixture
 def graph():
-    with isolated_domain() as (domain, _):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=domain)
-        g = Graph(ctx)
-        try:
-            yield g
-        finally:
-            g.close()
-            rclpy.shutdown(context=ctx)
+    with probe_graph(Graph) as g:
+        yield g
 
 
 def _hover_trajectory(z_m):

@@ -44,10 +44,6 @@ class DisturbanceProfile:
         return bool(np.any(self.gust_std_mps > 0))
 
     @property
-    def has_wind(self) -> bool:
-        return bool(np.any(self.wind_mps != 0)) or self.has_gusts
-
-    @property
     def has_odom_noise(self) -> bool:
         return any(v > 0 for v in self.odom_noise.values())
 

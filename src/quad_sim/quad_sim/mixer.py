@@ -133,11 +133,6 @@ class Mixer:
                               self.params, thrusts, speeds)
         return thrusts.tolist(), speeds.tolist(), flag_names(bits)
 
-    def rotor_thrusts(self, thrust_n, moments_nm):
-        """(rotor thrusts (4 floats, N), reduced axes (tuple of ROLL_PITCH/THRUST/YAW))."""
-        thrusts, _, flags = self._run(thrust_n, moments_nm)
-        return thrusts, flags
-
     def rotor_speeds(self, thrust_n, moments_nm):
         """(rotor speed commands (4 floats, rad/s), reduced axes)."""
         _, speeds, flags = self._run(thrust_n, moments_nm)

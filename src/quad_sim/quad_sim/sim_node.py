@@ -255,7 +255,7 @@ class SimNode(Node):
         failsafe = [e for e in sim.events if e.kind in ('failsafe', 'failsafe_cleared', 'disarmed')]
         if sim.failsafe_active or any(e.kind == 'failsafe' for e in new_events):
             e = failsafe[-1]
-            statuses.append(diagnostics.status(contract.SIM_STATUS.format('failsafe'), diagnostics.ERROR,
+            statuses.append(diagnostics.status(contract.SIM_FAILSAFE, diagnostics.ERROR,
                                                f'setpoint lost: landing failsafe ({e.kind})',
                                                {contract.FAILSAFE_TIME_S: repr(e.time_s), **_place(e)}))
         saturated = sim.saturation or any(e.kind == 'saturation' for e in new_events)
@@ -268,7 +268,7 @@ class SimNode(Node):
                                                str(sim.stopped), {'reason': sim.stopped.reason,
                                                                   contract.STOP_TIME_S: repr(sim.stopped.time_s)}))
         statuses.append(diagnostics.status(
-            contract.SIM_STATUS.format('published'), diagnostics.OK, 'distinct odom and /clock steps published (a bag '
+            contract.SIM_PUBLISHED, diagnostics.OK, 'distinct odom and /clock steps published (a bag '
             'is checked against it)',
             {'steps': self.steps_published, 'future_setpoints_refused': self.future_setpoints}))
         rtf = self.real_time_factor()

@@ -2,7 +2,7 @@
 
 Time is kept in integer nanoseconds; `advance` runs a whole number of fixed physics steps. Every physics
 step the onboard autopilot turns the held setpoint into body moments with the vehicle's attitude loop
-(`onboard_moments`: the seed's equation 6, quad_control.attitude.moments, by default; an autopilot's
+(`onboard_moments`: the seed's equation 6, quad_sim.onboard_attitude.moments, by default; an autopilot's
 SO(3) cascade or a lagged attitude target, quad_common.vehicle.AttitudeLoop) and a collective thrust
 (specific force * nominal mass * (1 + thrust_error)), the mixer turns them into rotor speed commands
 (reporting saturation), and RK4 integrates the plant (mass_kg (1 + mass_error)) over the step.
@@ -35,9 +35,9 @@ from quad_common.compiled import float_array, njit
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, State
 from quad_common.vehicle import Vehicle
 from quad_common.world import World
-from quad_control.attitude import desired_rates, moments
 from quad_sim.disturbances import DisturbanceProfile, Gusts
 from quad_sim.mixer import Mixer, flag_names, rotor_commands
+from quad_sim.onboard_attitude import desired_rates, moments
 from quad_sim.rigid_body import NO_FORCE, STATE_SIZE, RigidBody, rk4_step
 
 NON_FINITE, SPEED_LIMIT, BODY_RATE_LIMIT, FAR_FROM_REFERENCE = (

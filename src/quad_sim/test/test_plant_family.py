@@ -12,8 +12,8 @@ from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 from quad_common.vehicle import AttitudeLoop, load_plant_family, load_vehicle, vehicle_from_dict
 from quad_common.yaml_io import load_yaml
+from quad_sim.attitude_poles import MIN_DAMPING_RATIO, attitude_damping
 from quad_sim.simulator import Simulator
-from quad_sim.stability import MIN_DAMPING_RATIO, attitude_damping
 
 CRAZYFLIE = os.path.join(CONFIG, 'vehicles', 'crazyflie.yaml')
 STEP_RAD = np.deg2rad(10.0)

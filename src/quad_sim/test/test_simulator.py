@@ -10,9 +10,9 @@ from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 from quad_common.world import World
 from quad_sim import simulator as simulator_module
+from quad_sim.attitude_poles import attitude_damping, attitude_loop_poles, damping_ratio
 from quad_sim.disturbances import load_profile, profile_from_dict
 from quad_sim.simulator import SPEED_LIMIT, SimulationStopped, Simulator
-from quad_sim.stability import attitude_damping, attitude_loop_poles, damping_ratio
 
 CONFIG = os.path.join(os.path.dirname(__file__), '..', '..', '..', 'config')
 HOVER = AttitudeSetpoint(specific_force_mps2=GRAVITY_MPS2)

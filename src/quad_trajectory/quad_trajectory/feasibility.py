@@ -12,7 +12,7 @@ with e3 up and g = 9.81 m/s^2:
   sqrt(f / k_eta) <= rotor_speed_max, and the idlest m c / 4 - I_xx alpha / (2 L) >= k_eta rotor_speed_min^2
   (a rotor cannot pull down: with rotor_speed_min 0 this is f >= 0);
 - attitude loop: it follows a tilt ramp of rate w behind by lag_s w (lag_s = motor time constant + the
-  loop's ramp lag, attitude_lag_s), so the tilt it must reach is tilt + lag_s w <= max_tilt_deg: the jerk
+  loop's ramp lag, tilt_ramp_lag_s), so the tilt it must reach is tilt + lag_s w <= max_tilt_deg: the jerk
   it can follow, |j_perp| <= c (max_tilt - tilt) / lag_s.
 Every check samples SAMPLES_PER_SEGMENT points per segment (ends included), in chunks of segments so a
 100,000-segment plan is checked in bounded memory. No rclpy, no scipy.
@@ -106,7 +106,7 @@ class Preflight:
         return out
 
 
-def attitude_lag_s(vehicle) -> float:
+def tilt_ramp_lag_s(vehicle) -> float:
     """How far behind a tilt ramp the onboard loop runs: motor lag + the loop's own ramp lag.
 
     eq. 6 without roll/pitch rate feed-forward (the seed's p_des = q_des = 0): phi'' = kp e - kd phi' lags a
@@ -141,7 +141,7 @@ def needs_from_derivatives(a, j, snap, vehicle) -> dict:
     moment_share = vehicle.inertia_kgm2[0] * alpha / (2.0 * vehicle.arm_length_m)
     busiest = np.sqrt(np.maximum(thrust / 4 + moment_share, 0.0) / vehicle.k_eta)
     idlest = thrust / 4 - moment_share
-    lagged = tilt + np.degrees(attitude_lag_s(vehicle) * rate)
+    lagged = tilt + np.degrees(tilt_ramp_lag_s(vehicle) * rate)
     return {'tilt': tilt, 'thrust_max': thrust, 'thrust_min': thrust, 'rotor_speed_max': busiest,
             'rotor_thrust_min': idlest, 'attitude_lag': lagged}
 
@@ -197,28 +197,3 @@ def check(trajectory, vehicle, samples_per_segment: int = SAMPLES_PER_SEGMENT, m
     report.exceeded.sort(key=lambda e: -e.excess)
     return report
 
-
-def preflight(mission, result, vehicle=None, speed_mps=None) -> Preflight:
-    """Check `result` (mission.plan_mission's) on `vehicle` (default the mission's); when it fails, plan the
-    mission with time_allocation fastest (and limits) and keep each that passes the same check."""
-    import dataclasses
-
-    from quad_trajectory.mission import plan_mission
-
-    vehicle = vehicle or mission.vehicle
-    o = result.options
-    report = Preflight(check(result.trajectory, vehicle), o.time_allocation, o.speed_mps, result.trajectory.duration_s)
-    if report.ok:
-        return report
-    for name in ('fastest', 'limits'):
-        if name == o.time_allocation:
-            continue
-        try:
-            alt = plan_mission(dataclasses.replace(mission, vehicle=vehicle), speed_mps=speed_mps, time_allocation=name)
-        except ValueError:
-            continue
-        if check(alt.trajectory, vehicle).ok:
-            note = (f' (as fast as {vehicle.name} flies it with {100 * alt.options.margin:g} % of each limit to spare)'
-                    if name == 'fastest' else '')
-            report.alternatives.append((name, alt.trajectory.duration_s, note))
-    return report

@@ -14,7 +14,7 @@ import numpy as np
 from quad_common.vehicle import Vehicle, load_vehicle
 from quad_common.world import World, load_world
 from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos
-from quad_trajectory import planner
+from quad_trajectory import feasibility, planner
 
 SEED_CONTROL_POINTS = (0.1, 0.9)
 _REPO_CONFIG = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', '..', 'config')
@@ -137,3 +137,26 @@ def plan_mission(mission: Mission, speed_mps: float | None = None, **overrides) 
         return planner.plan(mission.waypoints, mission.yaw, options, world=mission.world, vehicle=mission.vehicle)
     except ValueError as exc:
         raise ValueError(f'{mission.path}: {exc}') from None
+
+
+def preflight(mission, result, vehicle=None, speed_mps=None) -> feasibility.Preflight:
+    """Check `result` (plan_mission's) on `vehicle` (default the mission's); when it fails, plan the
+    mission with time_allocation fastest (and limits) and keep each that passes the same check."""
+    vehicle = vehicle or mission.vehicle
+    o = result.options
+    report = feasibility.Preflight(feasibility.check(result.trajectory, vehicle), o.time_allocation, o.speed_mps,
+                                   result.trajectory.duration_s)
+    if report.ok:
+        return report
+    for name in ('fastest', 'limits'):
+        if name == o.time_allocation:
+            continue
+        try:
+            alt = plan_mission(dataclasses.replace(mission, vehicle=vehicle), speed_mps=speed_mps, time_allocation=name)
+        except ValueError:
+            continue
+        if feasibility.check(alt.trajectory, vehicle).ok:
+            note = (f' (as fast as {vehicle.name} flies it with {100 * alt.options.margin:g} % of each limit to spare)'
+                    if name == 'fastest' else '')
+            report.alternatives.append((name, alt.trajectory.duration_s, note))
+    return report

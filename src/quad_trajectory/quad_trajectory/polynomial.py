@@ -102,12 +102,6 @@ class PiecewisePolynomial:
         seg, tau = self.locate(t_s)
         return self.evaluate_local(seg, tau, order)
 
-    def segment_grid(self, samples_per_segment: int):
-        """(segment index, local time) of `samples_per_segment` evenly spaced samples on each segment, ends included."""
-        s = np.linspace(0.0, 1.0, samples_per_segment)
-        seg = np.repeat(np.arange(self.n_segments), samples_per_segment)
-        return seg, (self.durations_s[:, None] * s[None, :]).reshape(-1)
-
     # --- summary numbers --------------------------------------------------------------------
     def segment_peaks(self, order: int) -> np.ndarray:
         """Max over each segment of |d^order p/dt^order| (x, y, z norm), from 128 evenly spaced samples: (M,)."""

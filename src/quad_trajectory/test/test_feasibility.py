@@ -9,7 +9,7 @@ import pytest
 from quad_common.types import GRAVITY_MPS2
 from quad_common.vehicle import AttitudeGains, load_vehicle
 from quad_trajectory import feasibility
-from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, mission_from_dict, plan_mission
+from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, mission_from_dict, plan_mission, preflight
 from quad_trajectory.planner import PlanOptions, plan
 
 FIGURE8 = DEFAULT_VEHICLE_PATH.replace('vehicles/crazyflie.yaml', 'missions/figure8.yaml')
@@ -66,9 +66,9 @@ def test_thrust_and_rotor_limits_on_a_hard_climb(crazyflie):
 
 
 def test_attitude_lag_is_the_ramp_lag_of_the_loop(crazyflie):
-    assert feasibility.attitude_lag_s(crazyflie) == pytest.approx(0.015 + 300.0 / 3000.0)
+    assert feasibility.tilt_ramp_lag_s(crazyflie) == pytest.approx(0.015 + 300.0 / 3000.0)
     sluggish = dataclasses.replace(crazyflie, attitude_gains=AttitudeGains(kp=np.full(3, 20.0), kd=np.full(3, 30.0)))
-    assert feasibility.attitude_lag_s(sluggish) == pytest.approx(0.015 + 1.5)
+    assert feasibility.tilt_ramp_lag_s(sluggish) == pytest.approx(0.015 + 1.5)
     traj = plan_mission(load_mission(FIGURE8), speed_mps=1.0).trajectory
     assert feasibility.check(traj, crazyflie).ok
     lagged = feasibility.check(traj, sluggish)
@@ -77,7 +77,7 @@ def test_attitude_lag_is_the_ramp_lag_of_the_loop(crazyflie):
 
 def test_preflight_names_fastest_with_its_time_and_limits_and_both_fit(crazyflie):
     mission = load_mission(FIGURE8)
-    report = feasibility.preflight(mission, plan_mission(mission, speed_mps=2.0), speed_mps=2.0)
+    report = preflight(mission, plan_mission(mission, speed_mps=2.0), speed_mps=2.0)
     fastest, limits = report.alternative('fastest'), report.alternative('limits')
     assert not report.ok and report.fits == 'fastest' and [a[0] for a in report.alternatives] == ['fastest', 'limits']
     assert report.planned_s < fastest[1] < limits[1]       # slower than the infeasible plan, faster than limits

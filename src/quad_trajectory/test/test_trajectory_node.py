@@ -9,11 +9,9 @@ import sys
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from trajectory_msgs.msg import MultiDOFJointTrajectory
@@ -21,21 +19,18 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from quad_common import diagnostics
 from quad_common.conversions import msg_to_sampled, stamp_to_s
-from quad_common.testing import isolated_domain
+from quad_common.testing import ProbeGraph, isolated_domain, probe_graph
 from quad_trajectory.mission import DEFAULT_MISSION_PATH, load_mission, plan_mission
 from quad_trajectory.trajectory_node import TrajectoryNode
 
-TIMEOUT_S = 60.0
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 FLAT = [0.0, 0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.5]
 
 
-class Graph:
+class Graph(ProbeGraph):
     def __init__(self, ctx):
-        self.ctx = ctx
-        self.executor = SingleThreadedExecutor(context=ctx)
-        self.probe = rclpy.create_node('probe', context=ctx)
+        super().__init__(ctx)
         self.waypoints_pub = self.probe.create_publisher(Path, 'waypoints', RELIABLE)
         self.got = {'trajectory': [], 'trajectory/path': [], 'trajectory/waypoints': [], 'trajectory/markers': [],
                     'diagnostics': []}
@@ -43,8 +38,6 @@ class Graph:
                             ('trajectory/waypoints', Path), ('trajectory/markers', MarkerArray)):
             self.probe.create_subscription(kind, topic, self.got[topic].append, LATCHED)
         self.probe.create_subscription(DiagnosticArray, 'diagnostics', self.got['diagnostics'].append, RELIABLE)
-        self.executor.add_node(self.probe)
-        self.node = None
 
     def start(self, **params):
         self.node = TrajectoryNode(context=self.ctx, parameter_overrides=[
@@ -52,13 +45,6 @@ class Graph:
         self.executor.add_node(self.node)
         self.spin_until(lambda: self.waypoints_pub.get_subscription_count() > 0, 'discovery')
         return self.node
-
-    def spin_until(self, condition, what='condition'):
-        deadline = self.probe.get_clock().now().nanoseconds + int(TIMEOUT_S * 1e9)
-        while not condition():
-            if self.probe.get_clock().now().nanoseconds > deadline:
-                raise AssertionError(f'timed out waiting for {what}')
-            self.executor.spin_once(timeout_sec=0.02)
 
     def wait_for(self, topic, count=1):
         self.spin_until(lambda: len(self.got[topic]) >= count, f'{count} message(s) on {topic}')
@@ -81,25 +67,12 @@ class Graph:
             msg.poses.append(pose)
         self.waypoints_pub.publish(msg)
 
-    def close(self):
-        for n in (self.node, self.probe):
-            if n is not None:
-                self.executor.remove_node(n)
-                n.destroy_node()
-        self.executor.shutdown()
 
 
 @pytest.fixture
 def graph():
-    with isolated_domain() as (domain, _):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=domain)
-        g = Graph(ctx)
-        try:
-            yield g
-        finally:
-            g.close()
-            rclpy.shutdown(context=ctx)
+    with probe_graph(Graph) as g:
+        yield g
 
 
 def test_plans_flat_waypoints_at_start_and_publishes_every_output(graph):

@@ -20,7 +20,7 @@ A requested total lag L (the mean delay -G'(0)/G(0) of the attitude response G, 
 tau + dead time, `quadflight identify`'s lag) is reached by `tau_for_lag_s`: mean delays of systems in
 series add, and the emulated loop ignores the roll/pitch rate feed-forward, so
 
-    L = tau + lag_loop,   lag_loop = quad_sim.stability.attitude_lag_s(vehicle)  (1 / angle_p: 0.154 s)
+    L = tau + lag_loop,   lag_loop = quad_sim.attitude_poles.attitude_mean_delay_s(vehicle)  (1 / angle_p: 0.154 s)
 
 (the default: tau = 0.19 - 0.154 = 0.036 s).
 """
@@ -32,7 +32,7 @@ import numpy as np
 
 from quad_common import rotations
 from quad_common.vehicle import load_vehicle
-from quad_sim.stability import attitude_lag_s
+from quad_sim.attitude_poles import attitude_mean_delay_s
 
 DEFAULT_LAG_S = 0.19     # total roll/pitch lag: ArduCopter SITL's 0.17-0.21 s (issue 13)
 # the autopilot's attitude loop in place of a vehicle file's eq. 6: PX4's defaults (mc_att_control_params.c
@@ -80,7 +80,7 @@ def _exp_body(q, rotvec) -> np.ndarray:
 
 def own_lag_s(vehicle) -> float:
     """The roll/pitch lag of the vehicle's onboard loop without shaping (the slower axis)."""
-    return max(attitude_lag_s(vehicle, 0), attitude_lag_s(vehicle, 1))
+    return max(attitude_mean_delay_s(vehicle, 0), attitude_mean_delay_s(vehicle, 1))
 
 
 def tau_for_lag_s(vehicle, lag_s: float) -> float:

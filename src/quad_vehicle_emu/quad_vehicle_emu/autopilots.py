@@ -15,7 +15,7 @@ from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, State
 from quad_vehicle_emu import ned
 from quad_vehicle_emu import protocol as p
-from quad_vehicle_emu.params import ARDUCOPTER_PARAMS, PX4_PARAMS, ParameterStore
+from quad_vehicle_emu.onboard_params import ARDUCOPTER_PARAMS, PX4_PARAMS, ParameterStore
 
 HOLD_TILT_MAX_RAD = math.radians(20.0)   # onboard position hold: gentle
 HOLD_POS_P, HOLD_VEL_P = 1.0, 1.5        # horizontal position hold, 1/s and 1/s
@@ -150,9 +150,6 @@ class Autopilot:
     @staticmethod
     def _idle(state) -> Target:
         return Target(rotations.from_yaw(_yaw(state.quaternion)), 0.0)
-
-    def stream_rate_hz(self, now_s):
-        return self.setpoints.rate_hz(now_s)
 
 
 # --- PX4 -------------------------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """mavlink_vehicle: quad_sim's plant behind a real MAVLink endpoint, behaving like PX4 or ArduPilot Copter.
 
 The protocol (modes, type_mask, thrust, parameters, streams, SYS_STATUS) is the emulator's own reading of the
-autopilots' source (quad_vehicle_emu.protocol, .params, .autopilots), independent of quad_bridge. Physics:
+autopilots' source (quad_vehicle_emu.protocol, .onboard_params, .autopilots), independent of quad_bridge. Physics:
 quad_sim's Simulator in real time with the autopilot's quaternion attitude loop, behind a first-order attitude
 response (quad_vehicle_emu.attitude) and a telemetry delay line; every message's time field is the vehicle's own
 boot clock at the sample it carries.

@@ -18,9 +18,6 @@ def enu_to_ned(v) -> np.ndarray:
     return P_NED_ENU @ np.asarray(v, dtype=float)
 
 
-ned_to_enu = enu_to_ned  # P is its own inverse
-
-
 def flu_to_frd(v) -> np.ndarray:
     return B_FLU_FRD @ np.asarray(v, dtype=float)
 

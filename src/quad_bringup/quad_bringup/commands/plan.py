@@ -9,8 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_trajectory.feasibility import preflight
-from quad_trajectory.mission import load_mission, plan_mission
+from quad_trajectory.mission import load_mission, plan_mission, preflight
 from quad_trajectory.planner import allocation_lines
 from quad_trajectory.timing import ALLOCATIONS
 

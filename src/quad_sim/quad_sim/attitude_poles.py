@@ -36,7 +36,7 @@ def attitude_damping(vehicle) -> float:
                for kp, kd in zip(kps, kds))
 
 
-def attitude_lag_s(vehicle, axis: int = 0) -> float:
+def attitude_mean_delay_s(vehicle, axis: int = 0) -> float:
     """Mean delay -G'(0) / G(0) of the onboard loop's attitude response G to an attitude setpoint without
     roll/pitch rate feed-forward: what a first-order-plus-dead-time fit calls tau + dead time.
     eq6: G = kp / (tau_m s^3 + s^2 + kd s + kp), mean delay kd / kp (the motor lag adds none);
