@@ -1,4 +1,5 @@
 """`quadflight plan MISSION.yaml --out traj.json [--csv RATE] [--speed V] [--time-allocation A]`: plan only, no flight.
+A fleet mission (a `vehicles:` list) is planned by quad_bringup.commands.fleet_plan.
 
 The JSON is docs/design.md's plan layout ({"waypoints", "segments": [{"duration", "coefficients": {x, y, z, yaw}}]},
 coefficients in ascending powers of local time) plus the plan's options, merges and summary.
@@ -73,6 +74,10 @@ def run(args) -> int:
     if reason:
         print(f'quadflight plan: {reason}', file=sys.stderr)
         return 2
+    from quad_trajectory.fleet import is_fleet_file
+    if is_fleet_file(args.mission):   # a `vehicles:` list: docs/missions.md "Fleets"
+        from quad_bringup.commands import fleet_plan
+        return fleet_plan.run(args)
     try:
         mission = load_mission(args.mission)
         reason = refuse_overwriting_inputs([('--out', args.out), ('--csv (next to --out)', csv_path)],
