@@ -98,6 +98,16 @@ def test_delays_deconflict_the_crossing_and_say_so():
     assert result.report.closest[2] >= 0.3
 
 
+def test_the_first_clear_delay_is_taken():
+    result = plan_fleet(crossing(deconflict='delays', delay_step_s=0.1))
+    delay = result.delays_s[1]
+    assert 0.1 < delay < 0.5 and result.report.ok
+    assert result.report.closest[2] >= 0.3
+    one_step_less = plan_fleet(crossing(deconflict='none')).fleet
+    one_step_less.vehicles[1].start_delay_s = delay - 0.1
+    assert not plan_fleet(one_step_less).report.ok          # the step before it still conflicts
+
+
 def test_altitude_layers_deconflict_the_crossing():
     result = plan_fleet(crossing(deconflict='altitude'))
     assert result.delays_s == [0.0, 0.0]
