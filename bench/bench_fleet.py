@@ -17,7 +17,7 @@ from quad_sim.simulator import Simulator
 from quad_trajectory.fleet import fleet_from_dict
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-FORMATION = os.path.join(ROOT, 'config/missions/fleet_formation4.yaml')
+FORMATION = os.path.join(ROOT, 'config/missions/fleets/formation4.yaml')
 VEHICLE = os.path.join(ROOT, 'config/vehicles/crazyflie.yaml')
 SIZES = (1, 4, 16, 64)
 SPACING_M = 0.5
@@ -106,7 +106,7 @@ def main():
         print(f'{n} vehicles: {run.real_time_factor:.1f}x', file=sys.stderr)
     print('## Fleets offline (bench_fleet)\n')
     print(f'`fly_fleet` (quad_bringup.fleet_loop): N Crazyflies in a square grid {SPACING_M} m apart on '
-          '`fleet_formation4.yaml`\'s path, each with its own ControlLoop (pd, 100 Hz) and Simulator (1 kHz physics, '
+          '`fleets/formation4.yaml`\'s path, each with its own ControlLoop (pd, 100 Hz) and Simulator (1 kHz physics, '
           f'{"compiled" if COMPILED else "interpreted"}), stepped in lockstep, pairwise collision check every tick. '
           'Real-time factor = simulated s / wall s of the whole flight. Per-tick wall time split into the controllers, '
           'the physics and the collision check. The last two columns time the physics alone per 10 ms tick: the '

@@ -11,8 +11,8 @@ from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 from quad_trajectory.fleet import fleet_from_dict
 
-FORMATION = str(resolve_config('config/missions/fleet_formation4.yaml'))
-CROSSING = str(resolve_config('config/missions/fleet_crossing2.yaml'))
+FORMATION = str(resolve_config('config/missions/fleets/formation4.yaml'))
+CROSSING = str(resolve_config('config/missions/fleets/crossing2.yaml'))
 
 
 def crossing(**separation_options):

@@ -9,8 +9,8 @@ from quad_trajectory import separation
 from quad_trajectory.fleet import fleet_from_dict, is_fleet_file, load_fleet, plan_fleet
 from quad_trajectory.mission import load_mission
 
-FORMATION = str(resolve_config('config/missions/fleet_formation4.yaml'))
-CROSSING = str(resolve_config('config/missions/fleet_crossing2.yaml'))
+FORMATION = str(resolve_config('config/missions/fleets/formation4.yaml'))
+CROSSING = str(resolve_config('config/missions/fleets/crossing2.yaml'))
 
 
 def crossing(**separation_options):
@@ -149,3 +149,5 @@ def test_single_vehicle_missions_are_not_fleets_and_load_unchanged():
     maze = resolve_config('config/missions/maze.yaml')
     assert not is_fleet_file(maze) and is_fleet_file(FORMATION)
     assert load_mission(maze).waypoints.shape[1] == 3
+    with pytest.raises(ValueError, match='a fleet mission'):   # never one vehicle of a fleet by mistake
+        load_mission(FORMATION)

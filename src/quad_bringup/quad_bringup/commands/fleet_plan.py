@@ -8,17 +8,30 @@ and the distance. --out writes {"fleet", "vehicles": {name: plan JSON + start_de
 import json
 import sys
 
+from quad_trajectory import feasibility
 from quad_trajectory.fleet import load_fleet, plan_fleet
+
+
+def feasible(vehicle, plan) -> str:
+    """'yes', or the worst check the plan fails on the vehicle (quad_trajectory.feasibility, as fly checks it)."""
+    if vehicle is None:
+        return '-'
+    report = feasibility.check(plan.trajectory, vehicle)
+    if report.ok:
+        return 'yes'
+    e = report.exceeded[0]
+    return f'NO: {e.check} {e.value:.4g} {e.unit} at {e.time_s:.2f} s (limit {e.limit:.4g})'
 
 
 def summary_lines(fleet_plan) -> list[str]:
     """A table: one row per vehicle (start, delay, time, length, peak speed), then the separation."""
-    rows = [('vehicle', 'start (m)', 'delay (s)', 'time (s)', 'length (m)', 'max speed (m/s)', 'radius (m)')]
+    rows = [('vehicle', 'start (m)', 'delay (s)', 'time (s)', 'length (m)', 'max speed (m/s)', 'radius (m)',
+             'feasible')]
     for v, plan, delay in zip(fleet_plan.fleet.vehicles, fleet_plan.plans, fleet_plan.delays_s):
         s = plan.summary()
         start = ', '.join(f'{c:.2f}' for c in v.mission.initial_position)
         rows.append((v.name, f'({start})', f'{delay:g}', f'{s["time_planned_s"]:.3f}', f'{s["length_planned_m"]:.3f}',
-                     f'{s["max_speed_mps"]:.3f}', f'{v.radius_m:g}'))
+                     f'{s["max_speed_mps"]:.3f}', f'{v.radius_m:g}', feasible(v.mission.vehicle, plan)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = ['  '.join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
     report = fleet_plan.report
