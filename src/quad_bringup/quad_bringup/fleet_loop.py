@@ -51,6 +51,7 @@ class FleetRun:
     min_separation_m: np.ndarray           # the fleet's smallest pairwise distance at each tick
     plan: FleetPlan | None = None
     wall_s: dict = field(default_factory=dict)   # control, physics, collision, total
+    positions: dict = field(default_factory=dict)   # name -> (ticks, 3) flown positions at t_s
 
     @property
     def sim_s(self) -> float:
@@ -203,7 +204,8 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
     wall['total'] = time.perf_counter() - start_wall
     events = sorted(((v.name, e) for v in vehicles for e in v.sim.events), key=lambda x: x[1].time_s)
     return FleetRun([v.name for v in vehicles], {v.name: v.metrics() for v in vehicles}, events, collisions,
-                    np.array(ticks), np.array(separations[:len(ticks)]), fleet_plan, wall)
+                    np.array(ticks), np.array(separations[:len(ticks)]), fleet_plan, wall,
+                    {v.name: np.array(v.positions) for v in vehicles})
 
 
 def _min_distance(p, i, j) -> float:

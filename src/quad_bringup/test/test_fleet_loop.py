@@ -95,3 +95,20 @@ def test_plan_command_refuses_a_conflict_with_exit_2_and_one_line(capsys):
 def test_plan_command_on_a_single_vehicle_mission_is_unchanged(capsys):
     assert cli.main(['plan', str(resolve_config('config/missions/maze.yaml'))]) == 0
     assert 'time planned (s)' in capsys.readouterr().out
+
+
+def test_fleet_command_flies_the_formation_and_writes_its_results(capsys, tmp_path):
+    assert cli.main(['fleet', FORMATION, '--out', str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert 'flown minimum separation: 0.79' in out and 'COLLISION' not in out
+    written = json.loads((tmp_path / 'fleet.json').read_text())
+    assert all(m['completed'] for m in written['metrics'].values()) and written['collisions'] == []
+    assert (tmp_path / 'fleet.png').stat().st_size > 10_000
+
+
+def test_fleet_command_refuses_the_crossing_and_flown_anyway_fails_on_the_collision(capsys):
+    assert cli.main(['fleet', CROSSING]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'separation conflict: cf1 and cf2' in err[0]
+    assert cli.main(['fleet', CROSSING, '--fly-anyway']) == 1
+    assert 'COLLISION: cf1 and cf2 at t = 3.86 s' in capsys.readouterr().out

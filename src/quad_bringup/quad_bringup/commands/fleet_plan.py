@@ -9,7 +9,7 @@ import json
 import sys
 
 from quad_trajectory import feasibility
-from quad_trajectory.fleet import load_fleet, plan_fleet
+from quad_trajectory.fleet import fleet_from_dict, load_fleet, plan_fleet
 
 
 def feasible(vehicle, plan) -> str:
@@ -46,12 +46,13 @@ def summary_lines(fleet_plan) -> list[str]:
     return lines
 
 
-def run(args) -> int:
+def run(args, data: dict | None = None) -> int:
+    """The plan command on a fleet file (`data`: its parsed content, when plan has read it already)."""
     if args.csv is not None:
         print('quadflight plan: --csv is for one vehicle; a fleet plan writes --out only', file=sys.stderr)
         return 2
     try:
-        fleet = load_fleet(args.mission)
+        fleet = fleet_from_dict(data, str(args.mission)) if data is not None else load_fleet(args.mission)
         overrides = {'time_allocation': args.time_allocation} if args.time_allocation else {}
         result = plan_fleet(fleet, speed_mps=args.speed, **overrides)
     except ValueError as exc:
