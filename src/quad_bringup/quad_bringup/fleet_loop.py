@@ -136,11 +136,13 @@ def closest_approach(p0, p1, i, j) -> np.ndarray:
 
 
 def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan: FleetPlan | None = None,
-              refuse_conflicts: bool = True) -> FleetRun:
+              refuse_conflicts: bool = True, controller_stops: dict | None = None) -> FleetRun:
     """Plans the fleet (plan_fleet: separation checked, deconflicted where the file asks) and flies every vehicle in
     lockstep until all have completed (the vehicle's completion rule; done vehicles hold their end) or the time
     limit (time_limit_factor x the longest plan + its delay + 10 s). Raises ValueError with the refusal line when
-    the plan has a separation conflict, unless refuse_conflicts is False."""
+    the plan has a separation conflict, unless refuse_conflicts is False. controller_stops {name: t_s}: that
+    vehicle's controller dies at t_s (no more setpoints): its simulator's failsafe lands it, the others fly on; it
+    is done once disarmed on the floor."""
     options = options or LoopOptions()
     fleet = load_fleet(fleet) if isinstance(fleet, str) or hasattr(fleet, '__fspath__') else fleet
     fleet_plan = fleet_plan or plan_fleet(fleet, speed_mps=options.speed_mps, **(options.plan_overrides or {}))
@@ -148,6 +150,10 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
         raise ValueError(fleet_plan.refusal())
     vehicles = [_Vehicle(fv, plan, delay, k, options) for k, (fv, plan, delay) in
                 enumerate(zip(fleet.vehicles, fleet_plan.plans, fleet_plan.delays_s))]
+    stops = dict(controller_stops or {})
+    unknown = sorted(set(stops) - {v.name for v in vehicles})
+    if unknown:
+        raise ValueError(f'controller_stops: {unknown[0]!r} is not a vehicle of {fleet.name}')
     n = len(vehicles)
     pair_i, pair_j = np.triu_indices(n, 1)
     radii = np.array([v.radius_m for v in vehicles])
@@ -167,12 +173,12 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
         for v in vehicles:
             v.record(t_s)
         ticks.append(t_s)
-        if all(v.done_s is not None or v.stopped for v in vehicles):
+        if all(v.done_s is not None or v.stopped or (v.name in stops and not v.sim.armed) for v in vehicles):
             separations.append(_min_distance(p_prev, pair_i, pair_j))
             break
         w0 = time.perf_counter()
         for v in vehicles:
-            if not v.stopped:
+            if not v.stopped and not t_s >= stops.get(v.name, np.inf):
                 v.control(t_ns)
         w1 = time.perf_counter()
         for v in vehicles:

@@ -41,6 +41,20 @@ def test_four_vehicle_formation_completes_with_small_tracking_error(formation):
     assert formation.sim_s == pytest.approx(max(m['time_actual_s'] for m in formation.metrics.values()), abs=0.02)
 
 
+def test_one_controller_dies_its_failsafe_lands_it_and_the_others_complete():
+    run = fly_fleet(FORMATION, controller_stops={'cf1': 2.0})
+    kinds = [(e.kind, e.time_s) for name, e in run.events
+             if name == 'cf1' and e.kind in ('failsafe', 'touchdown', 'disarmed')]
+    assert [k for k, _ in kinds] == ['failsafe', 'touchdown', 'disarmed']
+    assert kinds[0][1] == pytest.approx(1.99 + 0.5, abs=0.002)   # setpoint_timeout_s after the last setpoint
+    assert all(name == 'cf1' for name, e in run.events)         # the others never noticed
+    landed = run.positions['cf1'][-1]
+    assert landed[2] == pytest.approx(0.0, abs=1e-6)
+    assert not run.metrics['cf1']['completed']
+    assert all(run.metrics[n]['completed'] for n in ('cf2', 'cf3', 'cf4'))
+    assert run.collisions == []
+
+
 def test_crossing_is_refused_before_flight():
     with pytest.raises(ValueError, match='cf1 and cf2 come 0.000 m apart at t = 4.00 s'):
         fly_fleet(crossing())
