@@ -192,6 +192,9 @@ def fleet_from_dict(data: dict, path: str = 'fleet') -> Fleet:
     if unknown:
         raise ValueError(f'{path}: {unknown[0]} = {data[unknown[0]]!r} is not a known fleet key '
                          f'(known: {", ".join(sorted(FLEET_KEYS))})')
+    if 'vehicles' not in data:
+        raise ValueError(f'{path}: not a fleet mission (no vehicles: list); `quadflight fly` flies a one-vehicle '
+                         'mission')
     vehicles = data.get('vehicles')
     if not isinstance(vehicles, list) or not vehicles:
         raise ValueError(f'{path}: vehicles = {vehicles!r} must be a list of at least one vehicle')
