@@ -14,7 +14,7 @@ from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 from quad_sim import rigid_body as rb
 from quad_sim.simulator import Simulator
-from quad_trajectory.fleet import fleet_from_dict
+from quad_trajectory.fleet import fleet_from_dict, plan_fleet
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FORMATION = os.path.join(ROOT, 'config/missions/fleets/formation4.yaml')
@@ -94,7 +94,11 @@ def physics_per_tick_us(n, ticks=100):
 def main():
     rows = []
     for n in SIZES:
-        run = fly_fleet(grid_fleet(n))
+        fleet = grid_fleet(n)
+        start = time.perf_counter()
+        plan = plan_fleet(fleet)            # every vehicle planned, then the pairwise separation check
+        plan_s = time.perf_counter() - start
+        run = fly_fleet(fleet, fleet_plan=plan)
         ticks = len(run.t_s)
         done = sum(m['completed'] for m in run.metrics.values())
         rmse = max(m['rmse_m'] for m in run.metrics.values())
@@ -102,20 +106,21 @@ def main():
         rows.append(f'| {n} | {run.sim_s:.2f} | {run.wall_s["total"]:.2f} | **{run.real_time_factor:.1f}x** | '
                     f'{run.wall_s["control"] / ticks * 1e6:.0f} | {run.wall_s["physics"] / ticks * 1e6:.0f} | '
                     f'{run.wall_s["collision"] / ticks * 1e6:.0f} | {done}/{n} | {rmse * 100:.2f} | '
-                    f'{loop_us:.0f} | {numpy_us:.0f} |')
+                    f'{loop_us:.0f} | {numpy_us:.0f} | {plan_s:.2f} |')
         print(f'{n} vehicles: {run.real_time_factor:.1f}x', file=sys.stderr)
     print('## Fleets offline (bench_fleet)\n')
     print(f'`fly_fleet` (quad_bringup.fleet_loop): N Crazyflies in a square grid {SPACING_M} m apart on '
           '`fleets/formation4.yaml`\'s path, each with its own ControlLoop (pd, 100 Hz) and Simulator (1 kHz physics, '
           f'{"compiled" if COMPILED else "interpreted"}), stepped in lockstep, pairwise collision check every tick. '
           'Real-time factor = simulated s / wall s of the whole flight. Per-tick wall time split into the controllers, '
-          'the physics and the collision check. The last two columns time the physics alone per 10 ms tick: the '
+          'the physics and the collision check. Two columns time the physics alone per 10 ms tick: the '
           'loop over compiled Simulators fly_fleet uses, and a numpy RK4 vectorized over the fleet (the rigid body '
-          'only, no autopilot or mixer: a lower bound for a vectorized step).\n')
+          'only, no autopilot or mixer: a lower bound for a vectorized step). Last: `plan_fleet` (each vehicle '
+          'planned, then every pair checked every ~5 ms of the flight).\n')
     print('| vehicles | simulated (s) | wall (s) | real-time factor | control (us/tick) | physics (us/tick) | '
           'collisions (us/tick) | completed | worst rmse (cm) | Simulator loop (us/tick) | numpy vectorized '
-          '(us/tick) |')
-    print('|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|')
+          '(us/tick) | plan + separation (s) |')
+    print('|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|')
     print('\n'.join(rows))
     print('\nThe controllers (Python, ~100 us per vehicle per tick) cost the most. The compiled physics costs a few '
           'tens of us per vehicle per tick; the numpy core costs milliseconds per tick at any size (~40 array '
