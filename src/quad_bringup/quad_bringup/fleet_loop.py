@@ -52,6 +52,7 @@ class FleetRun:
     plan: FleetPlan | None = None
     wall_s: dict = field(default_factory=dict)   # control, physics, collision, total
     positions: dict = field(default_factory=dict)   # name -> (ticks, 3) flown positions at t_s
+    controllers: dict = field(default_factory=dict)  # name -> the controller it flew (pd, pid, se3)
 
     @property
     def sim_s(self) -> float:
@@ -211,7 +212,8 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
     events = sorted(((v.name, e) for v in vehicles for e in v.sim.events), key=lambda x: x[1].time_s)
     return FleetRun([v.name for v in vehicles], {v.name: v.metrics() for v in vehicles}, events, collisions,
                     np.array(ticks), np.array(separations[:len(ticks)]), fleet_plan, wall,
-                    {v.name: np.array(v.positions) for v in vehicles})
+                    {v.name: np.array(v.positions) for v in vehicles},
+                    {v.name: v.loop.controller.name for v in vehicles})
 
 
 def _min_distance(p, i, j) -> float:

@@ -55,6 +55,20 @@ def test_one_controller_dies_its_failsafe_lands_it_and_the_others_complete():
     assert run.collisions == []
 
 
+def test_a_mixed_fleet_flies_each_vehicle_file_radius_and_profile():
+    data = load_yaml(FORMATION)
+    data['vehicles'][1].update(vehicle='../../vehicles/px4_quad.yaml', robot_radius_m=0.3)
+    data['vehicles'][2].update(profile='../../control_fast.yaml')
+    fleet = fleet_from_dict(data, FORMATION)
+    assert fleet.vehicles[1].mission.vehicle.name == 'px4_quad'
+    run = fly_fleet(fleet)
+    assert run.plan.report.required_m[0, 1] == pytest.approx(0.5)     # 0.1 + 0.3 + margin 0.1
+    assert run.plan.report.required_m[0, 2] == pytest.approx(0.3)
+    assert run.controllers == {'cf1': 'pd', 'cf2': 'pd', 'cf3': 'se3', 'cf4': 'pid'}
+    assert all(m['completed'] for m in run.metrics.values())
+    assert run.metrics['cf3']['rmse_m'] < 0.5 * run.metrics['cf1']['rmse_m']   # the fast profile tracks closer
+
+
 def test_crossing_is_refused_before_flight():
     with pytest.raises(ValueError, match='cf1 and cf2 come 0.000 m apart at t = 4.00 s'):
         fly_fleet(crossing())
