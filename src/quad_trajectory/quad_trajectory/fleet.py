@@ -165,6 +165,8 @@ def _vehicle(entry, index, data, path, seen) -> FleetVehicle:
         single = {k: data[k] for k in ('vehicle', 'world', 'robot_radius_m', 'yaw') if k in data}
         single.update({k: entry[k] for k in ('vehicle', 'robot_radius_m', 'yaw') if k in entry})
         single.update(name=name, waypoints=waypoints, trajectory={**traj, **own})
+        if 'start' in entry and isinstance(single.get('yaw'), list) and single['yaw']:
+            single['yaw'] = [single['yaw'][0]] + list(single['yaw'])   # the start faces the first waypoint's yaw
         delay = _number('start_delay_s', entry.get('start_delay_s', 0.0))
         controller = entry.get('controller')
         if controller is not None and not isinstance(controller, str):

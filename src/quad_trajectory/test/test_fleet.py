@@ -57,6 +57,8 @@ def test_start_is_prepended_and_a_vehicle_trajectory_key_overrides_the_fleets():
     assert len(v.mission.waypoints) == 4
     assert v.mission.options.speed_mps == 0.25 and v.mission.options.method == 'minsnap'
     assert fleet.vehicles[1].mission.options.speed_mps == 0.5
+    data['vehicles'][0]['yaw'] = [0.1, 0.2, 0.3]                 # one per shared waypoint: the start gets the first's
+    assert fleet_from_dict(data, FORMATION).vehicles[0].mission.yaw == [0.1, 0.1, 0.2, 0.3]
 
 
 def test_crossing_paths_are_refused_naming_the_pair_the_time_and_the_distance():
