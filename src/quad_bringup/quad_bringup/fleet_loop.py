@@ -4,16 +4,17 @@ events like the simulator's obstacle collisions.
 
 Each tick t_k: every vehicle's loop runs with its odometry stamped t_k (closed_loop.run_offline's tick), then every
 simulator advances one controller period (its compiled physics, failsafe, floor and world checks unchanged).
-Stepping: a loop over Simulator instances. A numpy core vectorized over vehicles costs ~30 array operations per
-RK4 stage whatever N is; bench/bench_fleet.py measures both (docs/benchmarks.md, fleet_step): at 1 kHz
-the compiled per-vehicle step is faster up to 64 vehicles, and the controllers (Python) cost more than the physics.
+Stepping: a loop over Simulator instances. A numpy core vectorized over vehicles costs ~40 array operations per
+RK4 stage whatever N is; bench/bench_fleet.py measures both (docs/benchmarks.md, bench_fleet): at 1 kHz the loop
+over compiled Simulators is faster up to 64 vehicles, and the controllers (Python) cost more than the physics.
 
 Vehicle-vehicle collision: pair (i, j) collides when |p_i - p_j| < r_i + r_j. Between two ticks the relative
 position d(s) = d_0 + s (d_1 - d_0), s in [0, 1], is taken as linear, and its closest approach
 |d_0 + s* (d_1 - d_0)|, s* = clip(-d_0 . (d_1 - d_0) / |d_1 - d_0|^2, 0, 1), is compared with the radii: a
 graze between ticks is not missed. The linear model's error is at most a_rel dt^2 / 8 (0.25 mm at 20 m/s^2
-and 10 ms). A collision is an event (kind 'vehicle_collision', the other vehicle, the distance) in both
-simulators' events; the flight goes on, as with obstacles, and the vehicle's metrics say it collided.
+and 10 ms). A collision is an event (kind 'vehicle_collision': the other vehicle, the closest distance; its time
+is where the linear relative motion first reaches r_i + r_j) in both simulators' events; the flight goes on,
+as with obstacles, and the vehicle's metrics say it collided.
 """
 
 import dataclasses
@@ -136,6 +137,17 @@ def closest_approach(p0, p1, i, j) -> np.ndarray:
     return np.linalg.norm(d0 + s[:, None] * dd, axis=1)
 
 
+def contact_fraction(p0, p1, i, j, touch_m) -> float:
+    """The first s in [0, 1] with |d_0 + s (d_1 - d_0)| = touch_m (0 when already touching): the smaller root of
+    |dd|^2 s^2 + 2 (d_0 . dd) s + |d_0|^2 - touch^2 = 0."""
+    d0 = p0[j] - p0[i]
+    dd = (p1[j] - p1[i]) - d0
+    a, b, c = float(dd @ dd), 2.0 * float(d0 @ dd), float(d0 @ d0) - touch_m ** 2
+    if c <= 0.0 or a == 0.0:
+        return 0.0
+    return float(np.clip((-b - np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a), 0.0, 1.0))
+
+
 def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan: FleetPlan | None = None,
               refuse_conflicts: bool = True, controller_stops: dict | None = None) -> FleetRun:
     """Plans the fleet (plan_fleet: separation checked, deconflicted where the file asks) and flies every vehicle in
@@ -195,9 +207,10 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
             hit = d < touch
             for q in np.flatnonzero(hit & ~colliding):
                 a, b = vehicles[pair_i[q]], vehicles[pair_j[q]]
-                collisions.append((t_s, a.name, b.name, float(d[q])))
+                t_hit = t_s + contact_fraction(p_prev, p, pair_i[q], pair_j[q], touch[q]) * period_ns * 1e-9
+                collisions.append((t_hit, a.name, b.name, float(d[q])))
                 for me, other in ((a, b), (b, a)):
-                    me.sim.events.append(Event(VEHICLE_COLLISION, t_s + period_ns * 1e-9, me.sim.state.position,
+                    me.sim.events.append(Event(VEHICLE_COLLISION, t_hit, me.sim.state.position,
                                                {'other': other.name, 'distance_m': round(float(d[q]), 4),
                                                 'radii_m': round(float(touch[q]), 4)}))
             colliding = hit

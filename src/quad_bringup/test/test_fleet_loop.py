@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from quad_bringup import cli
-from quad_bringup.fleet_loop import VEHICLE_COLLISION, closest_approach, fly_fleet
+from quad_bringup.fleet_loop import VEHICLE_COLLISION, closest_approach, contact_fraction, fly_fleet
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 from quad_trajectory.fleet import fleet_from_dict
@@ -86,7 +86,8 @@ def test_crossing_flown_anyway_collides_and_both_vehicles_report_it():
     run = fly_fleet(crossing(), refuse_conflicts=False)
     assert len(run.collisions) == 1
     t, a, b, distance = run.collisions[0]
-    assert (a, b) == ('cf1', 'cf2') and t == pytest.approx(3.9, abs=0.1)   # 0.2 m (two radii) before the origin
+    # 0.2 m apart (two radii) when each is 0.2 / sqrt(2) = 0.141 m from the origin, ~0.13 s before both reach it
+    assert (a, b) == ('cf1', 'cf2') and t == pytest.approx(3.866, abs=0.005)
     assert distance < 0.2
     kinds = [(name, e.kind, e.detail.get('other')) for name, e in run.events if e.kind == VEHICLE_COLLISION]
     assert kinds == [('cf1', VEHICLE_COLLISION, 'cf2'), ('cf2', VEHICLE_COLLISION, 'cf1')]
@@ -99,6 +100,9 @@ def test_a_graze_between_ticks_is_found_by_the_linear_closest_approach():
     p1 = np.array([[0.5, 0.0, 1.0], [-0.5, 0.05, 1.0]])
     d = closest_approach(p0, p1, np.array([0]), np.array([1]))
     assert d[0] == pytest.approx(0.05)
+    # contact (0.2 m) where the gap x(s) = 1 - 2 s has sqrt(x^2 + 0.05^2) = 0.2: s = (1 - sqrt(0.0375)) / 2
+    assert contact_fraction(p0, p1, 0, 1, 0.2) == pytest.approx((1 - np.sqrt(0.2 ** 2 - 0.05 ** 2)) / 2)
+    assert contact_fraction(p0, p0, 0, 1, 2.0) == 0.0           # already touching at the tick
 
 
 def test_plan_command_prints_each_vehicle_and_the_minimum_separation(capsys, tmp_path):
@@ -139,4 +143,4 @@ def test_fleet_command_refuses_the_crossing_and_flown_anyway_fails_on_the_collis
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'separation conflict: cf1 and cf2' in err[0]
     assert cli.main(['fleet', CROSSING, '--fly-anyway']) == 1
-    assert 'COLLISION: cf1 and cf2 at t = 3.86 s' in capsys.readouterr().out
+    assert 'COLLISION: cf1 and cf2 at t = 3.87 s' in capsys.readouterr().out
