@@ -12,6 +12,8 @@ __version__ = '0.1.0'
 SUBCOMMANDS = {
     'plan': ('quad_bringup.commands.plan', 'plan a trajectory through a mission\'s waypoints (no flight)'),
     'fly': ('quad_bringup.commands.fly', 'fly a mission through the node graph in the simulator, record, report'),
+    'fleet': ('quad_bringup.commands.fleet', 'plan a fleet mission, check its separation and fly every vehicle '
+                                             'offline in lockstep (no ROS yet): per-vehicle verdicts, collisions'),
     'record': ('quad_bringup.commands.record', 'record topics to a rosbag2 bag (MCAP)'),
     'report': ('quad_bringup.commands.report', 'metrics, tables and figures from a rosbag2 bag'),
     'identify': ('quad_bringup.commands.identify', 'attitude lag and thrust scale of the vehicle from a flight bag, '

@@ -1,15 +1,19 @@
 """`quadflight plan MISSION.yaml --out traj.json [--csv RATE] [--speed V] [--time-allocation A]`: plan only, no flight.
+A fleet mission (a `vehicles:` list) is planned by quad_bringup.commands.fleet_plan.
 
 The JSON is docs/design.md's plan layout ({"waypoints", "segments": [{"duration", "coefficients": {x, y, z, yaw}}]},
 coefficients in ascending powers of local time) plus the plan's options, merges and summary.
 """
 
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from quad_trajectory.mission import load_mission, plan_mission, preflight
+from quad_common.yaml_io import load_yaml
+from quad_trajectory.fleet import is_fleet
+from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
 from quad_trajectory.planner import allocation_lines
 from quad_trajectory.timing import ALLOCATIONS
 
@@ -73,7 +77,11 @@ def run(args) -> int:
         print(f'quadflight plan: {reason}', file=sys.stderr)
         return 2
     try:
-        mission = load_mission(args.mission)
+        data = load_yaml(os.fspath(args.mission))   # read once: a fleet or one vehicle's mission
+        if is_fleet(data):   # a `vehicles:` list: docs/missions.md "Fleets"
+            from quad_bringup.commands import fleet_plan
+            return fleet_plan.run(args, data)
+        mission = mission_from_dict(data, os.fspath(args.mission))
         reason = refuse_overwriting_inputs([('--out', args.out), ('--csv (next to --out)', csv_path)],
                                            [('mission\'s vehicle file', mission.vehicle_path),
                                             ('mission\'s world file', mission.world_path)])

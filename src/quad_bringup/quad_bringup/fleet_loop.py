@@ -1,0 +1,233 @@
+"""A fleet's flight without ROS: every vehicle's Simulator and ControlLoop (closed_loop's, as position_controller
+runs it) stepped in lockstep at the controller rate, with vehicle-vehicle collisions (robot radii) reported as
+events like the simulator's obstacle collisions.
+
+Each tick t_k: every vehicle's loop runs with its odometry stamped t_k (closed_loop.run_offline's tick), then every
+simulator advances one controller period (its compiled physics, failsafe, floor and world checks unchanged).
+Stepping: a loop over Simulator instances. A numpy core vectorized over vehicles costs ~40 array operations per
+RK4 stage whatever N is; bench/bench_fleet.py measures both (docs/benchmarks.md, bench_fleet): at 1 kHz the loop
+over compiled Simulators is faster up to 64 vehicles, and the controllers (Python) cost more than the physics.
+
+Vehicle-vehicle collision: pair (i, j) collides when |p_i - p_j| < r_i + r_j. Between two ticks the relative
+position d(s) = d_0 + s (d_1 - d_0), s in [0, 1], is taken as linear, and its closest approach
+|d_0 + s* (d_1 - d_0)|, s* = clip(-d_0 . (d_1 - d_0) / |d_1 - d_0|^2, 0, 1), is compared with the radii: a
+graze between ticks is not missed. The linear model's error is at most a_rel dt^2 / 8 (0.25 mm at 20 m/s^2
+and 10 ms). A collision is an event (kind 'vehicle_collision': the other vehicle, the closest distance; its time
+is where the linear relative motion first reaches r_i + r_j) in both simulators' events; the flight goes on,
+as with obstacles, and the vehicle's metrics say it collided.
+"""
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from quad_bringup.closed_loop import (
+    SAMPLE_RATE_HZ,
+    LoopOptions,
+    _Delay,
+    controller_vehicle,
+    load_control_profile,
+    make_simulator,
+)
+from quad_bringup.metrics import Flight, compute_metrics
+from quad_common import rotations
+from quad_control.loop import ControlLoop
+from quad_control.position import Limits, PositionController, PositionGains
+from quad_sim.simulator import Event, SimulationStopped
+from quad_trajectory.fleet import Fleet, FleetPlan, load_fleet, plan_fleet
+
+VEHICLE_COLLISION = 'vehicle_collision'
+
+
+@dataclass
+class FleetRun:
+    """One fleet flight: each vehicle's metrics (the report's), the collisions and the flown separation."""
+    names: list
+    metrics: dict                          # name -> metrics (plus 'stopped' where its simulator gave up)
+    events: list                           # (name, simulator Event) of every vehicle, in time order
+    collisions: list                       # (time_s, a, b, distance_m) of each vehicle-vehicle collision start
+    t_s: np.ndarray                        # tick times
+    min_separation_m: np.ndarray           # the fleet's smallest pairwise distance at each tick
+    plan: FleetPlan | None = None
+    wall_s: dict = field(default_factory=dict)   # control, physics, collision, total
+    positions: dict = field(default_factory=dict)   # name -> (ticks, 3) flown positions at t_s
+    controllers: dict = field(default_factory=dict)  # name -> the controller it flew (pd, pid, se3)
+
+    @property
+    def sim_s(self) -> float:
+        return float(self.t_s[-1]) if len(self.t_s) else 0.0
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.sim_s / self.wall_s['total'] if self.wall_s.get('total') else float('inf')
+
+    def closest(self) -> tuple:
+        """(distance_m, time_s) of the closest approach flown."""
+        if not len(self.min_separation_m):
+            return float('inf'), 0.0
+        k = int(np.argmin(self.min_separation_m))
+        return float(self.min_separation_m[k]), float(self.t_s[k])
+
+
+class _Vehicle:
+    """One fleet vehicle: its simulator, its control loop and what it flew."""
+
+    def __init__(self, fv, plan, delay_s, index, options: LoopOptions):
+        controller, gains = options.controller, options.gains or PositionGains()
+        if fv.profile_path:
+            controller, gains = load_control_profile(fv.profile_path)
+        controller = fv.controller or controller
+        self.options = dataclasses.replace(options, controller=controller, gains=gains, start_delay_s=delay_s,
+                                           seed=options.seed + index)
+        self.name, self.radius_m, self.plan = fv.name, fv.radius_m, plan
+        self.trajectory = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
+        self.sim = make_simulator(fv.mission, self.trajectory, self.options)
+        vehicle = controller_vehicle(fv.mission, self.options)
+        self.loop = ControlLoop(PositionController(controller, gains, vehicle, Limits.of(vehicle)), options.rate_hz,
+                                lockstep=True, max_start_step_m=options.max_start_step_m)
+        self.loop.set_trajectory(round(delay_s * 1e9), self.trajectory)
+        self.arrival_s = options.rule.plan_arrival_s(self.trajectory)
+        self.delayed = _Delay(options.odom_latency_s, 1.0 / options.rate_hz)
+        self.times, self.positions, self.velocities, self.quaternions = [], [], [], []
+        self.done_s = None
+        self.stopped = None
+
+    def record(self, t_s):
+        truth = self.sim.state
+        self.times.append(t_s)
+        self.positions.append(truth.position)
+        self.velocities.append(truth.velocity)
+        self.quaternions.append(truth.quaternion)
+        elapsed = t_s - self.options.start_delay_s
+        if self.done_s is None and elapsed >= self.arrival_s and self.options.rule.done(
+                elapsed, truth.position, truth.velocity, self.trajectory, self.arrival_s):
+            self.done_s = t_s
+
+    def control(self, t_ns):
+        """closed_loop.run_offline's tick: the loop's tick at t_k runs with the odometry stamped t_k."""
+        seen = self.delayed(self.sim.odometry_state())
+        self.loop.tick(t_ns)
+        tick = self.loop.set_odometry(t_ns, seen)
+        if tick is None:
+            self.stopped = f'no setpoint at t = {t_ns * 1e-9:.3f} s'
+            return
+        self.sim.set_setpoint(tick.setpoint)
+
+    def metrics(self) -> dict:
+        collision = next((e.time_s for e in self.sim.events if e.kind in ('collision', VEHICLE_COLLISION)), None)
+        flight = Flight(odom_t=np.array(self.times), position=np.array(self.positions),
+                        velocity=np.array(self.velocities), euler=rotations.to_euler(np.array(self.quaternions)),
+                        traj_start_s=self.options.start_delay_s, trajectory=self.trajectory,
+                        waypoints=self.plan.waypoints, collision_time_s=collision)
+        m = compute_metrics(flight, self.options.rule)
+        m['vehicle_collisions'] = sum(e.kind == VEHICLE_COLLISION for e in self.sim.events)
+        if self.stopped:
+            m['stopped'] = self.stopped
+        return m
+
+
+def closest_approach(p0, p1, i, j) -> np.ndarray:
+    """Pairs (i[k], j[k]): the smallest |p_i - p_j| while both move linearly from p0 to p1 (module docstring)."""
+    d0, d1 = p0[j] - p0[i], p1[j] - p1[i]
+    dd = d1 - d0
+    den = np.einsum('ij,ij->i', dd, dd)
+    s = np.clip(-np.einsum('ij,ij->i', d0, dd) / np.where(den > 0, den, 1.0), 0.0, 1.0)
+    return np.linalg.norm(d0 + s[:, None] * dd, axis=1)
+
+
+def contact_fraction(p0, p1, i, j, touch_m) -> float:
+    """The first s in [0, 1] with |d_0 + s (d_1 - d_0)| = touch_m (0 when already touching): the smaller root of
+    |dd|^2 s^2 + 2 (d_0 . dd) s + |d_0|^2 - touch^2 = 0."""
+    d0 = p0[j] - p0[i]
+    dd = (p1[j] - p1[i]) - d0
+    a, b, c = float(dd @ dd), 2.0 * float(d0 @ dd), float(d0 @ d0) - touch_m ** 2
+    if c <= 0.0 or a == 0.0:
+        return 0.0
+    return float(np.clip((-b - np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a), 0.0, 1.0))
+
+
+def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan: FleetPlan | None = None,
+              refuse_conflicts: bool = True, controller_stops: dict | None = None) -> FleetRun:
+    """Plans the fleet (plan_fleet: separation checked, deconflicted where the file asks) and flies every vehicle in
+    lockstep until all have completed (the vehicle's completion rule; done vehicles hold their end) or the time
+    limit (time_limit_factor x the longest plan + its delay + 10 s). Raises ValueError with the refusal line when
+    the plan has a separation conflict, unless refuse_conflicts is False. controller_stops {name: t_s}: that
+    vehicle's controller dies at t_s (no more setpoints): its simulator's failsafe lands it, the others fly on; it
+    is done once disarmed on the floor."""
+    options = options or LoopOptions()
+    fleet = load_fleet(fleet) if isinstance(fleet, str) or hasattr(fleet, '__fspath__') else fleet
+    fleet_plan = fleet_plan or plan_fleet(fleet, speed_mps=options.speed_mps, **(options.plan_overrides or {}))
+    if refuse_conflicts and fleet_plan.refusal():
+        raise ValueError(fleet_plan.refusal())
+    vehicles = [_Vehicle(fv, plan, delay, k, options) for k, (fv, plan, delay) in
+                enumerate(zip(fleet.vehicles, fleet_plan.plans, fleet_plan.delays_s))]
+    stops = dict(controller_stops or {})
+    unknown = sorted(set(stops) - {v.name for v in vehicles})
+    if unknown:
+        raise ValueError(f'controller_stops: {unknown[0]!r} is not a vehicle of {fleet.name}')
+    n = len(vehicles)
+    pair_i, pair_j = np.triu_indices(n, 1)
+    radii = np.array([v.radius_m for v in vehicles])
+    touch = radii[pair_i] + radii[pair_j]
+    colliding = np.zeros(pair_i.size, dtype=bool)
+    period_ns = round(1e9 / options.rate_hz)
+    end_s = max(options.time_limit_factor * v.trajectory.duration_s + 10.0 + v.options.start_delay_s
+                for v in vehicles)
+    vehicles[0].sim.warm_up()     # load the compiled kernels before the clock starts (wall_s is the flight's)
+    wall = dict.fromkeys(('control', 'physics', 'collision'), 0.0)
+    start_wall = time.perf_counter()
+    ticks, separations, collisions = [], [], []
+    p_prev = np.array([v.sim.state.position for v in vehicles])
+    for k in range(int(end_s * options.rate_hz) + 1):
+        t_ns = k * period_ns
+        t_s = t_ns * 1e-9
+        for v in vehicles:
+            v.record(t_s)
+        ticks.append(t_s)
+        if all(v.done_s is not None or v.stopped or (v.name in stops and not v.sim.armed) for v in vehicles):
+            separations.append(_min_distance(p_prev, pair_i, pair_j))
+            break
+        w0 = time.perf_counter()
+        for v in vehicles:
+            if not v.stopped and not t_s >= stops.get(v.name, np.inf):
+                v.control(t_ns)
+        w1 = time.perf_counter()
+        for v in vehicles:
+            if not v.stopped:
+                try:
+                    v.sim.advance(period_ns * 1e-9)
+                except SimulationStopped as exc:
+                    v.stopped = str(exc)
+        w2 = time.perf_counter()
+        p = np.array([v.sim.state.position for v in vehicles])
+        if n > 1:
+            d = closest_approach(p_prev, p, pair_i, pair_j)
+            hit = d < touch
+            for q in np.flatnonzero(hit & ~colliding):
+                a, b = vehicles[pair_i[q]], vehicles[pair_j[q]]
+                t_hit = t_s + contact_fraction(p_prev, p, pair_i[q], pair_j[q], touch[q]) * period_ns * 1e-9
+                collisions.append((t_hit, a.name, b.name, float(d[q])))
+                for me, other in ((a, b), (b, a)):
+                    me.sim.events.append(Event(VEHICLE_COLLISION, t_hit, me.sim.state.position,
+                                               {'other': other.name, 'distance_m': round(float(d[q]), 4),
+                                                'radii_m': round(float(touch[q]), 4)}))
+            colliding = hit
+            separations.append(float(d.min()))
+        else:
+            separations.append(np.inf)
+        p_prev = p
+        wall['control'] += w1 - w0
+        wall['physics'] += w2 - w1
+        wall['collision'] += time.perf_counter() - w2
+    wall['total'] = time.perf_counter() - start_wall
+    events = sorted(((v.name, e) for v in vehicles for e in v.sim.events), key=lambda x: x[1].time_s)
+    return FleetRun([v.name for v in vehicles], {v.name: v.metrics() for v in vehicles}, events, collisions,
+                    np.array(ticks), np.array(separations[:len(ticks)]), fleet_plan, wall,
+                    {v.name: np.array(v.positions) for v in vehicles},
+                    {v.name: v.loop.controller.name for v in vehicles})
+
+
+def _min_distance(p, i, j) -> float:
+    return float(np.min(np.linalg.norm(p[j] - p[i], axis=1))) if i.size else float('inf')

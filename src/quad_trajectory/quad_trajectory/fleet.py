@@ -1,0 +1,281 @@
+"""Fleet missions (docs/missions.md "Fleets"): named vehicles, each a single-vehicle mission of its own.
+
+A fleet file has a `vehicles:` list. Each entry becomes the mission dict that `mission.mission_from_dict`
+validates (its checks, its errors, with `vehicles[i] (name)` in front): the fleet's `vehicle`, `world`,
+`robot_radius_m`, `yaw` and `trajectory` (merged key by key) are every vehicle's defaults; the waypoints are
+the vehicle's own, or the fleet's shared `waypoints` shifted by its `offset` (a formation); a `start` is
+prepended as the first waypoint (where the vehicle starts).
+
+`plan_fleet` plans each vehicle with the planner, checks the pairwise separation over time
+(quad_trajectory.separation) and, when the file asks for it, deconflicts by start delays or altitude layers
+and checks again.
+"""
+
+import dataclasses
+import os
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos
+from quad_trajectory import separation
+from quad_trajectory.mission import Mission, mission_from_dict, plan_mission
+
+FLEET_KEYS = frozenset({'name', 'vehicles', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m',
+                        'separation'})
+VEHICLE_KEYS = frozenset({'name', 'vehicle', 'start', 'waypoints', 'offset', 'yaw', 'trajectory', 'robot_radius_m',
+                          'controller', 'profile', 'start_delay_s'})
+SEPARATION_KEYS = frozenset({'min_m', 'margin_m', 'deconflict', 'delay_step_s', 'max_delay_s', 'layer_m',
+                             'max_layers'})
+DECONFLICT = ('none', 'delays', 'altitude')
+DEFAULT_RADIUS_M = 0.1       # a vehicle without robot_radius_m: the simulator's default robot radius
+DEFAULT_MARGIN_M = 0.1       # tracking error and odometry noise on top of the two radii
+_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*$')   # a ROS namespace component
+
+
+@dataclass
+class SeparationOptions:
+    min_m: float | None = None          # None: r_i + r_j + margin_m per pair
+    margin_m: float = DEFAULT_MARGIN_M
+    deconflict: str = 'none'
+    delay_step_s: float = 0.5
+    max_delay_s: float = 30.0
+    layer_m: float = 0.5
+    max_layers: int = 4
+
+
+@dataclass
+class FleetVehicle:
+    name: str
+    mission: Mission
+    radius_m: float                     # for separation and vehicle-vehicle collisions
+    start_delay_s: float = 0.0
+    controller: str | None = None       # None: the profile's, else pd
+    profile_path: str | None = None     # a position_controller params file (config/control*.yaml)
+    offset: np.ndarray | None = None
+
+
+@dataclass
+class Fleet:
+    path: str
+    name: str
+    vehicles: list
+    separation: SeparationOptions = field(default_factory=SeparationOptions)
+
+    @property
+    def names(self) -> list:
+        return [v.name for v in self.vehicles]
+
+
+def is_fleet(data) -> bool:
+    return isinstance(data, dict) and 'vehicles' in data
+
+
+def is_fleet_file(path) -> bool:
+    """True for a YAML mapping with a `vehicles` key (a fleet); False for anything else (left to load_mission)."""
+    try:
+        return is_fleet(load_yaml(os.fspath(path)))
+    except ValueError:
+        return False
+
+
+def _number(where, value, minimum=0.0, integer=False):
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value) and value >= minimum
+    if not ok or (integer and value != int(value)):
+        raise ValueError(f'{where} = {value!r} must be a finite {"whole " if integer else ""}number >= {minimum:g}')
+    return int(value) if integer else float(value)
+
+
+def _vector3(where, value):
+    try:
+        v = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        v = None
+    if v is None or v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f'{where} = {value!r} must be [x, y, z] in metres')
+    return v
+
+
+def _separation(data, path) -> SeparationOptions:
+    where = f'{path}: separation'
+    if not isinstance(data, dict):
+        raise ValueError(f'{where} = {data!r} must be a mapping')
+    unknown = sorted(set(data) - SEPARATION_KEYS)
+    if unknown:
+        raise ValueError(f'{where}.{unknown[0]} is not a known key (known: {", ".join(sorted(SEPARATION_KEYS))})')
+    refuse_number_text(data, sorted(SEPARATION_KEYS - {'deconflict'}), f'{where}.')
+    o = SeparationOptions()
+    values = {}
+    for key in ('min_m', 'margin_m', 'max_delay_s'):
+        if key in data:
+            values[key] = _number(f'{where}.{key}', data[key])
+    for key in ('delay_step_s', 'layer_m'):
+        if key in data:
+            values[key] = _number(f'{where}.{key}', data[key])
+            if values[key] == 0:
+                raise ValueError(f'{where}.{key} = {data[key]!r} must be > 0')
+    if 'max_layers' in data:
+        values['max_layers'] = _number(f'{where}.max_layers', data['max_layers'], 1, integer=True)
+    if data.get('deconflict', o.deconflict) not in DECONFLICT:
+        raise ValueError(f'{where}.deconflict = {data["deconflict"]!r} must be one of {", ".join(DECONFLICT)}')
+    values['deconflict'] = data.get('deconflict', o.deconflict)
+    return dataclasses.replace(o, **values)
+
+
+def _vehicle(entry, index, data, path, seen) -> FleetVehicle:
+    name = entry.get('name') if isinstance(entry, dict) else None
+    where = f'vehicles[{index}]' + (f' ({name})' if isinstance(name, str) else '')
+    if not isinstance(entry, dict):
+        raise ValueError(f'{path}: {where} = {entry!r} must be a mapping with a name')
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ValueError(f'{path}: {where}: name = {name!r} must be a letter then letters, digits or _ '
+                         '(it becomes the vehicle\'s namespace)')
+    if name in seen:
+        raise ValueError(f'{path}: {where}: name = {name!r} is already vehicles[{seen[name]}]\'s')
+    seen[name] = index
+    unknown = sorted(set(entry) - VEHICLE_KEYS)
+    if unknown:
+        raise ValueError(f'{path}: {where}: {unknown[0]} = {entry[unknown[0]]!r} is not a known key '
+                         f'(known: {", ".join(sorted(VEHICLE_KEYS))})')
+    try:
+        refuse_number_text(entry, ('robot_radius_m', 'start_delay_s'), '')
+        offset = None
+        if 'waypoints' in entry and 'offset' in entry:
+            raise ValueError(f'waypoints and offset = {entry["offset"]!r}: give one (own waypoints, or an offset on '
+                             'the fleet\'s waypoints)')
+        if 'waypoints' in entry:
+            waypoints = entry['waypoints']
+        elif 'waypoints' not in data:
+            raise ValueError('waypoints is missing (and the fleet has no shared waypoints to offset)')
+        else:
+            offset = _vector3('offset', entry.get('offset', [0.0, 0.0, 0.0]))
+            try:
+                waypoints = (np.asarray(data['waypoints'], dtype=float) + offset).tolist()
+            except (TypeError, ValueError):
+                raise ValueError(f'the fleet\'s waypoints = {data["waypoints"]!r} must be a list of [x, y, z] in '
+                                 'metres') from None
+        if 'start' in entry:
+            waypoints = [_vector3('start', entry['start']).tolist()] + list(waypoints)
+        traj = data.get('trajectory') or {}
+        own = entry.get('trajectory') or {}
+        for what, value in (('trajectory', traj), ('trajectory', own)):
+            if not isinstance(value, dict):
+                raise ValueError(f'{what} = {value!r} must be a mapping')
+        single = {k: data[k] for k in ('vehicle', 'world', 'robot_radius_m', 'yaw') if k in data}
+        single.update({k: entry[k] for k in ('vehicle', 'robot_radius_m', 'yaw') if k in entry})
+        single.update(name=name, waypoints=waypoints, trajectory={**traj, **own})
+        if 'start' in entry and isinstance(single.get('yaw'), list) and single['yaw']:
+            single['yaw'] = [single['yaw'][0]] + list(single['yaw'])   # the start faces the first waypoint's yaw
+        delay = _number('start_delay_s', entry.get('start_delay_s', 0.0))
+        controller = entry.get('controller')
+        if controller is not None and not isinstance(controller, str):
+            raise ValueError(f'controller = {controller!r} must be a controller name (pd, pid, se3)')
+        profile = entry.get('profile')
+        if profile is not None and (not isinstance(profile, str) or not profile):
+            raise ValueError(f'profile = {profile!r} must be a control profile file (relative to the fleet file)')
+    except ValueError as exc:
+        raise ValueError(f'{path}: {where}: {exc}') from None
+    try:
+        mission = mission_from_dict(single, path)
+    except ValueError as exc:   # the mission loader's error, with the vehicle named after the file
+        text = str(exc)
+        text = text[len(path) + 2:] if text.startswith(f'{path}: ') else text
+        raise ValueError(f'{path}: {where}: {text}') from None
+    radius = mission.options.robot_radius_m or DEFAULT_RADIUS_M
+    profile_path = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)), profile)) if profile else None
+    return FleetVehicle(name, mission, radius, delay, controller, profile_path, offset)
+
+
+def fleet_from_dict(data: dict, path: str = 'fleet') -> Fleet:
+    """Validated Fleet; every error names the file, the vehicle (index and name), the field and the value."""
+    refuse_typos(data, FLEET_KEYS, path)
+    unknown = sorted(set(data) - FLEET_KEYS)
+    if unknown:
+        raise ValueError(f'{path}: {unknown[0]} = {data[unknown[0]]!r} is not a known fleet key '
+                         f'(known: {", ".join(sorted(FLEET_KEYS))})')
+    if 'vehicles' not in data:
+        raise ValueError(f'{path}: not a fleet mission (no vehicles: list); `quadflight fly` flies a one-vehicle '
+                         'mission')
+    vehicles = data.get('vehicles')
+    if not isinstance(vehicles, list) or not vehicles:
+        raise ValueError(f'{path}: vehicles = {vehicles!r} must be a list of at least one vehicle')
+    seen = {}
+    fleet_vehicles = [_vehicle(entry, i, data, path, seen) for i, entry in enumerate(vehicles)]
+    options = _separation(data.get('separation') or {}, path)
+    return Fleet(path, str(data.get('name', os.path.splitext(os.path.basename(path))[0])), fleet_vehicles, options)
+
+
+def load_fleet(path) -> Fleet:
+    path = os.fspath(path)
+    return fleet_from_dict(load_yaml(path), path)
+
+
+@dataclass
+class FleetPlan:
+    fleet: Fleet
+    plans: list                   # planner.PlanResult per vehicle (after deconfliction)
+    delays_s: list                # start delay per vehicle (after deconfliction)
+    report: separation.SeparationReport
+    changes: list = field(default_factory=list)   # what deconfliction changed, one line per vehicle
+    before: separation.SeparationReport | None = None   # the check before deconfliction, when it ran
+
+    @property
+    def trajectories(self) -> list:
+        return [p.trajectory for p in self.plans]
+
+    def refusal(self) -> str | None:
+        """One line naming the closest conflicting pair, the time and the distance; None when separated."""
+        if self.report.ok:
+            return None
+        more = len(self.report.conflicts) - 1
+        return f'{self.fleet.path}: separation conflict: {self.report.conflicts[0]}' + \
+            (f' (and {more} more pair{"s" * (more > 1)})' if more else '')
+
+
+def required(fleet: Fleet):
+    return separation.required_matrix([v.radius_m for v in fleet.vehicles], fleet.separation.margin_m,
+                                      fleet.separation.min_m)
+
+
+def plan_fleet(fleet: Fleet, speed_mps: float | None = None, **overrides) -> FleetPlan:
+    """Plans every vehicle (plan_mission), checks the separation, deconflicts when the file asks and re-checks."""
+    plans = [plan_mission(v.mission, speed_mps=speed_mps, **overrides) for v in fleet.vehicles]
+    delays = [v.start_delay_s for v in fleet.vehicles]
+    req = required(fleet)
+    names = fleet.names
+    report = separation.check([p.trajectory for p in plans], names, delays, req)
+    o = fleet.separation
+    if report.ok or o.deconflict == 'none':
+        return FleetPlan(fleet, plans, delays, report)
+    layered = {}
+
+    def candidates(k):
+        v = fleet.vehicles[k]
+        if o.deconflict == 'delays':
+            for j in range(1, int(np.floor(o.max_delay_s / o.delay_step_s + 1e-9)) + 1):
+                extra = j * o.delay_step_s
+                yield plans[k].trajectory, delays[k] + extra, f'starts {extra:g} s later ({delays[k] + extra:g} s)'
+        else:
+            for j in range(1, o.max_layers + 1):
+                for dz in (j * o.layer_m, -j * o.layer_m):
+                    floor = v.mission.world.bounds[4] if v.mission.world is not None else 0.0
+                    if np.min(v.mission.waypoints[:, 2]) + dz <= floor:
+                        continue
+                    shifted = dataclasses.replace(v.mission, waypoints=v.mission.waypoints + [0.0, 0.0, dz])
+                    try:
+                        result = plan_mission(shifted, speed_mps=speed_mps, **overrides)
+                    except ValueError:      # e.g. the layer is outside the world
+                        continue
+                    layered[(k, dz)] = (shifted, result)
+                    yield result.trajectory, delays[k], f'flies {dz:+g} m higher (altitude layer {dz:+g} m)'
+
+    trajectories, new_delays, changes = separation.deconflict([p.trajectory for p in plans], names, delays, req,
+                                                              candidates)
+    for k, v in enumerate(fleet.vehicles):      # adopt the layer a vehicle was moved to: its mission and plan
+        for (kk, _), (shifted, result) in layered.items():
+            if kk == k and result.trajectory is trajectories[k]:
+                fleet.vehicles[k] = dataclasses.replace(v, mission=shifted)
+                plans[k] = result
+    final = separation.check(trajectories, names, new_delays, req)
+    return FleetPlan(fleet, plans, new_delays, final, changes, before=report)
