@@ -20,6 +20,10 @@ Confidence: each estimate is repeated on BLOCKS contiguous parts of the flight; 
 whole-flight estimate +- t(0.975, n - 1) s / sqrt(n) over the n parts that had enough excitation (errors in
 neighbouring samples are correlated, so the residuals of one fit would understate it).
 
+Fits that cannot be right are refused too (quality_refusal): tau at an edge of TAU_RANGE_S or the dead time at
+MAX_DELAY_S (the true lag lies outside what was searched: e.g. the se3 controller's body rates fed forward on a PX4-like
+cascade made it track within a sample, 0.005 s where the loop lags 0.154 s), a collapsed interval.
+
 Window: only the time in which the vehicle flew our setpoints is scored (a bridge bag also holds the ground, the
 pre-stream and the autopilot's own AUTO.LAND, where the controller commands what the vehicle never flies): the
 bag's `vehicle/engaged` messages, else the bridge's hand-over diagnostics, cut the commands by their record
@@ -37,6 +41,7 @@ from quad_common.types import GRAVITY_MPS2
 
 DT_S = 0.01                  # resampling period (odometry comes at 100 Hz in the graph)
 MAX_DELAY_S = 0.3
+TAU_RANGE_S = (0.005, 2.0)   # the first order's search range (fit_fopdt's bounds)
 BLOCKS = 6
 MIN_EXCITATION_RAD = np.deg2rad(0.5)   # command standard deviation a block needs to be fitted
 WINDOW_S = 0.5               # thrust-scale windows
@@ -46,6 +51,11 @@ MIN_SPAN_S = 3.0
 MIN_FIT_R2 = 0.8
 MAX_LAG_CI_REL = 0.5         # width of the lag's 95 % interval / the lag
 MAX_THRUST_CI_REL = 0.05     # half width of the thrust scale's 95 % interval / the scale
+EDGE_REL = 0.1               # tau within 10 % of a bound of TAU_RANGE_S, or the dead time at MAX_DELAY_S: at the edge
+MIN_LAG_CI_S = 0.1 * DT_S    # a narrower lag interval: every part hit the same bound (collapsed), not a measurement
+EXCITE_LAG = ('fly a manoeuvre that shows the attitude response: a 3 m square or a figure8 at 0.8-1 m/s with the pd '
+              'controller (--controller pd: no body-rate feed-forward; the se3 controller\'s rates let an autopilot '
+              'follow the commanded attitude within a sample and hide its lag)')
 EXCITE = ('fly a manoeuvre that tilts the vehicle while it flies our setpoints (offboard), e.g. a 3 m square or '
           'a figure8 at 0.8-1 m/s, and record all of it')
 WALL_CLOCK_NS = 10**18       # stamps past 2001: a wall clock, not a simulator's time from 0
@@ -101,7 +111,8 @@ def fit_fopdt(u, y):
                 return _simulate(ud, y[0], np.exp(p[0]), p[1], p[2]) - y
 
             r = optimize.least_squares(residual, [np.log(0.1), 1.0, 0.0], x_scale=[1.0, 0.1, 0.01],
-                                       bounds=([np.log(0.005), 0.2, -0.5], [np.log(2.0), 5.0, 0.5]))
+                                       bounds=([np.log(TAU_RANGE_S[0]), 0.2, -0.5],
+                                               [np.log(TAU_RANGE_S[1]), 5.0, 0.5]))
             fits[shift] = (float(np.exp(r.x[0])), shift * DT_S, float(r.x[1]), float(r.x[2]), float(r.fun @ r.fun))
         return fits[shift]
 
@@ -244,6 +255,15 @@ def quality_refusal(result: dict) -> str | None:
     for axis in ('roll', 'pitch'):
         a = result[axis]
         low, high = a['lag_ci95_s']
+        if a['tau_s'] <= TAU_RANGE_S[0] * (1 + EDGE_REL) or a['tau_s'] >= TAU_RANGE_S[1] * (1 - EDGE_REL) \
+                or a['delay_s'] >= MAX_DELAY_S - 0.5 * DT_S:
+            return (f'the {axis} fit (lag {a["lag_s"]:.3f} s = tau {a["tau_s"]:.3f} s + dead time '
+                    f'{a["delay_s"]:.3f} s) sits at the edge of its search range (tau {TAU_RANGE_S[0]}-'
+                    f'{TAU_RANGE_S[1]} s, dead time up to {MAX_DELAY_S} s): the flight does not show the lag: '
+                    f'{EXCITE_LAG}')
+        if a['blocks'] >= 2 and high - low < MIN_LAG_CI_S:
+            return (f'the {axis} lag {a["lag_s"]:.3f} s has a collapsed 95 % interval {low:.4f}-{high:.4f} s over '
+                    f'{a["blocks"]} parts (every part fitted the same bound): {EXCITE_LAG}')
         if not a['fit_r2'] >= MIN_FIT_R2:
             return (f'the {axis} fit explains R^2 {a["fit_r2"]:.2f} < {MIN_FIT_R2} of the measured {axis} (the vehicle '
                     f'did not fly these commands): {EXCITE}')

@@ -280,3 +280,35 @@ def test_a_bridge_bag_that_cannot_be_windowed_is_refused(tmp_path, lag_bag):
     done = identify_cli(bag)
     assert done.returncode == 2, done.stdout
     assert 'does not say when the vehicle flew our setpoints' in done.stderr and 'vehicle/engaged' in done.stderr
+
+
+@pytest.fixture(scope='module')
+def feedforward_bag(tmp_path_factory):
+    """control_se3 (body rates fed forward) flying the figure8 at 2 m/s on autopilot_so3 (a PX4-like cascade that
+    follows those rates): the commanded attitude is tracked within a sample, its 0.154 s lag does not show."""
+    from quad_bringup.closed_loop import load_control_profile
+    from quad_trajectory.mission import load_mission
+    bag = tmp_path_factory.mktemp('feedforward') / 'bag'
+    controller, gains = load_control_profile(resolve_config('config/control_se3.yaml'))
+    figure8 = resolve_config('config/missions/figure8.yaml')
+    assert load_mission(figure8).options.v_max_mps is not None
+    fly_offline(figure8, LoopOptions(controller=controller, gains=gains, speed_mps=2.0, plant='autopilot_so3',
+                                     plan_overrides={'time_allocation': 'limits'}, bag_dir=bag))
+    return bag
+
+
+def test_a_fit_at_the_edge_of_its_search_range_is_refused_saying_what_to_fly(tmp_path, feedforward_bag):
+    out = tmp_path / 'edge.yaml'
+    done = identify_cli(feedforward_bag, '--base', resolve_config('config/control_se3.yaml'), '--out', out)
+    assert done.returncode == 2 and not out.exists(), done.stdout
+    assert 'roll : lag 0.005 s (95 % 0.005-0.005' in done.stdout   # what it measured is still shown
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'the roll fit (lag 0.005 s = tau 0.005 s + dead time 0.000 s) sits at the edge' in \
+        lines[0] and '--controller pd' in lines[0]
+
+
+def test_a_collapsed_interval_is_refused(feedforward_bag):
+    result = identify(load_flight(feedforward_bag))
+    assert result['roll']['lag_ci95_s'][1] - result['roll']['lag_ci95_s'][0] < 1e-3
+    inside = {**result, 'roll': {**result['roll'], 'tau_s': 0.05, 'lag_s': 0.05}}   # off the edge, same parts
+    assert 'collapsed 95 % interval' in quality_refusal(inside)
