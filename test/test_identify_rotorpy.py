@@ -6,6 +6,7 @@ rotorpy's own hold at 1.5x its lag (its PD's poles scaled by 1 / 1.5): accepted 
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import yaml
@@ -65,3 +66,26 @@ def test_a_profile_the_check_refuses_oscillates_on_rotorpy_at_the_margin(flown):
     at_margin = bench_transfer.rotorpy_hold(lead, tmp, 1.5, 'refused')
     assert not at_margin.settled and at_margin.oscillation_deg > 5.0, at_margin.describe()
     assert bench_transfer.rotorpy_hold(lead, tmp, 1.0, 'refused-1x').settled   # stable, without margin
+
+
+def test_fly_accepts_the_vehicle_model_identified_on_rotorpy(flown, ros_env):
+    """identify -> vehicle YAML -> `quadflight fly --vehicle` through the node graph."""
+    import json
+    tmp, bag = flown
+    model = tmp / 'rotorpy_vehicle.yaml'
+    done = identify_cli(bag, '--base', SE3, '--vehicle', CRAZYFLIE, '--out', tmp / 'p.yaml', '--model-out', model)
+    assert done.returncode == 0, done.stderr
+    assert yaml.safe_load(model.read_text())['attitude_loop'] == {
+        'type': 'lag', 'time_constant_s': pytest.approx(bench_transfer.ROTORPY_LAG_S, rel=0.05)}
+    mission = tmp / 'short.yaml'
+    mission.write_text(f'name: short\nvehicle: {Path(CRAZYFLIE).resolve()}\n'
+                       'waypoints: [[0, 0, 1], [0.8, 0.4, 1.2], [1.5, 0, 1]]\nyaw: 0.0\ntrajectory:\n'
+                       '  method: minsnap\n  waypoint_constraint: continuity\n  speed: 0.5\n'
+                       '  time_allocation: sqrt\n')
+    run_dir = tmp / 'run'
+    flew = subprocess.run([str(REPO_ROOT / 'quadflight'), 'fly', str(mission), '--vehicle', str(model),
+                           '--control-profile', str(tmp / 'p.yaml'), '--out', str(run_dir), '--quiet'],
+                          env=ros_env, capture_output=True, text=True, timeout=540)
+    assert flew.returncode == 0, flew.stdout + flew.stderr
+    metrics = json.loads((run_dir / 'metrics.json').read_text())
+    assert metrics['completed'] and metrics['rmse_m'] < 0.05

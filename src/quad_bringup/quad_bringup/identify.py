@@ -291,6 +291,38 @@ def profile(result: dict, base: dict | None = None) -> dict:
     return out
 
 
+def vehicle_model(result: dict, vehicle_path) -> dict:
+    """The vehicle file at vehicle_path as this flight measured it, for `fly --vehicle`, a sweep's `vehicles:` and
+    the twin: attitude_loop `lag` with time_constant_s = the mean of roll and pitch tau + dead time (quad_sim's lag
+    loop has one time constant and no dead time: the dead time enters as the mean delay it adds, so the lag the
+    position loop sees is the one measured), thrust_error = k - 1 (plant only: delivered / commanded, the hover
+    at g / k; a mass error flies the same), the rest (mass, inertia, motors: the bag records no rotor speeds)
+    as the file says."""
+    from quad_common.yaml_io import load_yaml
+    data = {k: v for k, v in (load_yaml(vehicle_path) or {}).items() if k not in ('attitude_loop', 'thrust_error',
+                                                                                  'mass_error')}
+    lag_s = 0.5 * (result['roll']['tau_s'] + result['roll']['delay_s'] + result['pitch']['tau_s']
+                   + result['pitch']['delay_s'])
+    data['name'] = f'{data.get("name", "vehicle")}_identified'
+    data['attitude_loop'] = {'type': 'lag', 'time_constant_s': round(float(lag_s), 4)}
+    data['thrust_error'] = round(float(result['thrust_scale']) - 1.0, 4)
+    return data
+
+
+def model_text(model: dict, result: dict, title: str) -> str:
+    """The vehicle model file: `title`, what was measured per axis (tau, dead time) and the hover thrust as
+    comments, then the vehicle fields."""
+    lines = [f'# {title}']
+    for axis in ('roll', 'pitch'):
+        a = result[axis]
+        lines.append(f'# {axis}: tau {a["tau_s"]:.4f} s + dead time {a["delay_s"]:.3f} s = lag {a["lag_s"]:.4f} s '
+                     f'(95 % {a["lag_ci95_s"][0]:.4f}-{a["lag_ci95_s"][1]:.4f}), R^2 {a["fit_r2"]:.3f}')
+    t = result['thrust']
+    lines.append(f'# thrust scale {t["thrust_scale"]:.4f}: hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 '
+                 f'commanded; motor time constant and drag not measured (no rotor speeds in the bag)')
+    return '\n'.join(lines) + '\n' + yaml.safe_dump(model, sort_keys=False)
+
+
 IDENTIFICATION_HEADER = '# identification:'
 
 

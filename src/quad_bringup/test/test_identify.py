@@ -312,3 +312,33 @@ def test_a_collapsed_interval_is_refused(feedforward_bag):
     assert result['roll']['lag_ci95_s'][1] - result['roll']['lag_ci95_s'][0] < 1e-3
     inside = {**result, 'roll': {**result['roll'], 'tau_s': 0.05, 'lag_s': 0.05}}   # off the edge, same parts
     assert 'collapsed 95 % interval' in quality_refusal(inside)
+
+
+def test_the_vehicle_model_flies_with_the_response_identified(tmp_path, lag_bag):
+    """identify -> vehicle YAML -> the offline loop and a sweep's vehicles: accept it, and a flight of the model
+    identifies the same lag and thrust scale again (the model is the vehicle identify measured)."""
+    from quad_bringup.runs import vehicle_entry
+    out, model = tmp_path / 'profile.yaml', tmp_path / 'model.yaml'
+    done = identify_cli(lag_bag, '--out', out, '--model-out', model, '--vehicle', CRAZYFLIE)
+    assert done.returncode == 0, done.stderr
+    assert f'vehicle model: {model} (attitude_loop lag 0.1' in done.stdout
+    first = read_identification(out.read_text())
+    vehicle = load_vehicle(model)
+    assert vehicle.attitude_loop.type == 'lag' and vehicle.name == 'crazyflie_identified'
+    assert vehicle.attitude_loop.time_constant_s == pytest.approx(first['attitude_lead_s'], abs=1e-3)
+    assert vehicle.inertia_kgm2 == pytest.approx(load_vehicle(CRAZYFLIE).inertia_kgm2, rel=1e-9)
+    assert vehicle_entry(str(model), 'vehicles[0]')[1] == str(model)
+    bag = tmp_path / 'twin-bag'
+    metrics = fly_offline(MAZE, LoopOptions(speed_mps=1.0, vehicle_path=str(model), bag_dir=bag))
+    assert metrics['completed'] and not metrics.get('stopped')
+    again = identify(load_flight(bag))
+    assert again['attitude_lead_s'] == pytest.approx(first['attitude_lead_s'], rel=0.1)
+    assert again['thrust_scale'] == pytest.approx(first['thrust_scale'], abs=0.01)
+
+
+def test_model_out_replaces_only_a_file_identify_wrote(tmp_path, lag_bag):
+    model = tmp_path / 'mine.yaml'
+    model.write_text('name: mine\n')
+    done = identify_cli(lag_bag, '--out', tmp_path / 'p.yaml', '--model-out', model)
+    assert done.returncode == 2 and 'not written by quadflight identify' in done.stderr
+    assert model.read_text() == 'name: mine\n' and not (tmp_path / 'p.yaml').exists()

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from rosbags.rosbag2 import ReaderError
 
-from quad_bringup.identify import identify, profile, profile_text, quality_refusal
+from quad_bringup.identify import identify, model_text, profile, profile_text, quality_refusal, vehicle_model
 from quad_bringup.report import load_flight
 from quad_common.yaml_io import load_yaml
 
@@ -49,7 +49,10 @@ def add_arguments(parser):
                         f'bag, a vehicle\'s record - stamp delay but at least {MEASURED_LATENCY_S}, ArduCopter\'s); '
                         f'the profile must settle at {MARGIN_LAG}x the identified response and {MARGIN_LATENCY}x this')
     parser.add_argument('--vehicle', type=Path, default=None, metavar='FILE',
-                        help=f'vehicle file of the margin check (default {DEFAULT_VEHICLE})')
+                        help=f'vehicle file of the margin check and of the model (default {DEFAULT_VEHICLE})')
+    parser.add_argument('--model-out', type=Path, metavar='FILE',
+                        help='vehicle model to write beside the profile (default: BAG_vehicle.yaml next to the bag): '
+                        '--vehicle with the identified attitude response and thrust, for fly --vehicle and sweeps')
 
 
 def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None) -> dict:
@@ -79,7 +82,7 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None)
                    f'{margin.late_tilt_deg:.1f} deg over the last quarter, oscillation '
                    f'{margin.oscillation_deg:.2f} deg rms{lost}; telemetry from {telemetry.source})')
     return {'result': result, 'written': written, 'controller': controller, 'telemetry': telemetry,
-            'margin': margin, 'refusal': refusal}
+            'margin': margin, 'refusal': refusal, 'vehicle': vehicle}
 
 
 def run(args) -> int:
@@ -87,8 +90,10 @@ def run(args) -> int:
     from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY
     bag = Path(args.bag)
     out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
+    model_out = args.model_out or bag.resolve().with_name(bag.resolve().name + '_vehicle.yaml')
+    inputs = [('bag', bag), ('--base', args.base), ('--vehicle', args.vehicle)]
     reason = (refusal('latency_s', args.latency_s) if args.latency_s is not None else None) or out_refusal(
-        out, [('bag', bag), ('--base', args.base), ('--vehicle', args.vehicle)])
+        out, inputs) or out_refusal(model_out, inputs + [('--out', out)])
     if reason:
         print(f'quadflight identify: {reason}', file=sys.stderr)
         return 2
@@ -125,11 +130,17 @@ def run(args) -> int:
                                   'late_tilt_deg': round(margin.late_tilt_deg, 3),
                                   'oscillation_deg': round(margin.oscillation_deg, 3),
                                   'offset_m': round(margin.offset_m, 4)}}
-    try:
-        out.write_text(profile_text(written, facts, f'{HEADER.removeprefix("# ")}{bag}'))
-    except OSError as exc:
-        print(f'quadflight identify: --out {out}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
-        return 2
+    model = vehicle_model(result, checked['vehicle'])
+    for flag, path, text in (('--out', out, profile_text(written, facts, f'{HEADER.removeprefix("# ")}{bag}')),
+                             ('--model-out', model_out, model_text(model, result,
+                                                                   f'{HEADER.removeprefix("# ")}{bag}'))):
+        try:
+            path.write_text(text)
+        except OSError as exc:
+            print(f'quadflight identify: {flag} {path}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
+            return 2
     print(f'profile: {out} (attitude_lead_s {written["position_controller"]["ros__parameters"]["attitude_lead_s"]}, '
           f'thrust_scale {written["position_controller"]["ros__parameters"]["thrust_scale"]})')
+    print(f'vehicle model: {model_out} (attitude_loop lag {model["attitude_loop"]["time_constant_s"]} s, thrust_error '
+          f'{model["thrust_error"]}; fly --vehicle, a sweep\'s vehicles:)')
     return 0
