@@ -110,14 +110,17 @@ def rotorpy_log(trajectory, gains_values, tmp, name, offset_m=(0.0, 0.0, 0.0), s
     return np.load(out)
 
 
-def rotorpy_bag(log, bag_dir):
+def rotorpy_bag(log, bag_dir, trajectory=None):
     """The rotorpy flight written as the graph records one (quad_bringup.closed_loop.FlightBag: odom and
-    cmd/attitude_thrust, stamped in sim time): a real rosbag2 bag that `quadflight identify` reads."""
+    cmd/attitude_thrust, stamped in sim time; the plan `trajectory` from t = 0 when given): a real rosbag2 bag that
+    `quadflight identify` and `replay` read."""
     import numpy as np
 
     from quad_bringup.closed_loop import FlightBag
     from quad_common.types import AttitudeSetpoint, State
     bag = FlightBag(bag_dir)
+    if trajectory is not None:
+        bag.write_trajectory(0.0, trajectory)
     for row in log:
         rates = row[23:26]
         bag.write(float(row[0]), State(position=row[1:4], velocity=row[4:7], quaternion=row[7:11],
@@ -157,7 +160,7 @@ def rotorpy_mission_bag(mission, gains_values, tmp):
     plan = plan_mission(loaded, speed_mps=SPEED_MPS, **overrides)
     trajectory = plan.trajectory.to_sampled(100.0)
     name = f'{mission}-{abs(hash(str(sorted(gains_values.items())))) % 10**8}'
-    bag = rotorpy_bag(rotorpy_log(trajectory, gains_values, tmp, name), Path(tmp) / f'{name}-bag')
+    bag = rotorpy_bag(rotorpy_log(trajectory, gains_values, tmp, name), Path(tmp) / f'{name}-bag', trajectory)
     return bag, plan, trajectory
 
 

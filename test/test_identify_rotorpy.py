@@ -89,3 +89,28 @@ def test_fly_accepts_the_vehicle_model_identified_on_rotorpy(flown, ros_env):
     assert flew.returncode == 0, flew.stdout + flew.stderr
     metrics = json.loads((run_dir / 'metrics.json').read_text())
     assert metrics['completed'] and metrics['rmse_m'] < 0.05
+
+
+def test_replay_twin_of_the_rotorpy_flight_within_20_percent(flown):
+    """identify's model flies the recorded plan again with control_se3: its RMSE within 20 % of rotorpy's flight
+    (the nominal Crazyflie file, whose eq. 6 lags 0.1 s, tracks 4x better than the vehicle did: no twin)."""
+    tmp, bag = flown
+    model = tmp / 'replay_vehicle.yaml'
+    assert identify_cli(bag, '--base', SE3, '--vehicle', CRAZYFLIE, '--out', tmp / 'r.yaml',
+                        '--model-out', model).returncode == 0
+
+    def replay(vehicle, figure):
+        done = subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'replay', str(bag), '--vehicle', str(vehicle),
+                               '--control-profile', str(SE3), '--figure', str(figure)],
+                              capture_output=True, text=True, cwd=REPO_ROOT)
+        assert done.returncode == 0, done.stderr
+        line = done.stdout.splitlines()[0]
+        flight = float(line.split('flight RMSE ')[1].split(' cm')[0])
+        twin = float(line.split('twin RMSE ')[1].split(' cm')[0])
+        return flight, twin, done.stdout
+
+    flight, twin, out = replay(model, tmp / 'twin.png')
+    assert 1.0 < flight < 3.0 and abs(twin / flight - 1) < 0.2, out
+    assert (tmp / 'twin.png').stat().st_size > 10_000 and 'open loop (the recorded setpoints' in out
+    flight_again, nominal, _ = replay(CRAZYFLIE, tmp / 'nominal.png')
+    assert flight_again == flight and nominal < 0.5 * flight
