@@ -3,11 +3,13 @@
 The plant family (config/plant_family.yaml) stands for vehicles we did not tune on: slow motors, an autopilot's
 own attitude loop (a PX4-like SO(3) cascade, an ArduPilot-like lagged target), a heavier vehicle, a wrong hover
 thrust. Profiles: `default` is what `quadflight fly --controller se3` flies (config/control_se3.yaml);
-`identified` is that profile with the attitude lead and thrust scale `quadflight identify` found in a bag of
-one figure8 flight of the same member with the default profile. Each flight: 2 m/s average, the mission's
-limits-aware allocation where the mission gives trajectory.limits (figure8, long_100), quad_bringup.closed_loop
-(the graph's pieces and timing without DDS; RMSE and completion as `quadflight report` computes them).
-Goal: default never diverges, completes, RMSE < 5 cm; identified RMSE < 2 cm.
+`identified` is what
+`quadflight identify --base config/control_se3.yaml --vehicle <the mission's>` gives from a bag of one figure8
+flight of the same member with the default profile (its function, check_bag, with its quality gates and margin
+check): the profile it writes, or the default where it refuses (nothing written). Each flight: 2 m/s average,
+the mission's limits-aware allocation where the mission gives trajectory.limits (figure8, long_100),
+quad_bringup.closed_loop (the graph's pieces and timing without DDS; RMSE and completion as `quadflight report`
+computes them). Goal: default never diverges, completes, RMSE < 5 cm; identified RMSE < 2 cm.
 """
 
 import sys
@@ -18,9 +20,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))] + [str(ROOT / 'bench')]
 
-from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile  # noqa: E402
-from quad_bringup.identify import identify  # noqa: E402
-from quad_bringup.report import load_flight  # noqa: E402
+from quad_bringup.closed_loop import LoopOptions, control_profile, fly_offline, load_control_profile  # noqa: E402
+from quad_bringup.commands.identify import check_bag  # noqa: E402
 from quad_common.vehicle import load_plant_family  # noqa: E402
 from quad_common.yaml_io import load_yaml  # noqa: E402
 from quad_trajectory.mission import load_mission  # noqa: E402
@@ -39,15 +40,16 @@ def _options(mission, member, gains, controller, **extra):
 
 
 def identified_gains(member):
-    """(gains with the identified lead and thrust scale, identification result) for one family member."""
+    """(gains `quadflight identify` gives for one family member: the profile it writes, or the default where it
+    refuses; identification result; its refusal or None)."""
     controller, gains = load_control_profile(DEFAULT_PROFILE)
     with tempfile.TemporaryDirectory(prefix='bench_transfer-') as tmp:
         path, options = _options(IDENTIFY_MISSION, member, gains, controller, bag_dir=Path(tmp) / 'bag')
         fly_offline(path, options)
-        result = identify(load_flight(Path(tmp) / 'bag'))
-    gains.attitude_lead_s = result['attitude_lead_s']
-    gains.thrust_scale = result['thrust_scale']
-    return gains, result
+        checked = check_bag(Path(tmp) / 'bag', DEFAULT_PROFILE, load_mission(path).vehicle_path)
+    if checked['refusal'] is None:
+        _, gains = control_profile(checked['written'])
+    return gains, checked['result'], checked['refusal']
 
 
 ROTORPY_LOOP = '''
@@ -174,19 +176,22 @@ def rotorpy_flight(mission, gains_values, tmp):
 
 
 def rotorpy_rows():
-    """(identification, [(mission, default metrics, identified metrics)]) on rotorpy's plant, or the reason it is
-    missing (the peer is optional)."""
+    """(identification, its refusal or None, [(mission, default metrics, identified metrics)]) on rotorpy's
+    plant through `quadflight identify`'s check_bag (--vehicle crazyflie.yaml), or the reason it is missing (the
+    peer is optional)."""
     from quad_bringup.report import compute_metrics
+    from quad_common.paths import resolve_config
     try:
         values = (load_yaml(DEFAULT_PROFILE) or {})['position_controller']['ros__parameters']
         with tempfile.TemporaryDirectory(prefix='bench_transfer-rotorpy-') as tmp:
-            result = identify(rotorpy_flight(IDENTIFY_MISSION, values, tmp))
-            tuned = dict(values, attitude_lead_s=result['attitude_lead_s'], thrust_scale=result['thrust_scale'])
+            bag, _, _ = rotorpy_mission_bag(IDENTIFY_MISSION, values, tmp)
+            checked = check_bag(bag, DEFAULT_PROFILE, resolve_config('config/vehicles/crazyflie.yaml'))
+            tuned = values if checked['refusal'] else checked['written']['position_controller']['ros__parameters']
             rows = [(m, compute_metrics(rotorpy_flight(m, values, tmp)), compute_metrics(rotorpy_flight(m, tuned, tmp)))
                     for m in MISSIONS]
-        return result, rows
+        return checked['result'], checked['refusal'], rows
     except Exception as exc:  # noqa: BLE001 -- reported in the table instead
-        return f'{type(exc).__name__}: {str(exc).splitlines()[-1] if str(exc) else ""}', []
+        return f'{type(exc).__name__}: {str(exc).splitlines()[-1] if str(exc) else ""}', None, []
 
 
 def fly(args):
@@ -208,14 +213,15 @@ def main():
     print(__doc__.split('\n\n', 1)[1].strip().replace('\n', ' ') + '\n')
     print('Identified (figure8, default profile): attitude lag = tau + dead time of the FOPDT fit with its 95 % '
           'interval over 6 parts of the flight, thrust scale k = delivered / commanded specific force.\n')
-    print('| member | roll lag (s) | pitch lag (s) | thrust scale |\n|---|---|---|---|')
+    print('| member | roll lag (s) | pitch lag (s) | thrust scale | quadflight identify |\n|---|---|---|---|---|')
     for member in members:
-        r = identified[member][1]
+        r, refusal = identified[member][1], identified[member][2]
         lag = ' | '.join(f'{r[a]["lag_s"]:.3f} ({r[a]["lag_ci95_s"][0]:.3f}-{r[a]["lag_ci95_s"][1]:.3f})'
                          for a in ('roll', 'pitch'))
         t = r['thrust']
+        verdict = f'refused: {refusal.split(": fly ")[0]}' if refusal else 'written'
         print(f'| {member} | {lag} | {t["thrust_scale"]:.4f} ({t["thrust_scale_ci95"][0]:.4f}-'
-              f'{t["thrust_scale_ci95"][1]:.4f}) |')
+              f'{t["thrust_scale_ci95"][1]:.4f}) | {verdict} |')
     print('\n| mission | member | default: completed | default: RMSE / max (cm) | identified: completed '
           '| identified: RMSE / max (cm) |\n|---|---|---|---:|---|---:|')
     worst = {'default': 0.0, 'identified': 0.0}
@@ -228,7 +234,7 @@ def main():
         print(f'| {mission} | {member} | {" | ".join(cells)} |')
     print(f'\nWorst RMSE: default {100 * worst["default"]:.2f} cm (goal < 5), identified '
           f'{100 * worst["identified"]:.2f} cm (goal < 2).\n')
-    identified_peer, rows = rotorpy_rows()
+    identified_peer, peer_refusal, rows = rotorpy_rows()
     print('Independent plant: rotorpy 3.0.0 `Multirotor` with its Crazyflie parameters (72 ms motors, its own SO(3) '
           'PD attitude loop kp 310 / kd 57 on `cmd_ctatt`, rotor drag on), in its own venv (bench/peers.py), flown by '
           'our planner and position controller (the pure cores) at 100 Hz; identified from its figure8 flight '
@@ -239,7 +245,8 @@ def main():
     r = identified_peer
     print(f'rotorpy identified: roll lag {r["roll"]["lag_s"]:.3f} s ({r["roll"]["lag_ci95_s"][0]:.3f}-'
           f'{r["roll"]["lag_ci95_s"][1]:.3f}), pitch lag {r["pitch"]["lag_s"]:.3f} s, thrust scale '
-          f'{r["thrust_scale"]:.4f}.\n')
+          f'{r["thrust_scale"]:.4f}; quadflight identify (--vehicle crazyflie.yaml): '
+          f'{"refused: " + peer_refusal if peer_refusal else "written"}.\n')
     print('| mission | default: completed | default: RMSE / max (cm) | identified: completed | identified: RMSE / max '
           '(cm) |\n|---|---|---:|---|---:|')
     for mission, a, b in rows:
