@@ -342,3 +342,25 @@ def test_model_out_replaces_only_a_file_identify_wrote(tmp_path, lag_bag):
     done = identify_cli(lag_bag, '--out', tmp_path / 'p.yaml', '--model-out', model)
     assert done.returncode == 2 and 'not written by quadflight identify' in done.stderr
     assert model.read_text() == 'name: mine\n' and not (tmp_path / 'p.yaml').exists()
+
+
+def test_the_margin_checks_telemetry_is_the_bags(tmp_path, lag_bag):
+    """A simulator's bag: lockstep, 100 Hz, no bursts. A vehicle's bag (wall clock): the median record - stamp
+    delay (at least ArduCopter's 0.05 s: the bridge bag's 3 ms is not the vehicle's estimator delay), the
+    record-time gaps as bursts; --latency-s replaces the latency and the line says what the bag had."""
+    from quad_bringup.metrics import Flight
+    from quad_bringup.stability import MEASURED_LATENCY_S, Telemetry
+    sim = Telemetry.of_flight(load_flight(lag_bag))
+    assert (sim.latency_s, sim.burst_s, round(sim.rate_hz)) == (0.0, 0.0, 100) and 'simulator' in sim.source
+    bridge, *_ = _bridge_bag(tmp_path, lag_bag)
+    vehicle = Telemetry.of_flight(load_flight(bridge))
+    assert vehicle.latency_s == MEASURED_LATENCY_S and vehicle.burst_s == pytest.approx(0.0, abs=1e-6)
+    given = Telemetry.of_flight(load_flight(bridge), 0.08)
+    assert given.latency_s == 0.08 and 'latency 0.080 s as given (the bag: 0.050 s)' in given.source
+    n = 400   # 100 Hz stamps, released 0.12 s later in bursts of four (every 40 ms)
+    stamps_ns = EPOCH_NS + np.arange(n) * 10_000_000
+    record_ns = EPOCH_NS + 120_000_000 + (np.arange(n) // 4 * 4 + 3) * 10_000_000
+    bursty = Flight(odom_t=stamps_ns * 1e-9, position=np.zeros((n, 3)), velocity=np.zeros((n, 3)),
+                    euler=np.zeros((n, 3)), odom_record_ns=record_ns)
+    seen = Telemetry.of_flight(bursty)
+    assert seen.latency_s == pytest.approx(0.135, abs=0.006) and seen.burst_s == pytest.approx(0.03, abs=1e-3)
