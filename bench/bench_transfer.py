@@ -28,7 +28,7 @@ from quad_trajectory.mission import load_mission  # noqa: E402
 
 MISSIONS = ('maze', 'window', 'figure8', 'long_100')
 SPEED_MPS = 2.0
-DEFAULT_PROFILE = ROOT / 'config' / 'control_se3.yaml'
+DEFAULT_PROFILE = 'config/control_se3.yaml'        # resolved under the checkout (quad_common.paths)
 IDENTIFY_MISSION = 'figure8'
 
 
@@ -161,8 +161,9 @@ def rotorpy_mission_bag(mission, gains_values, tmp):
     overrides = {'time_allocation': 'limits'} if loaded.options.v_max_mps is not None else {}
     plan = plan_mission(loaded, speed_mps=SPEED_MPS, **overrides)
     trajectory = plan.trajectory.to_sampled(100.0)
-    name = f'{mission}-{abs(hash(str(sorted(gains_values.items())))) % 10**8}'
-    bag = rotorpy_bag(rotorpy_log(trajectory, gains_values, tmp, name), Path(tmp) / f'{name}-bag', trajectory)
+    import tempfile
+    where = Path(tempfile.mkdtemp(prefix=f'{mission}-', dir=tmp))   # one flight each, however often flown
+    bag = rotorpy_bag(rotorpy_log(trajectory, gains_values, where, mission), where / 'bag', trajectory)
     return bag, plan, trajectory
 
 
@@ -182,7 +183,7 @@ def rotorpy_rows():
     from quad_bringup.report import compute_metrics
     from quad_common.paths import resolve_config
     try:
-        values = (load_yaml(DEFAULT_PROFILE) or {})['position_controller']['ros__parameters']
+        values = (load_yaml(resolve_config(DEFAULT_PROFILE)) or {})['position_controller']['ros__parameters']
         with tempfile.TemporaryDirectory(prefix='bench_transfer-rotorpy-') as tmp:
             bag, _, _ = rotorpy_mission_bag(IDENTIFY_MISSION, values, tmp)
             checked = check_bag(bag, DEFAULT_PROFILE, resolve_config('config/vehicles/crazyflie.yaml'))

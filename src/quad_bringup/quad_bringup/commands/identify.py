@@ -64,7 +64,7 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None)
     from quad_bringup.closed_loop import control_profile
     from quad_bringup.stability import Telemetry, margin_hold_identified
     from quad_common.paths import resolve_config
-    base = load_yaml(base_path if base_path else resolve_config(DEFAULT_BASE)) or {}
+    base = load_yaml(resolve_config(base_path or DEFAULT_BASE)) or {}   # a config/ name as --base does
     vehicle = vehicle if vehicle else resolve_config(DEFAULT_VEHICLE)
     flight = load_flight(bag)
     result = identify(flight)
