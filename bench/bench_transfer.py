@@ -87,6 +87,7 @@ np.save({out!r}, np.array(log))
 '''
 ROTORPY_TAU_M_S = 0.072          # rotorpy 3.0.0 crazyflie_params: motor time constant (reference for identify)
 ROTORPY_LAG_S = 57.0 / 310.0     # its attitude PD kd / kp: the mean delay of kp / (s^2 + kd s + kp)
+ROTORPY_ROTOR_DRAG = 10.2506e-07  # its k_d: body-frame horizontal drag k_d omega_i v per rotor (identify_drag's c)
 
 
 def rotorpy_log(trajectory, gains_values, tmp, name, offset_m=(0.0, 0.0, 0.0), settle_s=3.0, params=None):

@@ -236,6 +236,40 @@ def identify_thrust(flight) -> ThrustFit:
                      mass_error_equivalent=1.0 / k - 1.0, blocks=len(parts))
 
 
+def identify_drag(flight, thrust_scale: float, vehicle) -> dict:
+    """Rotor drag c (quad_sim's and rotorpy's aerodynamics.rotor_drag_xy: body-frame horizontal force
+    -c sum(omega) v_b) from the horizontal velocity changes over WINDOW_S windows,
+        dv_xy = integral(k f (R e3)_xy dt) - c integral((sum(omega) / m) (R P R^T v)_xy dt),   P = diag(1, 1, 0),
+    sum(omega) = 4 sqrt(k f m / (4 k_eta)) from the delivered thrust (no rotor speeds in the bag), m and k_eta the
+    vehicle file's. {'rotor_drag_xy', 'rotor_drag_xy_ci95', 'deceleration_per_mps_at_hover'}."""
+    from quad_common import rotations
+    t0, t1 = _airborne(flight, *_span(flight))
+    grid = np.arange(t0, t1, DT_S)
+    index = np.clip(np.searchsorted(flight.cmd_t, grid, side='right') - 1, 0, len(flight.cmd_t) - 1)
+    euler = np.stack([np.interp(grid, flight.odom_t, flight.euler[:, i]) for i in range(3)], axis=1)
+    R = rotations.to_matrix(rotations.from_euler(euler[:, 0], euler[:, 1], euler[:, 2]))
+    v = np.stack([np.interp(grid, flight.odom_t, flight.velocity[:, i]) for i in range(3)], axis=1)
+    f = thrust_scale * flight.cmd_specific_force[index]
+    drive = f[:, None] * R[:, :2, 2]                                       # k f (R e3)_xy
+    v_body = np.einsum('nji,nj->ni', R, v)
+    v_body[:, 2] = 0.0
+    wsum = 4.0 * np.sqrt(np.maximum(f, 0.0) * vehicle.mass_kg / (4.0 * vehicle.k_eta))
+    drag = (wsum / vehicle.mass_kg)[:, None] * np.einsum('nij,nj->ni', R, v_body)[:, :2]
+    n = int(round(WINDOW_S / DT_S))
+    starts = np.arange(0, len(grid) - n, n)
+    if len(starts) < 2:
+        raise ValueError('too short a flight to estimate drag')
+    lhs = np.concatenate([v[s + n, :2] - v[s, :2] - np.trapezoid(drive[s:s + n + 1], dx=DT_S, axis=0)
+                          for s in starts])
+    rhs = -np.concatenate([np.trapezoid(drag[s:s + n + 1], dx=DT_S, axis=0) for s in starts])
+    c = float(lhs @ rhs / (rhs @ rhs))
+    parts = [float(a @ b / (b @ b)) for a, b in zip(np.array_split(lhs, BLOCKS), np.array_split(rhs, BLOCKS))
+             if len(b) and b @ b > 0]
+    hover_wsum = 4.0 * np.sqrt(vehicle.mass_kg * GRAVITY_MPS2 / (4.0 * vehicle.k_eta))
+    return {'rotor_drag_xy': c, 'rotor_drag_xy_ci95': _interval(c, parts),
+            'deceleration_per_mps_at_hover': c * hover_wsum / vehicle.mass_kg}
+
+
 def identify(flight) -> dict:
     """{'roll': AxisFit, 'pitch': AxisFit, 'thrust': ThrustFit, 'attitude_lead_s': mean lag} as plain dicts."""
     if len(flight.cmd_t) == 0:
@@ -296,8 +330,10 @@ def vehicle_model(result: dict, vehicle_path) -> dict:
     the twin: attitude_loop `lag` with time_constant_s = the mean of roll and pitch tau + dead time (quad_sim's lag
     loop has one time constant and no dead time: the dead time enters as the mean delay it adds, so the lag the
     position loop sees is the one measured), thrust_error = k - 1 (plant only: delivered / commanded, the hover
-    at g / k; a mass error flies the same), the rest (mass, inertia, motors: the bag records no rotor speeds)
-    as the file says."""
+    at g / k; a mass error flies the same), aerodynamics = the drag measured (result['drag'], identify_drag:
+    rotor_drag_xy where its 95 % interval lies above 0, else 0; body and vertical drag 0: not separable at these
+    speeds; the simulator applies them with a drag disturbance profile, as replay does), the rest (mass, inertia,
+    motors: the bag records no rotor speeds) as the file says."""
     from quad_common.yaml_io import load_yaml
     data = {k: v for k, v in (load_yaml(vehicle_path) or {}).items() if k not in ('attitude_loop', 'thrust_error',
                                                                                   'mass_error')}
@@ -306,6 +342,12 @@ def vehicle_model(result: dict, vehicle_path) -> dict:
     data['name'] = f'{data.get("name", "vehicle")}_identified'
     data['attitude_loop'] = {'type': 'lag', 'time_constant_s': round(float(lag_s), 4)}
     data['thrust_error'] = round(float(result['thrust_scale']) - 1.0, 4)
+    drag = result.get('drag')
+    if drag is not None:
+        measured = drag['rotor_drag_xy_ci95'][0] > 0
+        data['aerodynamics'] = {'body_drag': [0.0, 0.0, 0.0],
+                                'rotor_drag_xy': float(f'{drag["rotor_drag_xy"]:.4g}') if measured else 0.0,
+                                'rotor_drag_z': 0.0}
     return data
 
 
@@ -319,7 +361,12 @@ def model_text(model: dict, result: dict, title: str) -> str:
                      f'(95 % {a["lag_ci95_s"][0]:.4f}-{a["lag_ci95_s"][1]:.4f}), R^2 {a["fit_r2"]:.3f}')
     t = result['thrust']
     lines.append(f'# thrust scale {t["thrust_scale"]:.4f}: hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 '
-                 f'commanded; motor time constant and drag not measured (no rotor speeds in the bag)')
+                 f'commanded; motor time constant not measured (no rotor speeds in the bag)')
+    drag = result.get('drag')
+    if drag is not None:
+        low, high = drag['rotor_drag_xy_ci95']
+        lines.append(f'# rotor drag {drag["rotor_drag_xy"]:.4g} N/(m/s)/(rad/s) (95 % {low:.4g}-{high:.4g}): '
+                     f'{drag["deceleration_per_mps_at_hover"]:.3f} m/s^2 per m/s at hover')
     return '\n'.join(lines) + '\n' + yaml.safe_dump(model, sort_keys=False)
 
 
@@ -352,5 +399,5 @@ def _plain(value):
     if isinstance(value, (tuple, list)):
         return [_plain(v) for v in value]
     if isinstance(value, (float, np.floating)):
-        return round(float(value), 5)
+        return float(f'{float(value):.5g}') if abs(value) < 1e-3 else round(float(value), 5)   # drag: ~1e-6
     return value

@@ -3,7 +3,8 @@ with the position controller and gains, and the bag's setpoints fed open loop.
 
 Closed loop: the PositionController (quad_control, RATE_HZ) tracks the recorded plan (the bag's `trajectory`)
 on Simulator(vehicle) from the flight's position and yaw at the plan's start, each tick seeing the simulator's
-odometry, as the offline loop (quad_bringup.closed_loop) does. Open loop: the recorded cmd/attitude_thrust
+odometry, as the offline loop (quad_bringup.closed_loop) does. Both with the model's aerodynamics (DRAG: the drag
+identify measured; a vehicle file's own coefficients act too). Open loop: the recorded cmd/attitude_thrust
 (held from stamp to stamp) drives Simulator(vehicle) from the same start: errors of the model integrate, so it
 is scored over OPEN_LOOP_S only.
 
@@ -20,8 +21,11 @@ from quad_common.types import AttitudeSetpoint
 from quad_common.vehicle import load_vehicle
 from quad_control.loop import RATE_HZ
 from quad_control.position import Limits, PositionController, PositionGains
+from quad_sim.disturbances import profile_from_dict
 from quad_sim.simulator import SimulationStopped, Simulator
 
+DRAG = profile_from_dict({'body_drag': True, 'rotor_drag': True}, 'replay')   # the model's aerodynamics: what
+#                                          identify measured (0 where it saw none)
 OPEN_LOOP_S = 2.0        # the open-loop trace is scored over the plan's first seconds (it drifts)
 RMSE_GOAL = 0.2          # the twin's closed-loop RMSE within 20 % of the flight's
 
@@ -34,7 +38,7 @@ def _fly(vehicle, start_p, start_yaw, t0_s, end_s, step):
     """(times, positions) of Simulator(vehicle) from rest at start_p / start_yaw, step(k, t_s, sim) -> setpoint
     each 1 / RATE_HZ from t0_s to end_s."""
     sim = Simulator(vehicle, physics_rate_hz=1000.0, initial_position=start_p, initial_yaw=start_yaw,
-                    setpoint_timeout_s=1e6)
+                    setpoint_timeout_s=1e6, disturbances=DRAG)
     period_s = 1.0 / RATE_HZ
     times, positions = [t0_s], [sim.state.position]
     stopped = None

@@ -328,6 +328,8 @@ def test_the_vehicle_model_flies_with_the_response_identified(tmp_path, lag_bag)
     assert vehicle.attitude_loop.time_constant_s == pytest.approx(first['attitude_lead_s'], abs=1e-3)
     assert vehicle.inertia_kgm2 == pytest.approx(load_vehicle(CRAZYFLIE).inertia_kgm2, rel=1e-9)
     assert vehicle_entry(str(model), 'vehicles[0]')[1] == str(model)
+    assert vehicle.extra['aerodynamics']['rotor_drag_xy'] == 0.0   # the simulator flew it without drag
+    assert abs(first['drag']['deceleration_per_mps_at_hover']) < 0.02
     bag = tmp_path / 'twin-bag'
     metrics = fly_offline(MAZE, LoopOptions(speed_mps=1.0, vehicle_path=str(model), bag_dir=bag))
     assert metrics['completed'] and not metrics.get('stopped')

@@ -8,8 +8,17 @@ from pathlib import Path
 
 from rosbags.rosbag2 import ReaderError
 
-from quad_bringup.identify import identify, model_text, profile, profile_text, quality_refusal, vehicle_model
+from quad_bringup.identify import (
+    identify,
+    identify_drag,
+    model_text,
+    profile,
+    profile_text,
+    quality_refusal,
+    vehicle_model,
+)
 from quad_bringup.report import load_flight
+from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 
 DEFAULT_BASE = 'config/control_real.yaml'            # what the bridge launch files fly
@@ -68,6 +77,7 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None)
     vehicle = vehicle if vehicle else resolve_config(DEFAULT_VEHICLE)
     flight = load_flight(bag)
     result = identify(flight)
+    result['drag'] = identify_drag(flight, result['thrust_scale'], load_vehicle(vehicle))
     written = profile(result, base)
     controller, gains = control_profile(written)
     telemetry = Telemetry.of_flight(flight, latency_s)
@@ -118,6 +128,9 @@ def run(args) -> int:
     print(f'thrust: scale {t["thrust_scale"]:.4f} (95 % {low:.4f}-{high:.4f}); '
           f'hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 commanded; equivalent mass error '
           f'{100 * t["mass_error_equivalent"]:+.1f} %')
+    d = result['drag']
+    print(f'drag: rotor drag {d["rotor_drag_xy"]:.3g} N/(m/s)/(rad/s) (95 % {d["rotor_drag_xy_ci95"][0]:.3g}-'
+          f'{d["rotor_drag_xy_ci95"][1]:.3g}): {d["deceleration_per_mps_at_hover"]:.3f} m/s^2 per m/s at hover')
     print(f'telemetry: {telemetry.describe()}')
     print(f'margin ({MARGIN_LAG}x the response, tau + dead time {result["attitude_lead_s"]:.3f} s, {MARGIN_LATENCY}x '
           f'the telemetry latency {telemetry.latency_s:.3f} s, {checked["controller"]}): {margin.describe()}')
