@@ -366,3 +366,51 @@ def test_the_margin_checks_telemetry_is_the_bags(tmp_path, lag_bag):
                     euler=np.zeros((n, 3)), odom_record_ns=record_ns)
     seen = Telemetry.of_flight(bursty)
     assert seen.latency_s == pytest.approx(0.135, abs=0.006) and seen.burst_s == pytest.approx(0.03, abs=1e-3)
+
+
+def _member_hold(plant_fields, controller, gains):
+    """stability's hold (20 s from a (0.5, 0, 0.3) m offset) flown on the Crazyflie with plant_fields, without
+    the check's model: the plant's own loop, odometry every tick."""
+    from quad_bringup.stability import HOLD_ALTITUDE_M, hold_of
+    from quad_common import rotations
+    from quad_common.types import Reference
+    from quad_control.position import Limits, PositionController
+    from quad_sim.simulator import Simulator
+    nominal = load_vehicle(CRAZYFLIE)
+    target = np.array([0.0, 0.0, HOLD_ALTITUDE_M])
+    sim = Simulator(load_vehicle(CRAZYFLIE, plant=plant_fields), physics_rate_hz=1000.0,
+                    initial_position=target + [0.5, 0.0, 0.3], setpoint_timeout_s=1e6)
+    control = PositionController(controller, gains, nominal, Limits.of(nominal))
+    ref = Reference(position=target, velocity=np.zeros(3), acceleration=np.zeros(3), jerk=np.zeros(3), yaw=0.0,
+                    yaw_rate=0.0)
+    positions, euler = [], []
+    for k in range(2000):
+        setpoint, _ = control.update(sim.odometry_state(), ref, 0.01 if k else 0.0)
+        sim.set_setpoint(setpoint)
+        sim.advance(0.01)
+        positions.append(sim.state.position)
+        euler.append(rotations.to_euler(sim.state.quaternion)[:2])
+    return hold_of(0.0, 0.0, 0.0, positions, euler, target, 0.01)
+
+
+@pytest.mark.parametrize('stiff, settles', [(False, True), (True, False)])
+def test_the_margin_verdict_matches_a_cascade_1_5x_slower(tmp_path, stiff, settles):
+    """autopilot_so3 (a PX4-like angle-P 6.5 / rate-P 60 cascade: not the check's first order plus dead time),
+    identified from a pd flight: the check's verdict at 1.5x equals the member's own with angle_p and rate_p / 1.5
+    (its response 1.5x slower): control_se3 settles on both, se3 with kp 40 / kd 13 oscillates on both."""
+    from quad_bringup.closed_loop import load_control_profile
+    from quad_bringup.stability import Telemetry, margin_hold_identified
+    flight = load_flight(flown_bag(tmp_path, 'autopilot_so3'))
+    result = identify(flight)
+    assert result['attitude_lead_s'] == pytest.approx(0.154, rel=0.05)
+    controller, gains = load_control_profile(resolve_config('config/control_se3.yaml'))
+    gains.attitude_lead_s = result['attitude_lead_s']
+    if stiff:
+        gains.kp[:2], gains.kd[:2] = 40.0, 13.0
+    check = margin_hold_identified(CRAZYFLIE, controller, gains, result, Telemetry.of_flight(flight))
+    slower = {'attitude_loop': {'type': 'so3_pd', 'angle_p': [6.5 / 1.5, 6.5 / 1.5, 2.8],
+                                'rate_p': [60.0 / 1.5, 60.0 / 1.5, 30.0]}}
+    member = _member_hold(slower, controller, gains)
+    assert check.settled == member.settled == settles, (check.describe(), member.describe())
+    if not settles:
+        assert check.oscillation_deg > 1.0 and member.oscillation_deg > 5.0
