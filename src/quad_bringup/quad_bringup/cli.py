@@ -17,7 +17,9 @@ SUBCOMMANDS = {
     'record': ('quad_bringup.commands.record', 'record topics to a rosbag2 bag (MCAP)'),
     'report': ('quad_bringup.commands.report', 'metrics, tables and figures from a rosbag2 bag'),
     'identify': ('quad_bringup.commands.identify', 'attitude lag and thrust scale of the vehicle from a flight bag, '
-                 'as a control profile (written when it has margin on that lag)'),
+                 'as a control profile (written when it has margin on that lag) and a vehicle model'),
+    'replay': ('quad_bringup.commands.replay', "a flight's twin: its plan flown again in the simulator on a vehicle "
+                                               'model (closed loop) and its setpoints open loop; RMSEs, a figure'),
     'sweep': ('quad_bringup.commands.sweep', 'many flights over missions x controllers x vehicles x disturbances x '
                                              'seeds: one table, a summary, figures'),
     'tune': ('quad_bringup.commands.tune', "search a controller's gains for a robust cost over missions and a "

@@ -82,6 +82,29 @@ class FlightBag:
         self.writer = BagRecorder(path)
         for topic in (contract.ODOM, contract.SETPOINT):
             self.writer.add_topic(topic, DEFAULT_TOPICS[topic])
+        self._topics = DEFAULT_TOPICS
+
+    def write_trajectory(self, start_s, trajectory):
+        """The plan as trajectory_node latches it (quad_common.conversions.sampled_to_msg's fields): `replay`
+        flies it again, `report` scores against it."""
+        T = self.ts.types
+        vec, twist = T['geometry_msgs/msg/Vector3'], T['geometry_msgs/msg/Twist']
+        points = []
+        for t, p, v, a in zip(trajectory.times_s - trajectory.times_s[0], trajectory.position, trajectory.velocity,
+                              trajectory.acceleration):
+            ns = int(round(t * 1e9))
+            points.append(T['trajectory_msgs/msg/MultiDOFJointTrajectoryPoint'](
+                transforms=[T['geometry_msgs/msg/Transform'](
+                    translation=vec(*map(float, p[:3])),
+                    rotation=T['geometry_msgs/msg/Quaternion'](*map(float, rotations.from_yaw(float(p[3])))))],
+                velocities=[twist(linear=vec(*map(float, v[:3])), angular=vec(0.0, 0.0, float(v[3])))],
+                accelerations=[twist(linear=vec(*map(float, a[:3])), angular=vec(0.0, 0.0, float(a[3])))],
+                time_from_start=T['builtin_interfaces/msg/Duration'](sec=ns // 10**9, nanosec=ns % 10**9)))
+        msg = T['trajectory_msgs/msg/MultiDOFJointTrajectory'](header=self._header(start_s, 'map'),
+                                                              joint_names=['base_link'], points=points)
+        self.writer.add_topic('trajectory', self._topics['trajectory'])
+        self.writer.write('trajectory', int(round(start_s * 1e9)),
+                          self.ts.serialize_cdr(msg, 'trajectory_msgs/msg/MultiDOFJointTrajectory'))
 
     def _header(self, t_s, frame):
         T = self.ts.types

@@ -20,6 +20,10 @@ Confidence: each estimate is repeated on BLOCKS contiguous parts of the flight; 
 whole-flight estimate +- t(0.975, n - 1) s / sqrt(n) over the n parts that had enough excitation (errors in
 neighbouring samples are correlated, so the residuals of one fit would understate it).
 
+Fits that cannot be right are refused too (quality_refusal): tau at an edge of TAU_RANGE_S or the dead time at
+MAX_DELAY_S (the true lag lies outside what was searched: e.g. the se3 controller's body rates fed forward on a PX4-like
+cascade made it track within a sample, 0.005 s where the loop lags 0.154 s), a collapsed interval.
+
 Window: only the time in which the vehicle flew our setpoints is scored (a bridge bag also holds the ground, the
 pre-stream and the autopilot's own AUTO.LAND, where the controller commands what the vehicle never flies): the
 bag's `vehicle/engaged` messages, else the bridge's hand-over diagnostics, cut the commands by their record
@@ -37,6 +41,7 @@ from quad_common.types import GRAVITY_MPS2
 
 DT_S = 0.01                  # resampling period (odometry comes at 100 Hz in the graph)
 MAX_DELAY_S = 0.3
+TAU_RANGE_S = (0.005, 2.0)   # the first order's search range (fit_fopdt's bounds)
 BLOCKS = 6
 MIN_EXCITATION_RAD = np.deg2rad(0.5)   # command standard deviation a block needs to be fitted
 WINDOW_S = 0.5               # thrust-scale windows
@@ -46,6 +51,11 @@ MIN_SPAN_S = 3.0
 MIN_FIT_R2 = 0.8
 MAX_LAG_CI_REL = 0.5         # width of the lag's 95 % interval / the lag
 MAX_THRUST_CI_REL = 0.05     # half width of the thrust scale's 95 % interval / the scale
+EDGE_REL = 0.1               # tau within 10 % of a bound of TAU_RANGE_S, or the dead time at MAX_DELAY_S: at the edge
+MIN_LAG_CI_S = 0.1 * DT_S    # a narrower lag interval: every part hit the same bound (collapsed), not a measurement
+EXCITE_LAG = ('fly a manoeuvre that shows the attitude response: a 3 m square or a figure8 at 0.8-1 m/s with the pd '
+              'controller (--controller pd: no body-rate feed-forward; the se3 controller\'s rates let an autopilot '
+              'follow the commanded attitude within a sample and hide its lag)')
 EXCITE = ('fly a manoeuvre that tilts the vehicle while it flies our setpoints (offboard), e.g. a 3 m square or '
           'a figure8 at 0.8-1 m/s, and record all of it')
 WALL_CLOCK_NS = 10**18       # stamps past 2001: a wall clock, not a simulator's time from 0
@@ -101,7 +111,8 @@ def fit_fopdt(u, y):
                 return _simulate(ud, y[0], np.exp(p[0]), p[1], p[2]) - y
 
             r = optimize.least_squares(residual, [np.log(0.1), 1.0, 0.0], x_scale=[1.0, 0.1, 0.01],
-                                       bounds=([np.log(0.005), 0.2, -0.5], [np.log(2.0), 5.0, 0.5]))
+                                       bounds=([np.log(TAU_RANGE_S[0]), 0.2, -0.5],
+                                               [np.log(TAU_RANGE_S[1]), 5.0, 0.5]))
             fits[shift] = (float(np.exp(r.x[0])), shift * DT_S, float(r.x[1]), float(r.x[2]), float(r.fun @ r.fun))
         return fits[shift]
 
@@ -225,6 +236,40 @@ def identify_thrust(flight) -> ThrustFit:
                      mass_error_equivalent=1.0 / k - 1.0, blocks=len(parts))
 
 
+def identify_drag(flight, thrust_scale: float, vehicle) -> dict:
+    """Rotor drag c (quad_sim's and rotorpy's aerodynamics.rotor_drag_xy: body-frame horizontal force
+    -c sum(omega) v_b) from the horizontal velocity changes over WINDOW_S windows,
+        dv_xy = integral(k f (R e3)_xy dt) - c integral((sum(omega) / m) (R P R^T v)_xy dt),   P = diag(1, 1, 0),
+    sum(omega) = 4 sqrt(k f m / (4 k_eta)) from the delivered thrust (no rotor speeds in the bag), m and k_eta the
+    vehicle file's. {'rotor_drag_xy', 'rotor_drag_xy_ci95', 'deceleration_per_mps_at_hover'}."""
+    from quad_common import rotations
+    t0, t1 = _airborne(flight, *_span(flight))
+    grid = np.arange(t0, t1, DT_S)
+    index = np.clip(np.searchsorted(flight.cmd_t, grid, side='right') - 1, 0, len(flight.cmd_t) - 1)
+    euler = np.stack([np.interp(grid, flight.odom_t, flight.euler[:, i]) for i in range(3)], axis=1)
+    R = rotations.to_matrix(rotations.from_euler(euler[:, 0], euler[:, 1], euler[:, 2]))
+    v = np.stack([np.interp(grid, flight.odom_t, flight.velocity[:, i]) for i in range(3)], axis=1)
+    f = thrust_scale * flight.cmd_specific_force[index]
+    drive = f[:, None] * R[:, :2, 2]                                       # k f (R e3)_xy
+    v_body = np.einsum('nji,nj->ni', R, v)
+    v_body[:, 2] = 0.0
+    wsum = 4.0 * np.sqrt(np.maximum(f, 0.0) * vehicle.mass_kg / (4.0 * vehicle.k_eta))
+    drag = (wsum / vehicle.mass_kg)[:, None] * np.einsum('nij,nj->ni', R, v_body)[:, :2]
+    n = int(round(WINDOW_S / DT_S))
+    starts = np.arange(0, len(grid) - n, n)
+    if len(starts) < 2:
+        raise ValueError('too short a flight to estimate drag')
+    lhs = np.concatenate([v[s + n, :2] - v[s, :2] - np.trapezoid(drive[s:s + n + 1], dx=DT_S, axis=0)
+                          for s in starts])
+    rhs = -np.concatenate([np.trapezoid(drag[s:s + n + 1], dx=DT_S, axis=0) for s in starts])
+    c = float(lhs @ rhs / (rhs @ rhs))
+    parts = [float(a @ b / (b @ b)) for a, b in zip(np.array_split(lhs, BLOCKS), np.array_split(rhs, BLOCKS))
+             if len(b) and b @ b > 0]
+    hover_wsum = 4.0 * np.sqrt(vehicle.mass_kg * GRAVITY_MPS2 / (4.0 * vehicle.k_eta))
+    return {'rotor_drag_xy': c, 'rotor_drag_xy_ci95': _interval(c, parts),
+            'deceleration_per_mps_at_hover': c * hover_wsum / vehicle.mass_kg}
+
+
 def identify(flight) -> dict:
     """{'roll': AxisFit, 'pitch': AxisFit, 'thrust': ThrustFit, 'attitude_lead_s': mean lag} as plain dicts."""
     if len(flight.cmd_t) == 0:
@@ -244,6 +289,15 @@ def quality_refusal(result: dict) -> str | None:
     for axis in ('roll', 'pitch'):
         a = result[axis]
         low, high = a['lag_ci95_s']
+        if a['tau_s'] <= TAU_RANGE_S[0] * (1 + EDGE_REL) or a['tau_s'] >= TAU_RANGE_S[1] * (1 - EDGE_REL) \
+                or a['delay_s'] >= MAX_DELAY_S - 0.5 * DT_S:
+            return (f'the {axis} fit (lag {a["lag_s"]:.3f} s = tau {a["tau_s"]:.3f} s + dead time '
+                    f'{a["delay_s"]:.3f} s) sits at the edge of its search range (tau {TAU_RANGE_S[0]}-'
+                    f'{TAU_RANGE_S[1]} s, dead time up to {MAX_DELAY_S} s): the flight does not show the lag: '
+                    f'{EXCITE_LAG}')
+        if a['blocks'] >= 2 and high - low < MIN_LAG_CI_S:
+            return (f'the {axis} lag {a["lag_s"]:.3f} s has a collapsed 95 % interval {low:.4f}-{high:.4f} s over '
+                    f'{a["blocks"]} parts (every part fitted the same bound): {EXCITE_LAG}')
         if not a['fit_r2'] >= MIN_FIT_R2:
             return (f'the {axis} fit explains R^2 {a["fit_r2"]:.2f} < {MIN_FIT_R2} of the measured {axis} (the vehicle '
                     f'did not fly these commands): {EXCITE}')
@@ -269,6 +323,51 @@ def profile(result: dict, base: dict | None = None) -> dict:
     params['thrust_scale'] = round(float(result['thrust_scale']), 4)
     out['position_controller'] = {'ros__parameters': params}
     return out
+
+
+def vehicle_model(result: dict, vehicle_path) -> dict:
+    """The vehicle file at vehicle_path as this flight measured it, for `fly --vehicle`, a sweep's `vehicles:` and
+    the twin: attitude_loop `lag` with time_constant_s = the mean of roll and pitch tau + dead time (quad_sim's lag
+    loop has one time constant and no dead time: the dead time enters as the mean delay it adds, so the lag the
+    position loop sees is the one measured), thrust_error = k - 1 (plant only: delivered / commanded, the hover
+    at g / k; a mass error flies the same), aerodynamics = the drag measured (result['drag'], identify_drag:
+    rotor_drag_xy where its 95 % interval lies above 0, else 0; body and vertical drag 0: not separable at these
+    speeds; the simulator applies them with a drag disturbance profile, as replay does), the rest (mass, inertia,
+    motors: the bag records no rotor speeds) as the file says."""
+    from quad_common.yaml_io import load_yaml
+    data = {k: v for k, v in (load_yaml(vehicle_path) or {}).items() if k not in ('attitude_loop', 'thrust_error',
+                                                                                  'mass_error')}
+    lag_s = 0.5 * (result['roll']['tau_s'] + result['roll']['delay_s'] + result['pitch']['tau_s']
+                   + result['pitch']['delay_s'])
+    data['name'] = f'{data.get("name", "vehicle")}_identified'
+    data['attitude_loop'] = {'type': 'lag', 'time_constant_s': round(float(lag_s), 4)}
+    data['thrust_error'] = round(float(result['thrust_scale']) - 1.0, 4)
+    drag = result.get('drag')
+    if drag is not None:
+        measured = drag['rotor_drag_xy_ci95'][0] > 0
+        data['aerodynamics'] = {'body_drag': [0.0, 0.0, 0.0],
+                                'rotor_drag_xy': float(f'{drag["rotor_drag_xy"]:.4g}') if measured else 0.0,
+                                'rotor_drag_z': 0.0}
+    return data
+
+
+def model_text(model: dict, result: dict, title: str) -> str:
+    """The vehicle model file: `title`, what was measured per axis (tau, dead time) and the hover thrust as
+    comments, then the vehicle fields."""
+    lines = [f'# {title}']
+    for axis in ('roll', 'pitch'):
+        a = result[axis]
+        lines.append(f'# {axis}: tau {a["tau_s"]:.4f} s + dead time {a["delay_s"]:.3f} s = lag {a["lag_s"]:.4f} s '
+                     f'(95 % {a["lag_ci95_s"][0]:.4f}-{a["lag_ci95_s"][1]:.4f}), R^2 {a["fit_r2"]:.3f}')
+    t = result['thrust']
+    lines.append(f'# thrust scale {t["thrust_scale"]:.4f}: hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 '
+                 f'commanded; motor time constant not measured (no rotor speeds in the bag)')
+    drag = result.get('drag')
+    if drag is not None:
+        low, high = drag['rotor_drag_xy_ci95']
+        lines.append(f'# rotor drag {drag["rotor_drag_xy"]:.4g} N/(m/s)/(rad/s) (95 % {low:.4g}-{high:.4g}): '
+                     f'{drag["deceleration_per_mps_at_hover"]:.3f} m/s^2 per m/s at hover')
+    return '\n'.join(lines) + '\n' + yaml.safe_dump(model, sort_keys=False)
 
 
 IDENTIFICATION_HEADER = '# identification:'
@@ -300,5 +399,5 @@ def _plain(value):
     if isinstance(value, (tuple, list)):
         return [_plain(v) for v in value]
     if isinstance(value, (float, np.floating)):
-        return round(float(value), 5)
+        return float(f'{float(value):.5g}') if abs(value) < 1e-3 else round(float(value), 5)   # drag: ~1e-6
     return value

@@ -104,6 +104,7 @@ class Flight:
     collision_time_s: float | None = None
     errors: list = field(default_factory=list)   # (time_s, name, message) of ERROR diagnostics
     odom_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    odom_record_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))   # in odom_t's order
     clock_stamps_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     sim_published: tuple | None = None           # (stamp ns, steps) of the newest `sim_node: published`
     collisions_known: bool = True                # False: nothing in the bag could report one (no simulator)

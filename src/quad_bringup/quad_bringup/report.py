@@ -55,7 +55,7 @@ def load_flight(bag_dir) -> Flight:
             topic = next(w for w in wanted if _namespaced(conn.topic, w))
             if topic == ODOM:
                 odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg),
-                             _ns(msg.header.stamp)))
+                             _ns(msg.header.stamp), record_ns))
             elif topic == CLOCK:
                 clock.append(_ns(msg.clock))
             elif topic == COMMAND:
@@ -95,6 +95,7 @@ def load_flight(bag_dir) -> Flight:
         velocity=np.array([o[1].velocity for o in odom]),
         euler=rotations.to_euler(np.array([o[1].quaternion for o in odom])),
         collision_time_s=collision, errors=errors, odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
+        odom_record_ns=np.array([o[3] for o in odom], dtype=np.int64),
         clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
         collisions_known=bool(clock) or published is not None or collision is not None,   # a simulator's bag
         truncated=None if repair is None else repair.as_dict(), engaged=sorted(engaged), handover=sorted(handover))

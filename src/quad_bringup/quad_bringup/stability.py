@@ -11,6 +11,14 @@ holding a point from a start offset. No ROS, no sockets: the graph version is te
 
 Measured on ArduCopter (issue 13): roll/pitch lag 0.17-0.21 s, ~50 ms of telemetry. A profile is offered
 only with margin: it settles (no sustained oscillation) at MARGIN_LAG x the lag and MARGIN_LATENCY x the latency.
+
+`quadflight identify` checks the response it measured instead (hold_on_autopilot's `response`): the FOPDT fit's
+tau y' = u(t - d) - y per roll/pitch axis as the plant's own attitude loop (quad_sim's `lag` loop with
+time_constant_s = tau, tracked with the target's rate fed forward: no further delay) behind a dead time d on the
+commanded attitude, both x MARGIN_LAG, with the telemetry the bag shows (Telemetry: its latency, rate and bursts).
+The emulator's structure (a 1 / 6.5 s angle-P loop plus shaping) lags a response of the same mean delay by ~16 deg
+more at the position loop's crossover (6 rad/s at 0.27 s), so it refused what rotorpy's PD attitude loop (one
+dominant pole) flies with 5 cm of overshoot at 1.5x its lag (issue 23).
 """
 
 from dataclasses import dataclass
@@ -36,6 +44,44 @@ SETTLED_OSCILLATION_M = 0.005    # position standard deviation over the last qua
 TELEMETRY_RATE_HZ = 50.0         # mavlink_bridge's telemetry_rate_hz: the odometry stream it requests
 BURST_S = DEFAULT_BURST_S['ardupilot']   # ArduPilot SITL's telemetry arrived 0.5-65 ms apart (issue 13)
 HOLD_ALTITUDE_M = 20.0           # room for a flip to show as a flip, not as ground contact
+WALL_CLOCK_NS = 10**18           # stamps past 2001: a wall clock, not a simulator's time from 0 (as identify)
+
+
+@dataclass
+class Telemetry:
+    """The odometry the controller saw in a flight (Telemetry.of_flight): its latency (s), rate (Hz), the longest
+    gap between its arrivals beyond one period (burst_s, 0: regular) and where each came from."""
+    latency_s: float
+    rate_hz: float
+    burst_s: float
+    source: str
+
+    def describe(self) -> str:
+        return (f'telemetry latency {self.latency_s:.3f} s, {self.rate_hz:.0f} Hz, bursts up to {self.burst_s:.3f} s '
+                f'({self.source})')
+
+    @classmethod
+    def of_flight(cls, flight, latency_s: float | None = None) -> 'Telemetry':
+        """From a bag's odometry: rate = 1 / median stamp interval. A simulator's bag (sim time: stamped when
+        computed, read in lockstep): latency 0, no bursts. A vehicle's bag (wall-clock stamps): latency = median
+        (record time - stamp), but at least MEASURED_LATENCY_S (what the vehicle's own estimator adds before its
+        stamp is not in the bag); bursts = 99th percentile of the record-time gaps - the period. latency_s
+        (--latency-s) replaces the bag's latency."""
+        stamps = np.asarray(flight.odom_t, dtype=float)
+        period_s = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.01
+        rate_hz = 1.0 / period_s
+        record = np.asarray(flight.odom_record_ns, dtype=np.int64)
+        simulator = len(flight.clock_stamps_ns) > 0 or (len(stamps) and stamps[0] * 1e9 < WALL_CLOCK_NS)
+        if simulator or len(record) != len(stamps) or len(record) < 2:
+            measured, burst, source = 0.0, 0.0, 'a simulator\'s bag, lockstep odometry'
+        else:
+            measured = max(float(np.median(record * 1e-9 - stamps)), MEASURED_LATENCY_S)
+            burst = max(float(np.percentile(np.diff(np.sort(record)) * 1e-9, 99)) - period_s, 0.0)
+            source = f'a vehicle\'s bag: record - stamp times, latency at least {MEASURED_LATENCY_S} s'
+        if latency_s is not None:
+            source += f'; latency {latency_s:.3f} s as given (the bag: {measured:.3f} s)'
+            measured = float(latency_s)
+        return cls(measured, rate_hz, burst, source)
 
 
 @dataclass
@@ -76,21 +122,30 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
                       thrust_error: float = 0.0, start_offset_m=(0.5, 0.0, 0.3), duration_s: float = 20.0,
                       rate_hz: float = RATE_HZ, physics_rate_hz: float = 500.0,
                       telemetry_rate_hz: float = TELEMETRY_RATE_HZ, burst_s: float = BURST_S, seed: int = 0,
-                      initial_yaw_rad: float = 0.0) -> Hold:
+                      initial_yaw_rad: float = 0.0, response: tuple | None = None) -> Hold:
     """The controller holds a point from start_offset_m behind the emulator's attitude response (lag_s) and
     telemetry (latency_s) on vehicle_path's plant with thrust_error, facing initial_yaw_rad (the point's yaw is
     0). Each period, as mavlink_vehicle's loop: the controller sees the newest telemetry at least latency_s old,
     its attitude goes through the shaping, the physics advances one period, the new state enters the telemetry
     line (at telemetry_rate_hz: what the bridge asks the vehicle for). Telemetry leaves in bursts up to burst_s
     apart (uniform, seeded), as the emulated ArduPilot sends it: between bursts the controller sees the last one
-    released."""
+    released. response = (tau_s, dead_time_s): the plant's attitude response is that first order plus dead time
+    (the module) instead of the emulator's; lag_s is then tau_s + dead_time_s (reported only)."""
     nominal = load_vehicle(vehicle_path)    # what the controller is configured with
-    plant = emulated_vehicle(vehicle_path, {'thrust_error': thrust_error} if thrust_error else None)
+    extra = {'thrust_error': thrust_error} if thrust_error else {}
+    if response is not None:
+        tau_s, dead_s = (float(x) for x in response)
+        plant = load_vehicle(vehicle_path, plant={**extra, 'attitude_loop': {'type': 'lag', 'time_constant_s': tau_s}})
+        lag_s, shaper, dead = tau_s + dead_s, AttitudeResponse(0.0, np.array([0.0, 0.0, 0.0, 1.0])), DelayLine(dead_s)
+    else:
+        plant = emulated_vehicle(vehicle_path, extra or None)
+        dead = None
     target = np.array([0.0, 0.0, HOLD_ALTITUDE_M])
     sim = Simulator(plant, physics_rate_hz=physics_rate_hz, initial_position=target + np.asarray(start_offset_m,
                                                                                                  dtype=float),
                     initial_yaw=initial_yaw_rad, setpoint_timeout_s=1e6)
-    shaper = AttitudeResponse(tau_for_lag_s(plant, lag_s), sim.state.quaternion)
+    if response is None:
+        shaper = AttitudeResponse(tau_for_lag_s(plant, lag_s), sim.state.quaternion)
     telemetry = DelayLine(latency_s)
     control = PositionController(controller, gains, nominal, Limits.of(nominal))
     ref = Reference(position=target, velocity=np.zeros(3), acceleration=np.zeros(3), jerk=np.zeros(3), yaw=0.0,
@@ -109,6 +164,12 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
             _, seen = telemetry.read(t_s)
             next_burst_s = t_s + rng.uniform(0.0, burst_s)
         setpoint, _ = control.update(seen, ref, period_s if k else 0.0)
+        if dead is not None:   # the attitude dead time (the thrust has none in the fit)
+            dead.push(t_s, setpoint)
+            late = dead.read(t_s + 0.5 * period_s)   # the dead time to the nearest period
+            setpoint = AttitudeSetpoint(quaternion=(late[1] if late else setpoint).quaternion,
+                                        specific_force_mps2=setpoint.specific_force_mps2,
+                                        body_rates=(late[1] if late else setpoint).body_rates)
         q, w = shaper.step(setpoint.quaternion, period_s, setpoint.body_rates)
         sim.set_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=setpoint.specific_force_mps2,
                                           body_rates=w))
@@ -124,7 +185,13 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
         if sim.landed or sim.state.position[2] < 1.0:
             stopped = f'fell to the ground at t = {t_s:.2f} s'
             break
-    tilt = np.degrees(np.hypot(*np.array(euler).T)) if euler else np.zeros(1)
+    return hold_of(lag_s, latency_s, thrust_error, positions, euler, target, period_s, stopped)
+
+
+def hold_of(lag_s, latency_s, thrust_error, positions, euler, target, period_s, stopped=None) -> Hold:
+    """The Hold of a flown hold: positions (n, 3) and (roll, pitch) (n, 2, rad) every period_s about target (also
+    what the tests score another simulator's hold with)."""
+    tilt = np.degrees(np.hypot(*np.array(euler).T)) if len(euler) else np.zeros(1)
     if stopped:
         return Hold(lag_s, latency_s, thrust_error, float('inf'), float(tilt[-1]), float(np.max(tilt)), float('inf'),
                     float('inf'), 0.0, stopped)
@@ -132,6 +199,7 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
     late_pos, late_euler = np.array(positions[last:]), np.degrees(np.array(euler[last:]))
     error = late_pos[:, 0] - target[0]
     crossings = np.count_nonzero(np.diff(np.sign(error - error.mean())) != 0)
+
     def rms(x):
         return float(np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=1))))
 
@@ -147,3 +215,18 @@ def margin_hold(vehicle_path, controller: str, gains: PositionGains, lag_s: floa
     lag_s = max(MARGIN_LAG * lag_s, own_lag_s(emulated_vehicle(vehicle_path)))
     return hold_on_autopilot(vehicle_path, controller, gains, lag_s, MARGIN_LATENCY * latency_s, thrust_error,
                              **kwargs)
+
+
+def margin_response(result: dict) -> tuple[float, float]:
+    """(tau_s, dead_time_s) x MARGIN_LAG of identify's slower roll/pitch fit (the larger lag)."""
+    axis = max((result['roll'], result['pitch']), key=lambda a: a['lag_s'])
+    return MARGIN_LAG * axis['tau_s'], MARGIN_LAG * axis['delay_s']
+
+
+def margin_hold_identified(vehicle_path, controller: str, gains: PositionGains, result: dict,
+                           telemetry: Telemetry, **kwargs) -> Hold:
+    """The hold on the response identify measured (margin_response: MARGIN_LAG x its tau and dead time), with the
+    thrust scale it found and MARGIN_LATENCY x the bag's telemetry latency at the bag's rate and bursts."""
+    return hold_on_autopilot(vehicle_path, controller, gains, 0.0, MARGIN_LATENCY * telemetry.latency_s,
+                             result['thrust_scale'] - 1.0, telemetry_rate_hz=telemetry.rate_hz,
+                             burst_s=telemetry.burst_s, response=margin_response(result), **kwargs)

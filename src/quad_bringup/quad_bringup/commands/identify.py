@@ -1,15 +1,24 @@
 """`quadflight identify BAG [--base PROFILE] [--out FILE] [--latency-s S] [--vehicle FILE]`: the vehicle's attitude
 lag and thrust scale from a flight bag (sim or a real vehicle through the bridge; only the window in which the
 vehicle flew our setpoints), written as a control profile (quad_bringup.identify) only when the fits hold and
-that profile has margin on the lag it measured (quad_bringup.stability)."""
+that profile has margin on the response it measured, with the bag's telemetry (quad_bringup.stability)."""
 
 import sys
 from pathlib import Path
 
 from rosbags.rosbag2 import ReaderError
 
-from quad_bringup.identify import identify, profile, profile_text, quality_refusal
+from quad_bringup.identify import (
+    identify,
+    identify_drag,
+    model_text,
+    profile,
+    profile_text,
+    quality_refusal,
+    vehicle_model,
+)
 from quad_bringup.report import load_flight
+from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 
 DEFAULT_BASE = 'config/control_real.yaml'            # what the bridge launch files fly
@@ -44,38 +53,68 @@ def add_arguments(parser):
                         help=f'control profile the identified values go into (default {DEFAULT_BASE})')
     parser.add_argument('--out', type=Path, metavar='FILE',
                         help='profile to write (default: BAG_profile.yaml next to the bag)')
-    parser.add_argument('--latency-s', type=float, default=MEASURED_LATENCY_S, metavar='S',
-                        help=f'the vehicle\'s telemetry latency (default {MEASURED_LATENCY_S}, ArduCopter\'s); the '
-                        f'profile must settle at {MARGIN_LAG}x the identified lag and {MARGIN_LATENCY}x this')
+    parser.add_argument('--latency-s', type=float, default=None, metavar='S',
+                        help='the vehicle\'s telemetry latency (default: the bag\'s: 0 for a simulator\'s lockstep '
+                        f'bag, a vehicle\'s record - stamp delay but at least {MEASURED_LATENCY_S}, ArduCopter\'s); '
+                        f'the profile must settle at {MARGIN_LAG}x the identified response and {MARGIN_LATENCY}x this')
     parser.add_argument('--vehicle', type=Path, default=None, metavar='FILE',
-                        help=f'vehicle file of the margin check (default {DEFAULT_VEHICLE})')
+                        help=f'vehicle file of the margin check and of the model (default {DEFAULT_VEHICLE})')
+    parser.add_argument('--model-out', type=Path, metavar='FILE',
+                        help='vehicle model to write beside the profile (default: BAG_vehicle.yaml next to the bag): '
+                        '--vehicle with the identified attitude response and thrust, for fly --vehicle and sweeps')
+
+
+def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None) -> dict:
+    """What `quadflight identify` decides on a bag: {'result': identify's, 'written': the profile, 'controller',
+    'telemetry': stability.Telemetry, 'margin': stability.Hold, 'refusal': one line or None}. The margin check
+    flies the profile on the response identified (stability.margin_hold_identified) with the bag's telemetry.
+    base_path / vehicle: None for DEFAULT_BASE / DEFAULT_VEHICLE. Raises ValueError / OSError / ReaderError for a
+    bag that cannot be identified."""
+    from quad_bringup.closed_loop import control_profile
+    from quad_bringup.stability import Telemetry, margin_hold_identified
+    from quad_common.paths import resolve_config
+    base = load_yaml(resolve_config(base_path or DEFAULT_BASE)) or {}   # a config/ name as --base does
+    vehicle = vehicle if vehicle else resolve_config(DEFAULT_VEHICLE)
+    flight = load_flight(bag)
+    result = identify(flight)
+    result['drag'] = identify_drag(flight, result['thrust_scale'], load_vehicle(vehicle))
+    written = profile(result, base)
+    controller, gains = control_profile(written)
+    telemetry = Telemetry.of_flight(flight, latency_s)
+    # the vehicle as identified (its response, thrust scale k), flown by the profile that divides by k
+    margin = margin_hold_identified(vehicle, controller, gains, result, telemetry)
+    refusal = quality_refusal(result)
+    if refusal is None and not margin.settled:
+        lost = f', {margin.stopped}' if margin.stopped else ''
+        refusal = (f'the profile ({controller}, base {base_path or DEFAULT_BASE}) does not settle at '
+                   f'{margin.lag_s:.3f} s of attitude lag and {margin.latency_s:.3f} s of telemetry latency at '
+                   f'{telemetry.rate_hz:.0f} Hz with bursts up to {telemetry.burst_s:.3f} s (tilt '
+                   f'{margin.late_tilt_deg:.1f} deg over the last quarter, oscillation '
+                   f'{margin.oscillation_deg:.2f} deg rms{lost}; telemetry from {telemetry.source})')
+    return {'result': result, 'written': written, 'controller': controller, 'telemetry': telemetry,
+            'margin': margin, 'refusal': refusal, 'vehicle': vehicle}
 
 
 def run(args) -> int:
-    from quad_bringup.closed_loop import control_profile
     from quad_bringup.limits import refusal
-    from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY, margin_hold
-    from quad_common.paths import resolve_config
+    from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY
     bag = Path(args.bag)
     out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
-    reason = refusal('latency_s', args.latency_s) or out_refusal(out, [('bag', bag), ('--base', args.base),
-                                                                        ('--vehicle', args.vehicle)])
+    model_out = args.model_out or bag.resolve().with_name(bag.resolve().name + '_vehicle.yaml')
+    inputs = [('bag', bag), ('--base', args.base), ('--vehicle', args.vehicle)]
+    reason = (refusal('latency_s', args.latency_s) if args.latency_s is not None else None) or out_refusal(
+        out, inputs) or out_refusal(model_out, inputs + [('--out', out)])
     if reason:
         print(f'quadflight identify: {reason}', file=sys.stderr)
         return 2
     try:
-        base = load_yaml(args.base if args.base else resolve_config(DEFAULT_BASE)) or {}
-        vehicle = args.vehicle if args.vehicle else resolve_config(DEFAULT_VEHICLE)
-        result = identify(load_flight(bag))
-        written = profile(result, base)
-        controller, gains = control_profile(written)
-        # the vehicle as identified (thrust scale k), flown by the profile that divides by k
-        margin = margin_hold(vehicle, controller, gains, result['attitude_lead_s'], args.latency_s,
-                             thrust_error=result['thrust_scale'] - 1.0)
+        checked = check_bag(bag, args.base, args.vehicle, args.latency_s)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:
         why = str(exc) or 'none of the topics identify needs (odom, cmd/attitude_thrust) in it'
         print(f'quadflight identify: {bag}: {why}', file=sys.stderr)
         return 2
+    result, written, margin, telemetry = checked['result'], checked['written'], checked['margin'], \
+        checked['telemetry']
     w = result['window']
     print(f'window: {w["duration_s"]:.1f} s in which the vehicle flew our setpoints ({w["source"]}), '
           f'{w["start_s"]:.2f}-{w["end_s"]:.2f} s')
@@ -89,30 +128,32 @@ def run(args) -> int:
     print(f'thrust: scale {t["thrust_scale"]:.4f} (95 % {low:.4f}-{high:.4f}); '
           f'hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 commanded; equivalent mass error '
           f'{100 * t["mass_error_equivalent"]:+.1f} %')
-    print(f'margin ({MARGIN_LAG}x the lag {result["attitude_lead_s"]:.3f} s, {MARGIN_LATENCY}x the telemetry latency '
-          f'{args.latency_s:.3f} s, {controller}): {margin.describe()}')
-    poor = quality_refusal(result)
-    if poor:
-        print(f'quadflight identify: refused to write {out}: {poor}', file=sys.stderr)
-        return 2
-    if not margin.settled:
-        lost = f', {margin.stopped}' if margin.stopped else ''
-        hint = f' (e.g. --base {DEFAULT_BASE})' if args.base else ''
-        print(f'quadflight identify: refused to write {out}: the profile ({controller}, base '
-              f'{args.base or DEFAULT_BASE}) does not settle at {margin.lag_s:.3f} s of attitude lag and '
-              f'{margin.latency_s:.3f} s of telemetry latency (tilt {margin.late_tilt_deg:.1f} deg over the last '
-              f'quarter, oscillation {margin.oscillation_deg:.2f} deg rms{lost}): start from softer gains{hint}',
-              file=sys.stderr)
+    d = result['drag']
+    print(f'drag: rotor drag {d["rotor_drag_xy"]:.3g} N/(m/s)/(rad/s) (95 % {d["rotor_drag_xy_ci95"][0]:.3g}-'
+          f'{d["rotor_drag_xy_ci95"][1]:.3g}): {d["deceleration_per_mps_at_hover"]:.3f} m/s^2 per m/s at hover')
+    print(f'telemetry: {telemetry.describe()}')
+    print(f'margin ({MARGIN_LAG}x the response, tau + dead time {result["attitude_lead_s"]:.3f} s, {MARGIN_LATENCY}x '
+          f'the telemetry latency {telemetry.latency_s:.3f} s, {checked["controller"]}): {margin.describe()}')
+    if checked['refusal']:
+        hint = f' (e.g. --base {DEFAULT_BASE})' if args.base and not quality_refusal(result) else ''
+        soft = ': start from softer gains' if not quality_refusal(result) else ''
+        print(f'quadflight identify: refused to write {out}: {checked["refusal"]}{soft}{hint}', file=sys.stderr)
         return 2
     facts = {**result, 'margin': {'lag_s': round(margin.lag_s, 4), 'latency_s': round(margin.latency_s, 4),
                                   'late_tilt_deg': round(margin.late_tilt_deg, 3),
                                   'oscillation_deg': round(margin.oscillation_deg, 3),
                                   'offset_m': round(margin.offset_m, 4)}}
-    try:
-        out.write_text(profile_text(written, facts, f'{HEADER.removeprefix("# ")}{bag}'))
-    except OSError as exc:
-        print(f'quadflight identify: --out {out}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
-        return 2
+    model = vehicle_model(result, checked['vehicle'])
+    for flag, path, text in (('--out', out, profile_text(written, facts, f'{HEADER.removeprefix("# ")}{bag}')),
+                             ('--model-out', model_out, model_text(model, result,
+                                                                   f'{HEADER.removeprefix("# ")}{bag}'))):
+        try:
+            path.write_text(text)
+        except OSError as exc:
+            print(f'quadflight identify: {flag} {path}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
+            return 2
     print(f'profile: {out} (attitude_lead_s {written["position_controller"]["ros__parameters"]["attitude_lead_s"]}, '
           f'thrust_scale {written["position_controller"]["ros__parameters"]["thrust_scale"]})')
+    print(f'vehicle model: {model_out} (attitude_loop lag {model["attitude_loop"]["time_constant_s"]} s, thrust_error '
+          f'{model["thrust_error"]}; fly --vehicle, a sweep\'s vehicles:)')
     return 0

@@ -1,0 +1,52 @@
+"""`quadflight replay BAG [--vehicle MODEL.yaml] [--control-profile FILE] [--figure PNG]`: the flight's twin
+(quad_bringup.replay): its plan flown again in the simulator on the model, closed loop with the controller and
+gains, and its setpoints open loop; prints the RMSEs and writes a figure."""
+
+import sys
+from pathlib import Path
+
+from rosbags.rosbag2 import ReaderError
+
+DEFAULT_PROFILE = 'config/control.yaml'
+
+
+def add_arguments(parser):
+    parser.add_argument('bag', help='rosbag2 bag with trajectory, odom and cmd/attitude_thrust (e.g. runs/NAME/bag)')
+    parser.add_argument('--vehicle', type=Path, metavar='MODEL',
+                        help='vehicle model to fly (e.g. the BAG_vehicle.yaml identify wrote; default: the one '
+                        'identify wrote next to the bag)')
+    parser.add_argument('--control-profile', type=Path, metavar='FILE',
+                        help=f'the controller and gains the flight flew (default {DEFAULT_PROFILE})')
+    parser.add_argument('--figure', type=Path, metavar='PNG', help='figure to write (default BAG_replay.png)')
+
+
+def run(args) -> int:
+    from quad_bringup.closed_loop import load_control_profile
+    from quad_bringup.replay import RMSE_GOAL, replay, write_figure
+    from quad_bringup.report import load_flight
+    from quad_common.paths import resolve_config
+    bag = Path(args.bag).resolve()
+    vehicle = args.vehicle or bag.with_name(bag.name + '_vehicle.yaml')
+    figure = args.figure or bag.with_name(bag.name + '_replay.png')
+    try:
+        if not Path(vehicle).is_file():
+            raise ValueError(f'--vehicle {vehicle}: no such file (quadflight identify {args.bag} writes it)')
+        controller, gains = load_control_profile(args.control_profile or resolve_config(DEFAULT_PROFILE))
+        result = replay(load_flight(bag), vehicle, controller, gains)
+    except (OSError, ValueError, ReaderError) as exc:
+        print(f'quadflight replay: {args.bag}: {exc}', file=sys.stderr)
+        return 2
+    print(f'closed loop ({controller}, {vehicle}): flight RMSE {100 * result["flight_rmse_m"]:.2f} cm, twin RMSE '
+          f'{100 * result["twin_rmse_m"]:.2f} cm ({100 * (result["rmse_ratio"] - 1):+.0f} %, goal within '
+          f'{RMSE_GOAL:.0%}); |twin - flight| RMSE {100 * result["trace_rmse_m"]:.2f} cm')
+    print(f'open loop (the recorded setpoints, first {result["open_loop_s"]:.1f} s): |twin - flight| RMSE '
+          f'{100 * result["open_trace_rmse_m"]:.2f} cm')
+    if result['stopped']:
+        print(f'the twin stopped: {result["stopped"]}')
+    try:
+        write_figure(result, figure, f'replay of {args.bag}')
+    except OSError as exc:
+        print(f'quadflight replay: --figure {figure}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
+        return 2
+    print(f'figure: {figure}')
+    return 0

@@ -1,0 +1,124 @@
+"""A flight's digital twin (no rclpy): the bag's plan flown again in quad_sim on a vehicle model, closed loop
+with the position controller and gains, and the bag's setpoints fed open loop.
+
+Closed loop: the PositionController (quad_control, RATE_HZ) tracks the recorded plan (the bag's `trajectory`)
+on Simulator(vehicle) from the flight's position and yaw at the plan's start, each tick seeing the simulator's
+odometry, as the offline loop (quad_bringup.closed_loop) does. Both with the model's aerodynamics (DRAG: the drag
+identify measured; a vehicle file's own coefficients act too). Open loop: the recorded cmd/attitude_thrust
+(held from stamp to stamp) drives Simulator(vehicle) from the same start: errors of the model integrate, so it
+is scored over OPEN_LOOP_S only.
+
+Scored on the flight's odometry stamps inside the plan (start to end): the flight's tracking error |p - plan|,
+the twin's |p_twin - plan| (RMSE of each: the goal is the twin's within RMSE_GOAL of the flight's), and the
+trace error |p_twin - p_flight| (closed and open loop).
+"""
+
+import numpy as np
+
+from quad_bringup.metrics import planned_position
+from quad_common import rotations
+from quad_common.types import AttitudeSetpoint
+from quad_common.vehicle import load_vehicle
+from quad_control.loop import RATE_HZ
+from quad_control.position import Limits, PositionController, PositionGains
+from quad_sim.disturbances import profile_from_dict
+from quad_sim.simulator import SimulationStopped, Simulator
+
+DRAG = profile_from_dict({'body_drag': True, 'rotor_drag': True}, 'replay')   # the model's aerodynamics: what
+#                                          identify measured (0 where it saw none)
+OPEN_LOOP_S = 2.0        # the open-loop trace is scored over the plan's first seconds (it drifts)
+RMSE_GOAL = 0.2          # the twin's closed-loop RMSE within 20 % of the flight's
+
+
+def _rmse(x) -> float:
+    return float(np.sqrt(np.mean(np.sum(np.square(x), axis=-1)))) if len(x) else float('nan')
+
+
+def _fly(vehicle, start_p, start_yaw, t0_s, end_s, step):
+    """(times, positions) of Simulator(vehicle) from rest at start_p / start_yaw, step(k, t_s, sim) -> setpoint
+    each 1 / RATE_HZ from t0_s to end_s."""
+    sim = Simulator(vehicle, physics_rate_hz=1000.0, initial_position=start_p, initial_yaw=start_yaw,
+                    setpoint_timeout_s=1e6, disturbances=DRAG)
+    period_s = 1.0 / RATE_HZ
+    times, positions = [t0_s], [sim.state.position]
+    stopped = None
+    for k in range(int(round((end_s - t0_s) * RATE_HZ))):
+        t_s = t0_s + k * period_s
+        sim.set_setpoint(step(k, t_s, sim))
+        try:
+            sim.advance(period_s)
+        except SimulationStopped as exc:
+            stopped = str(exc)
+            break
+        times.append(t_s + period_s)
+        positions.append(sim.state.position)
+    return np.array(times), np.array(positions), stopped
+
+
+def replay(flight, vehicle_path, controller: str, gains: PositionGains) -> dict:
+    """The twin of `flight` (quad_bringup.report.Flight with a plan and commands) on vehicle_path's model."""
+    if flight.trajectory is None:
+        raise ValueError('the bag has no plan (topic trajectory): nothing to fly again')
+    if len(flight.cmd_t) == 0:
+        raise ValueError('the bag has no commanded attitude (topic cmd/attitude_thrust): no open loop to feed')
+    vehicle = load_vehicle(vehicle_path)
+    nominal = load_vehicle(vehicle_path)
+    traj, t0_s = flight.trajectory, float(flight.traj_start_s)
+    end_s = min(t0_s + traj.duration_s, float(flight.odom_t[-1]))
+    i0 = int(np.searchsorted(flight.odom_t, t0_s))
+    start_p, start_yaw = flight.position[i0], float(flight.euler[i0, 2])
+    control = PositionController(controller, gains, nominal, Limits.of(nominal))
+    period_s = 1.0 / RATE_HZ
+
+    def closed(k, t_s, sim):
+        setpoint, _ = control.update(sim.odometry_state(), traj.reference(t_s - t0_s), period_s if k else 0.0)
+        return setpoint
+
+    cmd_q = rotations.from_euler(flight.cmd_euler[:, 0], flight.cmd_euler[:, 1], flight.cmd_euler[:, 2])
+
+    def open_(k, t_s, sim):
+        j = max(int(np.searchsorted(flight.cmd_t, t_s + 1e-9, side='right')) - 1, 0)
+        return AttitudeSetpoint(quaternion=np.asarray(cmd_q[j]),
+                                specific_force_mps2=float(flight.cmd_specific_force[j]))
+
+    t_c, p_c, stopped_c = _fly(vehicle, start_p, start_yaw, t0_s, end_s, closed)
+    t_o, p_o, stopped_o = _fly(vehicle, start_p, start_yaw, t0_s, min(end_s, t0_s + OPEN_LOOP_S), open_)
+    inside = (flight.odom_t >= t0_s) & (flight.odom_t <= min(end_s, t_c[-1]))
+    t = flight.odom_t[inside]
+    plan = planned_position(flight, t)
+    flown = flight.position[inside]
+    twin = np.stack([np.interp(t, t_c, p_c[:, i]) for i in range(3)], axis=1)
+    early = t <= t_o[-1]
+    open_twin = np.stack([np.interp(t[early], t_o, p_o[:, i]) for i in range(3)], axis=1)
+    flight_rmse, twin_rmse = _rmse(flown - plan), _rmse(twin - plan)
+    return {'t_s': t, 'flight_error_m': np.linalg.norm(flown - plan, axis=1),
+            'twin_error_m': np.linalg.norm(twin - plan, axis=1),
+            'trace_error_m': np.linalg.norm(twin - flown, axis=1),
+            'open_trace_error_m': np.linalg.norm(open_twin - flown[early], axis=1),
+            'flight_rmse_m': flight_rmse, 'twin_rmse_m': twin_rmse,
+            'rmse_ratio': twin_rmse / flight_rmse if flight_rmse > 0 else float('inf'),
+            'trace_rmse_m': _rmse(twin - flown), 'open_trace_rmse_m': _rmse(open_twin - flown[early]),
+            'open_loop_s': float(t_o[-1] - t0_s), 'stopped': stopped_c or stopped_o}
+
+
+def write_figure(result: dict, path, title: str):
+    """Position error over time: the flight's and the twin's tracking error, the trace errors."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    t = result['t_s'] - result['t_s'][0]
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(t, 100 * result['flight_error_m'], label=f'flight |p - plan| (RMSE {100 * result["flight_rmse_m"]:.2f} cm)')
+    ax.plot(t, 100 * result['twin_error_m'], label=f'twin, closed loop (RMSE {100 * result["twin_rmse_m"]:.2f} cm)')
+    ax.plot(t, 100 * result['trace_error_m'], '--',
+            label=f'|twin - flight| (RMSE {100 * result["trace_rmse_m"]:.2f} cm)')
+    n = len(result['open_trace_error_m'])
+    ax.plot(t[:n], 100 * result['open_trace_error_m'], ':',
+            label=f'|open loop - flight| (RMSE {100 * result["open_trace_rmse_m"]:.2f} cm, first {OPEN_LOOP_S:g} s)')
+    ax.set_xlabel('time since the plan started (s)')
+    ax.set_ylabel('position error (cm)')
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
