@@ -8,16 +8,17 @@ import sys
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PEER_VENV = os.path.join(ROOT, '.bench-venv')
 PEERS = ['rotorpy==3.0.0', 'minsnap-trajectories==0.3.0']
+PEER_CONSTRAINTS = os.path.join(ROOT, 'bench', 'peers-constraints.txt')   # their dependencies, pinned
 
 
 def peer_python() -> str:
     """Path of the peers' python, installing them the first time."""
     python = os.path.join(PEER_VENV, 'bin', 'python')
     stamp = os.path.join(PEER_VENV, '.installed')
-    if not os.path.exists(stamp):
+    if not os.path.exists(stamp) or os.path.getmtime(stamp) < os.path.getmtime(PEER_CONSTRAINTS):
         print(f'bench: installing {", ".join(PEERS)} into {PEER_VENV}', file=sys.stderr)
         subprocess.run([sys.executable, '-m', 'venv', '--clear', PEER_VENV], check=True)
-        subprocess.run([python, '-m', 'pip', 'install', '--quiet', *PEERS], check=True)
+        subprocess.run([python, '-m', 'pip', 'install', '--quiet', '-c', PEER_CONSTRAINTS, *PEERS], check=True)
         open(stamp, 'w').close()
     return python
 
