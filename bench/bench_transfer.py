@@ -23,6 +23,7 @@ from quad_bringup.identify import identify  # noqa: E402
 from quad_bringup.report import load_flight  # noqa: E402
 from quad_common.vehicle import load_plant_family  # noqa: E402
 from quad_common.yaml_io import load_yaml  # noqa: E402
+from quad_control.parameters import profile_parameters  # noqa: E402
 from quad_trajectory.mission import load_mission  # noqa: E402
 
 MISSIONS = ('maze', 'window', 'figure8', 'long_100')
@@ -58,12 +59,13 @@ from rotorpy.vehicles.crazyflie_params import quad_params
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.types import State
 from quad_common.vehicle import vehicle_from_dict
-from quad_control.position import Limits, PositionController, gains_from_parameters
+from quad_control.parameters import gains_from
+from quad_control.position import Limits, PositionController
 from scipy.spatial.transform import Rotation
 data = np.load({npz!r})
 trajectory = SampledTrajectory(data['t'], data['p'], data['v'], data['a'])
 vehicle = vehicle_from_dict(json.loads({vehicle!r}))
-control = PositionController({controller!r}, gains_from_parameters(json.loads({gains!r})), vehicle, Limits.of(vehicle))
+control = PositionController({controller!r}, gains_from(json.loads({gains!r})), vehicle, Limits.of(vehicle))
 start = trajectory.position[0]
 w0 = np.sqrt(quad_params['mass'] * 9.81 / (4 * quad_params['k_eta']))
 state = {{'x': start[:3].copy(), 'v': np.zeros(3), 'q': Rotation.from_euler('z', start[3]).as_quat(), 'w': np.zeros(3),
@@ -118,7 +120,7 @@ def rotorpy_rows():
     missing (the peer is optional)."""
     from quad_bringup.report import compute_metrics
     try:
-        values = (load_yaml(DEFAULT_PROFILE) or {})['position_controller']['ros__parameters']
+        values = profile_parameters(load_yaml(DEFAULT_PROFILE))
         with tempfile.TemporaryDirectory(prefix='bench_transfer-rotorpy-') as tmp:
             result = identify(rotorpy_flight(IDENTIFY_MISSION, values, tmp))
             tuned = dict(values, attitude_lead_s=result['attitude_lead_s'], thrust_scale=result['thrust_scale'])

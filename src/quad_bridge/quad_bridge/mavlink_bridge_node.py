@@ -36,7 +36,8 @@ from quad_bridge.telemetry_publisher import TelemetryPublisher, stamp
 from quad_bridge.vehicle import Vehicle
 from quad_common import contract, diagnostics
 from quad_common.node_main import run_node
-from quad_common.params import Param, ParameterSet
+from quad_common.params import Param
+from quad_common.ros_params import ParameterSet
 
 NAME = 'mavlink_bridge'
 PARAMS = [

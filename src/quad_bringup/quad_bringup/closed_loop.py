@@ -19,7 +19,8 @@ from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 from quad_control.loop import MAX_START_STEP_M, RATE_HZ, ControlLoop
-from quad_control.position import Limits, PositionController, PositionGains, gains_from_parameters
+from quad_control.parameters import gains_from, profile_parameters
+from quad_control.position import Limits, PositionController, PositionGains
 from quad_sim.disturbances import load_profile, profile_from_dict
 from quad_sim.simulator import SimulationStopped, Simulator
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, plan_mission
@@ -129,8 +130,8 @@ def load_control_profile(path) -> tuple[str, PositionGains]:
 
 def control_profile(content: dict) -> tuple[str, PositionGains]:
     """(controller, gains) of a params file's content over the seed's."""
-    values = content.get('position_controller', {}).get('ros__parameters', {})
-    return values.get('controller', 'pd'), gains_from_parameters(values)
+    values = profile_parameters(content)
+    return values.get('controller', 'pd'), gains_from(values)
 
 
 def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:

@@ -35,6 +35,7 @@ from quad_bringup.report import Completion, load_flight, record_summary, write_r
 from quad_common import contract
 from quad_common.domain_probe import foreign_nodes
 from quad_common.domains import isolated_domain
+from quad_common.params import parameters_of, params_content
 from quad_common.paths import REPO_ROOT
 from quad_common.yaml_io import load_yaml
 from quad_control.position import CONTROLLERS
@@ -224,8 +225,10 @@ def node_specs(options: FlightOptions) -> list:
 def node_parameters(options: FlightOptions, mission=None) -> dict:
     """{node: {ros__parameters: ...}}: what each node of node_specs ends up with (files named in config/ made
     absolute, so the run directory's params.yaml holds on its own)."""
-    return {spec.name: {'ros__parameters': graph.absolute_config_paths(spec.merged_parameters())}
-            for spec in node_specs(options)}
+    params = {}
+    for spec in node_specs(options):
+        params.update(params_content(spec.name, graph.absolute_config_paths(spec.merged_parameters())))
+    return params
 
 
 def default_run_dir(mission_name: str, controller: str) -> Path:
@@ -338,7 +341,7 @@ def _fly(options: FlightOptions, log) -> FlightResult:
     clock.mark('validated, run directory made')
     if plan_overrides(options):
         flown = write_flown_mission(options, mission, run_dir / 'mission.yaml')
-        params['trajectory_node']['ros__parameters']['mission_file'] = str(flown.resolve())
+        parameters_of(params, 'trajectory_node')['mission_file'] = str(flown.resolve())
     params_file = run_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
     nodes = [processes.NodeProcess(name, graph.MODULES[name], ['--params-file', str(params_file)],

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import yaml
 
+from quad_common.params import parameters_of, params_content
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 
@@ -64,7 +65,7 @@ class NodeSpec:
                 continue
             data = load_yaml(entry) or {}
             for key in ('/**', self.name, '/' + self.name):
-                merged.update((data.get(key) or {}).get('ros__parameters', {}))
+                merged.update(parameters_of(data, key))
         return merged
 
     def ros_arguments(self, out_dir: Path) -> list[str]:
@@ -73,7 +74,7 @@ class NodeSpec:
         for i, entry in enumerate(self.parameters):
             if isinstance(entry, dict):
                 path = Path(out_dir) / f'{self.name}_params_{i}.yaml'
-                path.write_text(yaml.safe_dump({'/**': {'ros__parameters': entry}}, sort_keys=False))
+                path.write_text(yaml.safe_dump(params_content('/**', entry), sort_keys=False))
                 entry = str(path)
             args += ['--params-file', str(entry)]
         return args
@@ -95,8 +96,9 @@ def profile_controller(control_profile) -> str | None:
     """The `controller` a control profile sets, or None."""
     if not control_profile or not Path(control_profile).is_file():   # a missing file is refused by its caller
         return None
-    data = load_yaml(control_profile) or {}
-    return ((data.get('position_controller') or {}).get('ros__parameters') or {}).get('controller')
+    from quad_control.parameters import profile_parameters
+
+    return profile_parameters(load_yaml(control_profile)).get('controller')
 
 
 def controller_and_profile(controller: str | None, control_profile) -> tuple[str, str | None]:

@@ -69,16 +69,16 @@ def run_key(params: dict) -> str:
 @functools.lru_cache(maxsize=1)
 def default_gains() -> dict:
     """position_controller's parameter defaults overlaid with config/control.yaml: what `fly` starts from."""
-    from quad_control.position_controller_node import SPECS  # imports rclpy: only when a spec is expanded
+    from quad_control.parameters import SPECS, profile_parameters
 
     values = {spec.name: spec.default for spec in SPECS if spec.name in GAIN_KEYS}
-    node = load_yaml(resolve_config('config/control.yaml'))['position_controller']['ros__parameters']
+    node = profile_parameters(load_yaml(resolve_config('config/control.yaml')))
     values.update({k: v for k, v in node.items() if k in GAIN_KEYS})
     return values
 
 
 def _param_specs() -> dict:
-    from quad_control.position_controller_node import SPECS
+    from quad_control.parameters import SPECS
 
     return {spec.name: spec for spec in SPECS if spec.name in GAIN_KEYS}
 
@@ -110,8 +110,9 @@ def controller_entry(entry, where: str) -> tuple[str, dict]:
         raise SpecError(f'{where}: unknown key(s) {sorted(unknown)}; known: name, controller, profile, gains')
     values = dict(default_gains())
     if entry.get('profile'):
-        profile = load_yaml(resolve_config(entry['profile'])) or {}
-        node = (profile.get('position_controller') or {}).get('ros__parameters') or {}
+        from quad_control.parameters import profile_parameters
+
+        node = profile_parameters(load_yaml(resolve_config(entry['profile'])))
         values.update({k: v for k, v in node.items() if k in GAIN_KEYS})
     gains = entry.get('gains') or {}
     if not isinstance(gains, dict):
@@ -271,10 +272,10 @@ def versions() -> dict:
 def loop_options_of(params: dict):
     from quad_bringup.closed_loop import LoopOptions
     from quad_bringup.report import Completion
-    from quad_control.position import gains_from_parameters
+    from quad_control.parameters import gains_from
 
     o = params['options']
-    gains = gains_from_parameters(params['gains'])
+    gains = gains_from(params['gains'])
     plan = {'time_allocation': params['time_allocation']} if params.get('time_allocation') else None
     return LoopOptions(controller=params['gains']['controller'], gains=gains, speed_mps=params['speed_mps'],
                        plan_overrides=plan, disturbances=params['disturbances'], rate_hz=o['rate_hz'],
@@ -289,11 +290,12 @@ def _fly_graph(params: dict, out_dir: Path) -> tuple[dict | None, str | None]:
     from quad_bringup.flight import EXIT_INTERRUPTED, FlightOptions, fly
     from quad_bringup.report import Completion
     from quad_common.vehicle import load_vehicle
+    from quad_control.parameters import profile_content
     from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission
 
     out_dir.mkdir(parents=True, exist_ok=True)
     profile = out_dir / 'control_profile.yaml'
-    profile.write_text(yaml.safe_dump({'position_controller': {'ros__parameters': params['gains']}}))
+    profile.write_text(yaml.safe_dump(profile_content(params['gains'])))
     disturbances = out_dir / 'disturbances.yaml'
     disturbances.write_text(yaml.safe_dump({params['disturbance_name']: params['disturbances']}))
     sim = {'seed': params['seed'], 'disturbances_file': str(disturbances.resolve()),

@@ -18,7 +18,7 @@ from quad_bringup.flight import (
 )
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
-from quad_control.position_controller_node import SPECS, gains_from
+from quad_control.parameters import SPECS, gains_from, profile_parameters
 from quad_trajectory.mission import load_mission, plan_mission
 
 FAST = resolve_config('config/control_fast.yaml')
@@ -27,7 +27,7 @@ MAZE = resolve_config('config/missions/maze.yaml')
 
 def fast_profile():
     values = {spec.name: spec.default for spec in SPECS}
-    values.update(load_yaml(FAST)['position_controller']['ros__parameters'])
+    values.update(profile_parameters(load_yaml(FAST)))
     return values['controller'], gains_from(values)
 
 

@@ -39,8 +39,9 @@ except ImportError:
 from quad_common import cdr, contract, conversions, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
-from quad_common.params import Param, ParameterSet
+from quad_common.params import Param
 from quad_common.paths import resolve_config
+from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
 from quad_sim.disturbances import load_profile
