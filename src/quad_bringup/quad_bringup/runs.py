@@ -26,8 +26,6 @@ MODES = ('offline', 'graph')
 # controller profile keys a run carries (position_controller parameters that shape the control law)
 GAIN_KEYS = ('controller', *(f'{g}_{a}' for g in ('kp', 'kd', 'ki') for a in 'xyz'), 'integral_limit_mps2',
              'use_feedforward', 'attitude_lead_s', 'disturbance_time_constant_s', 'thrust_scale')
-LOOP_DEFAULTS = {'rate_hz': 100.0, 'physics_rate_hz': 1000.0, 'time_limit_factor': 3.0,
-                 'position_tolerance_m': 0.02, 'speed_tolerance_mps': 0.03}
 # the seed's Table 1/2 columns, the errors, and what a failure needs explained
 METRIC_COLUMNS = ('time_planned_s', 'time_actual_s', 'length_planned_m', 'length_actual_m', 'avg_velocity_mps',
                   'rmse_m', 'max_error_m', 'waypoint_miss_max_m', 'final_error_m', 'time_over_s', 'max_speed_mps',
@@ -210,11 +208,21 @@ def mission_entry(entry, where: str) -> dict:
             'time_allocation': entry.get('time_allocation')}
 
 
+def loop_defaults() -> dict:
+    """A run's loop options when its spec sets none: the offline loop's (LoopOptions and its completion rule)."""
+    from quad_bringup.closed_loop import LoopOptions
+
+    o = LoopOptions()
+    return {'rate_hz': float(o.rate_hz), 'physics_rate_hz': float(o.physics_rate_hz),
+            'time_limit_factor': float(o.time_limit_factor), 'position_tolerance_m': float(o.rule.position_tolerance_m),
+            'speed_tolerance_mps': float(o.rule.speed_tolerance_mps)}
+
+
 def loop_options(entry, where: str) -> dict:
     entry = entry or {}
-    if not isinstance(entry, dict) or set(entry) - set(LOOP_DEFAULTS):
-        raise SpecError(f'{where} = {entry!r} must be a mapping with keys from {", ".join(LOOP_DEFAULTS)}')
-    options = dict(LOOP_DEFAULTS)
+    options = loop_defaults()
+    if not isinstance(entry, dict) or set(entry) - set(options):
+        raise SpecError(f'{where} = {entry!r} must be a mapping with keys from {", ".join(options)}')
     for key, value in entry.items():
         if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0):
             raise SpecError(f'{where}.{key} = {value!r} must be a number > 0')
