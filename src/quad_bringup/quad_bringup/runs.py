@@ -295,7 +295,8 @@ def loop_options_of(params: dict):
 def _fly_graph(params: dict, out_dir: Path) -> tuple[dict | None, str | None]:
     """A full `fly` through the ROS graph (its own ROS domain); the profile, disturbance and plant files it needs
     are written into the run directory."""
-    from quad_bringup.flight import EXIT_INTERRUPTED, FlightOptions, fly
+    from quad_bringup.flight import EXIT_INTERRUPTED, fly
+    from quad_bringup.flight_options import FlightOptions
     from quad_bringup.report import Completion
     from quad_common.vehicle import load_vehicle
     from quad_control.parameters import profile_content
