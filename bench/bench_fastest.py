@@ -187,7 +187,8 @@ def flown_rows(names, graph_names):
     if graph_names:
         import tempfile
 
-        from quad_bringup.flight import FlightOptions, fly
+        from quad_bringup.flight import fly
+        from quad_bringup.flight_options import FlightOptions
         with tempfile.TemporaryDirectory(prefix='bench_fastest-') as tmp:
             for name in graph_names:
                 result = fly(FlightOptions(mission=resolve_config(f'config/missions/{name}.yaml'), controller='se3',

@@ -24,6 +24,7 @@ from quad_bringup.closed_loop import LoopOptions, control_profile, fly_offline, 
 from quad_bringup.commands.identify import check_bag  # noqa: E402
 from quad_common.vehicle import load_plant_family  # noqa: E402
 from quad_common.yaml_io import load_yaml  # noqa: E402
+from quad_control.parameters import profile_parameters  # noqa: E402
 from quad_trajectory.mission import load_mission  # noqa: E402
 
 MISSIONS = ('maze', 'window', 'figure8', 'long_100')
@@ -60,13 +61,14 @@ from rotorpy.vehicles.crazyflie_params import quad_params
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.types import State
 from quad_common.vehicle import vehicle_from_dict
-from quad_control.position import Limits, PositionController, gains_from_parameters
+from quad_control.parameters import gains_from
+from quad_control.position import Limits, PositionController
 from scipy.spatial.transform import Rotation
 quad_params = dict(quad_params, **json.loads({params!r}))
 data = np.load({npz!r})
 trajectory = SampledTrajectory(data['t'], data['p'], data['v'], data['a'])
 vehicle = vehicle_from_dict(json.loads({vehicle!r}))
-control = PositionController({controller!r}, gains_from_parameters(json.loads({gains!r})), vehicle, Limits.of(vehicle))
+control = PositionController({controller!r}, gains_from(json.loads({gains!r})), vehicle, Limits.of(vehicle))
 start = trajectory.position[0] + np.array([*{offset!r}, 0.0])
 w0 = np.sqrt(quad_params['mass'] * 9.81 / (4 * quad_params['k_eta']))
 state = {{'x': start[:3].copy(), 'v': np.zeros(3), 'q': Rotation.from_euler('z', start[3]).as_quat(), 'w': np.zeros(3),
@@ -184,11 +186,11 @@ def rotorpy_rows():
     from quad_bringup.report import compute_metrics
     from quad_common.paths import resolve_config
     try:
-        values = (load_yaml(resolve_config(DEFAULT_PROFILE)) or {})['position_controller']['ros__parameters']
+        values = profile_parameters(load_yaml(resolve_config(DEFAULT_PROFILE)))
         with tempfile.TemporaryDirectory(prefix='bench_transfer-rotorpy-') as tmp:
             bag, _, _ = rotorpy_mission_bag(IDENTIFY_MISSION, values, tmp)
             checked = check_bag(bag, DEFAULT_PROFILE, resolve_config('config/vehicles/crazyflie.yaml'))
-            tuned = values if checked['refusal'] else checked['written']['position_controller']['ros__parameters']
+            tuned = values if checked['refusal'] else profile_parameters(checked['written'])
             rows = [(m, compute_metrics(rotorpy_flight(m, values, tmp)), compute_metrics(rotorpy_flight(m, tuned, tmp)))
                     for m in MISSIONS]
         return checked['result'], checked['refusal'], rows

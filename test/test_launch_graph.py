@@ -22,7 +22,7 @@ from bridge_graph import VEHICLE_FILE, VEHICLE_PARAMS, WAIT_S, Observer, Process
 from launch_standin import evaluate
 from std_srvs.srv import SetBool
 
-from quad_bringup import flight, graph
+from quad_bringup import flight_options, graph
 from quad_common.conversions import stamp_to_s
 from quad_common.testing import isolated_domain
 
@@ -74,9 +74,9 @@ def test_sim_launch_starts_the_graph_fly_starts():
         ('quad_trajectory', 'trajectory_node', 'trajectory_node'), ('quad_sim', 'sim_node', 'sim_node'),
         ('quad_control', 'position_controller', 'position_controller')]
     launched = _merged(nodes)
-    options = flight.with_profile_controller(flight.FlightOptions(MAZE, controller='se3'))
-    flown = {name: p['ros__parameters'] for name, p in flight.node_parameters(options).items()}
-    for name, fly_only in flight.FLY_ONLY.items():
+    options = flight_options.with_profile_controller(flight_options.FlightOptions(MAZE, controller='se3'))
+    flown = {name: p['ros__parameters'] for name, p in flight_options.node_parameters(options).items()}
+    for name, fly_only in graph.FLY_ONLY.items():
         for key in fly_only:
             flown[name].pop(key)
             launched[name].pop(key, None)

@@ -19,13 +19,13 @@ from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 from quad_control.loop import MAX_START_STEP_M, RATE_HZ, ControlLoop
-from quad_control.position import Limits, PositionController, PositionGains, gains_from_parameters
+from quad_control.parameters import gains_from, profile_parameters
+from quad_control.position import Limits, PositionController, PositionGains
 from quad_sim.disturbances import load_profile, profile_from_dict
-from quad_sim.simulator import SimulationStopped, Simulator
-from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, plan_mission
+from quad_sim.simulator import PHYSICS_RATE_HZ, SimulationStopped, Simulator
+from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SAMPLE_RATE_HZ, load_mission, plan_mission
 
 DISTURBANCES_FILE = resolve_config('config/disturbances.yaml')  # installed share, else the checkout
-SAMPLE_RATE_HZ = 100.0   # config/trajectory.yaml sample_rate_hz
 
 
 @dataclass
@@ -41,7 +41,7 @@ class LoopOptions:
     odom_latency_s: float = 0.0                 # the controller sees the state this much old (telemetry delay)
     seed: int = 0                               # the simulator's (gusts, odometry noise)
     rate_hz: float = RATE_HZ
-    physics_rate_hz: float = 1000.0
+    physics_rate_hz: float = PHYSICS_RATE_HZ
     time_limit_factor: float = 3.0
     rule: Completion = Completion()
     start_delay_s: float = 0.0                  # the plan starts this long after t = 0 (held before)
@@ -152,8 +152,8 @@ def load_control_profile(path) -> tuple[str, PositionGains]:
 
 def control_profile(content: dict) -> tuple[str, PositionGains]:
     """(controller, gains) of a params file's content over the seed's."""
-    values = content.get('position_controller', {}).get('ros__parameters', {})
-    return values.get('controller', 'pd'), gains_from_parameters(values)
+    values = profile_parameters(content)
+    return values.get('controller', 'pd'), gains_from(values)
 
 
 def fly_offline(mission_path, options: LoopOptions | None = None) -> dict:

@@ -1,7 +1,8 @@
-"""`quadflight fly` orchestration: validate, write params, start the node graph, watch, stop, report.
+"""`quadflight fly`'s run: write params, start the node graph, watch, stop, report (its options and their checks:
+quad_bringup.flight_options; the figures: quad_bringup.figure_worker).
 
-The graph is the one sim.launch.py starts (quad_bringup.graph.sim_graph): trajectory_node, sim_node and
-position_controller (lockstep, use_sim_time), plus the recorder, each a separate process in its own process group,
+The graph is the one sim.launch.py starts (quad_bringup.graph.fly_graph over sim_graph): trajectory_node, sim_node
+and position_controller (lockstep, use_sim_time), plus the recorder, each a separate process in its own process group,
 in a ROS domain of their own (quad_common.domains.isolated_domain, localhost discovery).
 
 Reliability (README, Reliability): the recorder and fly's monitor are the simulator's lockstep followers
@@ -15,8 +16,6 @@ kept by the lockstep itself: the simulator does not leave step 0 until both foll
 recorder and monitor acknowledge nothing before they have the plan.
 """
 
-import dataclasses
-import datetime
 import json
 import os
 import signal
@@ -28,52 +27,32 @@ from pathlib import Path
 import yaml
 
 from quad_bringup import graph, processes
-from quad_bringup.inputs import check_inputs
-from quad_bringup.limits import refusal
+from quad_bringup.figure_worker import FigureWorker, finish_figures
+from quad_bringup.flight_options import (
+    FlightOptions,
+    MissionRefused,
+    default_run_dir,
+    make_run_dir,
+    node_parameters,
+    plan_overrides,
+    preflight_options,
+    validate,
+    with_profile_controller,
+    write_flown_mission,
+)
 from quad_bringup.recorder import DEFAULT_TOPICS
-from quad_bringup.report import Completion, load_flight, record_summary, write_report
+from quad_bringup.report import load_flight, record_summary, write_report
 from quad_common import contract
 from quad_common.domain_probe import foreign_nodes
 from quad_common.domains import isolated_domain
-from quad_common.paths import REPO_ROOT
-from quad_common.yaml_io import load_yaml
-from quad_control.position import CONTROLLERS
-from quad_trajectory.timing import ALLOCATIONS as TIME_ALLOCATIONS
+from quad_common.params import parameters_of
+from quad_control.parameters import NODE_NAME as CONTROLLER_NODE
 
 EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
-RECORDER = 'recorder'
-CONTROLLER_NODE = 'position_controller'
-LOCKSTEP_TIMEOUT_S = 3.0          # wall time sim_node waits for a setpoint before it takes the controller as gone
 LANDING_TIMEOUT_S = 60.0          # wall time fly waits for the failsafe's landing after the controller died
 STARTUP_NOTE_S = 1.0              # a start-up that takes longer says what it waits for
-
-
-class MissionRefused(ValueError):
-    """The mission (or an option) is unusable; nothing was started."""
-
-
-@dataclass
-class FlightOptions:
-    mission: Path
-    controller: str | None = None         # None: the control profile's `controller`, else pd
-    speed_mps: float | None = None
-    time_allocation: str | None = None    # overrides the mission's trajectory.time_allocation (e.g. limits)
-    out: Path | None = None
-    vehicle: Path | None = None
-    plant: str | None = None              # a plant family member for the simulated vehicle (config/plant_family.yaml)
-    disturbances: str | None = None
-    control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
-    sim_parameters: dict | None = None    # sim_node parameters set last (sweep: seed, a plant-only vehicle file)
-    rule: Completion | None = None        # None: the vehicle's completion rule (its YAML), with `completion` over it
-    completion: dict = field(default_factory=dict)   # Completion field -> value given on the command line
-    time_limit_factor: float = 3.0
-    startup_timeout_s: float = 180.0      # wall clock until the first trajectory and odometry
-    stall_timeout_s: float = 60.0         # wall clock without new odometry
-    divergence_m: float = 1.0
-    quiet: bool = False
-    fly_anyway: bool = False              # fly a plan that fails the vehicle's feasibility check
-    figures: bool = True
+DOMAIN_PROBE_S = 0.5   # a ROS domain whose lock is free but holds nodes (a real bridge) is passed over
 
 
 @dataclass
@@ -85,192 +64,6 @@ class FlightResult:
     pids: list = field(default_factory=list)
     notes: list = field(default_factory=list)   # lines to print with the verdict (record shortfall, landing)
     finish: Callable | None = None              # draws the figures (after the verdict is printed)
-
-
-def validate(options: FlightOptions):
-    """Loads and plans the mission with quad_trajectory (so a bad one is refused before anything starts).
-
-    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem.
-    """
-    from quad_trajectory import mission as mission_module
-
-    if options.time_allocation is not None and options.time_allocation not in TIME_ALLOCATIONS:
-        raise MissionRefused(f'--time-allocation {options.time_allocation!r} refused: must be one of '
-                             f'{", ".join(TIME_ALLOCATIONS)}')
-    if options.controller not in CONTROLLERS:
-        raise MissionRefused(f'--controller {options.controller!r} refused: must be one of {", ".join(CONTROLLERS)}')
-    for key, value in OPTION_VALUES(options):
-        if reason := refusal(key, value):
-            raise MissionRefused(reason)
-    path = Path(options.mission)
-    if not path.is_file():
-        raise MissionRefused(f'mission {path}: no such file')
-    for name, value in (('--vehicle', options.vehicle), ('--control-profile', options.control_profile)):
-        if value is not None and not Path(value).is_file():
-            raise MissionRefused(f'{name} {value}: no such file')
-    try:
-        check_inputs(options)   # the control profile, the disturbance profile
-    except ValueError as exc:
-        raise MissionRefused(str(exc)) from None
-    if options.plant:
-        from quad_common.vehicle import load_plant_family
-        try:
-            family = load_plant_family()
-        except (ValueError, OSError) as exc:
-            raise MissionRefused(f'--plant {options.plant!r} refused: {exc}') from None
-        if options.plant not in family:
-            raise MissionRefused(f'--plant {options.plant!r} refused: must be one of {", ".join(family)}')
-    try:
-        mission = mission_module.load_mission(path)
-        mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
-    except (ValueError, KeyError, TypeError, OSError) as exc:
-        raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
-    return mission
-
-
-def flight_vehicle(options: FlightOptions, mission):
-    """The vehicle the controller flies: --vehicle, else the mission's."""
-    from quad_common.vehicle import load_vehicle
-
-    return load_vehicle(options.vehicle) if options.vehicle is not None else mission.vehicle
-
-
-def preflight_options(options: FlightOptions, mission, log=print) -> FlightOptions:
-    """What the vehicle decides before anything starts: the completion rule (its YAML's `completion:` under the
-    command line's values, unless a rule was given) and the plan's feasibility (quad_trajectory.feasibility),
-    logged; an infeasible plan is refused (MissionRefused, naming fastest and its time) unless fly_anyway, or
-    replaced by the allocation the mission asks for (trajectory.if_infeasible: fastest or limits) when it fits."""
-    from quad_trajectory.mission import plan_mission, preflight
-
-    vehicle = flight_vehicle(options, mission)
-    if options.rule is None:
-        options = dataclasses.replace(options, rule=Completion.for_vehicle(vehicle, **options.completion))
-    if vehicle is None:
-        return options
-    report = preflight(mission, plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options)),
-                       vehicle, options.speed_mps)
-    for line in report.lines():
-        log(line)
-    if report.ok or options.fly_anyway:
-        return options
-    chosen = report.alternative(mission.if_infeasible)
-    if chosen is not None:
-        log(f'flying time_allocation {chosen[0]} ({chosen[1]:.2f} s planned), as the mission asks '
-            f'(trajectory.if_infeasible)')
-        return dataclasses.replace(options, time_allocation=chosen[0])
-    fastest = report.alternative('fastest')
-    instead = (f'; --time-allocation fastest flies it in {fastest[1]:.2f} s within the limits' if fastest else '')
-    raise MissionRefused(f'the plan is not feasible on {vehicle.name} (above){instead}; --fly-anyway flies it all '
-                         f'the same')
-
-
-DOMAIN_PROBE_S = 0.5   # a ROS domain whose lock is free but holds nodes (a real bridge) is passed over
-
-
-def OPTION_VALUES(options: FlightOptions):  # noqa: N802 (a table)
-    """(quad_bringup.limits key, value) of every numeric option."""
-    return [('speed_mps', options.speed_mps), ('time_limit_factor', options.time_limit_factor),
-            *((key, _completion_value(options, key)) for key in ('position_tolerance_m', 'speed_tolerance_mps',
-                                                                  'settle_s')),
-            ('divergence_m', options.divergence_m), ('startup_timeout_s', options.startup_timeout_s),
-            ('stall_timeout_s', options.stall_timeout_s)]
-
-
-def _completion_value(options: FlightOptions, key: str):
-    """A completion option as given: the explicit rule's, else the command line's (None: the vehicle's)."""
-    return getattr(options.rule, key) if options.rule is not None else options.completion.get(key)
-
-
-def plan_overrides(options: FlightOptions) -> dict:
-    return {} if options.time_allocation is None else {'time_allocation': options.time_allocation}
-
-
-def with_profile_controller(options: FlightOptions) -> FlightOptions:
-    """--controller if given, else the control profile's `controller`, else pd; a controller named without a
-    profile flies its default profile (quad_bringup.graph.controller_and_profile)."""
-    controller, profile = graph.controller_and_profile(options.controller, options.control_profile)
-    return dataclasses.replace(options, controller=controller, control_profile=Path(profile) if profile else None)
-
-
-def write_flown_mission(options: FlightOptions, mission, path: Path) -> Path:
-    """The mission file with this flight's trajectory overrides, its file paths made absolute (so the
-    trajectory node plans exactly what was validated; kept in the run directory)."""
-    data = load_yaml(options.mission)
-    data['trajectory'] = {**(data.get('trajectory') or {}), **plan_overrides(options)}
-    for key, value in (('vehicle', mission.vehicle_path), ('world', mission.world_path)):
-        if value:
-            data[key] = str(Path(value).resolve())
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
-
-
-FLY_ONLY = {'sim_node': ('lockstep_followers', 'lockstep_timeout_s')}  # what fly adds to the launch graph
-
-
-def node_specs(options: FlightOptions) -> list:
-    """The graph sim.launch.py starts (quad_bringup.graph.sim_graph, lockstep), plus what only fly has: the
-    recorder and fly's monitor as the simulator's lockstep followers, a longer lockstep timeout (a loaded
-    machine), and the sweep's or the command line's plant, disturbances and sim_node parameters."""
-    sim = {'lockstep_followers': f'{RECORDER},{graph.MONITOR}', 'lockstep_timeout_s': LOCKSTEP_TIMEOUT_S}
-    if options.disturbances is not None:
-        sim['disturbances'] = options.disturbances
-    if options.plant:
-        sim['plant'] = options.plant
-    sim.update(options.sim_parameters or {})
-    return graph.sim_graph(options.mission, controller=options.controller, control_profile=options.control_profile,
-                           vehicle=options.vehicle, speed_mps=options.speed_mps, extra={'sim_node': sim})
-
-
-def node_parameters(options: FlightOptions, mission=None) -> dict:
-    """{node: {ros__parameters: ...}}: what each node of node_specs ends up with (files named in config/ made
-    absolute, so the run directory's params.yaml holds on its own)."""
-    return {spec.name: {'ros__parameters': graph.absolute_config_paths(spec.merged_parameters())}
-            for spec in node_specs(options)}
-
-
-def default_run_dir(mission_name: str, controller: str) -> Path:
-    stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S-%f')[:-3]   # milliseconds
-    return REPO_ROOT / 'runs' / f'{mission_name}-{controller}-{stamp}'
-
-
-def make_run_dir(requested: Path | None, default: Path) -> Path:
-    """Creates the run directory. The default name is made unique atomically (mkdir without exist_ok, a -2, -3...
-    suffix on collision: two flies in the same millisecond get two directories); an explicit --out may exist but
-    must not hold a bag. Raises MissionRefused (one line) for a path that cannot be created or written."""
-    if requested is not None:
-        run_dir = Path(requested)
-        if (run_dir / 'bag').exists():
-            raise MissionRefused(f'--out {run_dir}: already holds a bag; choose a new run directory')
-        try:
-            run_dir.mkdir(parents=True, exist_ok=True)
-            _check_writable(run_dir)
-        except OSError as exc:
-            raise MissionRefused(f'--out {run_dir}: cannot create or write it ({exc.strerror or exc})') from None
-        if (run_dir / 'bag').exists():
-            raise MissionRefused(f'--out {run_dir}: already holds a bag; choose a new run directory')
-        return run_dir
-    try:
-        default.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise MissionRefused(f'run directory {default.parent}: cannot create it ({exc.strerror or exc}); '
-                             'give --out') from None
-    for n in range(1, 1000):
-        run_dir = default if n == 1 else default.with_name(f'{default.name}-{n}')
-        try:
-            run_dir.mkdir()
-            return run_dir
-        except FileExistsError:
-            continue
-        except OSError as exc:
-            raise MissionRefused(f'run directory {run_dir}: cannot create it ({exc.strerror or exc}); '
-                                 'give --out') from None
-    raise MissionRefused(f'run directory {default}: 999 runs of that name already exist')
-
-
-def _check_writable(path: Path):
-    probe = path / f'.write-test-{os.getpid()}'
-    probe.write_text('')
-    probe.unlink()
 
 
 class _Interrupt:
@@ -329,7 +122,7 @@ def _fly(options: FlightOptions, log) -> FlightResult:
         options = with_profile_controller(options)
         mission = validate(options)
         options = preflight_options(options, mission, log)
-        params = node_parameters(options, mission)
+        params = node_parameters(options)
         run_dir = make_run_dir(options.out, default_run_dir(mission.name, options.controller))
     except MissionRefused as exc:
         return FlightResult(EXIT_REFUSED, str(exc))
@@ -338,13 +131,13 @@ def _fly(options: FlightOptions, log) -> FlightResult:
     clock.mark('validated, run directory made')
     if plan_overrides(options):
         flown = write_flown_mission(options, mission, run_dir / 'mission.yaml')
-        params['trajectory_node']['ros__parameters']['mission_file'] = str(flown.resolve())
+        parameters_of(params, 'trajectory_node')['mission_file'] = str(flown.resolve())
     params_file = run_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
     nodes = [processes.NodeProcess(name, graph.MODULES[name], ['--params-file', str(params_file)],
                                    run_dir / 'logs' / f'{name}.log') for name in params]
     topics = ','.join(f'"{t}"' for t in DEFAULT_TOPICS)
-    recorder = processes.NodeProcess(RECORDER, 'quad_bringup.recorder_node',
+    recorder = processes.NodeProcess(graph.RECORDER, 'quad_bringup.recorder_node',
                                      ['-p', f'output_dir:={run_dir / "bag"}', '-p', f'topics:=[{topics}]',
                                       '-p', 'lockstep_ack_after:=trajectory'],
                                      run_dir / 'logs' / 'recorder.log')
@@ -357,7 +150,7 @@ def _fly(options: FlightOptions, log) -> FlightResult:
             started.append(node)
         _write_pids(run_dir, started)
         clock.mark('processes started')
-        figure_worker = _FigureWorker.start(env) if options.figures else None
+        figure_worker = FigureWorker.start(env) if options.figures else None
         from quad_bringup.flight_monitor import FlightJudge, FlightMonitor
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
@@ -403,7 +196,7 @@ def _fly(options: FlightOptions, log) -> FlightResult:
             abs(judge.completed_at_s - metrics['time_actual_s']) > 1e-6:
         notes.append(f'WARNING: the monitor saw completion at t = {judge.completed_at_s:.3f} s, the bag at '
                      f'{metrics["time_actual_s"]:.3f} s')
-    finish = (lambda: _finish_figures(figure_worker, flight, run_dir, metrics, clock)) if figure_worker else None
+    finish = (lambda: finish_figures(figure_worker, flight, run_dir, metrics, clock.mark)) if figure_worker else None
     if interrupt.signum is not None:
         return FlightResult(EXIT_INTERRUPTED, reason.reason, run_dir, metrics, pids, notes, finish)
     if reason.ok and not (metrics['completed'] and not metrics['collided']):
@@ -412,53 +205,6 @@ def _fly(options: FlightOptions, log) -> FlightResult:
         reason.ok, reason.reason = False, f'{reason.reason}, but the bag is incomplete'
     return FlightResult(EXIT_COMPLETED if reason.ok else EXIT_FAILED, reason.reason, run_dir, metrics, pids, notes,
                         finish)
-
-
-class _FigureWorker:
-    """A process started with the graph that imports matplotlib and the report while the flight runs, then
-    draws the figures of the finished bag (quad_bringup.figure_worker): the verdict does not wait for them."""
-
-    def __init__(self, popen):
-        self.popen = popen
-
-    @classmethod
-    def start(cls, env):
-        import subprocess
-        import sys
-        popen = subprocess.Popen([sys.executable, '-m', 'quad_bringup.figure_worker'], env=env, text=True,
-                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
-        return cls(popen)
-
-    def draw(self, flight, out_dir: Path) -> list[str]:
-        """The figure paths written (relative to out_dir); raises RuntimeError with the worker's message."""
-        import pickle
-        import tempfile
-        with tempfile.NamedTemporaryFile(suffix='.pickle') as f:
-            pickle.dump(flight, f, protocol=pickle.HIGHEST_PROTOCOL)
-            f.flush()
-            out, _ = self.popen.communicate(json.dumps({'flight': f.name, 'out': str(out_dir)}) + '\n')
-        answer = json.loads(out.strip().splitlines()[-1]) if out.strip() else {'error': 'no answer'}
-        if 'error' in answer:
-            raise RuntimeError(answer['error'])
-        return answer['figures']
-
-    def cancel(self):
-        if self.popen.poll() is None:
-            self.popen.kill()
-            self.popen.wait()
-
-
-def _finish_figures(worker: _FigureWorker, flight, run_dir: Path, metrics: dict, clock) -> str | None:
-    """Figures into run_dir/figures and their links into report.md; an error line, or None."""
-    from quad_bringup.report import write_markdown
-
-    try:
-        figures = worker.draw(flight, run_dir)
-    except (RuntimeError, ValueError, OSError) as exc:
-        return f'figures not drawn: {exc}'
-    write_markdown(metrics, run_dir, [run_dir / f for f in figures])
-    clock.mark('figures drawn')
-    return None
 
 
 def _write_pids(run_dir: Path, started):

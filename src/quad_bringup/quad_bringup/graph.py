@@ -12,6 +12,7 @@ from pathlib import Path
 
 import yaml
 
+from quad_common.params import parameters_of, params_content
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 
@@ -35,6 +36,9 @@ AUTOPILOTS = ('px4', 'ardupilot')
 SIM_MODES = ('lockstep', 'realtime')
 CONFIG_PATH_PARAMETERS = ('vehicle', 'disturbances_file')
 MONITOR = 'fly_monitor'   # fly's flight monitor node (quad_bringup.flight_monitor), a lockstep follower
+RECORDER = 'recorder'     # fly's bag writer (quad_bringup.recorder_node), the other lockstep follower
+FLY_LOCKSTEP_TIMEOUT_S = 3.0   # fly's sim_node waits this long (wall time) for a setpoint: a loaded machine
+FLY_ONLY = {'sim_node': ('lockstep_followers', 'lockstep_timeout_s')}  # what fly adds to the launch graph
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,7 +68,7 @@ class NodeSpec:
                 continue
             data = load_yaml(entry) or {}
             for key in ('/**', self.name, '/' + self.name):
-                merged.update((data.get(key) or {}).get('ros__parameters', {}))
+                merged.update(parameters_of(data, key))
         return merged
 
     def ros_arguments(self, out_dir: Path) -> list[str]:
@@ -73,7 +77,7 @@ class NodeSpec:
         for i, entry in enumerate(self.parameters):
             if isinstance(entry, dict):
                 path = Path(out_dir) / f'{self.name}_params_{i}.yaml'
-                path.write_text(yaml.safe_dump({'/**': {'ros__parameters': entry}}, sort_keys=False))
+                path.write_text(yaml.safe_dump(params_content('/**', entry), sort_keys=False))
                 entry = str(path)
             args += ['--params-file', str(entry)]
         return args
@@ -95,8 +99,9 @@ def profile_controller(control_profile) -> str | None:
     """The `controller` a control profile sets, or None."""
     if not control_profile or not Path(control_profile).is_file():   # a missing file is refused by its caller
         return None
-    data = load_yaml(control_profile) or {}
-    return ((data.get('position_controller') or {}).get('ros__parameters') or {}).get('controller')
+    from quad_control.parameters import profile_parameters
+
+    return profile_parameters(load_yaml(control_profile)).get('controller')
 
 
 def controller_and_profile(controller: str | None, control_profile) -> tuple[str, str | None]:
@@ -143,6 +148,23 @@ def sim_graph(mission_path, *, controller: str | None = None, control_profile=No
     for name, values in (extra or {}).items():
         nodes[name].append(dict(values))
     return [NodeSpec(name, tuple(params)) for name, params in nodes.items()]
+
+
+def fly_graph(mission_path, *, sim: dict | None = None, **kwargs) -> list[NodeSpec]:
+    """sim_graph (lockstep; kwargs: its controller, control_profile, vehicle, speed_mps) plus what only fly has:
+    the recorder and fly's monitor as the simulator's lockstep followers, a longer lockstep timeout, then `sim`
+    (sim_node parameters: the plant, disturbances, a sweep's)."""
+    extra = {'lockstep_followers': f'{RECORDER},{MONITOR}', 'lockstep_timeout_s': FLY_LOCKSTEP_TIMEOUT_S, **(sim or {})}
+    return sim_graph(mission_path, extra={'sim_node': extra}, **kwargs)
+
+
+def params_file_content(nodes: list[NodeSpec]) -> dict:
+    """{node: {ros__parameters: ...}}: what each node ends up with, the config files it names made absolute (a
+    params file that holds on its own, e.g. a run directory's params.yaml)."""
+    content = {}
+    for spec in nodes:
+        content.update(params_content(spec.name, absolute_config_paths(spec.merged_parameters())))
+    return content
 
 
 def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=None, fcu_url: str = '',

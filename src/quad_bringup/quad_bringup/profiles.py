@@ -13,7 +13,7 @@ ROS_KEYS = frozenset({'use_sim_time'})   # rclpy's own parameters, allowed in an
 
 
 def _specs() -> dict:
-    from quad_control.position_controller_node import SPECS  # imports rclpy: fly and sweeps need it anyway
+    from quad_control.parameters import SPECS
 
     return {spec.name: spec for spec in SPECS}
 

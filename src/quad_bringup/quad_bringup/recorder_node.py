@@ -34,7 +34,8 @@ from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.lifeline import bind_to_parent
 from quad_common.node_main import STOP_SIGNALS, ignore_stop_signals, rcl_reason
-from quad_common.params import Param, ParameterSet
+from quad_common.params import Param
+from quad_common.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
 ACK_FLUSH_S = 0.05  # wall time: the newest odometry is acknowledged at least this often (a stopping simulator)

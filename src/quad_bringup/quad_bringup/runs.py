@@ -26,8 +26,6 @@ MODES = ('offline', 'graph')
 # controller profile keys a run carries (position_controller parameters that shape the control law)
 GAIN_KEYS = ('controller', *(f'{g}_{a}' for g in ('kp', 'kd', 'ki') for a in 'xyz'), 'integral_limit_mps2',
              'use_feedforward', 'attitude_lead_s', 'disturbance_time_constant_s', 'thrust_scale')
-LOOP_DEFAULTS = {'rate_hz': 100.0, 'physics_rate_hz': 1000.0, 'time_limit_factor': 3.0,
-                 'position_tolerance_m': 0.02, 'speed_tolerance_mps': 0.03}
 # the seed's Table 1/2 columns, the errors, and what a failure needs explained
 METRIC_COLUMNS = ('time_planned_s', 'time_actual_s', 'length_planned_m', 'length_actual_m', 'avg_velocity_mps',
                   'rmse_m', 'max_error_m', 'waypoint_miss_max_m', 'final_error_m', 'time_over_s', 'max_speed_mps',
@@ -69,16 +67,16 @@ def run_key(params: dict) -> str:
 @functools.lru_cache(maxsize=1)
 def default_gains() -> dict:
     """position_controller's parameter defaults overlaid with config/control.yaml: what `fly` starts from."""
-    from quad_control.position_controller_node import SPECS  # imports rclpy: only when a spec is expanded
+    from quad_control.parameters import SPECS, profile_parameters
 
     values = {spec.name: spec.default for spec in SPECS if spec.name in GAIN_KEYS}
-    node = load_yaml(resolve_config('config/control.yaml'))['position_controller']['ros__parameters']
+    node = profile_parameters(load_yaml(resolve_config('config/control.yaml')))
     values.update({k: v for k, v in node.items() if k in GAIN_KEYS})
     return values
 
 
 def _param_specs() -> dict:
-    from quad_control.position_controller_node import SPECS
+    from quad_control.parameters import SPECS
 
     return {spec.name: spec for spec in SPECS if spec.name in GAIN_KEYS}
 
@@ -110,8 +108,9 @@ def controller_entry(entry, where: str) -> tuple[str, dict]:
         raise SpecError(f'{where}: unknown key(s) {sorted(unknown)}; known: name, controller, profile, gains')
     values = dict(default_gains())
     if entry.get('profile'):
-        profile = load_yaml(resolve_config(entry['profile'])) or {}
-        node = (profile.get('position_controller') or {}).get('ros__parameters') or {}
+        from quad_control.parameters import profile_parameters
+
+        node = profile_parameters(load_yaml(resolve_config(entry['profile'])))
         values.update({k: v for k, v in node.items() if k in GAIN_KEYS})
     gains = entry.get('gains') or {}
     if not isinstance(gains, dict):
@@ -209,11 +208,21 @@ def mission_entry(entry, where: str) -> dict:
             'time_allocation': entry.get('time_allocation')}
 
 
+def loop_defaults() -> dict:
+    """A run's loop options when its spec sets none: the offline loop's (LoopOptions and its completion rule)."""
+    from quad_bringup.closed_loop import LoopOptions
+
+    o = LoopOptions()
+    return {'rate_hz': float(o.rate_hz), 'physics_rate_hz': float(o.physics_rate_hz),
+            'time_limit_factor': float(o.time_limit_factor), 'position_tolerance_m': float(o.rule.position_tolerance_m),
+            'speed_tolerance_mps': float(o.rule.speed_tolerance_mps)}
+
+
 def loop_options(entry, where: str) -> dict:
     entry = entry or {}
-    if not isinstance(entry, dict) or set(entry) - set(LOOP_DEFAULTS):
-        raise SpecError(f'{where} = {entry!r} must be a mapping with keys from {", ".join(LOOP_DEFAULTS)}')
-    options = dict(LOOP_DEFAULTS)
+    options = loop_defaults()
+    if not isinstance(entry, dict) or set(entry) - set(options):
+        raise SpecError(f'{where} = {entry!r} must be a mapping with keys from {", ".join(options)}')
     for key, value in entry.items():
         if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0):
             raise SpecError(f'{where}.{key} = {value!r} must be a number > 0')
@@ -271,10 +280,10 @@ def versions() -> dict:
 def loop_options_of(params: dict):
     from quad_bringup.closed_loop import LoopOptions
     from quad_bringup.report import Completion
-    from quad_control.position import gains_from_parameters
+    from quad_control.parameters import gains_from
 
     o = params['options']
-    gains = gains_from_parameters(params['gains'])
+    gains = gains_from(params['gains'])
     plan = {'time_allocation': params['time_allocation']} if params.get('time_allocation') else None
     return LoopOptions(controller=params['gains']['controller'], gains=gains, speed_mps=params['speed_mps'],
                        plan_overrides=plan, disturbances=params['disturbances'], rate_hz=o['rate_hz'],
@@ -286,14 +295,16 @@ def loop_options_of(params: dict):
 def _fly_graph(params: dict, out_dir: Path) -> tuple[dict | None, str | None]:
     """A full `fly` through the ROS graph (its own ROS domain); the profile, disturbance and plant files it needs
     are written into the run directory."""
-    from quad_bringup.flight import EXIT_INTERRUPTED, FlightOptions, fly
+    from quad_bringup.flight import EXIT_INTERRUPTED, fly
+    from quad_bringup.flight_options import FlightOptions
     from quad_bringup.report import Completion
     from quad_common.vehicle import load_vehicle
+    from quad_control.parameters import profile_content
     from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission
 
     out_dir.mkdir(parents=True, exist_ok=True)
     profile = out_dir / 'control_profile.yaml'
-    profile.write_text(yaml.safe_dump({'position_controller': {'ros__parameters': params['gains']}}))
+    profile.write_text(yaml.safe_dump(profile_content(params['gains'])))
     disturbances = out_dir / 'disturbances.yaml'
     disturbances.write_text(yaml.safe_dump({params['disturbance_name']: params['disturbances']}))
     sim = {'seed': params['seed'], 'disturbances_file': str(disturbances.resolve()),

@@ -190,7 +190,9 @@ class Tuning:
 
 
 def write_profile(path: Path, gains: dict, header: str):
-    body = yaml.safe_dump({'position_controller': {'ros__parameters': gains}}, sort_keys=False)
+    from quad_control.parameters import profile_content
+
+    body = yaml.safe_dump(profile_content(gains), sort_keys=False)
     path.write_text(''.join(f'# {line}\n' for line in header.splitlines()) + body)
 
 

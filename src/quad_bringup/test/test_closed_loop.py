@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 
 from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile
-from quad_bringup.flight import (
-    EXIT_REFUSED,
+from quad_bringup.flight import EXIT_REFUSED, fly
+from quad_bringup.flight_options import (
     FlightOptions,
     MissionRefused,
-    fly,
     preflight_options,
     validate,
     with_profile_controller,
@@ -18,7 +17,7 @@ from quad_bringup.flight import (
 )
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
-from quad_control.position_controller_node import SPECS, gains_from
+from quad_control.parameters import SPECS, gains_from, profile_parameters
 from quad_trajectory.mission import load_mission, plan_mission
 
 FAST = resolve_config('config/control_fast.yaml')
@@ -27,7 +26,7 @@ MAZE = resolve_config('config/missions/maze.yaml')
 
 def fast_profile():
     values = {spec.name: spec.default for spec in SPECS}
-    values.update(load_yaml(FAST)['position_controller']['ros__parameters'])
+    values.update(profile_parameters(load_yaml(FAST)))
     return values['controller'], gains_from(values)
 
 
@@ -98,9 +97,10 @@ def test_unknown_plant_member_refused_naming_it():
 
 
 def test_node_parameters_carry_the_plant_to_sim_node():
-    from quad_bringup.flight import node_parameters
+    from quad_bringup.flight_options import node_parameters
     options = FlightOptions(MAZE, controller='se3', plant='autopilot_so3')
-    params = node_parameters(with_profile_controller(options), validate(options))
+    validate(options)
+    params = node_parameters(with_profile_controller(options))
     assert params['sim_node']['ros__parameters']['plant'] == 'autopilot_so3'
     assert params['position_controller']['ros__parameters']['attitude_lead_s'] == 0.12
 

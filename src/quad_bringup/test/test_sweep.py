@@ -8,6 +8,7 @@ import pytest
 
 from quad_bringup import runs, sweep, tune
 from quad_bringup.executors import LocalExecutor
+from quad_control.parameters import profile_parameters
 
 WINDOW = {'file': 'config/missions/window.yaml', 'speed_mps': 2.0}
 SPEC = {'missions': [WINDOW], 'controllers': ['pd', {'name': 'fast', 'profile': 'config/control_fast.yaml'}],
@@ -184,7 +185,7 @@ def test_tune_beats_a_poor_start_and_writes_profile_and_tables(tmp_path):
     summary = tune.run_tune(tmp_path / 'spec.yaml', tmp_path / 'out', workers=2, log=lambda line: None)
     assert summary['cost_after_m'] < 0.8 * summary['cost_before_m']
     assert summary['best_gains']['kp_x'] == summary['best_gains']['kp_y'] > 3.0
-    profile = runs.load_yaml(tmp_path / 'out' / 'profile.yaml')['position_controller']['ros__parameters']
+    profile = profile_parameters(runs.load_yaml(tmp_path / 'out' / 'profile.yaml'))
     assert profile['kp_x'] == summary['best_gains']['kp_x'] and profile['controller'] == 'se3'
     evaluations = (tmp_path / 'out' / 'evaluations.csv').read_text().splitlines()
     assert evaluations[0].startswith('evaluation,generation,kp_xy,cost') and len(evaluations) >= 1 + 1 + 3

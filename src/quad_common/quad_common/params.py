@@ -1,16 +1,13 @@
-"""Declared, validated ROS parameters: one table of specs per node, one place that checks them.
+"""Declared parameters without ROS: a node's table of specs (Param), the one check of a value against its spec,
+and the section of a params file that holds a node's parameters.
 
-A value that is non-finite, outside its range, or not one of its choices is refused with a
-reason naming the parameter, the value and the rule; the node keeps its previous value. At
-start-up the same check raises ValueError, so a bad params file stops the node with that reason.
+A value that is non-finite, outside its range, or not one of its choices is refused with a reason naming the
+parameter, the value and the rule. quad_common.ros_params declares a table on a node (ParameterSet).
 """
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
-
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 
 
 @dataclass(frozen=True)
@@ -44,75 +41,11 @@ def check_value(spec: Param, value) -> str | None:
     return None
 
 
-def _descriptor(spec: Param) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=spec.description, read_only=spec.read_only)
-    if spec.choices is not None:
-        d.additional_constraints = 'one of: ' + ', '.join(map(str, spec.choices))
-    scalar = not isinstance(spec.default, (list, tuple, str, bool))
-    if scalar and (spec.min is not None or spec.max is not None):
-        lo = spec.min if spec.min is not None else -1e300
-        hi = spec.max if spec.max is not None else 1e300
-        if isinstance(spec.default, int):
-            d.integer_range = [IntegerRange(from_value=int(max(lo, -2**62)), to_value=int(min(hi, 2**62)), step=0)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
-    return d
+def parameters_of(content: dict, node: str) -> dict:
+    """The `node: ros__parameters:` mapping of a params file's content ({} when absent)."""
+    return ((content or {}).get(node) or {}).get('ros__parameters') or {}
 
 
-class ParameterSet:
-    """Declares `specs` on `node`; `ps[name]` is the current value.
-
-    `validate(values: dict)` may raise ValueError for rules across parameters (e.g. min < max);
-    `on_change(changed: dict)` is called after an accepted run-time update.
-    """
-
-    def __init__(self, node, specs, validate: Callable[[dict], None] | None = None,
-                 on_change: Callable[[dict], None] | None = None):
-        self._node = node
-        self._specs = {s.name: s for s in specs}
-        self._validate = validate
-        self._on_change = on_change
-        self.values = {}
-        for s in specs:
-            try:
-                value = node.declare_parameter(s.name, s.default, _descriptor(s)).value
-            except Exception as exc:  # rclpy's own range check on a params-file value
-                raise ValueError(f'parameter {s.name}: {exc}') from None
-            reason = check_value(s, value)
-            if reason:
-                raise ValueError(reason)
-            self.values[s.name] = value
-        if validate:
-            validate(dict(self.values))
-        node.add_on_set_parameters_callback(self._on_set)
-        node.add_post_set_parameters_callback(self._post_set)
-
-    def __getitem__(self, name):
-        return self.values[name]
-
-    def _on_set(self, params) -> SetParametersResult:
-        proposed = dict(self.values)
-        for p in params:
-            spec = self._specs.get(p.name)
-            if spec is None:
-                continue
-            reason = check_value(spec, p.value)
-            if reason:
-                return self._refuse(f'{reason} (kept {self.values[p.name]!r})')
-            proposed[p.name] = p.value
-        if self._validate:
-            try:
-                self._validate(proposed)
-            except ValueError as exc:
-                return self._refuse(f'{exc} (previous values kept)')
-        return SetParametersResult(successful=True)
-
-    def _refuse(self, reason) -> SetParametersResult:
-        self._node.get_logger().error(reason)
-        return SetParametersResult(successful=False, reason=reason)
-
-    def _post_set(self, params):
-        changed = {p.name: p.value for p in params if p.name in self._specs}
-        self.values.update(changed)
-        if changed and self._on_change:
-            self._on_change(changed)
+def params_content(node: str, values: dict) -> dict:
+    """A params file's content setting `values` on `node`."""
+    return {node: {'ros__parameters': dict(values)}}

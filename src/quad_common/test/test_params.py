@@ -6,7 +6,8 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 
-from quad_common.params import Param, ParameterSet, check_value
+from quad_common.params import Param, check_value
+from quad_common.ros_params import ParameterSet
 from quad_common.testing import FASTDDS_PROFILE, isolated_domain
 
 SPECS = [Param('kp', [5.0, 5.0, 20.0], 'gains', min=0.0, length=3),

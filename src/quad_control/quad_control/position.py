@@ -52,23 +52,6 @@ class PositionGains:
     #                                             identify); the command is divided by it
 
 
-def gains_from_parameters(values: dict) -> PositionGains:
-    """PositionGains from position_controller parameters (kp_x ... disturbance_time_constant_s); a missing one
-    keeps the seed's value."""
-    seed = PositionGains()
-
-    def axes(name):
-        return np.array([values.get(f'{name}_{a}', getattr(seed, name)[i]) for i, a in enumerate('xyz')], dtype=float)
-
-    return PositionGains(kp=axes('kp'), kd=axes('kd'), ki=axes('ki'),
-                         integral_limit_mps2=float(values.get('integral_limit_mps2', seed.integral_limit_mps2)),
-                         use_feedforward=bool(values.get('use_feedforward', seed.use_feedforward)),
-                         attitude_lead_s=float(values.get('attitude_lead_s', seed.attitude_lead_s)),
-                         disturbance_time_constant_s=float(values.get('disturbance_time_constant_s',
-                                                                      seed.disturbance_time_constant_s)),
-                         thrust_scale=float(values.get('thrust_scale', seed.thrust_scale)))
-
-
 @dataclass
 class Limits:
     thrust_min_n: float

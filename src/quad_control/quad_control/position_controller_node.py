@@ -26,58 +26,14 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
-from quad_common.params import Param, ParameterSet
 from quad_common.paths import resolve_config
+from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
-from quad_control.loop import ENGAGE_DELAY_S, MAX_START_STEP_M, RATE_HZ, ControlLoop, Tick
-from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains, gains_from_parameters
+from quad_control.loop import ControlLoop, Tick
+from quad_control.parameters import NODE_NAME, SPECS, gains_from
+from quad_control.position import Limits, PositionController
 
-NODE_NAME = 'position_controller'
-AXES = ('x', 'y', 'z')
-SEED = PositionGains()
 DIAGNOSTICS_PERIOD_S = 1.0
-
-SPECS = [
-    Param('controller', 'pd', 'position controller: pd (the seed eq. 1-5), pid (plus integral), se3 (geometric)',
-          choices=CONTROLLERS),
-    Param('rate_hz', RATE_HZ, 'control loop rate on the node clock; in lockstep 1 / sim lockstep_period_s',
-          min=1.0, max=2000.0),
-    Param('lockstep', False, 'compute the tick at t from the odometry stamped t (deferred until it arrives)'),
-    Param('wait_for_trajectory', False, 'lockstep: defer the ticks (so simulated time waits) until a trajectory '
-          'arrives; a late latched plan then never starts in the past'),
-    Param('wait_for_engagement', True, 'advance a plan only while `vehicle/engaged` is true (the bridge\'s hand-over, '
-          'the simulator at once); until then the setpoints hover where the vehicle is (docs/bridge.md); false: '
-          'a plant that publishes no engagement (the plan runs on its stamp)', read_only=True),
-    Param('engage_delay_s', ENGAGE_DELAY_S, 'at engagement a plan whose start has passed begins at least this '
-          'long after it (the vehicle settles under our setpoints first; longer if the plan\'s own start delay is)',
-          min=0.0, max=60.0),
-    Param('max_start_step_m', MAX_START_STEP_M, 'a plan whose reference at its first tick is farther than this '
-          'from the vehicle is refused (the controller keeps holding, ERROR on diagnostics naming the distance)',
-          min=0.0, max=1000.0),
-    Param('odom_timeout_s', 0.2, 'odometry older than this stops the setpoints (failsafe) and reports ERROR',
-          min=0.001, max=10.0),
-    Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file: mass, thrust range, max tilt',
-          read_only=True),
-    Param('max_tilt_deg', 0.0, 'tilt limit of the command; 0 = the vehicle file max_tilt_deg', min=0.0, max=89.0),
-    *[Param(f'kp_{a}', float(SEED.kp[i]), f'eq. 1 position gain, {a} axis (1/s^2)', min=0.0, max=1000.0)
-      for i, a in enumerate(AXES)],
-    *[Param(f'kd_{a}', float(SEED.kd[i]), f'eq. 1 velocity gain, {a} axis (1/s)', min=0.0, max=1000.0)
-      for i, a in enumerate(AXES)],
-    *[Param(f'ki_{a}', float(SEED.ki[i]), f'pid integral gain, {a} axis (1/s^3)', min=0.0, max=1000.0)
-      for i, a in enumerate(AXES)],
-    Param('integral_limit_mps2', SEED.integral_limit_mps2, 'anti-windup clamp on ki * integral, per axis (m/s^2)',
-          min=0.0, max=100.0),
-    Param('use_feedforward', True, 'reference acceleration in eq. 1 and jerk-based body rates in se3'),
-    Param('attitude_lead_s', SEED.attitude_lead_s, 'attitude from a_des + lead * reference jerk, cancelling the '
-          'onboard attitude loop lag (about kd/kp of eq. 6 = 0.1 s); 0 = off (the seed)', min=0.0, max=1.0),
-    Param('thrust_scale', SEED.thrust_scale, 'delivered / commanded specific force of the vehicle (quadflight '
-          'identify); the thrust command is divided by it; 1 = the seed', min=0.5, max=2.0),
-    Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '
-          'external acceleration (drag, wind) subtracted from a_des; 0 = off (the seed)', min=0.0, max=10.0),
-]
-
-
-gains_from = gains_from_parameters
 
 
 class TrajectoryDecoder:

@@ -39,12 +39,13 @@ except ImportError:
 from quad_common import cdr, contract, conversions, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
-from quad_common.params import Param, ParameterSet
+from quad_common.params import Param
 from quad_common.paths import resolve_config
+from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
 from quad_sim.disturbances import load_profile
-from quad_sim.simulator import SimulationStopped, Simulator
+from quad_sim.simulator import PHYSICS_RATE_HZ, SimulationStopped, Simulator
 
 NAME = 'sim_node'
 DIAGNOSTICS_PERIOD_S = 1.0  # sim time
@@ -60,7 +61,7 @@ SPECS = [
     Param('initial_position', [0.0, 0.0, 1.0], 'start position, map frame (m); hovering unless on the floor',
           length=3, read_only=True),
     Param('initial_yaw', 0.0, 'start yaw (rad)', min=-math.pi, max=math.pi, read_only=True),
-    Param('physics_rate_hz', 1000.0, 'RK4 and onboard autopilot rate (Hz)', min=100.0, max=100000.0,
+    Param('physics_rate_hz', PHYSICS_RATE_HZ, 'RK4 and onboard autopilot rate (Hz)', min=100.0, max=100000.0,
           read_only=True),
     Param('mode', 'lockstep', 'lockstep (deterministic, as fast as the graph) or realtime (paced by rtf)',
           choices=('lockstep', 'realtime'), read_only=True),

@@ -42,6 +42,7 @@ from quad_sim.rigid_body import NO_FORCE, STATE_SIZE, RigidBody, rk4_step
 
 NON_FINITE, SPEED_LIMIT, BODY_RATE_LIMIT, FAR_FROM_REFERENCE = (
     'non_finite_state', 'speed_limit', 'body_rate_limit', 'far_from_reference')
+PHYSICS_RATE_HZ = 1000.0      # RK4 and onboard loop steps per second: sim_node's and the offline loop's default
 FAILSAFE_VELOCITY_GAIN = 2.0  # 1/s, vertical speed loop of the landing failsafe
 FAILSAFE_POSITION_GAIN = 4.0  # 1/s^2, horizontal hold: omega_n = 2 rad/s, critically damped with
 FAILSAFE_DAMPING_GAIN = 4.0   # 1/s
@@ -79,7 +80,7 @@ class Event:
 
 
 class Simulator:
-    def __init__(self, vehicle: Vehicle, physics_rate_hz: float = 1000.0, initial_position=(0.0, 0.0, 0.0),
+    def __init__(self, vehicle: Vehicle, physics_rate_hz: float = PHYSICS_RATE_HZ, initial_position=(0.0, 0.0, 0.0),
                  initial_yaw: float = 0.0, disturbances: DisturbanceProfile | None = None,
                  world: World | None = None, robot_radius_m: float = 0.1, seed: int = 0,
                  setpoint_timeout_s: float = 0.5, floor_z_m: float | None = None, max_speed_mps: float = 50.0,

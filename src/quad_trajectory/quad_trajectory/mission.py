@@ -17,6 +17,7 @@ from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos
 from quad_trajectory import feasibility, planner
 
 SEED_CONTROL_POINTS = (0.1, 0.9)
+SAMPLE_RATE_HZ = 100.0   # points per second of the published plan: trajectory_node's and the offline loop's default
 _REPO_CONFIG = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', '..', 'config')
 DEFAULT_VEHICLE_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'vehicles', 'crazyflie.yaml'))
 DEFAULT_MISSION_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'missions', 'maze.yaml'))

@@ -23,11 +23,12 @@ from visualization_msgs.msg import MarkerArray
 from quad_common import contract, diagnostics
 from quad_common.conversions import sampled_to_msg
 from quad_common.node_main import run_node
-from quad_common.params import Param, ParameterSet
+from quad_common.params import Param
+from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
 from quad_trajectory import messages, planner, solver, timing
-from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SEED_CONTROL_POINTS, load_mission
+from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SAMPLE_RATE_HZ, SEED_CONTROL_POINTS, load_mission
 
 PATH_RATE_HZ = 20.0   # trajectory/path and the marker line: for viewing, not for control
 DIAG_NAME = 'trajectory_node: trajectory'
@@ -53,7 +54,7 @@ PARAMS = [
     Param('rho', 0.0, 'time_allocation optimal: weight of total time; 0 = 2r-1', min=0.0),
     Param('margin', planner.PlanOptions.margin, 'time_allocation fastest: the fraction of each vehicle limit left '
           'unused (tilt, thrust, rotor speed, lag-inclusive tilt)', min=0.0, max=0.9),
-    Param('sample_rate_hz', 100.0, 'rate of the points in `trajectory`', min=100.0, max=10000.0),
+    Param('sample_rate_hz', SAMPLE_RATE_HZ, 'rate of the points in `trajectory`', min=100.0, max=10000.0),
     Param('start_delay_s', 1.0, 'trajectory start = node clock now + this', min=0.0, max=3600.0),
     Param('frame_id', 'map', 'frame of every output'),
     Param('vehicle_file', '', 'vehicle YAML for the limits (over the mission\'s vehicle); empty = the mission\'s, '

@@ -5,8 +5,10 @@ from pathlib import Path
 
 from quad_bringup.commands.plan import add_time_allocation_argument
 from quad_bringup.commands.report import add_completion_arguments, completion_overrides
-from quad_bringup.flight import CONTROLLERS, FlightOptions, fly
+from quad_bringup.flight import fly
+from quad_bringup.flight_options import FlightOptions
 from quad_bringup.report import metrics_table
+from quad_control.position import CONTROLLERS
 
 
 def add_arguments(parser):

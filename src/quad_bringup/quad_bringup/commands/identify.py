@@ -20,6 +20,7 @@ from quad_bringup.identify import (
 from quad_bringup.report import load_flight
 from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
+from quad_control.parameters import profile_parameters
 
 DEFAULT_BASE = 'config/control_real.yaml'            # what the bridge launch files fly
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'    # the bridge's and the emulator's vehicle
@@ -152,8 +153,8 @@ def run(args) -> int:
         except OSError as exc:
             print(f'quadflight identify: {flag} {path}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
             return 2
-    print(f'profile: {out} (attitude_lead_s {written["position_controller"]["ros__parameters"]["attitude_lead_s"]}, '
-          f'thrust_scale {written["position_controller"]["ros__parameters"]["thrust_scale"]})')
+    values = profile_parameters(written)
+    print(f'profile: {out} (attitude_lead_s {values["attitude_lead_s"]}, thrust_scale {values["thrust_scale"]})')
     print(f'vehicle model: {model_out} (attitude_loop lag {model["attitude_loop"]["time_constant_s"]} s, thrust_error '
           f'{model["thrust_error"]}; fly --vehicle, a sweep\'s vehicles:)')
     return 0

@@ -1,0 +1,85 @@
+"""A node's declared, validated ROS parameters (ParameterSet): the table of quad_common.params on an rclpy node.
+
+A refused run-time value leaves the node with its previous value; at start-up the same check raises
+ValueError, so a bad params file stops the node with its reason.
+"""
+
+from collections.abc import Callable
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+
+from quad_common.params import Param, check_value
+
+
+def _descriptor(spec: Param) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=spec.description, read_only=spec.read_only)
+    if spec.choices is not None:
+        d.additional_constraints = 'one of: ' + ', '.join(map(str, spec.choices))
+    scalar = not isinstance(spec.default, (list, tuple, str, bool))
+    if scalar and (spec.min is not None or spec.max is not None):
+        lo = spec.min if spec.min is not None else -1e300
+        hi = spec.max if spec.max is not None else 1e300
+        if isinstance(spec.default, int):
+            d.integer_range = [IntegerRange(from_value=int(max(lo, -2**62)), to_value=int(min(hi, 2**62)), step=0)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+    return d
+
+
+class ParameterSet:
+    """Declares `specs` on `node`; `ps[name]` is the current value.
+
+    `validate(values: dict)` may raise ValueError for rules across parameters (e.g. min < max);
+    `on_change(changed: dict)` is called after an accepted run-time update.
+    """
+
+    def __init__(self, node, specs, validate: Callable[[dict], None] | None = None,
+                 on_change: Callable[[dict], None] | None = None):
+        self._node = node
+        self._specs = {s.name: s for s in specs}
+        self._validate = validate
+        self._on_change = on_change
+        self.values = {}
+        for s in specs:
+            try:
+                value = node.declare_parameter(s.name, s.default, _descriptor(s)).value
+            except Exception as exc:  # rclpy's own range check on a params-file value
+                raise ValueError(f'parameter {s.name}: {exc}') from None
+            reason = check_value(s, value)
+            if reason:
+                raise ValueError(reason)
+            self.values[s.name] = value
+        if validate:
+            validate(dict(self.values))
+        node.add_on_set_parameters_callback(self._on_set)
+        node.add_post_set_parameters_callback(self._post_set)
+
+    def __getitem__(self, name):
+        return self.values[name]
+
+    def _on_set(self, params) -> SetParametersResult:
+        proposed = dict(self.values)
+        for p in params:
+            spec = self._specs.get(p.name)
+            if spec is None:
+                continue
+            reason = check_value(spec, p.value)
+            if reason:
+                return self._refuse(f'{reason} (kept {self.values[p.name]!r})')
+            proposed[p.name] = p.value
+        if self._validate:
+            try:
+                self._validate(proposed)
+            except ValueError as exc:
+                return self._refuse(f'{exc} (previous values kept)')
+        return SetParametersResult(successful=True)
+
+    def _refuse(self, reason) -> SetParametersResult:
+        self._node.get_logger().error(reason)
+        return SetParametersResult(successful=False, reason=reason)
+
+    def _post_set(self, params):
+        changed = {p.name: p.value for p in params if p.name in self._specs}
+        self.values.update(changed)
+        if changed and self._on_change:
+            self._on_change(changed)

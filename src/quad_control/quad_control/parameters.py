@@ -1,0 +1,78 @@
+"""position_controller's parameters without ROS: the table the node declares (defaults from PositionGains and
+quad_control.loop), the gains a set of values means, and the node's section of a params file (control profiles)."""
+
+import numpy as np
+
+from quad_common.params import Param, parameters_of, params_content
+from quad_control.loop import ENGAGE_DELAY_S, MAX_START_STEP_M, RATE_HZ
+from quad_control.position import CONTROLLERS, PositionGains
+
+NODE_NAME = 'position_controller'
+AXES = ('x', 'y', 'z')
+SEED = PositionGains()
+
+SPECS = [
+    Param('controller', 'pd', 'position controller: pd (the seed eq. 1-5), pid (plus integral), se3 (geometric)',
+          choices=CONTROLLERS),
+    Param('rate_hz', RATE_HZ, 'control loop rate on the node clock; in lockstep 1 / sim lockstep_period_s',
+          min=1.0, max=2000.0),
+    Param('lockstep', False, 'compute the tick at t from the odometry stamped t (deferred until it arrives)'),
+    Param('wait_for_trajectory', False, 'lockstep: defer the ticks (so simulated time waits) until a trajectory '
+          'arrives; a late latched plan then never starts in the past'),
+    Param('wait_for_engagement', True, 'advance a plan only while `vehicle/engaged` is true (the bridge\'s hand-over, '
+          'the simulator at once); until then the setpoints hover where the vehicle is (docs/bridge.md); false: '
+          'a plant that publishes no engagement (the plan runs on its stamp)', read_only=True),
+    Param('engage_delay_s', ENGAGE_DELAY_S, 'at engagement a plan whose start has passed begins at least this '
+          'long after it (the vehicle settles under our setpoints first; longer if the plan\'s own start delay is)',
+          min=0.0, max=60.0),
+    Param('max_start_step_m', MAX_START_STEP_M, 'a plan whose reference at its first tick is farther than this '
+          'from the vehicle is refused (the controller keeps holding, ERROR on diagnostics naming the distance)',
+          min=0.0, max=1000.0),
+    Param('odom_timeout_s', 0.2, 'odometry older than this stops the setpoints (failsafe) and reports ERROR',
+          min=0.001, max=10.0),
+    Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file: mass, thrust range, max tilt',
+          read_only=True),
+    Param('max_tilt_deg', 0.0, 'tilt limit of the command; 0 = the vehicle file max_tilt_deg', min=0.0, max=89.0),
+    *[Param(f'kp_{a}', float(SEED.kp[i]), f'eq. 1 position gain, {a} axis (1/s^2)', min=0.0, max=1000.0)
+      for i, a in enumerate(AXES)],
+    *[Param(f'kd_{a}', float(SEED.kd[i]), f'eq. 1 velocity gain, {a} axis (1/s)', min=0.0, max=1000.0)
+      for i, a in enumerate(AXES)],
+    *[Param(f'ki_{a}', float(SEED.ki[i]), f'pid integral gain, {a} axis (1/s^3)', min=0.0, max=1000.0)
+      for i, a in enumerate(AXES)],
+    Param('integral_limit_mps2', SEED.integral_limit_mps2, 'anti-windup clamp on ki * integral, per axis (m/s^2)',
+          min=0.0, max=100.0),
+    Param('use_feedforward', True, 'reference acceleration in eq. 1 and jerk-based body rates in se3'),
+    Param('attitude_lead_s', SEED.attitude_lead_s, 'attitude from a_des + lead * reference jerk, cancelling the '
+          'onboard attitude loop lag (about kd/kp of eq. 6 = 0.1 s); 0 = off (the seed)', min=0.0, max=1.0),
+    Param('thrust_scale', SEED.thrust_scale, 'delivered / commanded specific force of the vehicle (quadflight '
+          'identify); the thrust command is divided by it; 1 = the seed', min=0.5, max=2.0),
+    Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '
+          'external acceleration (drag, wind) subtracted from a_des; 0 = off (the seed)', min=0.0, max=10.0),
+]
+
+
+def gains_from(values: dict) -> PositionGains:
+    """PositionGains from position_controller parameters (kp_x ... disturbance_time_constant_s); a missing one
+    keeps the seed's value."""
+    seed = PositionGains()
+
+    def axes(name):
+        return np.array([values.get(f'{name}_{a}', getattr(seed, name)[i]) for i, a in enumerate('xyz')], dtype=float)
+
+    return PositionGains(kp=axes('kp'), kd=axes('kd'), ki=axes('ki'),
+                         integral_limit_mps2=float(values.get('integral_limit_mps2', seed.integral_limit_mps2)),
+                         use_feedforward=bool(values.get('use_feedforward', seed.use_feedforward)),
+                         attitude_lead_s=float(values.get('attitude_lead_s', seed.attitude_lead_s)),
+                         disturbance_time_constant_s=float(values.get('disturbance_time_constant_s',
+                                                                      seed.disturbance_time_constant_s)),
+                         thrust_scale=float(values.get('thrust_scale', seed.thrust_scale)))
+
+
+def profile_parameters(content: dict) -> dict:
+    """position_controller's parameters in a params file's content ({} when it sets none)."""
+    return parameters_of(content, NODE_NAME)
+
+
+def profile_content(values: dict) -> dict:
+    """A params file's content (a control profile) setting `values` on position_controller."""
+    return params_content(NODE_NAME, values)
