@@ -136,8 +136,10 @@ def main():
                     print(f'{autopilot} {label} busy={busy}: {r}', file=sys.stderr)
                     rows.append((autopilot, label, busy, r))
     print('### MAVLink bridge with an autopilot\'s real telemetry\n')
-    print(' '.join(__doc__.replace('BASELINE', BASELINE).replace('RUN_S', f'{RUN_S:.0f} s')
-                   .replace('BUSY', str(BUSY)).split()) + '\n')
+    doc = __doc__.replace('BASELINE', BASELINE).replace('RUN_S', f'{RUN_S:.0f} s').replace('BUSY', str(BUSY))
+    head, *vehicles = doc.split('\n- ')
+    print(' '.join(head.split()) + '\n')
+    print('\n'.join('- ' + ' '.join(v.split()) for v in vehicles) + '\n')
     print('Latency: publishing `cmd/attitude_thrust` to its SET_ATTITUDE_TARGET datagram arriving at the vehicle '
           'double (kernel receive time). CPU: the bridge process\'s user + system time over the window, % of one '
           f'core. Load: the 1-minute load average at the end of each run ({os.cpu_count()} cores). Goal: p99 < 2 ms '
