@@ -46,8 +46,9 @@ def _burst(mav):
     return b''.join(map(bytes, frames))
 
 
+@pytest.mark.parametrize('junk', [b'', b'\x55\x55'])   # junk first: pymavlink's own parser takes the datagram
 @pytest.mark.parametrize('decode', [('HEARTBEAT', 'LOCAL_POSITION_NED'), None])
-def test_only_the_kinds_asked_for_are_decoded_and_every_message_is_counted(decode):
+def test_only_the_kinds_asked_for_are_decoded_and_every_message_is_counted(decode, junk):
     port = _free_port()
     collect = Collector(4)
     client = MavlinkClient(f'udpin:127.0.0.1:{port}', 1, 191, collect, decode=decode)
@@ -55,14 +56,14 @@ def test_only_the_kinds_asked_for_are_decoded_and_every_message_is_counted(decod
     sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         mav = mavlink.MAVLink(None, srcSystem=7, srcComponent=1)
-        sender.sendto(_burst(mav), ('127.0.0.1', port))
+        sender.sendto(junk + _burst(mav), ('127.0.0.1', port))
         assert collect.done.wait(HANG_GUARD_S), f'only {len(collect.messages)} messages handed on'
     finally:
         sender.close()
         client.close()
     kinds = [m.get_type() for m in collect.messages]
     assert kinds == ['HEARTBEAT', 'ATTITUDE', 'COMMAND_ACK', 'LOCAL_POSITION_NED']
-    assert client.bad_data == 1                                  # the corrupted attitude, refused by its CRC
+    assert client.bad_data == 1 + bool(junk)          # the corrupted attitude (its CRC), and the junk as one
     assert [m.get_seq() for m in collect.messages] == [0, 1, 3, 4]   # seq 2 was the corrupted one
     assert all((m.get_srcSystem(), m.get_srcComponent()) == (7, 1) for m in collect.messages)
     heartbeat, attitude, ack, position = collect.messages
