@@ -52,9 +52,12 @@ def _line(remote_ns, offset_ns):
     y = (off - off_ref).astype(float)
     if len(r) < MIN_FIT_POINTS or x.max() - x.min() < MIN_FIT_SPAN_S:
         return r_ref, off_ref, 0.0, y, math.inf
-    slope, intercept = np.polyfit(x, y, 1)
+    dx = x - x.mean()
+    sxx = float(dx @ dx)
+    slope = float(dx @ y) / sxx          # least squares in closed form (np.polyfit's SVD: 10x the time)
+    intercept = float(y.mean()) - slope * float(x.mean())
     residuals = y - (intercept + slope * x)
-    se = math.sqrt(float(residuals @ residuals) / (len(x) - 2) / float(((x - x.mean()) ** 2).sum())) / 1e9
+    se = math.sqrt(float(residuals @ residuals) / (len(x) - 2) / sxx) / 1e9
     if abs(slope / 1e9) > MAX_DRIFT:
         return r_ref, off_ref, 0.0, y, math.inf
     return r_ref, off_ref + int(round(intercept)), float(slope) / 1e9, residuals, se

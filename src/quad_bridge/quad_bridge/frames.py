@@ -18,12 +18,16 @@ Q_FLU_FRD = np.array([1.0, 0.0, 0.0, 0.0])   # FRD vectors -> FLU vectors
 def world_enu_ned(v):
     """(x, y, z) -> (y, x, -z): ENU -> NED and, being an involution, NED -> ENU."""
     v = np.asarray(v, dtype=float)
+    if v.ndim == 1:   # one vector (every telemetry message): np.stack costs 5x
+        return np.array([v[1], v[0], -v[2]])
     return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
 
 
 def body_flu_frd(v):
     """(x, y, z) -> (x, -y, -z): FLU -> FRD and FRD -> FLU (body rates, body velocities, forces)."""
     v = np.asarray(v, dtype=float)
+    if v.ndim == 1:
+        return np.array([v[0], -v[1], -v[2]])
     return np.stack([v[..., 0], -v[..., 1], -v[..., 2]], axis=-1)
 
 
@@ -32,9 +36,12 @@ def quaternion_enu_to_ned(q_enu_flu):
     q_NED_ENU * q * q_FLU_FRD, which multiplied out is s (-x - y, y - x, z - w, -w - z), s = sqrt(1/2).
     Both fixed rotations are 180 degree turns, so the map is its own inverse (with w >= 0)."""
     q = np.asarray(q_enu_flu, dtype=float)
+    if q.ndim == 1:
+        x, y, z, w = q.tolist()
+        sign = -_S if -w - z < 0 else _S
+        return np.array([sign * (-x - y), sign * (y - x), sign * (z - w), sign * (-w - z)])
     x, y, z, w = np.moveaxis(q, -1, 0)
-    out = _S * np.stack([-x - y, y - x, z - w, -w - z], axis=-1) if q.ndim > 1 else \
-        np.array([_S * (-x - y), _S * (y - x), _S * (z - w), _S * (-w - z)])
+    out = _S * np.stack([-x - y, y - x, z - w, -w - z], axis=-1)
     return np.where(out[..., 3:4] < 0, -out, out)
 
 

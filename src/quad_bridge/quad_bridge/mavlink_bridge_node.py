@@ -32,7 +32,7 @@ from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClie
 from quad_bridge.peers import LinkPeers
 from quad_bridge.safety import Geofence
 from quad_bridge.setpoint_path import SetpointPath
-from quad_bridge.telemetry_publisher import TelemetryPublisher, stamp
+from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
 from quad_bridge.vehicle import Vehicle
 from quad_common import contract, diagnostics
 from quad_common.node_main import run_node
@@ -147,7 +147,7 @@ class MavlinkBridge(Node):
         self.create_service(Trigger, 'land', self.srv_land)
 
         self.client = MavlinkClient(p['fcu_url'], p['source_system'], p['source_component'], self.on_mavlink,
-                                    baud=p['baud'], signing_key=key)
+                                    baud=p['baud'], signing_key=key, decode=('HEARTBEAT', *HANDLERS))
         self.telemetry = TelemetryPublisher(self, self.vehicle, self.client, self.on_state, p['stream_grace_s'])
         self.setpoints = SetpointPath(self, self.may_stream, self.on_stream_quiet)
         self.streamer = self.setpoints.streamer
@@ -443,16 +443,17 @@ class MavlinkBridge(Node):
     # --- vehicle -> ROS (receive thread: decodes and publishes itself, never waits on the executor) ----
 
     def on_mavlink(self, msg):
-        if msg.get_srcSystem() == self.vehicle.status.system and \
-                msg.get_srcComponent() == self.params['target_component']:
-            self.link.message(self.now_s(), msg.get_seq())
+        """Every message read (a quad_bridge.mavlink_client.Counted where the kind is not decoded)."""
+        now, system, component, seq = self.now_s(), msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq()
+        ours = system == self.vehicle.status.system
+        if ours and component == self.params['target_component']:
+            self.link.message(now, seq)
         heartbeat = msg.get_type() == 'HEARTBEAT'
-        self.peers.seen(msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq(), self.now_s(),
-                        heartbeat and is_vehicle_heartbeat(msg.type, msg.autopilot))
+        self.peers.seen(system, component, seq, now, heartbeat and is_vehicle_heartbeat(msg.type, msg.autopilot))
         if heartbeat:
             self.on_heartbeat(msg)
-        elif msg.get_srcSystem() == self.vehicle.status.system:  # only our vehicle's telemetry is used
-            self.telemetry.handle(msg, self.now_s())
+        elif ours:  # only our vehicle's telemetry is used
+            self.telemetry.handle(msg, now)
 
     def on_heartbeat(self, msg):
         s = self.vehicle.status

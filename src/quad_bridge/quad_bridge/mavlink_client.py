@@ -1,12 +1,19 @@
 """A pymavlink connection shared by threads: one receive thread, one lock around every send, and
 COMMAND_LONG calls that wait for their COMMAND_ACK on an event (never on the socket).
 
+The receive thread reads all the link has delivered before it handles any (one wake-up per burst, not per
+message), and decodes only the kinds its owner uses (`decode`): every other message is checked (length, CRC)
+and handed on as its header alone (Counted: kind, sender, sequence number), so the link's liveness and packet
+counts see every message while the payloads nobody reads are never unpacked. pymavlink's full parse and its
+recv_match bookkeeping of every message were most of the bridge's CPU with an autopilot's real telemetry
+(issue 26: PX4's 200 messages/s, ArduPilot's bursts). A signing link decodes everything (pymavlink checks
+the signatures).
+
 MAVLink 2 is forced: MAVLINK20 must be set before pymavlink's dialect is first imported.
 """
 
 import math
 import os
-import select
 import threading
 import time
 
@@ -16,6 +23,10 @@ from pymavlink import mavutil  # noqa: E402
 mavlink = mavutil.mavlink
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
 URL_PREFIXES = ('udpin:', 'udpout:', 'udp:', 'udpbcast:', 'tcp:', 'tcpin:')
+CLIENT_DECODES = ('COMMAND_ACK', 'PARAM_VALUE')   # the client's own waiters read these
+MAX_READS_PER_BATCH = 256     # datagrams (or stream chunks) read before handling them
+MAVLINK2_MAGIC = 0xFD
+MAVLINK2_FRAME_BYTES = 12     # header 10 + CRC 2
 
 
 def check_fcu_url(url: str) -> str | None:
@@ -37,11 +48,36 @@ def result_name(result: int | None) -> str:
     return enum.name if enum else f'MAV_RESULT {result}'
 
 
+class Counted:
+    """A message read and checked but not decoded: what its header says (pymavlink's accessor names)."""
+
+    __slots__ = ('_type', '_id', '_seq', '_system', '_component')
+
+    def __init__(self, kind: str, msg_id: int, seq: int, system: int, component: int):
+        self._type, self._id, self._seq, self._system, self._component = kind, msg_id, seq, system, component
+
+    def get_type(self) -> str:
+        return self._type
+
+    def get_msgId(self) -> int:
+        return self._id
+
+    def get_seq(self) -> int:
+        return self._seq
+
+    def get_srcSystem(self) -> int:
+        return self._system
+
+    def get_srcComponent(self) -> int:
+        return self._component
+
+
 class MavlinkClient:
-    """on_message(msg) is called from the receive thread for every parsed message (never BAD_DATA)."""
+    """on_message(msg) is called from the receive thread for every parsed message (never BAD_DATA): a pymavlink
+    message for the kinds in `decode` (names; None: every kind), a Counted for the others."""
 
     def __init__(self, url: str, source_system: int, source_component: int, on_message, baud: int = 57600,
-                 signing_key: bytes | None = None):
+                 signing_key: bytes | None = None, decode=None):
         self.conn = mavutil.mavlink_connection(url, baud=baud, source_system=source_system,
                                                source_component=source_component, autoreconnect=True,
                                                robust_parsing=True)
@@ -59,6 +95,11 @@ class MavlinkClient:
         self.signing = signing_key is not None
         self.handler_errors = 0   # exceptions from on_message or the parser, survived
         self.drained_s = -math.inf  # monotonic time at which the receive thread had read all the link delivered
+        self._decoded_ids = None if decode is None else frozenset(
+            getattr(mavlink, f'MAVLINK_MSG_ID_{name}') for name in (*decode, *CLIENT_DECODES))
+        self._full_decode = self.conn.mav.decode
+        self._datagrams = isinstance(self.conn, mavutil.mavudp)   # whole frames per read (_split)
+        self.conn.mav.decode = self._decode     # pymavlink's parser calls it for every complete frame
 
     def start(self):
         self._running = True
@@ -128,49 +169,91 @@ class MavlinkClient:
                     if self._params.get((target_system, name)) is waiter:
                         del self._params[(target_system, name)]
 
+    def _decode(self, msgbuf):
+        """pymavlink's decode for the kinds decoded, a signed frame, MAVLink 1 or any frame it would refuse;
+        for the others the same length and CRC checks and a Counted."""
+        if self._decoded_ids is None or self.signing or msgbuf[0] != MAVLINK2_MAGIC or msgbuf[2] != 0:
+            return self._full_decode(msgbuf)
+        msg_id = msgbuf[7] | msgbuf[8] << 8 | msgbuf[9] << 16
+        kind = mavlink.mavlink_map.get(msg_id)
+        if msg_id in self._decoded_ids or kind is None or len(msgbuf) != msgbuf[1] + MAVLINK2_FRAME_BYTES:
+            return self._full_decode(msgbuf)
+        crc = mavlink.x25crc(msgbuf[1:-2])
+        crc.accumulate(bytes((kind.crc_extra,)))
+        if crc.crc != (msgbuf[-2] | msgbuf[-1] << 8):
+            return self._full_decode(msgbuf)   # raises pymavlink's CRC error: BAD_DATA as before
+        return Counted(kind.msgname, msg_id, msgbuf[4], msgbuf[5], msgbuf[6])
+
+    def _split(self, data, batch) -> bytes:
+        """A datagram's whole unsigned MAVLink 2 frames into batch without pymavlink's byte-wise parser (a UDP
+        datagram holds whole frames); returns what is left for that parser (anything else: MAVLink 1, signed,
+        bad flags, junk, a cut frame), from the first such byte on."""
+        i, n = 0, len(data)
+        while i + MAVLINK2_FRAME_BYTES <= n and data[i] == MAVLINK2_MAGIC and data[i + 2] == 0:
+            end = i + data[i + 1] + MAVLINK2_FRAME_BYTES
+            if end > n:
+                break
+            frame = bytearray(data[i:end])
+            try:
+                batch.append(self._decode(frame))
+            except mavlink.MAVError as reason:      # as pymavlink's robust parsing reports it
+                batch.append(mavlink.MAVLink_bad_data(frame, reason.message))
+            i = end
+        return data[i:]
+
+    def _read_batch(self) -> tuple[list, float | None]:
+        """Every message the link has delivered (waiting up to 0.1 s for the first), and the monotonic time at
+        which a read found nothing more and the parser held no partial frame (None: not drained)."""
+        conn = self.conn
+        if not conn.select(0.1):
+            return [], time.monotonic() if conn.mav.buf_len() == 0 else None
+        batch = []
+        for _ in range(MAX_READS_PER_BATCH):
+            data = conn.recv()
+            if self._datagrams and data and conn.mav.buf_len() == 0:
+                data = self._split(data, batch)
+            batch += conn.mav.parse_buffer(data) or []   # a parse of nothing still yields what the parser held
+            if not data:
+                return batch, time.monotonic() if conn.mav.buf_len() == 0 else None
+            if getattr(conn, 'fd', None) is None:   # nothing to poll (select only slept): one read per wake-up
+                return batch, None
+        return batch, None
+
     def _receive_loop(self):
         while self._running:
             try:
-                msg = self.conn.recv_match(blocking=True, timeout=0.1)
+                batch, drained_s = self._read_batch()
             except Exception:  # a malformed packet or a socket hiccup must not end the loop
                 self.handler_errors += 1
                 time.sleep(0.01)
                 continue
-            if msg is None:   # nothing for the whole timeout: everything delivered has been read
-                self.drained_s = time.monotonic()
-                continue
-            if msg.get_type() == 'BAD_DATA':
-                self.bad_data += 1
-                self.bad_signature += getattr(msg, 'reason', '') == 'Invalid signature'
-                continue
-            if msg.get_type() == 'COMMAND_ACK':
-                with self._acks_lock:
-                    waiter = self._acks.get((msg.get_srcSystem(), msg.command))
-                if waiter is not None:
-                    waiter[1] = msg.result
-                    waiter[0].set()
-            elif msg.get_type() == 'PARAM_VALUE':
-                name = msg.param_id.rstrip('\x00') if isinstance(msg.param_id, str) else msg.param_id
-                with self._acks_lock:
-                    waiter = self._params.get((msg.get_srcSystem(), name))
-                if waiter is not None:
-                    waiter[1] = (msg.param_value, msg.param_type)
-                    waiter[0].set()
-            try:
-                self._on_message(msg)
-            except Exception:
-                self.handler_errors += 1
-            self._note_drained()
+            for msg in batch:
+                self._handle(msg)
+            if drained_s is not None:   # read at drained_s: everything delivered up to then is handled now
+                self.drained_s = drained_s
 
-    def _note_drained(self):
-        """drained_s = now when nothing is waiting to be read (socket and parser); a receive thread that is behind
-        leaves it in the past (LinkState decides a loss only past it)."""
-        fd = getattr(self.conn, 'fd', None)
-        if fd is None or self.conn.mav.buf_len() > 0:
+    def _handle(self, msg):
+        kind = msg.get_type()
+        if kind == 'BAD_DATA':
+            self.bad_data += 1
+            self.bad_signature += getattr(msg, 'reason', '') == 'Invalid signature'
             return
+        if not isinstance(msg, Counted) and msg.get_signed():
+            self.conn.post_message(msg)    # of pymavlink's bookkeeping the bridge needs only the signing link id
+        if kind == 'COMMAND_ACK':
+            with self._acks_lock:
+                waiter = self._acks.get((msg.get_srcSystem(), msg.command))
+            if waiter is not None:
+                waiter[1] = msg.result
+                waiter[0].set()
+        elif kind == 'PARAM_VALUE':
+            name = msg.param_id.rstrip('\x00') if isinstance(msg.param_id, str) else msg.param_id
+            with self._acks_lock:
+                waiter = self._params.get((msg.get_srcSystem(), name))
+            if waiter is not None:
+                waiter[1] = (msg.param_value, msg.param_type)
+                waiter[0].set()
         try:
-            readable = select.select([fd], [], [], 0)[0]
-        except (OSError, ValueError):
-            return
-        if not readable:
-            self.drained_s = time.monotonic()
+            self._on_message(msg)
+        except Exception:
+            self.handler_errors += 1

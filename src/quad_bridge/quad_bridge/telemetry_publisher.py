@@ -14,10 +14,15 @@ from quad_bridge import frames
 from quad_bridge.clock import ClockMapper
 from quad_bridge.streams import StreamSelector
 from quad_bridge.telemetry import imu_flu, state_from_local_position, state_from_odometry, time_us
-from quad_common import cdr, contract, conversions
+from quad_common import cdr, contract
 
 ODOM_GAP_WINDOW_S = 10.0   # diagnostics' odom_gap_max_ms: the longest gap between odometry publications this recent
 TIMESTAMPED = ('ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED', 'ODOMETRY', 'HIGHRES_IMU', 'SCALED_IMU', 'RAW_IMU')
+# message kind -> its handler: the kinds the bridge decodes (with HEARTBEAT; the link decodes no other)
+HANDLERS = {'ATTITUDE_QUATERNION': 'on_attitude_quaternion', 'LOCAL_POSITION_NED': 'on_local_position_ned',
+            'ODOMETRY': 'on_odometry', 'HIGHRES_IMU': 'on_imu', 'SCALED_IMU': 'on_imu', 'RAW_IMU': 'on_imu',
+            'SYS_STATUS': 'on_sys_status', 'BATTERY_STATUS': 'on_battery_status', 'TIMESYNC': 'on_timesync',
+            'STATUSTEXT': 'on_statustext'}
 
 
 def stamp(ns: int) -> Time:
@@ -35,15 +40,12 @@ class TelemetryPublisher:
         self.log = node.get_logger()
         self.clock = ClockMapper()
         self.streams = None            # StreamSelector once the backend is known
-        self.odom_packer = cdr.OdometryPacker()
+        self.odom_packer = cdr.OdometryPacker()   # serialized: ~10x cheaper than building the messages
+        self.imu_packer = cdr.ImuPacker()
         self.timesync_ts1 = None
         self.last_odom_s = None        # monotonic time of the newest odometry publication (None: none since up)
         self.odom_gaps = deque()       # (monotonic time, time since the previous publication) over ODOM_GAP_WINDOW_S
-        self.handlers = {'ATTITUDE_QUATERNION': self.on_attitude_quaternion,
-                         'LOCAL_POSITION_NED': self.on_local_position_ned, 'ODOMETRY': self.on_odometry,
-                         'HIGHRES_IMU': self.on_imu, 'SCALED_IMU': self.on_imu, 'RAW_IMU': self.on_imu,
-                         'SYS_STATUS': self.on_sys_status, 'BATTERY_STATUS': self.on_battery_status,
-                         'TIMESYNC': self.on_timesync, 'STATUSTEXT': self.on_statustext}
+        self.handlers = {kind: getattr(self, name) for kind, name in HANDLERS.items()}
 
     def start(self, backend):
         self.streams = StreamSelector(backend.telemetry, self.grace_s)
@@ -123,17 +125,8 @@ class TelemetryPublisher:
         if not self.streams.uses('imu', msg.get_type()):
             return
         acc, gyro = imu_flu(msg)
-        imu = Imu()
-        imu.header.stamp = stamp(stamp_ns)
-        imu.header.frame_id = conversions.BODY_FRAME
         state = self.vehicle.status.state
-        if state is not None:
-            imu.orientation = conversions.to_quaternion(state.quaternion)
-        else:
-            imu.orientation_covariance[0] = -1.0
-        imu.angular_velocity = conversions.to_vector3(gyro)
-        imu.linear_acceleration = conversions.to_vector3(acc)
-        self.imu_pub.publish(imu)
+        self.imu_pub.publish(self.imu_packer.pack(None if state is None else state.quaternion, gyro, acc, stamp_ns))
 
     def on_sys_status(self, msg, stamp_ns):
         s = self.vehicle.status

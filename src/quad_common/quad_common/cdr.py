@@ -99,6 +99,22 @@ class SetpointPacker:
                                  0.0, 0.0, float(setpoint.specific_force_mps2))
 
 
+class ImuPacker:
+    """A measured sensor_msgs/Imu as bytes (mavlink_bridge's `imu`): orientation, or none (its covariance[0] =
+    UNSET_COVARIANCE, orientation the identity), rates and specific force; every other covariance zero."""
+
+    def __init__(self, frame_id=BODY_FRAME):
+        frames = _constant((frame_id,))
+        self._struct = struct.Struct(f'<4siI{len(frames)}s4dd64x3d72x3d72x')
+        self._frames = frames
+
+    def pack(self, orientation_xyzw, rates, specific_force, time_ns: int) -> bytes:
+        q, cov0 = (orientation_xyzw, 0.0) if orientation_xyzw is not None else ((0.0, 0.0, 0.0, 1.0),
+                                                                                UNSET_COVARIANCE)
+        return self._struct.pack(CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._frames,
+                                 *map(float, q), cov0, *map(float, rates), *map(float, specific_force))
+
+
 class ReferencePacker:
     """conversions.reference_to_msg as bytes (`control/reference`: one point, one transform, velocity and
     acceleration; time_from_start 0)."""

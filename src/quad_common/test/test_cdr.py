@@ -43,6 +43,22 @@ def test_setpoint_bytes_are_rclpys_and_decode_to_the_same_setpoint(rates):
                                                                                         expected.body_rates)
 
 
+@pytest.mark.parametrize('orientation', [None, rot.from_euler(0.2, 0.1, -1.0)])
+def test_imu_bytes_are_rclpys(orientation):
+    """The bridge's measured `imu` as bytes: the message it built field by field before."""
+    gyro, acc = np.array([0.1, -0.2, 0.5]), np.array([0.3, -0.4, 9.7])
+    raw = cdr.ImuPacker().pack(orientation, gyro, acc, TIME_NS)
+    msg = Imu()
+    msg.header.stamp = conv.s_to_stamp(TIME_NS * 1e-9)
+    msg.header.frame_id = conv.BODY_FRAME
+    if orientation is None:
+        msg.orientation_covariance[0] = conv.UNSET_COVARIANCE
+    else:
+        msg.orientation = conv.to_quaternion(orientation)
+    msg.angular_velocity, msg.linear_acceleration = conv.to_vector3(gyro), conv.to_vector3(acc)
+    assert len(raw) == len(serialize_message(msg)) and deserialize_message(raw, Imu) == msg
+
+
 @pytest.mark.parametrize('frame_id', ['map', '', 'world_frame'])
 def test_reference_bytes_are_rclpys(frame_id):
     ref = Reference(position=np.array([1.5, -2.25, 3.0]), velocity=np.array([0.3, -0.7, 0.2]),

@@ -1,0 +1,160 @@
+"""mavlink_bridge against an autopilot's real telemetry (issue 26): the setpoint path's publish-to-wire latency
+and the bridge's CPU while the vehicle streams what a real one streams. Setpoints at 50 Hz for RUN_S, today's
+code and, in the same run, the code before issue 26 (BASELINE, from git), alternating, REPEATS runs each (the
+medians; lost summed), with no busy loops of ours and beside BUSY busy-looping processes. The vehicle doubles
+speak MAVLink 2 (pymavlink's dialect encoders) over UDP:
+
+- PX4: LOCAL_POSITION_NED, ATTITUDE_QUATERNION, ATTITUDE and HIGHRES_IMU at 50 Hz each (200 messages/s), one
+  datagram per message as PX4's mavlink module sends them (Mavlink::send_finish per message).
+- ArduPilot: everything due in one scheduler tick in one datagram (GCS_MAVLINK::update_send fills the UART
+  buffer, the UDP link sends it per tick): the messages the bridge asks for with SET_MESSAGE_INTERVAL
+  (LOCAL_POSITION_NED, ATTITUDE_QUATERNION, SCALED_IMU) at 50 Hz, and ArduCopter's SRx_ stream groups
+  (GCS_Common.cpp STREAM_*_msgs) at a companion link's usual rates: EXTRA1, POSITION, RAW_SENSORS, EXTRA2 at
+  10 Hz, EXTENDED_STATUS, RC_CHANNELS, EXTRA3 at 2 Hz (286 messages/s)."""
+
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_bridge as bb  # noqa: E402
+from bench_bridge import HOVER_THROTTLE, mavlink  # noqa: E402
+
+from quad_common.domains import isolated_domain  # noqa: E402
+
+BASELINE = '5a87bc8'   # main's receive and setpoint paths before this change
+RATE_HZ = 50.0
+RUN_S = float(os.environ.get('BENCH_RUN_S', 10.0))
+BUSY = 4
+REPEATS = int(os.environ.get('BENCH_REPEATS', 3))   # alternating runs per row: a shared machine's load drifts
+ROOT = Path(bb.ROOT)
+
+# ArduCopter's stream groups (GCS_Common.cpp) as message names, with the rate (Hz) a companion link sets
+ARDUPILOT_GROUPS = (
+    (10, ('ATTITUDE', 'SIMSTATE', 'AHRS2', 'PID_TUNING')),                                     # EXTRA1
+    (10, ('GLOBAL_POSITION_INT',)),                              # POSITION (LOCAL_POSITION_NED: requested)
+    (10, ('RAW_IMU', 'SCALED_IMU2', 'SCALED_IMU3', 'SCALED_PRESSURE', 'SCALED_PRESSURE2')),    # RAW_SENSORS
+    (10, ('VFR_HUD',)),                                                                        # EXTRA2
+    (2, ('SYS_STATUS', 'POWER_STATUS', 'MEMINFO', 'MISSION_CURRENT', 'GPS_RAW_INT',
+         'NAV_CONTROLLER_OUTPUT')),                                                            # EXTENDED_STATUS
+    (2, ('SERVO_OUTPUT_RAW', 'RC_CHANNELS')),                                                  # RC_CHANNELS
+    (2, ('AHRS', 'SYSTEM_TIME', 'BATTERY_STATUS', 'EKF_STATUS_REPORT', 'VIBRATION')),         # EXTRA3
+)
+ARDUPILOT_REQUESTED = ('ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED', 'SCALED_IMU')
+HOVERING = {'ATTITUDE_QUATERNION': {'q1': 1.0}, 'LOCAL_POSITION_NED': {'z': -1.0},
+            'HIGHRES_IMU': {'zacc': -9.81}, 'SCALED_IMU': {'zacc': -1000}, 'RAW_IMU': {'zacc': -1000},
+            'SYS_STATUS': {'voltage_battery': 16000, 'current_battery': 500, 'battery_remaining': 80},
+            'BATTERY_STATUS': {'voltages': [4000] * 4 + [0xFFFF] * 6, 'current_battery': 500,
+                               'battery_remaining': 80}}
+
+
+def message(name, t_s, **fields):
+    """A message of the dialect with every field zero but `fields` (and HOVERING's), stamped t_s after boot."""
+    cls = getattr(mavlink, f'MAVLink_{name.lower()}_message')
+    fields = {**HOVERING.get(name, {}), 'time_boot_ms': int(t_s * 1e3), 'time_usec': int(t_s * 1e6), **fields}
+    lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths))   # array_lengths are in wire order
+    args = []
+    for field, kind in zip(cls.fieldnames, cls.fieldtypes):
+        n = lengths[field]
+        zero = b'' if kind == 'char' else ([0] * n if n else (0.0 if kind in ('float', 'double') else 0))
+        args.append(fields.get(field, zero))
+    return cls(*args)
+
+
+class Px4Vehicle(bb.BenchVehicle):
+    """PX4: the four 50 Hz streams, one datagram per message."""
+
+    STREAMS = ('LOCAL_POSITION_NED', 'ATTITUDE_QUATERNION', 'ATTITUDE', 'HIGHRES_IMU')
+
+    def telemetry(self, mav, t_s, tick):
+        return [message(name, t_s).pack(mav) for name in self.STREAMS]
+
+
+class ArduPilotVehicle(bb.BenchVehicle):
+    """ArduCopter in GUIDED_NOGPS's world: its ids, mode numbers and parameters; a burst per 50 Hz tick."""
+
+    autopilot = 3       # MAV_AUTOPILOT_ARDUPILOTMEGA
+    initial_mode = 0    # STABILIZE
+    params = {'GUID_OPTIONS': (8, mavlink.MAV_PARAM_TYPE_INT32),
+              'MOT_THST_HOVER': (HOVER_THROTTLE, mavlink.MAV_PARAM_TYPE_REAL32),
+              'ATC_ANGLE_BOOST': (1, mavlink.MAV_PARAM_TYPE_INT8)}
+
+    @staticmethod
+    def custom_mode(param2, param3):
+        return int(param2)
+
+    def telemetry(self, mav, t_s, tick):
+        names = list(ARDUPILOT_REQUESTED)
+        for rate_hz, group in ARDUPILOT_GROUPS:
+            if tick % int(round(1.0 / (rate_hz * self.period_s))) == 0:
+                names += group
+        return [b''.join(bytes(message(name, t_s).pack(mav)) for name in names)]
+
+
+VEHICLES = {'px4': Px4Vehicle, 'ardupilot': ArduPilotVehicle}
+
+
+def baseline_src(tmp: Path) -> Path:
+    archive = subprocess.run(['git', '-C', str(ROOT), 'archive', BASELINE, 'src'], capture_output=True, check=True)
+    subprocess.run(['tar', '-x', '-C', str(tmp)], input=archive.stdout, check=True)
+    return tmp / 'src'
+
+
+def python_path(src: Path) -> str:
+    return os.pathsep.join(str(src / p) for p in sorted(os.listdir(src)))
+
+
+def run_once(autopilot, src, env, domain, busy) -> dict:
+    bridge = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', 'fcu_url:=udpout:127.0.0.1:{port}',
+              '-p', f'hover_throttle:={HOVER_THROTTLE}', '-p', f'autopilot:={autopilot}',
+              '-p', 'setpoint_rate_hz:=50.0', '-p', 'setpoint_timeout_s:=1.0', '-p', 'setpoint_source:=bench_bridge']
+    env = dict(env, PYTHONPATH=python_path(src) + os.pathsep + env.get('PYTHONPATH', ''))
+    loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(busy)]
+    bench = bb.Bench(bridge, env, domain, VEHICLES[autopilot]())
+    try:
+        bench.warm_up(True)
+        result = bench.measure(RATE_HZ, RUN_S)
+        result['load'] = os.getloadavg()[0]
+        return result
+    finally:
+        bench.close()
+        for loop in loops:
+            loop.kill()
+            loop.wait()
+
+
+def main():
+    runs = {}
+    with tempfile.TemporaryDirectory() as tmp, isolated_domain() as (domain, env):
+        old = baseline_src(Path(tmp))
+        for busy in (0, BUSY):
+            for _ in range(REPEATS):
+                for autopilot in VEHICLES:
+                    for label, src in ((f'before ({BASELINE})', old), ('today', ROOT / 'src')):
+                        r = run_once(autopilot, src, env, domain, busy)
+                        print(f'{autopilot} {label} busy={busy}: {r}', file=sys.stderr)
+                        runs.setdefault((autopilot, label, busy), []).append(r)
+    print('### MAVLink bridge with an autopilot\'s real telemetry\n')
+    doc = __doc__.replace('BASELINE', BASELINE).replace('RUN_S', f'{RUN_S:.0f} s').replace('BUSY', str(BUSY))
+    head, *vehicles = doc.replace('REPEATS', str(REPEATS)).split('\n- ')
+    print(' '.join(head.split()) + '\n')
+    print('\n'.join('- ' + ' '.join(v.split()) for v in vehicles) + '\n')
+    print('Latency: publishing `cmd/attitude_thrust` to its SET_ATTITUDE_TARGET datagram arriving at the vehicle '
+          'double (kernel receive time). CPU: the bridge process\'s user + system time over the window, % of one '
+          f'core. Load: the 1-minute load average at the end of the runs ({os.cpu_count()} cores; other work on '
+          'the machine counts in it). Goal: p99 < 2 ms and CPU < 5 % at 50 Hz.\n')
+    print('| vehicle | code | busy loops | load | p50 ms | p99 ms | CPU % | lost | odom gap ms |')
+    print('|---|---|---|---|---|---|---|---|---|')
+    for (autopilot, label, busy), rs in runs.items():
+        med = {k: float(np.median([r[k] for r in rs])) for k in ('load', 'p50', 'p99', 'cpu_pct', 'odom_gap_ms')}
+        lost, n = sum(r['lost'] for r in rs), sum(r['n'] for r in rs)
+        print(f'| {autopilot} | {label} | {busy} | {med["load"]:.1f} | {med["p50"]:.2f} | {med["p99"]:.2f} | '
+              f'{med["cpu_pct"]:.1f} | {lost}/{n} | {med["odom_gap_ms"]:.0f} |')
+
+
+if __name__ == '__main__':
+    main()
