@@ -112,7 +112,9 @@ def test_a_second_vehicle_on_the_link_is_refused_and_reported(tmp_path):
         with observer.lock:
             observer.diagnostics.clear()
         procs.bridge(f'udpin:127.0.0.1:{port}', target_system=1)   # the operator names the vehicle to fly
-        observer.wait_for(lambda: observer.link()[1].get('other_vehicles') == '2', 'vehicle 2 reported again')
+        observer.wait_for(lambda: observer.link()[1].get('other_vehicles') == '2'
+                          and observer.link()[1].get('armed') == 'True',   # vehicle 1's heartbeat heard too
+                          'vehicle 2 reported again and vehicle 1 heard')
         assert observer.link()[1]['link_refusal'] == '' and observer.link()[1]['target_system'] == '1'
         answer = observer.call('arm', SetBool.Request(data=True))
         assert answer.success, answer.message
