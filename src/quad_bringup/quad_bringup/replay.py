@@ -73,8 +73,9 @@ def _fly(vehicle, start_p, start_yaw, t0_s, end_s, step):
     return np.array(times), np.array(positions), stopped
 
 
-def replay(flight, vehicle_path, controller: str, gains: PositionGains) -> dict:
-    """The twin of `flight` (quad_bringup.report.Flight with a plan and commands) on vehicle_path's model."""
+def replay(flight, vehicle_path, controller: str, gains: PositionGains, telemetry: tuple | None = None) -> dict:
+    """The twin of `flight` (quad_bringup.report.Flight with a plan and commands) on vehicle_path's model.
+    telemetry: (age_s, period_s) in place of the bag's (telemetry_of); (0, 0) sees fresh odometry every tick."""
     if flight.trajectory is None:
         raise ValueError('the bag has no plan (topic trajectory): nothing to fly again')
     if len(flight.cmd_t) == 0:
@@ -87,17 +88,17 @@ def replay(flight, vehicle_path, controller: str, gains: PositionGains) -> dict:
     start_p, start_yaw = flight.position[i0], float(flight.euler[i0, 2])
     control = PositionController(controller, gains, nominal, Limits.of(nominal))
     period_s = 1.0 / RATE_HZ
-    age_s, odom_period_s = telemetry_of(flight)
-    telemetry = DelayLine(age_s)
+    age_s, odom_period_s = telemetry if telemetry is not None else telemetry_of(flight)
+    line = DelayLine(age_s)
     next_sample_s = [t0_s]
 
     def closed(k, t_s, sim):
         if t_s >= next_sample_s[0] - 1e-9:   # the vehicle samples its odometry at the bag's rate
             if k == 0:
-                telemetry.push(t_s - age_s, sim.odometry_state())   # at rest there since before the first read
-            telemetry.push(t_s, sim.odometry_state())
+                line.push(t_s - age_s, sim.odometry_state())   # at rest there since before the first read
+            line.push(t_s, sim.odometry_state())
             next_sample_s[0] += odom_period_s
-        seen = telemetry.read(t_s + 1e-9)[1]
+        seen = line.read(t_s + 1e-9)[1]
         setpoint, _ = control.update(seen, traj.reference(t_s - t0_s), period_s if k else 0.0)
         return setpoint
 
