@@ -1,5 +1,6 @@
-"""A zigzag (5 waypoints, 2.5 m legs, 1.5-1.8 m high) at 1.2 m/s flown as on a real vehicle against quad_vehicle_emu
-(PX4 and ArduPilot, their defaults) through mavlink_bridge with position_controller on config/control_real.yaml,
+"""A 3 m square at 1.0 m/s, 2 m high (the manoeuvre identify asks for), flown as on a real vehicle against
+quad_vehicle_emu (PX4 and ArduPilot, their defaults) through mavlink_bridge with position_controller
+on config/control_real.yaml,
 recorded by the recorder (`quadflight record`'s node), `offboard`, trajectory_node, `land`
 (test/bridge_mission.py, as bench_bridge_flight flies its square); then what a user runs: `quadflight identify BAG
 --vehicle px4_quad.yaml --model-out MODEL` and `quadflight replay BAG --vehicle MODEL --control-profile
@@ -19,8 +20,8 @@ sys.path.insert(0, str(ROOT / 'test'))   # the graph helpers the bridge tests us
 from bridge_graph import VEHICLE_FILE, running_graph  # noqa: E402
 from bridge_mission import REAL_PROFILE, fly_mission  # noqa: E402
 
-ZIGZAG = [(0.0, 0.0, 1.5), (2.5, 1.0, 1.8), (0.0, 2.0, 1.5), (2.5, 3.0, 1.8), (0.0, 4.0, 1.5)]
-SPEED_MPS = 1.2
+SQUARE = [(0.0, 0.0, 2.0), (3.0, 0.0, 2.0), (3.0, 3.0, 2.0), (0.0, 3.0, 2.0), (0.0, 0.0, 2.0)]
+SPEED_MPS = 1.0
 TRACE_GOAL = 0.35          # the twin's trace error RMSE under 35 % of the flight's tracking RMSE
 # stiffer xy gains over control_real.yaml: what the margin check refuses or accepts, and the emulator's loop at
 # the margin the check states
@@ -30,7 +31,7 @@ MARGIN_PROFILES = {'control_real.yaml (kp 2 / kd 2.5)': {}, 'kp 4 / kd 3': {'kp_
                    'kp 8 / kd 4': {'kp_x': 8.0, 'kp_y': 8.0, 'kd_x': 4.0, 'kd_y': 4.0}}
 
 
-def emulator_flight(flavour, out_dir: Path, waypoints=ZIGZAG, speed_mps=SPEED_MPS):
+def emulator_flight(flavour, out_dir: Path, waypoints=SQUARE, speed_mps=SPEED_MPS):
     """A bridge flight against the emulated `flavour` (bridge_mission.fly_mission, control_real.yaml): a
     MissionFlight whose bag stays under out_dir."""
     with running_graph(out_dir) as (procs, observer):

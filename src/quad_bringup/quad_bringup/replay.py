@@ -3,12 +3,13 @@ with the position controller and gains, and the bag's setpoints fed open loop.
 
 Closed loop: the PositionController (quad_control, RATE_HZ) tracks the recorded plan (the bag's `trajectory`)
 on Simulator(vehicle) from the flight's position and yaw at the plan's start, each tick seeing the simulator's
-odometry as the flight's controller saw the vehicle's (telemetry_of: the bag's odometry rate and its median
-record - stamp age; a simulator's lockstep bag: every tick, age 0, as the offline loop quad_bringup.closed_loop
-does). Through a vehicle's link the controller at t flies the state of t - age: the vehicle runs ahead of the
-plan by about that age (an emulated PX4 flight, 30 ms: 13 cm RMSE at 1.2 m/s where a fresh-odometry twin gave
-4 cm), so a twin without it is no twin. Both with the model's aerodynamics (DRAG: the drag
-identify measured; a vehicle file's own coefficients act too). Open loop: the recorded cmd/attitude_thrust
+odometry as old as the flight's controller saw the vehicle's (telemetry_of: the bag's median record - stamp age
+plus half its odometry period, the mean wait for the next sample; the state that long ago, interpolated between
+ticks, so a 30 ms age is not rounded to a 10 ms tick; a simulator's lockstep bag: fresh every tick, as the offline
+loop quad_bringup.closed_loop does). Through a vehicle's link the controller at t flies the state of t - age:
+the vehicle runs ahead of the plan by about that age (an emulated PX4 flight, 30 ms: 13 cm RMSE at 1.2 m/s where
+a fresh-odometry twin gave 4 cm), so a twin without it is no twin. Both with the model's aerodynamics (DRAG: the
+drag identify measured; a vehicle file's own coefficients act too). Open loop: the recorded cmd/attitude_thrust
 (held from stamp to stamp) drives Simulator(vehicle) from the same start: errors of the model integrate, so it
 is scored over OPEN_LOOP_S only.
 
@@ -21,13 +22,12 @@ import numpy as np
 
 from quad_bringup.metrics import planned_position
 from quad_common import rotations
-from quad_common.types import AttitudeSetpoint
+from quad_common.types import AttitudeSetpoint, State
 from quad_common.vehicle import load_vehicle
 from quad_control.loop import RATE_HZ
 from quad_control.position import Limits, PositionController, PositionGains
 from quad_sim.disturbances import profile_from_dict
 from quad_sim.simulator import SimulationStopped, Simulator
-from quad_vehicle_emu.attitude import DelayLine
 
 DRAG = profile_from_dict({'body_drag': True, 'rotor_drag': True}, 'replay')   # the model's aerodynamics: what
 #                                          identify measured (0 where it saw none)
@@ -50,6 +50,20 @@ def telemetry_of(flight) -> tuple[float, float]:
     if simulator or len(record) != len(stamps) or len(stamps) < 2:
         return 0.0, 0.0
     return max(float(np.median(record * 1e-9 - stamps)), 0.0), float(np.median(np.diff(stamps)))
+
+
+def _state_at(times, states, t_s) -> State:
+    """The state at t_s, interpolated between the ticks' states (the first before them: at rest there)."""
+    j = int(np.searchsorted(times, t_s, side='right'))
+    if j == 0:
+        return states[0]
+    if j == len(times) or t_s <= times[j - 1]:
+        return states[j - 1]
+    a, b = states[j - 1], states[j]
+    w = (t_s - times[j - 1]) / (times[j] - times[j - 1])
+    q = (1 - w) * a.quaternion + w * (b.quaternion if a.quaternion @ b.quaternion >= 0 else -b.quaternion)
+    return State(position=(1 - w) * a.position + w * b.position, velocity=(1 - w) * a.velocity + w * b.velocity,
+                 quaternion=q / np.linalg.norm(q), body_rates=(1 - w) * a.body_rates + w * b.body_rates)
 
 
 def _fly(vehicle, start_p, start_yaw, t0_s, end_s, step):
@@ -89,17 +103,14 @@ def replay(flight, vehicle_path, controller: str, gains: PositionGains, telemetr
     control = PositionController(controller, gains, nominal, Limits.of(nominal))
     period_s = 1.0 / RATE_HZ
     age_s, odom_period_s = telemetry if telemetry is not None else telemetry_of(flight)
-    line = DelayLine(age_s)
-    next_sample_s = [t0_s]
+    delay_s = age_s + 0.5 * odom_period_s   # a sample arrives age_s late and is flown until the next: its mean age
+    seen_t, seen = [], []
 
     def closed(k, t_s, sim):
-        if t_s >= next_sample_s[0] - 1e-9:   # the vehicle samples its odometry at the bag's rate
-            if k == 0:
-                line.push(t_s - age_s, sim.odometry_state())   # at rest there since before the first read
-            line.push(t_s, sim.odometry_state())
-            next_sample_s[0] += odom_period_s
-        seen = line.read(t_s + 1e-9)[1]
-        setpoint, _ = control.update(seen, traj.reference(t_s - t0_s), period_s if k else 0.0)
+        seen_t.append(t_s)
+        seen.append(sim.odometry_state())
+        setpoint, _ = control.update(_state_at(seen_t, seen, t_s - delay_s), traj.reference(t_s - t0_s),
+                                     period_s if k else 0.0)
         return setpoint
 
     cmd_q = rotations.from_euler(flight.cmd_euler[:, 0], flight.cmd_euler[:, 1], flight.cmd_euler[:, 2])
