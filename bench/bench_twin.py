@@ -7,7 +7,7 @@ recorded by the recorder (`quadflight record`'s node), `offboard`, trajectory_no
 control_real.yaml`. The emulator's truth (docs/emulator.md, quad_vehicle_emu.attitude and mavlink_vehicle): roll/pitch
 lag = the quaternion loop's 1 / angle P + the shaping tau, thrust scale 1 (its hover throttle is the bridge's),
 telemetry latency per autopilot (ArduPilot: plus the wait for its next burst, up to 40 ms apart). Goal (issue 23):
-the twin's RMSE within 20 % of the flight's; its trace |twin - flight| under TRACE_GOAL of the flight's RMSE."""
+the twin's RMSE within 20 % of the flight's; its trace |twin - flight| under 35 % of the flight's RMSE (TRACE_GOAL)."""
 
 import subprocess
 import sys
@@ -132,9 +132,10 @@ def main():
             rows.append((flavour, checked, numbers, fresh, truth(flavour)))
     print('## Twin of emulated autopilot flights: identify + replay (issue 23)\n')
     print(__doc__.replace('\n', ' ').strip() + '\n')
-    print('| autopilot | roll / pitch lag: true, identified (95 %) (s) | thrust scale: true, identified | telemetry: '
-          'true, the bag (median record - stamp) | flight RMSE (cm) | twin RMSE (cm) | |twin - flight| RMSE (cm) '
-          '| open loop, first 2 s (cm) | twin with fresh odometry: RMSE / trace (cm) |')
+    print('| autopilot | roll / pitch lag: true, identified (95 %) (s) | thrust scale: true, identified '
+          '| telemetry latency: true; as the margin check takes it (the bag\'s record - stamp, at least 50 ms) '
+          '| flight RMSE (cm) | twin RMSE (cm) | \\|twin - flight\\| RMSE (cm) | open loop, first 2 s (cm) '
+          '| twin with fresh odometry: RMSE / trace (cm) |')
     print('|---|---|---|---|---:|---:|---:|---:|---:|')
     for flavour, checked, numbers, fresh, true in rows:
         if checked is None:
