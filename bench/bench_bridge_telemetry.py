@@ -27,6 +27,8 @@ from bench_bridge import HOVER_THROTTLE, mavlink  # noqa: E402
 from quad_common.domains import isolated_domain  # noqa: E402
 
 BASELINE = '5a87bc8'   # main's receive and setpoint paths before this change
+# More commits to run beside it, e.g. BENCH_ALSO=f68c54c (the receive path before its batches read past one datagram)
+ALSO = tuple(c for c in os.environ.get('BENCH_ALSO', '').split(',') if c)
 RATE_HZ = 50.0
 RUN_S = float(os.environ.get('BENCH_RUN_S', 10.0))
 BUSY = 4
@@ -98,10 +100,11 @@ class ArduPilotVehicle(bb.BenchVehicle):
 VEHICLES = {'px4': Px4Vehicle, 'ardupilot': ArduPilotVehicle}
 
 
-def baseline_src(tmp: Path) -> Path:
-    archive = subprocess.run(['git', '-C', str(ROOT), 'archive', BASELINE, 'src'], capture_output=True, check=True)
-    subprocess.run(['tar', '-x', '-C', str(tmp)], input=archive.stdout, check=True)
-    return tmp / 'src'
+def baseline_src(tmp: Path, commit: str = BASELINE) -> Path:
+    (tmp / commit).mkdir()
+    archive = subprocess.run(['git', '-C', str(ROOT), 'archive', commit, 'src'], capture_output=True, check=True)
+    subprocess.run(['tar', '-x', '-C', str(tmp / commit)], input=archive.stdout, check=True)
+    return tmp / commit / 'src'
 
 
 def python_path(src: Path) -> str:
@@ -130,18 +133,20 @@ def run_once(autopilot, src, env, domain, busy) -> dict:
 def main():
     runs = {}
     with tempfile.TemporaryDirectory() as tmp, isolated_domain() as (domain, env):
-        old = baseline_src(Path(tmp))
+        codes = [(f'before ({BASELINE})', baseline_src(Path(tmp)))]
+        codes += [(f'at {c}', baseline_src(Path(tmp), c)) for c in ALSO] + [('today', ROOT / 'src')]
         for busy in (0, BUSY):
             for _ in range(REPEATS):
                 for autopilot in VEHICLES:
-                    for label, src in ((f'before ({BASELINE})', old), ('today', ROOT / 'src')):
+                    for label, src in codes:
                         r = run_once(autopilot, src, env, domain, busy)
                         print(f'{autopilot} {label} busy={busy}: {r}', file=sys.stderr)
                         runs.setdefault((autopilot, label, busy), []).append(r)
     print('### MAVLink bridge with an autopilot\'s real telemetry\n')
     doc = __doc__.replace('BASELINE', BASELINE).replace('RUN_S', f'{RUN_S:.0f} s').replace('BUSY', str(BUSY))
     head, *vehicles = doc.replace('REPEATS', str(REPEATS)).split('\n- ')
-    print(' '.join(head.split()) + '\n')
+    also = ''.join(f' Beside them `at {c}`: the code of commit {c}, from git, in the same alternation.' for c in ALSO)
+    print(' '.join(head.split()) + also + '\n')
     print('\n'.join('- ' + ' '.join(v.split()) for v in vehicles) + '\n')
     print('Latency: publishing `cmd/attitude_thrust` to its SET_ATTITUDE_TARGET datagram arriving at the vehicle '
           'double (kernel receive time). CPU: the bridge process\'s user + system time over the window, % of one '

@@ -63,6 +63,14 @@ def state_from_ned(state_ned: State) -> State:
                  body_rates=body_flu_frd(state_ned.body_rates))
 
 
+def enu_to_mavlink_quaternion(q_enu_flu) -> list:
+    """to_mavlink_quaternion(quaternion_enu_to_ned(q)) of one quaternion on Python floats: the same arithmetic
+    without the two numpy arrays between (every setpoint sent; ~4.6 us -> ~1 us)."""
+    x, y, z, w = np.asarray(q_enu_flu, dtype=float).tolist()
+    sign = -_S if -w - z < 0 else _S
+    return [sign * (-w - z), sign * (-x - y), sign * (y - x), sign * (z - w)]
+
+
 def to_mavlink_quaternion(q_xyzw):
     """(x, y, z, w) -> [w, x, y, z] as plain floats."""
     x, y, z, w = (float(c) for c in q_xyzw)

@@ -25,6 +25,10 @@ MAV_COMP_ID_ONBOARD_COMPUTER = 191
 URL_PREFIXES = ('udpin:', 'udpout:', 'udp:', 'udpbcast:', 'tcp:', 'tcpin:')
 CLIENT_DECODES = ('COMMAND_ACK', 'PARAM_VALUE')   # the client's own waiters read these
 MAX_READS_PER_BATCH = 256     # datagrams (or stream chunks) read before handling them
+# Reading (and decoding) stops after this much time even with more queued, the batch is handled and the thread
+# gives up the interpreter before the next: after a stall 256 datagrams of 200 messages/s took ~10 ms of
+# Python in one go, which the setpoint thread could take back only at the GIL switch interval (issue 26).
+MAX_BATCH_S = 0.002
 MAVLINK2_MAGIC = 0xFD
 MAVLINK2_FRAME_BYTES = 12     # header 10 + CRC 2
 
@@ -99,6 +103,7 @@ class MavlinkClient:
             getattr(mavlink, f'MAVLINK_MSG_ID_{name}') for name in (*decode, *CLIENT_DECODES))
         self._full_decode = self.conn.mav.decode
         self._datagrams = isinstance(self.conn, mavutil.mavudp)   # whole frames per read (_split)
+        self._clock = time.monotonic
         self.conn.mav.decode = self._decode     # pymavlink's parser calls it for every complete frame
 
     def start(self):
@@ -202,18 +207,22 @@ class MavlinkClient:
         return data[i:]
 
     def _read_batch(self) -> tuple[list, float | None]:
-        """Every message the link has delivered (waiting up to 0.1 s for the first), and the monotonic time at
-        which a read found nothing more and the parser held no partial frame (None: not drained)."""
+        """The messages the link has delivered (waiting up to 0.1 s for the first; at most MAX_READS_PER_BATCH
+        reads or MAX_BATCH_S of reading), and the monotonic time at which a read found nothing more and the
+        parser held no partial frame (None: not drained)."""
         conn = self.conn
         if not conn.select(0.1):
             return [], time.monotonic() if conn.mav.buf_len() == 0 else None
         batch = []
+        until = self._clock() + MAX_BATCH_S
         for _ in range(MAX_READS_PER_BATCH):
-            data = conn.recv()
+            if batch and self._clock() >= until:
+                return batch, None
+            data = received = conn.recv()
             if self._datagrams and data and conn.mav.buf_len() == 0:
-                data = self._split(data, batch)
+                data = self._split(data, batch)   # what is left for the parser: b'' after whole frames
             batch += conn.mav.parse_buffer(data) or []   # a parse of nothing still yields what the parser held
-            if not data:
+            if not received:   # the read, not what _split left (that ended every batch after one datagram)
                 return batch, time.monotonic() if conn.mav.buf_len() == 0 else None
             if getattr(conn, 'fd', None) is None:   # nothing to poll (select only slept): one read per wake-up
                 return batch, None
@@ -231,6 +240,8 @@ class MavlinkClient:
                 self._handle(msg)
             if drained_s is not None:   # read at drained_s: everything delivered up to then is handled now
                 self.drained_s = drained_s
+            else:
+                time.sleep(0)   # more queued: a thread waiting for the interpreter (setpoints) runs first
 
     def _handle(self, msg):
         kind = msg.get_type()

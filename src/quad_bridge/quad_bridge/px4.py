@@ -76,7 +76,7 @@ class Px4(Backend):
 
     def thrust(self, sp: AttitudeSetpoint, config: ThrustConfig, vertical_velocity_mps=0.0):
         """T = hover_throttle * f / g, clipped to [0, 1]."""
-        return float(np.clip(config.hover_throttle * sp.specific_force_mps2 / GRAVITY_MPS2, 0.0, 1.0))
+        return min(max(float(config.hover_throttle * sp.specific_force_mps2 / GRAVITY_MPS2), 0.0), 1.0)
 
     def specific_force(self, thrust, config, quaternion):
         return float(np.clip(thrust, 0.0, 1.0)) * GRAVITY_MPS2 / config.hover_throttle

@@ -115,7 +115,7 @@ class SetpointPath:
             mask, rates = ATTITUDE_RATES_IGNORE, (0.0, 0.0, 0.0)
         else:
             mask, rates = 0, tuple(map(float, frames.body_flu_frd(sp.body_rates)))
-        q = frames.to_mavlink_quaternion(frames.quaternion_enu_to_ned(sp.quaternion))
+        q = frames.enu_to_mavlink_quaternion(sp.quaternion)
         self.bridge.client.send('set_attitude_target', int(self.bridge.now_s() * 1000) & 0xFFFFFFFF, system,
                                 self.params['target_component'], mask, q, *rates, thrust)
 

@@ -79,3 +79,12 @@ def test_the_closed_form_equals_the_product_of_the_two_fixed_rotations():
         product = rotations.multiply(frames.Q_NED_ENU, rotations.multiply(q, frames.Q_FLU_FRD))
         assert abs(abs(np.dot(product, frames.quaternion_enu_to_ned(q))) - 1.0) < 1e-12
         assert frames.quaternion_enu_to_ned(q)[3] >= 0.0
+
+
+def test_the_setpoint_paths_quaternion_is_the_composition_exactly():
+    """enu_to_mavlink_quaternion is the send path's shortcut of to_mavlink_quaternion(quaternion_enu_to_ned(q)):
+    bit for bit the same, w >= 0 flips included."""
+    rng = np.random.default_rng(3)
+    qs = [*rng.normal(size=(500, 4)), np.array([0.0, 0.0, -0.5, 0.5]), np.array([0.0, 0.0, 0.0, 1.0]), [1, 0, 0, 0]]
+    for q in qs:
+        assert frames.enu_to_mavlink_quaternion(q) == frames.to_mavlink_quaternion(frames.quaternion_enu_to_ned(q))

@@ -116,3 +116,23 @@ def test_signing_key_file(tmp_path):
     empty.write_text('')
     with pytest.raises(ValueError, match='empty'):
         load_signing_key(str(empty))
+
+
+def test_the_float_path_of_check_setpoint_gives_what_the_numpy_path_gives(monkeypatch):
+    """check_setpoint's shortcut for a valid setpoint within max_tilt (quad_bridge.setpoint._within_tilt) against
+    the numpy path it skips, on setpoints either side of the limit, with and without body rates."""
+    import quad_bridge.setpoint as setpoint
+
+    rng = np.random.default_rng(7)
+    cases = [AttitudeSetpoint(quaternion=q, specific_force_mps2=float(f), body_rates=rates)
+             for q, f, rates in zip(rng.normal(size=(400, 4)) * [0.3, 0.3, 1.0, 1.0], rng.uniform(0, 30, 400),
+                                    [None, np.array([0.1, -0.2, 0.3])] * 200)]
+    fast = [check_setpoint(sp, math.radians(35), 40.0) for sp in cases]
+    assert sum(not clamped for _, clamped, _ in fast) > 100   # the shortcut was taken
+    monkeypatch.setattr(setpoint, '_within_tilt', lambda sp, max_tilt_rad: None)
+    for sp, (a, clamped, kept) in zip(cases, fast):
+        b, clamped_b, kept_b = check_setpoint(sp, math.radians(35), 40.0)
+        assert (clamped, kept) == (clamped_b, kept_b)
+        assert np.array_equal(a.quaternion, b.quaternion) and a.specific_force_mps2 == b.specific_force_mps2
+        assert (a.body_rates is None) == (b.body_rates is None)
+        assert a.body_rates is None or np.array_equal(a.body_rates, b.body_rates)
