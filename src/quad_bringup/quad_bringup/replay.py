@@ -69,7 +69,7 @@ def _state_at(times, states, t_s) -> State:
 def _fly(vehicle, start_p, start_yaw, t0_s, end_s, step):
     """(times, positions) of Simulator(vehicle) from rest at start_p / start_yaw, step(k, t_s, sim) -> setpoint
     each 1 / RATE_HZ from t0_s to end_s."""
-    sim = Simulator(vehicle, physics_rate_hz=1000.0, initial_position=start_p, initial_yaw=start_yaw,
+    sim = Simulator(vehicle, initial_position=start_p, initial_yaw=start_yaw,
                     setpoint_timeout_s=1e6, disturbances=DRAG)
     period_s = 1.0 / RATE_HZ
     times, positions = [t0_s], [sim.state.position]
