@@ -45,6 +45,12 @@ FLY_ONLY = {'sim_node': ('lockstep_followers', 'lockstep_timeout_s')}  # what fl
 class NodeSpec:
     name: str                  # the node name (launch_ros: -r __node:=NAME), also its executable
     parameters: tuple = ()     # params file paths (str) and dicts, in the order launch_ros applies them
+    namespace: str = ''        # '' or a fleet vehicle's name (launch_ros: -r __ns:=/NAMESPACE): its topics under it
+
+    @property
+    def fqn(self) -> str:
+        """The fully qualified node name, e.g. /cf1/position_controller (a params file's section key)."""
+        return f'/{self.namespace}/{self.name}' if self.namespace else f'/{self.name}'
 
     @property
     def executable(self) -> str:
@@ -59,24 +65,29 @@ class NodeSpec:
         return MODULES[self.name]
 
     def merged_parameters(self) -> dict:
-        """The parameters the node ends up with: each file's section for this node (its name or '/**'), then
-        each dict, the later one winning."""
+        """The parameters the node ends up with: each file's section for this node ('/**', its name or its fully
+        qualified name), then each dict, the later one winning."""
+        keys = ('/**', self.name, '/' + self.name) + ((self.fqn[1:], self.fqn) if self.namespace else ())
         merged = {}
         for entry in self.parameters:
             if isinstance(entry, dict):
                 merged.update(entry)
                 continue
             data = load_yaml(entry) or {}
-            for key in ('/**', self.name, '/' + self.name):
+            for key in keys:
                 merged.update(parameters_of(data, key))
         return merged
 
     def ros_arguments(self, out_dir: Path) -> list[str]:
-        """`--ros-args -r __node:=NAME --params-file ...` as launch_ros gives them (dicts written under out_dir)."""
+        """`--ros-args -r __node:=NAME [-r __ns:=/NS] --params-file ...` as launch_ros gives them (dicts written
+        under out_dir)."""
         args = ['--ros-args', '-r', f'__node:={self.name}']
+        if self.namespace:
+            args += ['-r', f'__ns:=/{self.namespace}']
+        prefix = f'{self.namespace}_{self.name}' if self.namespace else self.name
         for i, entry in enumerate(self.parameters):
             if isinstance(entry, dict):
-                path = Path(out_dir) / f'{self.name}_params_{i}.yaml'
+                path = Path(out_dir) / f'{prefix}_params_{i}.yaml'
                 path.write_text(yaml.safe_dump(params_content('/**', entry), sort_keys=False))
                 entry = str(path)
             args += ['--params-file', str(entry)]
@@ -163,7 +174,8 @@ def params_file_content(nodes: list[NodeSpec]) -> dict:
     params file that holds on its own, e.g. a run directory's params.yaml)."""
     content = {}
     for spec in nodes:
-        content.update(params_content(spec.name, absolute_config_paths(spec.merged_parameters())))
+        content.update(params_content(spec.fqn if spec.namespace else spec.name,
+                                      absolute_config_paths(spec.merged_parameters())))
     return content
 
 
