@@ -335,6 +335,7 @@ class SimNode(Node):
         self.contacts.reset()
         self._wall_start_s = time.monotonic()
         self._sim_start_ns = self.sim.time_ns
+        self._first_advance = None    # (wall s, sim ns) of the first step advanced
 
     # --- the single vehicle's view (one vehicle: the node's own topics) ------------------------------------
 
@@ -395,6 +396,8 @@ class SimNode(Node):
 
     def advance(self, steps):
         t0_s = self.sim.time_s
+        if self._first_advance is None:
+            self._first_advance = (time.monotonic(), self.sim.time_ns)
         for v in self.vehicles:
             v.advance(steps)
         if len(self.vehicles) > 1:
@@ -427,6 +430,11 @@ class SimNode(Node):
             if all(v.setpoint_stamp_ns >= t_k or v.setpoints_received > 0 or v.controller_present()
                    for v in self.vehicles):
                 self.advance(self.steps_per_period)
+        if self._first_advance is not None:
+            wall_s = time.monotonic() - self._first_advance[0]
+            sim_s = (self.sim.time_ns - self._first_advance[1]) * 1e-9
+            self.get_logger().info(f'lockstep: stepped {sim_s:.3f} s of {len(self.vehicles)} vehicle(s) in '
+                                   f'{wall_s:.3f} s ({sim_s / max(wall_s, 1e-9):.2f}x real time)')
         self.drain(executor)
 
     def _await_setpoints(self, executor, t_k: int):

@@ -279,3 +279,36 @@ def plan_fleet(fleet: Fleet, speed_mps: float | None = None, **overrides) -> Fle
                 plans[k] = result
     final = separation.check(trajectories, names, new_delays, req)
     return FleetPlan(fleet, plans, new_delays, final, changes, before=report)
+
+
+def resolved_fleet(plan: FleetPlan) -> dict:
+    """The fleet file as flown: every vehicle's waypoints (start, offset and altitude layer applied), yaw and
+    start delay (after deconfliction) written out, its files absolute, deconfliction off. Each vehicle's part
+    plans to the same trajectory as in `plan` (a trajectory_node with fleet_vehicle plans only its own)."""
+    path = plan.fleet.path
+    data = dict(load_yaml(path))
+    base = os.path.dirname(os.path.abspath(path))
+
+    def absolute(value):
+        return os.path.normpath(os.path.join(base, value)) if isinstance(value, str) and value else value
+
+    for key in ('vehicle', 'world'):
+        if key in data:
+            data[key] = absolute(data[key])
+    data.pop('waypoints', None)
+    entries = []
+    for raw, v, delay in zip(data['vehicles'], plan.fleet.vehicles, plan.delays_s):
+        entry = {k: val for k, val in raw.items() if k not in ('start', 'offset', 'waypoints', 'yaw')}
+        for key in ('vehicle', 'profile'):
+            if key in entry:
+                entry[key] = absolute(entry[key])
+        entry['waypoints'] = v.mission.waypoints.tolist()
+        yaw = v.mission.yaw
+        if yaw is not None:
+            entry['yaw'] = np.asarray(yaw, dtype=float).tolist()
+        entry['start_delay_s'] = float(delay)
+        entries.append(entry)
+    data['vehicles'] = entries
+    data['separation'] = {**(data.get('separation') or {}), 'deconflict': 'none'}
+    data.pop('yaw', None)
+    return data
