@@ -62,11 +62,49 @@ def node_processes(specs, params_file: Path, log_dir: Path, hosted: bool) -> lis
                                         log_dir / f'{s.namespace}_{s.name}.log') for s in vehicles]
 
 
-def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True,
-              rule: Completion | None = None, log=print, timeout_s: float = 600.0) -> tuple[FleetRun, GraphTiming]:
-    """Flies a planned (separation-checked) fleet through the ROS graph; returns its FleetRun (metrics per
-    vehicle from the bag, the flown separation and collisions) and the timing. Raises RuntimeError naming the
-    process when one exits before the simulator has finished, or timeout_s (wall) passes."""
+@dataclass
+class GraphRun:
+    """A fleet's graph, ready to start: its files written under out_dir, its processes (not started)."""
+    plan: FleetPlan
+    out_dir: Path
+    recorder: processes.NodeProcess
+    nodes: list                # sim_node first, then the vehicles' process(es)
+    end_s: float               # sim time at which sim_node ends the run
+
+    @property
+    def bag(self) -> Path:
+        return self.out_dir / 'bag'
+
+    def start(self, env):
+        for p in [self.recorder, *self.nodes]:
+            p.start(env)
+
+    def await_end(self, deadline: float, expected_dead=()):
+        """Until sim_node has ended the run (exit 0); RuntimeError naming a process that exits before it (except
+        those in expected_dead), or the deadline (time.monotonic) passing."""
+        sim = self.nodes[0]
+        others = [p for p in [self.recorder, *self.nodes[1:]] if p not in expected_dead]
+        while sim.exit_code() is None:
+            dead = next((p for p in others if p.exit_code() is not None), None)
+            if dead is not None:
+                raise RuntimeError(f'{dead.name} exited ({dead.exit_code()}) before the flight ended: '
+                                   f'{dead.log_tail(4)}')
+            if time.monotonic() > deadline:
+                raise RuntimeError(f'the flight did not end in time (logs in {self.out_dir / "logs"})')
+            time.sleep(0.05)  # polling children's exits (no event to await for them but waitpid, one at a time)
+        if sim.exit_code() != 0:
+            raise RuntimeError(f'sim_node exited {sim.exit_code()}: {sim.log_tail(4)}')
+
+    def stop(self, log=print) -> dict:
+        """The vehicles' nodes and the simulator, then the recorder (its bag closed last): {name: exit code}."""
+        codes = processes.stop(self.nodes, log=log)
+        codes.update(processes.stop([self.recorder], log=log))
+        return codes
+
+
+def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True) -> GraphRun:
+    """Writes out_dir/fleet.yaml (the fleet as flown: quad_trajectory.fleet.resolved_fleet) and params.yaml (every
+    node's parameters, fully qualified) and makes the processes."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fleet_file = out_dir / 'fleet.yaml'
@@ -83,35 +121,28 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
     recorder = processes.NodeProcess(graph.RECORDER, 'quad_bringup.recorder_node',
                                      ['-p', f'output_dir:={out_dir / "bag"}', '-p', f'topics:=[{listed}]',
                                       '-p', f'lockstep_ack_after:={ack_after}'], out_dir / 'logs' / 'recorder.log')
-    nodes = node_processes(specs, params_file, out_dir / 'logs', hosted)
+    return GraphRun(plan, out_dir, recorder, node_processes(specs, params_file, out_dir / 'logs', hosted), end_s)
+
+
+def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True,
+              rule: Completion | None = None, log=print, timeout_s: float = 600.0) -> tuple[FleetRun, GraphTiming]:
+    """Flies a planned (separation-checked) fleet through the ROS graph; returns its FleetRun (metrics per
+    vehicle from the bag, the flown separation and collisions) and the timing. Raises RuntimeError naming the
+    process when one exits before the simulator has finished, or timeout_s (wall) passes."""
+    run = prepare(plan, out_dir, speed_mps=speed_mps, hosted=hosted)
     timing = GraphTiming()
-    log(f'flying {plan.fleet.name} ({len(names)} vehicles) through the ROS graph '
-        f'({"one process for the vehicles" if hosted else "one process per node"}) -> {out_dir}')
+    log(f'flying {plan.fleet.name} ({len(plan.fleet.names)} vehicles) through the ROS graph '
+        f'({"one process for the vehicles" if hosted else "one process per node"}) -> {run.out_dir}')
     with isolated_domain(probe=lambda d: foreign_nodes(d, DOMAIN_PROBE_S)) as (_domain, env):
         start = time.monotonic()
         try:
-            for p in [recorder, *nodes]:
-                p.start(env)
-            _await_simulator(nodes[0], [recorder, *nodes[1:]], start + timeout_s, out_dir)
-            timing.flight_s = _stepping_s(out_dir / 'logs' / 'sim_node.log', time.monotonic() - start)
+            run.start(env)
+            run.await_end(start + timeout_s)
+            timing.flight_s = _stepping_s(run.out_dir / 'logs' / 'sim_node.log', time.monotonic() - start)
         finally:
-            timing.processes = processes.stop(nodes, log=log)
-            timing.processes.update(processes.stop([recorder], log=log))
+            timing.processes = run.stop(log=log)
             timing.total_s = time.monotonic() - start
-    return fleet_run(out_dir / 'bag', plan, rule or Completion()), timing
-
-
-def _await_simulator(sim, others, deadline, out_dir):
-    while sim.exit_code() is None:
-        dead = next((p for p in others if p.exit_code() is not None), None)
-        if dead is not None:
-            raise RuntimeError(f'{dead.name} exited ({dead.exit_code()}) before the flight ended: '
-                               f'{dead.log_tail(4)}')
-        if time.monotonic() > deadline:
-            raise RuntimeError(f'the flight did not end in time (logs in {out_dir / "logs"})')
-        time.sleep(0.05)  # polling process exits (no event to await for a child's exit besides waitpid)
-    if sim.exit_code() != 0:
-        raise RuntimeError(f'sim_node exited {sim.exit_code()}: {sim.log_tail(4)}')
+    return fleet_run(run.bag, plan, rule or Completion()), timing
 
 
 def _stepping_s(log_path: Path, fallback_s: float) -> float:

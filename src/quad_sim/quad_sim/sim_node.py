@@ -2,8 +2,9 @@
 
 lockstep: at sim time t_k publish odom (stamp t_k), then /clock (t_k); wait for a cmd/attitude_thrust stamped
 >= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. After such a timeout
-each step waits LOST_STEP_TIMEOUT_S at most until a setpoint arrives again (a dead controller: the failsafe lands
-the vehicle in seconds, not one step per timeout; a controller that was only slow catches up). Until the first
+each step waits LOST_STEP_TIMEOUT_S at most until a setpoint arrives again, and not at all while no setpoint
+publisher is left (a dead controller: the failsafe lands the vehicle in seconds, not one step per timeout; a
+controller that was only slow catches up). Until the first
 setpoint arrives, step k is re-published every 0.1 s (for nodes that join late), and the timeout advances
 only when a controller (a cmd/attitude_thrust publisher with odom and /clock subscribers) is on the graph:
 start-up order does not matter, and a controller whose first tick is after t = 0 still starts the run.
@@ -185,6 +186,9 @@ class SimulatedVehicle:
     def report_stop(self, exc):
         self._log().error(f'{self.name + ": " if self.prefix else ""}{exc}')
         self.publish_diagnostics()
+
+    def has_setpoint_publisher(self) -> bool:
+        return self.node.count_publishers(self.setpoint_topic) > 0
 
     def controller_present(self) -> bool:
         """A setpoint publisher that also listens to odom and /clock is on the graph (it may not tick at t = 0)."""
@@ -446,8 +450,9 @@ class SimNode(Node):
         for v in self.vehicles:
             timeout_s = self.params['lockstep_timeout_s'] if v.setpoints_received else min(
                 self.params['lockstep_timeout_s'], STARTUP_REPUBLISH_S)
-            if v.controller_lost:  # one step per LOST_STEP_TIMEOUT_S: a controller that is only slow catches up
-                timeout_s = min(timeout_s, LOST_STEP_TIMEOUT_S)
+            if v.controller_lost:  # one step per LOST_STEP_TIMEOUT_S: a controller that is only slow catches up;
+                # none at all once it left the graph (a fleet's other vehicles fly on at full speed)
+                timeout_s = min(timeout_s, LOST_STEP_TIMEOUT_S if v.has_setpoint_publisher() else 0.0)
             deadlines[v] = now + timeout_s
         republish_at = now + STARTUP_REPUBLISH_S
         waiting = [v for v in self.vehicles if v.setpoint_stamp_ns < t_k]
