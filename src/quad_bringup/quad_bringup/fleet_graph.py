@@ -43,6 +43,7 @@ class GraphTiming:
     total_s: float = 0.0     # the whole run: processes started to stopped
     flight_s: float = 0.0    # sim_node's stepping: its first step (the plans in) to its exit
     processes: dict = field(default_factory=dict)   # name -> exit code
+    cpu_s: dict = field(default_factory=dict)       # name -> CPU seconds (user + system) when the flight ended
 
 
 def duration_s(plan: FleetPlan) -> float:
@@ -138,11 +139,21 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
         try:
             run.start(env)
             run.await_end(start + timeout_s)
+            timing.cpu_s = {p.name: cpu_s(p.pid) for p in [run.recorder, *run.nodes[1:]]}
             timing.flight_s = _stepping_s(run.out_dir / 'logs' / 'sim_node.log', time.monotonic() - start)
         finally:
             timing.processes = run.stop(log=log)
             timing.total_s = time.monotonic() - start
     return fleet_run(run.bag, plan, rule or Completion()), timing
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a running process (/proc/PID/stat utime, stime); nan once it is gone."""
+    try:
+        fields = open(f'/proc/{pid}/stat').read().rsplit(')', 1)[1].split()
+    except OSError:
+        return float('nan')
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def _stepping_s(log_path: Path, fallback_s: float) -> float:

@@ -62,6 +62,7 @@ class Fleet:
     name: str
     vehicles: list
     separation: SeparationOptions = field(default_factory=SeparationOptions)
+    data: dict = field(default_factory=dict, repr=False)   # the mapping it was read from
 
     @property
     def names(self) -> list:
@@ -203,7 +204,8 @@ def fleet_from_dict(data: dict, path: str = 'fleet') -> Fleet:
     seen = {}
     fleet_vehicles = [_vehicle(entry, i, data, path, seen) for i, entry in enumerate(vehicles)]
     options = _separation(data.get('separation') or {}, path)
-    return Fleet(path, str(data.get('name', os.path.splitext(os.path.basename(path))[0])), fleet_vehicles, options)
+    return Fleet(path, str(data.get('name', os.path.splitext(os.path.basename(path))[0])), fleet_vehicles, options,
+                 dict(data))
 
 
 def load_fleet(path) -> Fleet:
@@ -285,9 +287,8 @@ def resolved_fleet(plan: FleetPlan) -> dict:
     """The fleet file as flown: every vehicle's waypoints (start, offset and altitude layer applied), yaw and
     start delay (after deconfliction) written out, its files absolute, deconfliction off. Each vehicle's part
     plans to the same trajectory as in `plan` (a trajectory_node with fleet_vehicle plans only its own)."""
-    path = plan.fleet.path
-    data = dict(load_yaml(path))
-    base = os.path.dirname(os.path.abspath(path))
+    data = dict(plan.fleet.data)
+    base = os.path.dirname(os.path.abspath(plan.fleet.path))
 
     def absolute(value):
         return os.path.normpath(os.path.join(base, value)) if isinstance(value, str) and value else value
@@ -296,6 +297,9 @@ def resolved_fleet(plan: FleetPlan) -> dict:
         if key in data:
             data[key] = absolute(data[key])
     data.pop('waypoints', None)
+    if len(data['vehicles']) != len(plan.fleet.vehicles):
+        raise ValueError(f'{plan.fleet.path}: the fleet\'s data holds {len(data["vehicles"])} vehicles, its plan '
+                         f'{len(plan.fleet.vehicles)}')
     entries = []
     for raw, v, delay in zip(data['vehicles'], plan.fleet.vehicles, plan.delays_s):
         entry = {k: val for k, val in raw.items() if k not in ('start', 'offset', 'waypoints', 'yaw')}
