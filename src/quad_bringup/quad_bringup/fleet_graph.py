@@ -7,10 +7,10 @@ one interpreter and one DDS participant for all of them) or one process per node
 starts them). Everything runs on simulated time; sim_node ends the run at duration_s (the latest planned end plus
 SETTLE_S), drains the recorder and exits; then the rest is stopped (processes.stop: SIGINT, SIGTERM, SIGKILL).
 
-Per vehicle the bag holds /NAME/odom, /NAME/cmd/attitude_thrust, /NAME/trajectory, /NAME/control/reference and
-/NAME/diagnostics (the simulator's collision, vehicle_collision and failsafe events); report.load_flight reads one
-vehicle's part. The fleet's flown separation and its collisions are computed from the recorded odometry with the
-simulator's own contact rule (quad_sim.vehicle_contact), beside the events the simulator reported.
+Per vehicle the bag holds /NAME/odom, /NAME/cmd/attitude_thrust, /NAME/trajectory and /NAME/diagnostics (the
+simulator's collision, vehicle_collision and failsafe events); report.load_flight reads one vehicle's part. The
+fleet's flown separation and its collisions are computed from the recorded odometry with the simulator's own
+contact rule (quad_sim.vehicle_contact), beside the events the simulator reported.
 """
 
 import os
@@ -33,7 +33,9 @@ from quad_trajectory.fleet import FleetPlan, resolved_fleet
 
 SETTLE_S = 3.0              # sim time flown after the latest planned end (the completion rule's settle window)
 TRAJECTORY_START_S = 1.0    # trajectory_node's start_delay_s (config/trajectory.yaml): the plans start here
-VEHICLE_TOPICS = (contract.ODOM, contract.SETPOINT, contract.TRAJECTORY, contract.REFERENCE, contract.DIAGNOSTICS)
+# what the report reads (report.load_flight); not control/reference: 100 Hz of it per vehicle would double each
+# controller's publishing cost (a reliable write to a matched reader) for nothing the report uses
+VEHICLE_TOPICS = (contract.ODOM, contract.SETPOINT, contract.TRAJECTORY, contract.DIAGNOSTICS)
 DOMAIN_PROBE_S = 0.5
 LOCKSTEP_TIMEOUT_S = 3.0    # wall time sim_node waits for a setpoint (a loaded machine; graph.FLY_LOCKSTEP_TIMEOUT_S)
 

@@ -8,6 +8,11 @@ every node of a process. Why one process: a fleet of N vehicles as 2 N processes
 participants and N x 2 context switches per lockstep step; in one process the controllers' ticks are served in
 one pass of one HotPathExecutor (every controller's hot entities), the planners in its slow pass. A node that
 refuses its parameters stops the whole process (exit 2, naming it), as a single node does.
+
+On simulated time the nodes share one /clock subscription (`share_clock`): each rclpy node otherwise subscribes
+/clock itself, N takes of every /clock message per step; here the first node's time source drives every node's
+clock (rclpy's TimeSource.attach_clock, the API a node's own time source uses), the others' subscriptions are
+removed.
 """
 
 import importlib
@@ -40,16 +45,34 @@ def parse_nodes(argv: list[str]) -> tuple[list[tuple[str, str]], list[str]]:
     return nodes, ros_args
 
 
-def hot_entities(nodes):
-    """Every node's per-tick entities (a node without hot_entities is served in the slow pass)."""
-    subscriptions, timers, guards = [], [], []
+def hot_entities(nodes, clock_subscription=None):
+    """Every node's per-tick entities (a node without hot_entities is served in the slow pass), the shared /clock
+    subscription first."""
+    subscriptions, timers, guards = [clock_subscription] if clock_subscription is not None else [], [], []
     for node in nodes:
         if hasattr(node, 'hot_entities'):
             subs, node_timers, *node_guards = node.hot_entities()
-            subscriptions += subs
+            subscriptions += [sub for sub in subs if sub is not clock_subscription]
             timers += node_timers
             guards += node_guards[0] if node_guards else []
     return subscriptions, timers, guards
+
+
+def share_clock(nodes):
+    """The first node's time source drives every other node's ROS clock; their own /clock subscriptions are
+    removed (all nodes of a host are on simulated time or none; a mix is refused). Returns the one /clock
+    subscription left (None on wall-clock time): a hot entity, as every tick waits for it."""
+    sim_time = [bool(node.get_parameter('use_sim_time').value) for node in nodes]
+    if any(sim_time) and not all(sim_time):
+        raise ValueError('use_sim_time differs between the hosted nodes: '
+                         + ', '.join(f'{n.get_fully_qualified_name()}={t}' for n, t in zip(nodes, sim_time)))
+    if not all(sim_time):
+        return None
+    source = nodes[0]._time_source   # rclpy 7.1 (quad_common.hot_path.CHECKED_RCLPY_VERSION)
+    for node in nodes[1:]:
+        node._time_source.detach_node()
+        source.attach_clock(node.get_clock())
+    return source._clock_sub
 
 
 def main(argv=None):
@@ -59,6 +82,8 @@ def main(argv=None):
     except ValueError as exc:
         print(f'node_host: {exc}', file=sys.stderr)
         sys.exit(2)
+
+    clock = [None]
 
     def make_nodes():
         nodes = []
@@ -70,10 +95,12 @@ def main(argv=None):
                 for node in nodes:
                     node.destroy_node()
                 raise ValueError(f'/{namespace}/{name}: {exc}') from None
+        clock[:] = [share_clock(nodes)]
         return nodes
 
     run_node('node_host', make_nodes, refused=(ValueError, OSError),
-             make_executor=lambda nodes: HotPathExecutor(lambda: hot_entities(nodes)), args=['node_host', *ros_args])
+             make_executor=lambda nodes: HotPathExecutor(lambda: hot_entities(nodes, clock[0])),
+             args=['node_host', *ros_args])
 
 
 if __name__ == '__main__':
