@@ -14,7 +14,6 @@ from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 
 from quad_bringup import fleet_graph
-from quad_bringup.metrics import Completion
 from quad_common import contract
 from quad_common.domains import isolated_domain
 from quad_trajectory.fleet import load_fleet, plan_fleet
@@ -37,7 +36,8 @@ def two_abreast(tmp_path) -> Path:
 def test_a_formation_of_four_flies_through_the_graph_and_each_vehicle_completes(tmp_path, ros_env):
     out = tmp_path / 'run'
     done = subprocess.run([QUADFLIGHT, 'fleet', str(ROOT / 'config/missions/fleets/formation4.yaml'), '--graph',
-                           '--out', str(out)], env=ros_env, capture_output=True, text=True, timeout=TIMEOUT_S)
+                           '--out', str(out), '--no-figures'],
+                          env=ros_env, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert done.returncode == 0, done.stdout + done.stderr
     content = json.loads((out / 'fleet.json').read_text())
     assert set(content['metrics']) == {'cf1', 'cf2', 'cf3', 'cf4'}
@@ -45,6 +45,10 @@ def test_a_formation_of_four_flies_through_the_graph_and_each_vehicle_completes(
         assert m['completed'] and not m['collided'], (name, m)
         assert m['rmse_m'] < 0.03, (name, m['rmse_m'])
     assert content['collisions'] == []
+    for name, m in content['metrics'].items():   # each vehicle's report: the seed's table of its part of the bag
+        report = json.loads((out / 'vehicles' / name / 'metrics.json').read_text())
+        assert report['rmse_m'] == m['rmse_m'] and report['completion_rule']['source'] == 'vehicle crazyflie'
+        assert (out / 'vehicles' / name / 'report.md').is_file()
     assert 0.7 < content['flown_minimum_separation']['distance_m'] < 0.9     # the 0.8 m square holds
     with Reader(out / 'bag') as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
@@ -89,7 +93,7 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
             run.stop(log=lambda *_: None)
             executor.shutdown()
             rclpy.shutdown(context=ctx)
-    result = fleet_graph.fleet_run(run.bag, plan, Completion())
+    result = fleet_graph.fleet_run(run.bag, plan)
     cf1, cf2 = result.metrics['cf1'], result.metrics['cf2']
     assert cf2['completed'] and cf2['rmse_m'] < 0.03, cf2
     assert not cf1['completed']

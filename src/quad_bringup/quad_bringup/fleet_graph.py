@@ -24,7 +24,7 @@ import yaml
 from quad_bringup import graph, processes
 from quad_bringup.fleet_loop import FleetRun
 from quad_bringup.metrics import Completion, compute_metrics
-from quad_bringup.report import load_flight
+from quad_bringup.report import load_flight, write_report
 from quad_common import contract
 from quad_common.domain_probe import foreign_nodes
 from quad_common.domains import isolated_domain
@@ -128,10 +128,12 @@ def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted:
 
 
 def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True,
-              rule: Completion | None = None, log=print, timeout_s: float = 600.0) -> tuple[FleetRun, GraphTiming]:
+              rule: Completion | None = None, log=print, timeout_s: float = 600.0, reports: bool = False,
+              figures: bool = False) -> tuple[FleetRun, GraphTiming]:
     """Flies a planned (separation-checked) fleet through the ROS graph; returns its FleetRun (metrics per
-    vehicle from the bag, the flown separation and collisions) and the timing. Raises RuntimeError naming the
-    process when one exits before the simulator has finished, or timeout_s (wall) passes."""
+    vehicle from the bag, the flown separation and collisions) and the timing. reports: each vehicle's report
+    (metrics.json, report.md, with figures/ if figures) under out_dir/vehicles/NAME. Raises RuntimeError naming
+    the process when one exits before the simulator has finished, or timeout_s (wall) passes."""
     run = prepare(plan, out_dir, speed_mps=speed_mps, hosted=hosted)
     timing = GraphTiming()
     log(f'flying {plan.fleet.name} ({len(plan.fleet.names)} vehicles) through the ROS graph '
@@ -146,7 +148,8 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
         finally:
             timing.processes = run.stop(log=log)
             timing.total_s = time.monotonic() - start
-    return fleet_run(run.bag, plan, rule or Completion()), timing
+    reports_dir = run.out_dir / 'vehicles' if reports else None
+    return fleet_run(run.bag, plan, rule, reports_dir, figures), timing
 
 
 def cpu_s(pid: int) -> float:
@@ -169,14 +172,24 @@ def _stepping_s(log_path: Path, fallback_s: float) -> float:
     return fallback_s
 
 
-def fleet_run(bag_dir, plan: FleetPlan, rule: Completion) -> FleetRun:
-    """Each vehicle's metrics from the fleet's bag; the flown separation and collisions on a common time base
-    (the first vehicle's odometry stamps: in lockstep every vehicle has one at each step)."""
+def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_dir=None,
+              figures: bool = False) -> FleetRun:
+    """Each vehicle's metrics from the fleet's bag by `rule` (None: each vehicle's own completion rule, as fly
+    scores), and its report under reports_dir/NAME when given; the flown
+    separation and collisions on a common time base (the first vehicle's odometry stamps: in lockstep every
+    vehicle has one at each step)."""
     names = plan.fleet.names
     flights = {n: load_flight(bag_dir, namespace=n) for n in names}
+    controllers = {v.name: graph.controller_and_profile(v.controller, v.profile_path)[0] for v in plan.fleet.vehicles}
     metrics = {}
+    rules = {v.name: rule or Completion.for_vehicle(v.mission.vehicle) for v in plan.fleet.vehicles}
     for name, flight in flights.items():
-        metrics[name] = compute_metrics(flight, rule)
+        if reports_dir is None:
+            metrics[name] = compute_metrics(flight, rules[name])
+        else:
+            extra = {'mission': f'{plan.fleet.name}/{name}', 'controller': controllers[name]}
+            metrics[name] = write_report(bag_dir, Path(reports_dir) / name, extra, rules[name], figures=figures,
+                                         flight=flight)
     t = flights[names[0]].odom_t
     positions = {n: np.column_stack([np.interp(t, f.odom_t, f.position[:, a]) for a in range(3)])
                  for n, f in flights.items()}
@@ -185,7 +198,6 @@ def fleet_run(bag_dir, plan: FleetPlan, rule: Completion) -> FleetRun:
     for name, m in metrics.items():
         m['collided'] = bool(m['collided']) or any(name in (a, b) for _, a, b, _ in collisions)
         m['vehicle_collisions'] = sum(name in (a, b) for _, a, b, _ in collisions)
-    controllers = {v.name: graph.controller_and_profile(v.controller, v.profile_path)[0] for v in plan.fleet.vehicles}
     return FleetRun(names, metrics, [], collisions, t, separation, plan, {}, positions, controllers)
 
 

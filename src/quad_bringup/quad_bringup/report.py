@@ -212,6 +212,7 @@ def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion |
     flight: the bag's Flight if the caller has loaded it already (load_flight)."""
     rule = rule or Completion()
     out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     flight = load_flight(bag_dir) if flight is None else flight
     metrics = dict(extra or {})
     metrics.update(compute_metrics(flight, rule, published_steps))

@@ -33,6 +33,8 @@ def add_arguments(parser):
     parser.add_argument('--process-per-node', action='store_true',
                         help='--graph: every node its own process (as launch_ros starts them) instead of one process '
                              'for the vehicles\' nodes')
+    parser.add_argument('--no-figures', action='store_true',
+                        help='--graph: each vehicle\'s report without its figures (faster for a large fleet)')
     parser.add_argument('--fly-anyway', action='store_true',
                         help='fly a separation conflict or an infeasible plan instead of refusing it')
 
@@ -111,7 +113,8 @@ def run(args) -> int:
             if args.disturbances != 'none':
                 raise ValueError('--disturbances is offline only (sim_node takes its profile from sim.yaml)')
             args.out = args.out or default_out_dir(fleet.name)
-            result, timing = fly_graph(plan, args.out, speed_mps=args.speed, hosted=not args.process_per_node)
+            result, timing = fly_graph(plan, args.out, speed_mps=args.speed, hosted=not args.process_per_node,
+                                       reports=True, figures=not args.no_figures)
             result.wall_s['total'] = timing.flight_s
             result.wall_s['command'] = timing.total_s
         else:
