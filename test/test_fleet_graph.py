@@ -136,3 +136,17 @@ def test_flown_contacts_finds_a_crossing_between_samples():
     separation, collisions = fleet_graph.flown_contacts(t, [a, b], ['a', 'b'], [0.05, 0.05])
     assert separation[1] == 0.0 and len(collisions) == 1
     assert collisions[0][1:3] == ('a', 'b') and 0.0 < collisions[0][0] < 0.01
+
+
+def test_fly_takes_a_fleet_and_refuses_what_only_one_vehicle_has(tmp_path, ros_env):
+    fleet = str(two_abreast(tmp_path))
+    done = subprocess.run([QUADFLIGHT, 'fly', fleet, '--controller', 'pid'], env=ros_env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2 and '--controller pid refused' in done.stderr and 'fleet mission' in done.stderr
+    out = tmp_path / 'run'
+    done = subprocess.run([QUADFLIGHT, 'fly', fleet, '--out', str(out)], env=ros_env, capture_output=True,
+                          text=True, timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert 'through the ROS graph' in done.stdout
+    assert sorted(p.name for p in (out / 'vehicles').iterdir()) == ['cf1', 'cf2']
+    assert (out / 'vehicles' / 'cf2' / 'figures' / 'fig1_position_velocity.png').is_file()
