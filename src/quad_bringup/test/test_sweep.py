@@ -232,6 +232,7 @@ def test_a_sweep_flies_fleet_missions_beside_single_ones(tmp_path, monkeypatch):
         flown = {'pd': 'pd', 'fast': 'se3'}[name]   # the point's controller; cf4 names its own (pid) and keeps it
         assert [v['controller'] for v in vehicles.values()] == [flown, flown, flown, 'pid']
     assert fleet['pd']['vehicles']['cf1']['rmse_m'] != fleet['fast']['vehicles']['cf1']['rmse_m']  # the gains flew
+    assert 0 < fleet['pd']['saturated_fraction'] == max(v['saturated_fraction'] for v in fleet['pd']['vehicles'].values())
     single = [r for r in rows if r['mission'] == 'window']
     assert all(r['fleet_size'] is None and r['vehicles'] is None for r in single)
     stored = {r['key']: r for r in sweep.read_rows(tmp_path / 'out')}
@@ -243,8 +244,11 @@ def test_a_sweep_flies_fleet_missions_beside_single_ones(tmp_path, monkeypatch):
     assert (tmp_path / 'out' / 'figures' / 'rmse_by_controller.png').stat().st_size > 0
     header = (tmp_path / 'out' / 'runs.csv').read_text().splitlines()[0].split(',')
     assert {'fleet_size', 'vehicle_collisions', 'min_separation_m', 'vehicles'} <= set(header)
-    # the point's plant and wind reach every vehicle of the fleet
+    # the point's gains, plant and wind reach every vehicle of the fleet
     base, pd = json.loads(json.dumps(fleet['pd']['params'])), fleet['pd']['vehicles']
+    soft = {**base['gains'], **{f'kp_{a}': base['gains'][f'kp_{a}'] / 3 for a in 'xyz'}}
+    soft = runs.run_one({**base, 'gains': soft})   # (deterministic: 1.07x for cf1-3, 1.14x for cf4)
+    assert all(soft['vehicles'][n]['rmse_m'] > 1.04 * pd[n]['rmse_m'] for n in pd)
     heavy = runs.run_one({**base, 'plant': {'mass_error': 0.2}})   # the controllers believe the file's mass
     assert all(heavy['vehicles'][n]['rmse_m'] > 1.2 * pd[n]['rmse_m'] for n in pd)
     windy = runs.run_one({**base, 'disturbance_name': 'wind', 'disturbances': {'wind_mps': [1.5, 0.0, 0.0],
