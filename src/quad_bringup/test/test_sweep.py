@@ -232,7 +232,8 @@ def test_a_sweep_flies_fleet_missions_beside_single_ones(tmp_path, monkeypatch):
         flown = {'pd': 'pd', 'fast': 'se3'}[name]   # the point's controller; cf4 names its own (pid) and keeps it
         assert [v['controller'] for v in vehicles.values()] == [flown, flown, flown, 'pid']
     assert fleet['pd']['vehicles']['cf1']['rmse_m'] != fleet['fast']['vehicles']['cf1']['rmse_m']  # the gains flew
-    assert 0 < fleet['pd']['saturated_fraction'] == max(v['saturated_fraction'] for v in fleet['pd']['vehicles'].values())
+    saturated = [v['saturated_fraction'] for v in fleet['pd']['vehicles'].values()]
+    assert 0 < fleet['pd']['saturated_fraction'] == max(saturated)
     single = [r for r in rows if r['mission'] == 'window']
     assert all(r['fleet_size'] is None and r['vehicles'] is None for r in single)
     stored = {r['key']: r for r in sweep.read_rows(tmp_path / 'out')}
