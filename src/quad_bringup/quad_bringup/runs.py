@@ -385,8 +385,9 @@ def run_one(params: dict, graph_dir: str | None = None) -> dict:
     return row
 
 
-GRAPH_FLEET_REFUSAL = ('a fleet mission flies offline only in a sweep (fleet_loop.fly_fleet); drop --graph, or fly '
-                       'it through the ROS graph alone with `quadflight fleet FLEET.yaml --graph`')
+GRAPH_FLEET_REFUSAL = ('sweep --graph flies one-vehicle missions only; drop --graph to fly the fleet offline '
+                       '(fleet_loop.fly_fleet), or fly it through the ROS graph alone with '
+                       '`quadflight fleet FLEET.yaml --graph`')
 
 
 def _plain(value):
