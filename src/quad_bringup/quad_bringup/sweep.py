@@ -190,9 +190,9 @@ def summarize(rows: list[dict]) -> list[dict]:
         if fleets:
             fleet = [r for r in group if r.get('fleet_size')]
             separations = [r['min_separation_m'] for r in fleet if r.get('min_separation_m') is not None]
+            flown = [r['vehicle_collisions'] for r in fleet if r.get('vehicle_collisions') is not None]
             summary[-1].update(vehicles=max((r['fleet_size'] for r in fleet), default=None),
-                               vehicle_collisions=sum(r.get('vehicle_collisions') or 0 for r in fleet) if fleet
-                               else None,
+                               vehicle_collisions=sum(flown) if flown else None,   # None: none flown (refused)
                                min_separation_m=min(separations) if separations else None)
     return summary
 

@@ -265,6 +265,6 @@ def test_a_fleet_conflict_is_a_failed_row_naming_the_pair_and_graph_refuses_flee
     assert row['failed'] and row['failure'].startswith('separation conflict: cf1 and cf2 come 0.000 m apart')
     assert row['fleet_size'] == 2 and row['rmse_m'] is None and set(row['vehicles']) == {'cf1', 'cf2'}
     (s,) = sweep.summarize([row])
-    assert s['failures'] == 1 and s['min_separation_m'] is None
+    assert s['failures'] == 1 and s['min_separation_m'] is None and s['vehicle_collisions'] is None  # not flown
     with pytest.raises(runs.SpecError, match=r'missions\[1\]: .*crossing2.yaml is a fleet mission.*drop --graph'):
         sweep.expand({**spec, 'missions': [WINDOW, CROSSING]}, mode='graph')
