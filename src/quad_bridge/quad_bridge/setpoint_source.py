@@ -130,8 +130,8 @@ class SerializedTake:
 
 
 class SetpointSource:
-    """The gate on the setpoint subscription of `node`: take(sub) for quad_common's HotPathExecutor, returning the
-    serialized setpoint only when its publisher is `source` (refusals counted and logged, throttled)."""
+    """The gate on the setpoint subscription of `node`: take(sub) returns the serialized setpoint only when its
+    publisher is `source` (refusals counted and logged, throttled); take_one(sub) also says whether one was taken."""
 
     def __init__(self, node, subscription, source: str, log):
         self.node, self.log = node, log
@@ -141,14 +141,18 @@ class SetpointSource:
         self._take = SerializedTake()
 
     def take(self, subscription):
+        return self.take_one(subscription)[1]
+
+    def take_one(self, subscription):
+        """(a setpoint was taken, its serialized bytes if its publisher is admitted else None)."""
         taken = self._take(subscription)
         if taken is None:
-            return None
+            return False, None
         raw, gid = taken
         if self.gate.admit(gid):
-            return raw
+            return True, raw
         self.log.warn(self.gate.why_refused(gid), throttle_duration_sec=1.0)
-        return None
+        return True, None
 
     def counts(self) -> dict:
         return self.gate.counts()
