@@ -14,6 +14,7 @@ MAVLink 2 is forced: MAVLINK20 must be set before pymavlink's dialect is first i
 
 import math
 import os
+import struct
 import threading
 import time
 
@@ -31,6 +32,8 @@ MAX_READS_PER_BATCH = 256     # datagrams (or stream chunks) read before handlin
 MAX_BATCH_S = 0.002
 MAVLINK2_MAGIC = 0xFD
 MAVLINK2_FRAME_BYTES = 12     # header 10 + CRC 2
+MAVLINK2_HEADER = struct.Struct('<BBBBBBBHB')   # magic, length, incompat, compat, seq, system, component, id
+CRC = struct.Struct('<H')
 
 
 def check_fcu_url(url: str) -> str | None:
@@ -192,6 +195,32 @@ class MavlinkClient:
         """mav.<name>_send(*args) under the send lock (pymavlink's encoder is not thread-safe)."""
         with self._send_lock:
             getattr(self.conn.mav, name + '_send')(*args)
+
+    def send_attitude_target(self, time_boot_ms, target_system, target_component, type_mask, q, roll_rate,
+                             pitch_rate, yaw_rate, thrust):
+        """SET_ATTITUDE_TARGET, the bytes pymavlink's set_attitude_target_send puts on the wire (MAVLink 2, the
+        payload's trailing zeros cut, the same sequence number and counters), without its message object and
+        header object: every setpoint goes through here (issue 26). A signing link, or one with a send callback,
+        goes through pymavlink."""
+        with self._send_lock:
+            mav = self.conn.mav
+            cls = mavlink.MAVLink_set_attitude_target_message
+            if mav.signing.sign_outgoing or mav.send_callback is not None or mavlink.WIRE_PROTOCOL_VERSION != '2.0':
+                mav.set_attitude_target_send(time_boot_ms, target_system, target_component, type_mask, q, roll_rate,
+                                             pitch_rate, yaw_rate, thrust)
+                return
+            payload = cls.unpacker.pack(time_boot_ms, *q, roll_rate, pitch_rate, yaw_rate, thrust, target_system,
+                                        target_component, type_mask)
+            payload = payload.rstrip(b'\x00') or payload[:1]    # MAVLink 2 truncation (pymavlink keeps one byte)
+            frame = MAVLINK2_HEADER.pack(MAVLINK2_MAGIC, len(payload), 0, 0, mav.seq, mav.srcSystem,
+                                         mav.srcComponent, cls.id & 0xFFFF, cls.id >> 16) + payload
+            crc = mavlink.x25crc(frame[1:])
+            crc.accumulate(bytes((cls.crc_extra,)))
+            frame += CRC.pack(crc.crc)
+            self.conn.write(frame)
+            mav.seq = (mav.seq + 1) % 256
+            mav.total_packets_sent += 1
+            mav.total_bytes_sent += len(frame)
 
     def signing_problem(self) -> str:
         """quad_bridge.signing's verdict on this link's counts, or ''."""

@@ -146,8 +146,8 @@ class SetpointPath:
         else:
             mask, rates = 0, tuple(map(float, frames.body_flu_frd(sp.body_rates)))
         q = frames.enu_to_mavlink_quaternion(sp.quaternion)
-        self.bridge.client.send('set_attitude_target', int(self.bridge.now_s() * 1000) & 0xFFFFFFFF, system,
-                                self.params['target_component'], mask, q, *rates, thrust)
+        self.bridge.client.send_attitude_target(int(self.bridge.now_s() * 1000) & 0xFFFFFFFF, system,
+                                                self.params['target_component'], mask, q, *rates, thrust)
 
     def _error(self, exc):
         self.log.error(f'setpoint keep-alive: {exc!r}', throttle_duration_sec=1.0)

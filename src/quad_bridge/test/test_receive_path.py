@@ -251,3 +251,34 @@ def test_a_signing_link_verifies_every_frame():
     assert [m.x for m in collect.messages] == [1.0, 4.0]
     assert all(m.get_signed() for m in collect.messages)
     assert client.bad_signature == 2
+
+
+@pytest.mark.parametrize('args', [
+    (1234, 1, 1, 7, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0.5),           # rates ignored: trailing zeros cut
+    (0xFFFFFFFF, 3, 1, 0, [0.5, -0.5, 0.5, -0.5], 0.1, -0.2, 0.3, 0.0),  # a zero thrust inside the payload
+    (0, 0, 0, 0, [0.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0.0),              # all zero: one payload byte kept
+])
+def test_the_setpoint_on_the_wire_is_pymavlinks_bytes(args):
+    """MavlinkClient.send_attitude_target puts on the wire exactly the datagram pymavlink's
+    set_attitude_target_send does, with the link's sequence numbers shared with every other send."""
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(('127.0.0.1', 0))
+    receiver.settimeout(HANG_GUARD_S)
+    client = MavlinkClient(f'udpout:127.0.0.1:{receiver.getsockname()[1]}', 5, 191, lambda msg: None)
+    try:
+        client.conn.mav.seq = 254
+        client.send_attitude_target(*args)
+        client.send('set_attitude_target', *args)    # pymavlink's, with the next sequence number
+        client.send_attitude_target(*args)           # wraps to 0
+        ours, theirs, wrapped = (receiver.recvfrom(4096)[0] for _ in range(3))
+    finally:
+        client.close()
+        receiver.close()
+    reference = mavlink.MAVLink(None, srcSystem=5, srcComponent=191)
+    reference.seq = 254
+    expected = [bytes(mavlink.MAVLink_set_attitude_target_message(*args).pack(reference))]
+    for seq in (255, 0):
+        reference.seq = seq
+        expected.append(bytes(mavlink.MAVLink_set_attitude_target_message(*args).pack(reference)))
+    assert [ours, theirs, wrapped] == expected
+    assert client.conn.mav.seq == 1 and client.conn.mav.total_packets_sent == 3
