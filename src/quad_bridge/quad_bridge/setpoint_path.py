@@ -18,10 +18,10 @@ from sensor_msgs.msg import Imu
 
 from quad_bridge import frames
 from quad_bridge.mavlink_client import mavlink
-from quad_bridge.setpoint import check_setpoint
+from quad_bridge.setpoint import setpoint_from_cdr
 from quad_bridge.setpoint_source import SetpointSource, fully_qualified
 from quad_bridge.streamer import SetpointStreamer
-from quad_common import cdr, contract
+from quad_common import contract
 
 # DDS keeps this many setpoints for us while the interpreter is busy elsewhere (its reader thread is not held by
 # the GIL): a 0.1 s stall at 500 Hz loses none (bench/bench_bridge.py; depth 10 lost 3-5 % at 100-500 Hz).
@@ -118,8 +118,7 @@ class SetpointPath:
             backend = vehicle.status.backend
         f_max = backend.max_specific_force(self.bridge.flying_config) if backend else math.inf
         try:
-            sp, clamped, kept = check_setpoint(cdr.imu_to_setpoint(raw), math.radians(self.params['max_tilt_deg']),
-                                               f_max)
+            sp, clamped, kept = setpoint_from_cdr(raw, math.radians(self.params['max_tilt_deg']), f_max)
         except ValueError as exc:
             with self.counts_lock:
                 self.refused += 1
