@@ -113,15 +113,20 @@ class SerializedTake:
         if self._rcutils.rcutils_uint8_array_init(ctypes.byref(self._message), ctypes.c_size_t(capacity),
                                                   ctypes.byref(self._allocator)) != RCL_RET_OK:
             raise MemoryError('rcutils_uint8_array_init failed')
+        # made once: every setpoint is taken through here (issue 26)
+        self._take_c = self._rcl.rcl_take_serialized_message
+        self._message_ref, self._info_ref = ctypes.byref(self._message), ctypes.byref(self._info)
+        self._gid_address = ctypes.addressof(self._info) + _MessageInfo.publisher_gid.offset + _Gid.data.offset
 
     def __call__(self, subscription):
-        with subscription.handle:
-            ret = self._rcl.rcl_take_serialized_message(subscription.handle.pointer, ctypes.byref(self._message),
-                                                        ctypes.byref(self._info), None)
+        handle = subscription.handle
+        with handle:
+            ret = self._take_c(handle.pointer, self._message_ref, self._info_ref, None)
         if ret != RCL_RET_OK:   # RCL_RET_SUBSCRIPTION_TAKE_FAILED: nothing there after all
             return None
-        return (ctypes.string_at(self._message.buffer, self._message.buffer_length),
-                bytes(self._info.publisher_gid.data))
+        message = self._message
+        return (ctypes.string_at(message.buffer, message.buffer_length),
+                ctypes.string_at(self._gid_address, RMW_GID_STORAGE_SIZE))
 
     def close(self):
         if self._message.buffer:
