@@ -34,6 +34,20 @@ MAVLINK2_MAGIC = 0xFD
 MAVLINK2_FRAME_BYTES = 12     # header 10 + CRC 2
 MAVLINK2_HEADER = struct.Struct('<BBBBBBBHB')   # magic, length, incompat, compat, seq, system, component, id
 CRC = struct.Struct('<H')
+EXTRA = tuple(bytes((i,)) for i in range(256))   # a CRC_EXTRA byte
+
+
+def frame_crc(header_and_payload, crc_extra: int) -> int:
+    """MAVLink's CRC (CRC-16/MCRF4XX) of a frame's bytes after the magic and the message's CRC_EXTRA: fastcrc's in
+    one call where pymavlink has it (its x25crc object and accumulate per part otherwise)."""
+    if _MCRF4XX is not None:
+        return _MCRF4XX(bytes(header_and_payload) + EXTRA[crc_extra], 0xFFFF)
+    crc = mavlink.x25crc(header_and_payload)
+    crc.accumulate(EXTRA[crc_extra])
+    return crc.crc
+
+
+_MCRF4XX = getattr(mavlink, 'mcrf4xx', None)   # pymavlink's own (fastcrc.crc16.mcrf4xx), None without fastcrc
 
 
 def check_fcu_url(url: str) -> str | None:
@@ -214,9 +228,7 @@ class MavlinkClient:
             payload = payload.rstrip(b'\x00') or payload[:1]    # MAVLink 2 truncation (pymavlink keeps one byte)
             frame = MAVLINK2_HEADER.pack(MAVLINK2_MAGIC, len(payload), 0, 0, mav.seq, mav.srcSystem,
                                          mav.srcComponent, cls.id & 0xFFFF, cls.id >> 16) + payload
-            crc = mavlink.x25crc(frame[1:])
-            crc.accumulate(bytes((cls.crc_extra,)))
-            frame += CRC.pack(crc.crc)
+            frame += CRC.pack(frame_crc(frame[1:], cls.crc_extra))
             self.conn.write(frame)
             mav.seq = (mav.seq + 1) % 256
             mav.total_packets_sent += 1
@@ -286,9 +298,7 @@ class MavlinkClient:
         if kind is None or len(msgbuf) != msgbuf[1] + MAVLINK2_FRAME_BYTES or (
                 layout is None and msg_id in self._decoded_ids):
             return self._full_decode(msgbuf)
-        crc = mavlink.x25crc(msgbuf[1:-2])
-        crc.accumulate(bytes((kind.crc_extra,)))
-        if crc.crc != (msgbuf[-2] | msgbuf[-1] << 8):
+        if frame_crc(msgbuf[1:-2], kind.crc_extra) != (msgbuf[-2] | msgbuf[-1] << 8):
             return self._full_decode(msgbuf)   # raises pymavlink's CRC error: BAD_DATA as before
         if layout is not None:
             return decode_payload(layout, msgbuf, msgbuf[4], msgbuf[5], msgbuf[6])

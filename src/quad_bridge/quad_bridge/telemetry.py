@@ -59,7 +59,7 @@ def body_velocity(q, v) -> tuple:
 
 
 def finite(*vectors) -> bool:
-    return all(math.isfinite(c) for v in vectors for c in v)
+    return all(map(math.isfinite, sum(vectors, ())))
 
 
 def imu_flu_floats(msg) -> tuple:
