@@ -102,13 +102,6 @@ class ClockMapper:
             self._fits = None
         self._trim(arrival_ns)
 
-    def observe_local_ns(self, remote_us: int, arrival_ns: int, stream=None) -> int:
-        """observe(remote_us, arrival_ns), then to_local_ns(remote_us, arrival_ns, stream), under one lock (every
-        timestamped message)."""
-        with self._lock:
-            self._observe(remote_us, arrival_ns)
-            return self._to_local_ns(remote_us, arrival_ns, stream)
-
     def timesync(self, ts1_local_ns: int, tc1_remote_ns: int, reply_local_ns: int):
         rtt = reply_local_ns - ts1_local_ns
         if rtt < 0 or tc1_remote_ns <= 0:

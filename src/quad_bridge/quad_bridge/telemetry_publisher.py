@@ -86,9 +86,11 @@ class TelemetryPublisher:
             return
         arrival_ns = time.time_ns()
         t_us = time_us(msg) if kind in TIMESTAMPED else None
+        if t_us:
+            self.clock.observe(t_us, arrival_ns)
         with self.vehicle.lock:   # the supervisor reads what arrived (StreamSelector: the caller serialises)
             self.streams.arrived(kind, now_s)
-        handler(msg, self.clock.observe_local_ns(t_us, arrival_ns, kind) if t_us else arrival_ns)
+        handler(msg, self.clock.to_local_ns(t_us, arrival_ns, kind) if t_us else arrival_ns)
 
     def info(self, now_s: float) -> dict:
         """Diagnostics values: which clock and messages are used, what never arrived."""
