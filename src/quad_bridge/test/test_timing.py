@@ -243,3 +243,27 @@ def test_the_clock_line_on_python_numbers_is_numpys_least_squares():
                                    / 1e9, rel=1e-6)
     few = clk._line([10**9, 2 * 10**9], [5, 7])
     assert few[2] == 0.0 and few[4] == math.inf and few[1] == 5
+
+
+def test_after_a_stall_every_queued_setpoint_is_taken_oldest_first_and_the_newest_goes_out_last():
+    """SetpointPath._take_all on a backlog (the setpoint thread held while the controller kept publishing): each
+    queued setpoint is handled in order, a refused publisher's skipped, and the newest is the last on the wire and
+    the one the keep-alive re-sends."""
+    from quad_bridge.setpoint_path import SetpointPath
+
+    clock, sent = FakeClock(), []
+    streamer = SetpointStreamer(sent.append, lambda: True, 50.0, 0.5, lambda *a: None, clock=clock)
+    queue = [(True, 1), (True, None), (True, 2), (True, 3), (False, None)]   # None: a refused publisher's
+
+    class Path:
+        def _take(self, sub):
+            return queue.pop(0)
+
+        def on_setpoint(self, raw):
+            streamer.submit(raw)
+
+    SetpointPath._take_all(Path(), sub=None)
+    assert sent == [1, 2, 3] and not queue
+    clock.t += 0.021
+    streamer.tick()
+    assert sent[-1] == 3 and streamer.keepalives == 1
