@@ -1,4 +1,4 @@
-"""The setpoint path: a new setpoint goes on the wire at once; a keep-alive thread re-sends the newest one
+"""The setpoint path: a new setpoint goes on the wire at once; a keep-alive re-sends the newest one
 only when none went out for a whole period (the stream autopilots need to stay in offboard), and watches for a
 stale stream. No rclpy: the caller hands in what to send and whether it may.
 
