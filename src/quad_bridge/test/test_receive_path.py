@@ -282,3 +282,25 @@ def test_the_setpoint_on_the_wire_is_pymavlinks_bytes(args):
         expected.append(bytes(mavlink.MAVLink_set_attitude_target_message(*args).pack(reference)))
     assert [ours, theirs, wrapped] == expected
     assert client.conn.mav.seq == 1 and client.conn.mav.total_packets_sent == 3
+
+
+def test_a_setpoint_on_a_signing_link_is_signed():
+    """With signing_key the setpoint goes through pymavlink's encoder: signed (incompat flag 1, 13-byte
+    signature), and a vehicle with the key accepts it."""
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(('127.0.0.1', 0))
+    receiver.settimeout(HANG_GUARD_S)
+    key = b'q' * 32
+    client = MavlinkClient(f'udpout:127.0.0.1:{receiver.getsockname()[1]}', 5, 191, lambda msg: None,
+                           signing_key=key)
+    try:
+        client.send_attitude_target(1234, 1, 1, 7, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0.5)
+        datagram = receiver.recvfrom(4096)[0]
+    finally:
+        client.close()
+        receiver.close()
+    assert datagram[2] & 0x01 and len(datagram) == datagram[1] + 12 + 13
+    vehicle = mavlink.MAVLink(None)
+    vehicle.signing.secret_key = key
+    msg = vehicle.decode(bytearray(datagram))
+    assert msg.get_type() == 'SET_ATTITUDE_TARGET' and msg.get_signed() and msg.thrust == 0.5
