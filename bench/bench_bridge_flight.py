@@ -9,7 +9,9 @@ The emulated PX4 also as PX4 SIH showed itself (`PX4 SIH-like`, two seeds of its
 behind the truth wandering 0.6 m RMS horizontally and 0.8 m in height (60 s correlation, smoothed as EKF2's output
 predictor does over EKF2_TAU_POS 0.25 s; velocity and attitude current), its clock at 0.985 of ours. Load: the
 1-minute load average when the flight ended (2 cores; other work on the machine counts in it: a loaded machine
-delays odometry and setpoints, which the stiff profiles feel first)."""
+delays odometry and setpoints, which the stiff profiles feel first). Beside them the same PX4 SIH-like chain
+offline (`fly_chain_offline`: the emulator's pieces under position_controller's loop without processes, MAVLink
+or load; three seeds), once with the estimate's velocity also 0.15 s late (the first SIH-like estimate)."""
 
 import os
 import sys
@@ -19,8 +21,22 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / 'test'))   # the graph helpers the bridge tests use
 
+import numpy as np  # noqa: E402
 from bridge_graph import running_graph  # noqa: E402
-from bridge_mission import CONTROL, REAL_PROFILE, fly_mission  # noqa: E402
+from bridge_mission import CONTROL, REAL_PROFILE, VEHICLE_FILE, fly_mission  # noqa: E402
+
+from quad_common.types import AttitudeSetpoint, State  # noqa: E402
+from quad_common.vehicle import load_vehicle  # noqa: E402
+from quad_common.yaml_io import load_yaml  # noqa: E402
+from quad_control.loop import ControlLoop  # noqa: E402
+from quad_control.parameters import gains_from, profile_parameters  # noqa: E402
+from quad_control.position import Limits, PositionController  # noqa: E402
+from quad_sim.simulator import Simulator  # noqa: E402
+from quad_trajectory import planner  # noqa: E402
+from quad_trajectory.mission import SAMPLE_RATE_HZ  # noqa: E402
+from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle  # noqa: E402
+from quad_vehicle_emu.drag import with_linear_drag  # noqa: E402
+from quad_vehicle_emu.estimator import Estimate  # noqa: E402
 
 SQUARE = [(0.0, 0.0, 2.0), (3.0, 0.0, 2.0), (3.0, 3.0, 2.0), (0.0, 3.0, 2.0), (0.0, 0.0, 2.0)]
 SPEED_MPS = 0.8
@@ -44,6 +60,85 @@ REFERENCE = [
     *(('PX4 v1.16.0 SIH', label, '', f'{lo:.2f}-{hi:.2f}', '', '', '') for label, (lo, hi) in PX4_SIH_RMSE_M.items()),
     ('PX4 v1.16.0 SIH', "identify's profile", '', '0.56', '', '', ''),
 ]
+
+
+OFFLINE_SEEDS = (0, 1, 2)
+OFFLINE_HOVER_S = 15.0   # hovering before the plan, as the graph does while the bridge connects
+
+
+def _profile_values(profile):
+    content = load_yaml(CONTROL)
+    params = content['position_controller']['ros__parameters']
+    if profile:
+        params.update(load_yaml(str(ROOT / profile) if not Path(profile).is_absolute() else profile)
+                      ['position_controller']['ros__parameters'])
+    params['vehicle'] = VEHICLE_FILE
+    return profile_parameters(content)
+
+
+def fly_chain_offline(profile, seed, velocity_lag_s=0.0) -> float:
+    """The PX4 SIH-like emulated chain without processes, MAVLink or a loaded machine: the emulator's own pieces
+    (its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the estimate, the telemetry
+    delay line at 20 ms and 50 Hz) under position_controller's ControlLoop at 100 Hz, the square planned as
+    trajectory_node plans it; the RMSE of the estimate (what the bag's odometry is) against the plan, over the
+    plan plus settle_s. velocity_lag_s: the estimate's velocity that late too (the first SIH-like model)."""
+    values = _profile_values(profile)
+    vehicle = load_vehicle(VEHICLE_FILE)
+    loop = ControlLoop(PositionController(values.get('controller', 'pd'), gains_from(values), vehicle,
+                                          Limits.of(vehicle)), 100.0, lockstep=True)
+    plan = planner.plan(np.array(SQUARE), 0.0, planner.PlanOptions(speed_mps=SPEED_MPS), vehicle=vehicle)
+    traj = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
+    loop.set_trajectory(int(OFFLINE_HOVER_S * 1e9), traj)
+    plant, drag = with_linear_drag(emulated_vehicle(VEHICLE_FILE), float(PX4_SIH_LIKE[-1]))
+    sim = Simulator(plant, 500.0, initial_position=SQUARE[0], setpoint_timeout_s=1e6, disturbances=drag)
+    sim.armed = True
+    option = dict(zip(PX4_SIH_LIKE[::2], PX4_SIH_LIKE[1::2]))
+    shaper = AttitudeResponse(float(option['--attitude-tau-s']), sim.state.quaternion)
+    estimate = Estimate(float(option['--estimator-lag-s']), float(option['--estimator-wander-m']),
+                        float(option['--estimator-wander-z-m']), float(option['--estimator-wander-tau-s']), seed)
+    telemetry, velocities = DelayLine(0.02), DelayLine(velocity_lag_s)
+    seen, samples = None, []
+    end_s = OFFLINE_HOVER_S + traj.duration_s + 3.0
+    for k in range(int(end_s * 100) + 1):
+        t_s = 0.01 * k
+        est = estimate.step(t_s, sim.state)
+        velocities.push(t_s, sim.state.velocity.copy())
+        if velocity_lag_s:
+            old = velocities.read(t_s)
+            est = State(position=est.position, velocity=old[1] if old else est.velocity,
+                        quaternion=est.quaternion, body_rates=est.body_rates)
+        telemetry.push(t_s, est)
+        if k % 2 == 0 and telemetry.read(t_s) is not None:    # odometry at 50 Hz
+            seen = telemetry.read(t_s)[1]
+            samples.append((t_s, seen.position.copy()))
+        if seen is None:
+            sp = AttitudeSetpoint(quaternion=sim.state.quaternion, specific_force_mps2=9.81, body_rates=None)
+        else:
+            loop.tick(int(t_s * 1e9))
+            sp = loop.set_odometry(int(t_s * 1e9), seen).setpoint
+        q, w = shaper.step(sp.quaternion, 0.01, sp.body_rates)
+        sim.set_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=sp.specific_force_mps2, body_rates=w))
+        sim.advance_steps(sim.steps_in(0.01))
+    times = np.array([t for t, _ in samples])
+    positions = np.array([p for _, p in samples])
+    scored = (times >= OFFLINE_HOVER_S) & (times <= end_s)
+    plan_t = np.arange(traj.position.shape[0]) / SAMPLE_RATE_HZ
+    at = np.clip(times[scored] - OFFLINE_HOVER_S, 0.0, plan_t[-1])
+    ref = np.column_stack([np.interp(at, plan_t, traj.position[:, i]) for i in range(3)])
+    return float(np.sqrt(np.mean(np.sum((positions[scored] - ref) ** 2, axis=1))))
+
+
+def offline_rows() -> list[tuple]:
+    rows = []
+    for label, profile in SIH_PROFILES.items():
+        got = [fly_chain_offline(profile, seed) for seed in OFFLINE_SEEDS]
+        rows.append(('PX4 SIH-like chain offline (no MAVLink, no load)', label, '',
+                     ' / '.join(f'{r:.3f}' for r in got), '', '', ''))
+    for label in ('seed pd (control.yaml)', 'control_se3.yaml (se3)'):
+        got = [fly_chain_offline(SIH_PROFILES[label], seed, velocity_lag_s=0.15) for seed in OFFLINE_SEEDS]
+        rows.append(('the same, velocity also 0.15 s late (the first SIH-like estimate)', label, '',
+                     ' / '.join(f'{r:.3f}' for r in got), '', '', ''))
+    return rows
 
 
 def verdicts(sih_rmse: dict) -> list[str]:
@@ -91,7 +186,7 @@ def main():
           'and tolerances: the vehicle\'s (10 cm, 0.1 m/s, settle 3 s).\n')
     print('| vehicle | control | time planned / actual (s) | RMSE (m) | max error (m) | waypoint miss max (m) | load |')
     print('|---|---|---|---|---|---|---|')
-    for row in rows + REFERENCE:
+    for row in rows + offline_rows() + REFERENCE:
         print('| ' + ' | '.join(row) + ' |')
     print(f'\nThe PX4 SIH-like emulator against PX4 SIH (goal: within {WITHIN:.0%} of its range):\n')
     print('\n'.join(verdicts(sih_rmse)))
