@@ -431,7 +431,7 @@ def build_parser():
     ap.add_argument('--clock-rate', type=float, default=1.0,
                     help="the vehicle's clock rate against ours (PX4 SIH ran 0.984-0.993 of wall time), 0.5..2")
     ap.add_argument('--estimator-lag-s', type=float, default=0.0,
-                    help="the autopilot's position/velocity estimate trails the truth this much (PX4 SIH: 0.15)")
+                    help="its position estimate trails the truth this much (PX4 SIH: 0.15; velocity is now)")
     ap.add_argument('--estimator-wander-m', type=float, default=0.0,
                     help="RMS of the estimate's horizontal position wander per axis (PX4 SIH: 0.4-0.8 m off)")
     ap.add_argument('--estimator-wander-z-m', type=float, default=0.0,
