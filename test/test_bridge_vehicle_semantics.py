@@ -8,6 +8,7 @@ import threading
 import numpy as np
 import pytest
 from bridge_graph import SetpointPublisher, tapped_graph
+from pymavlink.dialects.v20 import common as mavlink
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool
 
@@ -92,3 +93,25 @@ def test_px4_one_odometry_source_and_its_prearm_verdict(graph):
     values = observer.link()[1]
     assert values['odometry_source'] == 'LOCAL_POSITION_NED+ATTITUDE_QUATERNION'
     observer.wait_for(lambda: observer.link()[1].get('prearm_ready') == 'True', 'prearm_ready from the health bit')
+
+
+def test_hover_thrust_changed_on_the_vehicle_after_connect_is_read_again_at_offboard(graph):
+    """Agreeing at connect (0.5 both), then a ground station sets MPC_THR_HOVER 0.4 on the vehicle: `offboard`
+    reads the parameters again and refuses naming the vehicle's new value (before issue 28 it flew on connect's
+    check, 20 % of thrust off)."""
+    procs, observer, start = graph
+    tap = start('px4', hover_throttle=0.5)
+    observer.wait_for(lambda: observer.link()[1].get('vehicle_params', '').startswith('COM_OF_LOSS_T'),
+                      'the bridge to read the parameters on connect')
+    assert observer.link()[1]['param_problems'] == ''
+    with tap.lock:
+        answered = tap.from_vehicle['PARAM_VALUE']
+    tap.send_as_gcs(mavlink.MAVLink_param_set_message(1, 1, b'MPC_THR_HOVER', 0.4, mavlink.MAV_PARAM_TYPE_REAL32))
+
+    def vehicle_answered():
+        with tap.lock:
+            return tap.from_vehicle['PARAM_VALUE'] > answered
+    observer.wait_for(vehicle_answered, 'the vehicle to answer the PARAM_SET')
+    result = _offboard_with_setpoints(observer, tap)
+    assert not result.success and 'MPC_THR_HOVER = 0.400' in result.message, result.message
+    assert observer.link()[1]['mode'] != 'OFFBOARD' and tap.setpoints() == []

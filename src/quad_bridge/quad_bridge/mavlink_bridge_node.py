@@ -400,8 +400,9 @@ class MavlinkBridge(Node):
             mode = backend.hold_mode('hold')
             return self._answer(response, f'mode {mode}', self.set_mode(mode))
         check = self.param_check
-        if check is None or (check.problems and self.params['vehicle_params'] != 'ignore'):
-            check = self.read_vehicle_params()  # maybe changed on the vehicle since
+        if check is None or self.params['vehicle_params'] != 'ignore':
+            # read again: the vehicle's values now, not connect's (MPC_THR_HOVER set on the vehicle since, issue 28)
+            check = self.read_vehicle_params()
         if check.problems:
             return self._refuse(response, 'offboard refused: ' + '; '.join(check.problems))
         if not self.streamer.fresh():

@@ -1,12 +1,27 @@
 """The autopilot's state estimate, as PX4 v1.16 SIH showed it (issue 28): not the truth but the truth's
-position and velocity lag_s late, the position off by a slow wander. Its own position hold and its telemetry use
-the estimate, so what a position controller flies is the estimate, and the truth wanders with it.
+position lag_s late and off by a slow wander. Its own position hold and its telemetry use the estimate, so what a
+position controller flies is the estimate, and the truth wanders with it.
+
+Velocity, attitude and body rates are the truth's now: EKF2's output predictor integrates the IMU at the current
+time and publishes them together (what the 0.15 s measured on PX4 SIH trails is the position). Lagging the
+velocity too (as this module did at first) contradicts the flights on PX4 SIH: there control_se3 tracked the
+square best (0.26-0.27 m), while behind a velocity 0.15 s old, or even 0.05 s, with a current attitude its
+disturbance observer (velocity change against the thrust along the attitude now) and kd 11 diverge on every seed
+of the emulated flight; the seed pd oscillated at 0.85-0.99 m.
 
 Wander: per axis a first-order Gauss-Markov process (correlation time tau_s, standard deviation wander_m
 horizontally, wander_z_m vertically), w' = -w / tau + sqrt(2 sigma^2 / tau) n(t), stepped exactly:
 w(t + dt) = a w(t) + sigma sqrt(1 - a^2) n,  a = exp(-dt / tau). PX4 SIH: 0.4-0.8 m RMS off the truth (height
 0.3-1.3 m), wandering about 0.5 m a minute, 0.15 s behind. The wander starts at 0 (the estimator initialised
 where the vehicle stands). Defaults (lag 0, no wander): the estimate is the truth.
+
+What the autopilot publishes is smooth: EKF2's output predictor propagates the estimate with the IMU at the
+current time and spreads each correction of its delayed filter over EKF2_TAU_POS (0.25 s, ekf2_params; the
+complementary filter of EKF2's output_predictor), so the published position never jumps by a correction. The
+Gauss-Markov process alone moves by white increments (at 100 Hz, 1 cm per tick at 0.6 m / 60 s: a 1.6 cm
+jitter per 50 Hz odometry sample, which doubled the flown path's length and reached the position loop as noise);
+here it passes through that first-order filter (time constant OUTPUT_TAU_S), its input scaled by
+sqrt((tau + OUTPUT_TAU_S) / tau) so that the wander's RMS stays sigma.
 """
 
 import collections
@@ -15,6 +30,8 @@ import math
 import numpy as np
 
 from quad_common.types import State
+
+OUTPUT_TAU_S = 0.25   # PX4 EKF2_TAU_POS: the output predictor's position correction time constant
 
 
 class Estimate:
@@ -30,20 +47,24 @@ class Estimate:
         self.sigma = np.array([wander_m, wander_m, wander_z_m], dtype=float)
         self.rng = np.random.default_rng(seed)
         self.wander = np.zeros(3)   # initialised where the vehicle stands, wandering from there
+        self._raw = np.zeros(3)     # the Gauss-Markov process before the output predictor's smoothing
+        self._raw_sigma = self.sigma * math.sqrt((self.tau_s + OUTPUT_TAU_S) / self.tau_s)
         self.last_s = None
-        self._history = collections.deque()   # (time s, position, velocity) of the truth
+        self._history = collections.deque()   # (time s, position) of the truth
 
     def step(self, now_s: float, truth: State) -> State:
         """The estimate at now_s, given the truth now (call once per loop tick, times increasing)."""
         if self.last_s is not None and self.sigma.any():
-            a = math.exp(-max(now_s - self.last_s, 0.0) / self.tau_s)
-            self.wander = a * self.wander + self.sigma * math.sqrt(1.0 - a * a) * self.rng.standard_normal(3)
+            dt_s = max(now_s - self.last_s, 0.0)
+            a = math.exp(-dt_s / self.tau_s)
+            self._raw = a * self._raw + self._raw_sigma * math.sqrt(1.0 - a * a) * self.rng.standard_normal(3)
+            self.wander += (self._raw - self.wander) * (1.0 - math.exp(-dt_s / OUTPUT_TAU_S))
         self.last_s = now_s
-        self._history.append((now_s, truth.position.copy(), truth.velocity.copy()))
+        self._history.append((now_s, truth.position.copy()))
         while len(self._history) > 1 and self._history[1][0] <= now_s - self.lag_s:
             self._history.popleft()
-        _, position, velocity = self._history[0]
+        _, position = self._history[0]
         if not self.lag_s and not self.sigma.any():
             return truth
-        return State(position=position + self.wander, velocity=velocity, quaternion=truth.quaternion,
+        return State(position=position + self.wander, velocity=truth.velocity, quaternion=truth.quaternion,
                      body_rates=truth.body_rates)

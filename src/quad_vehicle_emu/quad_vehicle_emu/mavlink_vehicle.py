@@ -29,6 +29,7 @@ from quad_vehicle_emu import ned  # noqa: E402
 from quad_vehicle_emu import protocol as p  # noqa: E402
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, default_tau_s, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
+from quad_vehicle_emu.drag import with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import Estimate  # noqa: E402
 
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
@@ -93,10 +94,10 @@ class MavlinkVehicle:
         self.args = args
         self.flavour = args.autopilot
         self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))  # bad parameters: first
-        vehicle = emulated_vehicle(args.vehicle)
+        vehicle, drag = with_linear_drag(emulated_vehicle(args.vehicle), args.drag_per_s)
         self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
-                             setpoint_timeout_s=1e6)
+                             setpoint_timeout_s=1e6, disturbances=drag)
         self.sim.warm_up()  # before the first heartbeat: compiling mid-flight would stall the link for seconds
         if not self.sim.landed:  # starts in the air: armed, holding position
             self.ap.armed = True
@@ -430,13 +431,15 @@ def build_parser():
     ap.add_argument('--clock-rate', type=float, default=1.0,
                     help="the vehicle's clock rate against ours (PX4 SIH ran 0.984-0.993 of wall time), 0.5..2")
     ap.add_argument('--estimator-lag-s', type=float, default=0.0,
-                    help="the autopilot's position/velocity estimate trails the truth this much (PX4 SIH: 0.15)")
+                    help="its position estimate trails the truth this much (PX4 SIH: 0.15; velocity is now)")
     ap.add_argument('--estimator-wander-m', type=float, default=0.0,
                     help="RMS of the estimate's horizontal position wander per axis (PX4 SIH: 0.4-0.8 m off)")
     ap.add_argument('--estimator-wander-z-m', type=float, default=0.0,
                     help="RMS of the estimate's height wander (PX4 SIH: 0.3-1.3 m)")
     ap.add_argument('--estimator-wander-tau-s', type=float, default=60.0,
                     help="the wander's correlation time (PX4 SIH: about 0.5 m a minute)")
+    ap.add_argument('--drag-per-s', type=float, default=0.0,
+                    help='linear air drag, m/s^2 per m/s on every axis (PX4 SIH: SIH_KDV / SIH_MASS = 1.0); 0: none')
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--physics-rate-hz', type=float, default=500.0)
     ap.add_argument('--loop-rate-hz', type=float, default=100.0)
