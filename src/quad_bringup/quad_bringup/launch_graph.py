@@ -15,7 +15,7 @@ def launch_node(spec: graph.NodeSpec) -> Node:
 
 
 def launch_description(kind: str) -> LaunchDescription:
-    """launch/<kind>.launch.py: kind sim | px4 | ardupilot (quad_bringup.graph.LAUNCH_FILES)."""
+    """launch/<kind>.launch.py: kind sim | px4 | ardupilot | fleet (quad_bringup.graph.LAUNCH_FILES)."""
     arguments = graph.LAUNCH_FILES[kind]
 
     def nodes(context):

@@ -36,6 +36,9 @@ DIAG_NAME = 'trajectory_node: trajectory'
 PARAMS = [
     Param('mission_file', '', 'mission YAML (docs/missions.md); when set, its waypoints, options, vehicle and world '
           'are used and the planning parameters below are ignored, except speed_mps', read_only=True),
+    Param('fleet_vehicle', '', 'with a fleet mission_file (docs/missions.md "Fleets"): the vehicle whose plan this '
+          'node publishes (its name; deconflicted as the fleet file says); its start delay is added to '
+          'start_delay_s', read_only=True),
     Param('waypoints', Parameter.Type.DOUBLE_ARRAY, 'flat [x0, y0, z0, x1, y1, z1, ...] in metres (map frame); '
           'planned at start when given'),
     Param('yaw', [0.0], 'yaw (rad): one value, or one per waypoint'),
@@ -70,7 +73,8 @@ class TrajectoryNode(Node):
     def __init__(self, **kwargs):
         super().__init__('trajectory_node', **kwargs)
         self.params = ParameterSet(self, PARAMS, validate=self._check, on_change=self._replan_current)
-        self.mission = load_mission(self.params['mission_file']) if self.params['mission_file'] else None
+        self.fleet_delay_s = 0.0   # a fleet vehicle's own start delay (after deconfliction)
+        self.mission = self._load_mission() if self.params['mission_file'] else None
         if self.mission:   # vehicle_file, when given, sets the limits over the mission's vehicle
             self.vehicle = load_vehicle(self.params['vehicle_file']) if self.params['vehicle_file'] \
                 else self.mission.vehicle
@@ -105,6 +109,15 @@ class TrajectoryNode(Node):
                 raise ValueError(f'waypoints = {self.params["waypoints"]!r} must hold x, y, z per waypoint '
                                  f'(a multiple of 3 numbers, got {flat.size})')
             self._plan_and_publish(flat.reshape(-1, 3), self._yaw_param(), raise_errors=True)
+
+    def _load_mission(self):
+        path, name = self.params['mission_file'], self.params['fleet_vehicle']
+        if not name:
+            return load_mission(path)
+        from quad_trajectory.fleet import load_fleet, vehicle_mission
+        speed = self.params['speed_mps'] or None
+        mission, self.fleet_delay_s = vehicle_mission(load_fleet(path), name, speed_mps=speed)
+        return mission
 
     # --- options ----------------------------------------------------------------------------
     def _options(self, values=None) -> planner.PlanOptions:
@@ -190,7 +203,8 @@ class TrajectoryNode(Node):
             return
         frame = self.params['frame_id']
         now = rclpy.time.Time(nanoseconds=self._now_ns(), clock_type=self.get_clock().clock_type)
-        start = (now + Duration(nanoseconds=int(self.params['start_delay_s'] * 1e9))).to_msg()
+        delay_s = self.params['start_delay_s'] + self.fleet_delay_s
+        start = (now + Duration(nanoseconds=int(delay_s * 1e9))).to_msg()
         traj = result.trajectory
         self.traj_pub.publish(sampled_to_msg(traj.to_sampled(self.params['sample_rate_hz']), start, frame))
         t_view = traj.sample_times(PATH_RATE_HZ)
