@@ -111,10 +111,15 @@ class TrajectoryNode(Node):
             self._plan_and_publish(flat.reshape(-1, 3), self._yaw_param(), raise_errors=True)
 
     def _load_mission(self):
+        from quad_trajectory.fleet import is_fleet_file, load_fleet, vehicle_mission
         path, name = self.params['mission_file'], self.params['fleet_vehicle']
+        if not name and is_fleet_file(path):
+            raise ValueError(f'mission_file = {path!r} is a fleet mission: set fleet_vehicle to the vehicle to plan '
+                             f'({", ".join(load_fleet(path).names)})')
         if not name:
             return load_mission(path)
-        from quad_trajectory.fleet import load_fleet, vehicle_mission
+        if not is_fleet_file(path):
+            raise ValueError(f'fleet_vehicle = {name!r}: mission_file = {path!r} is not a fleet mission (no vehicles:)')
         speed = self.params['speed_mps'] or None
         mission, self.fleet_delay_s = vehicle_mission(load_fleet(path), name, speed_mps=speed)
         return mission
