@@ -45,9 +45,10 @@ FAILING, FAILING_AUTOPILOT = 'px4_3', 'px4'
 LAND_MODE = {'px4': 'AUTO.LAND', 'ardupilot': 'LAND'}
 PATH = [[0.0, 0.0, 1.0], [2.0, 0.0, 1.0], [2.0, 1.0, 1.3]]
 SPEED_MPS = 0.4
-# a busy 2-core machine: timeouts well above its stalls (test_bridge_flight.py); the failsafe is the same one
-BRIDGE_TEST = {'setpoint_timeout_s': 1.0}
-CONTROL_TEST = {'rate_hz': 50.0, 'odom_timeout_s': 1.0}
+# a busy 2-core machine (load 15 from other work: a process not scheduled for 1 s) with twelve processes of ours:
+# timeouts well above its stalls; the failsafe is the same one, 2 s after the controller's last setpoint
+BRIDGE_TEST = {'setpoint_timeout_s': 2.0}
+CONTROL_TEST = {'rate_hz': 50.0, 'odom_timeout_s': 2.0}
 STREAM_GAP_S = 0.5          # the others' setpoints on the wire while one fails (PX4 COM_OF_LOSS_T is 1 s)
 TRACKING_BOUND_M = 1.0      # time-matched, as test_bridge_flight.py (a quiet machine: < 0.1 m)
 PATH_BOUND_M = 0.5
@@ -166,20 +167,20 @@ def fleet(tmp_path):
             hub.close()
 
 
-def _tracking(observer, final):
-    """(max time-matched error, max distance from the planned path, final miss) of the plan's flight."""
+def _tracking(observer, final, end_s):
+    """(max time-matched error, max distance from the planned path, final miss at end_s) of the plan's flight."""
     with observer.lock:
         odom_t = np.array([t for t, _ in observer.odom])
         odom_p = np.array([p for _, p in observer.odom])
         refs = list(observer.references)
     ref_t, ref_p = np.array([t for t, _ in refs]), np.array([p for _, p in refs])
-    start_s, end_s = ref_t[0], ref_t[-1]      # from before the hand-over (holding) to the plan's end + 2 s
-    during = (ref_t >= start_s) & (ref_t <= end_s)
+    during = ref_t <= end_s                   # from before the hand-over (holding) to the plan's end + 2 s
     k = np.clip(np.searchsorted(odom_t, ref_t[during]), 0, len(odom_t) - 1)
     errors = np.linalg.norm(odom_p[k] - ref_p[during], axis=1)
-    flown = odom_p[(odom_t >= start_s) & (odom_t <= end_s)]
+    flown = odom_p[(odom_t >= ref_t[0]) & (odom_t <= end_s)]
     off_path = np.min(np.linalg.norm(flown[:, None, :] - ref_p[during][None, :, :], axis=2), axis=1)
-    return errors.max(), off_path.max(), float(np.linalg.norm(odom_p[-1] - final))
+    return errors.max(), off_path.max(), float(np.linalg.norm(odom_p[min(np.searchsorted(odom_t, end_s),
+                                                                        len(odom_t) - 1)] - final))
 
 
 def test_each_bridge_flies_only_its_vehicle_and_one_failsafe_moves_no_other(fleet):
@@ -188,11 +189,16 @@ def test_each_bridge_flies_only_its_vehicle_and_one_failsafe_moves_no_other(flee
     for name, autopilot, _, _ in FLEET:
         enter_offboard(observers[name], autopilot)
     handed_over = time.monotonic()
+    names = sorted(f'{ns.rstrip("/")}/{n}' for n, ns in observers['px4_1'].node.get_node_names_and_namespaces())
     for name, autopilot, system_id, _ in FLEET:
         values = observers[name].link()[1]
-        others = ', '.join(str(s) for _, _, s, _ in FLEET if s != system_id)
+        others = ', '.join(str(s) for _, _, s, _ in FLEET if s != system_id)   # one shared link: all heard
         assert values['target_system'] == str(system_id) and values['other_vehicles'] == others, values
         assert values['link_refusal'] == '' and values['mode'] == OFFBOARD_MODE[autopilot]
+        setpoints = observers[name].setpoints()[1]   # its own controller's, none of the others' (namespaces)
+        assert setpoints['setpoint_source'] == f'/{name}/position_controller' and setpoints['refused_source'] == '0'
+        for node in ('trajectory_node', 'position_controller', 'mavlink_bridge', 'mavlink_bridge_setpoints'):
+            assert names.count(f'/{name}/{node}') == 1, names
 
     # vehicle 3 fails once vehicle 1's plan runs: its controller is killed, its bridge lands it
     first = observers['px4_1']
@@ -216,11 +222,13 @@ def test_each_bridge_flies_only_its_vehicle_and_one_failsafe_moves_no_other(flee
         if name == FAILING:
             continue
         o, final = observers[name], np.add(PATH[-1], [0.0, dy, 0.0])
-        o.wait_for(lambda o=o, final=final: o.references and np.linalg.norm(np.subtract(o.references[-1][1], final))
-                   < 1e-3, f'{name}: the end of its plan', WAIT_S)
-        end_s = o.references[-1][0]
+        def at_end(o=o, final=final):
+            with o.lock:
+                return next((t for t, p in o.references if np.linalg.norm(np.subtract(p, final)) < 1e-3), None)
+        o.wait_for(at_end, f'{name}: the end of its plan', WAIT_S)
+        end_s = at_end()
         o.wait_for(lambda o=o, end_s=end_s: o.odom[-1][0] > end_s + 2.0, f'{name}: 2 s after its plan', WAIT_S)
-        error, off_path, miss = _tracking(o, final)
+        error, off_path, miss = _tracking(o, final, end_s + 2.0)
         print(f'{name}: tracking error max {error:.3f} m, off the path {off_path:.3f} m, final miss {miss:.3f} m')
         assert error < TRACKING_BOUND_M and off_path < PATH_BOUND_M and miss < FINAL_MISS_M
         values, controller = o.link()[1], o.controller()[1]
