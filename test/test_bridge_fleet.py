@@ -4,10 +4,10 @@ namespace, started as launch_ros starts them (the installed console scripts, --r
 MAVLink link: a hub on loopback gives every vehicle's datagrams to every bridge and every bridge's to every
 vehicle (a shared radio channel, a mavlink-router network), so only the system ids keep them apart.
 
-Each vehicle is handed over with its own `offboard` (/NAME/offboard); every SET_ATTITUDE_TARGET and COMMAND_LONG
-a bridge sends is for its own vehicle's system id. Then vehicle 3's controller is killed mid-flight: its bridge
-finds the stream stale and lands it (AUTO.LAND to system 3), while vehicles 1 and 2 keep their setpoint streams,
-stay in their offboard modes and fly their plans to the end."""
+Each vehicle is handed over with its own `offboard` (/NAME/offboard); every message with a target a bridge sends
+(SET_ATTITUDE_TARGET, COMMAND_LONG, PARAM_REQUEST_READ, ...) is for its own vehicle's system id. Then vehicle 3's
+controller is killed mid-flight: its bridge finds the stream stale and lands it (AUTO.LAND to system 3), while
+vehicles 1 and 2 keep their setpoint streams, stay in their offboard modes and fly their plans to the end."""
 
 import math
 import select
@@ -59,7 +59,7 @@ WAIT_S = 120.0
 class Hub:
     """One shared MAVLink link on loopback: a socket per vehicle (the emulator sends to it) and per bridge (it
     sends to that bridge's udpin port); what any vehicle sends goes to every bridge, what any bridge sends to
-    every vehicle. Records each bridge's SET_ATTITUDE_TARGET and COMMAND_LONG (monotonic time, message)."""
+    every vehicle. Records what each bridge sends (monotonic time, message)."""
 
     def __init__(self, bridge_ports):
         def bound():
@@ -105,7 +105,7 @@ class Hub:
             return
         now = time.monotonic()
         with self.lock:
-            self.sent[j] += [(now, m) for m in msgs if m.get_type() in ('SET_ATTITUDE_TARGET', 'COMMAND_LONG')]
+            self.sent[j] += [(now, m) for m in msgs if m.get_type() != 'BAD_DATA']
 
     def of(self, j, kind, since_s=0.0):
         with self.lock:
@@ -241,8 +241,13 @@ def test_each_bridge_flies_only_its_vehicle_and_one_failsafe_moves_no_other(flee
     for j, (name, _, system_id, _) in enumerate(FLEET):
         setpoints, commands = hub.of(j, 'SET_ATTITUDE_TARGET'), hub.of(j, 'COMMAND_LONG')
         assert len(setpoints) > 20 and commands   # the failing one: from its pre-stream to its kill
-        wrong = [(m.get_type(), m.target_system) for _, m in setpoints + commands if m.target_system != system_id]
+        with hub.lock:
+            addressed = [m for _, m in hub.sent[j] if hasattr(m, 'target_system')]
+            kinds = sorted({m.get_type() for m in addressed})
+        wrong = [(m.get_type(), m.target_system) for m in addressed if m.target_system != system_id]
         assert not wrong, f'{name} (system {system_id}) sent to other systems: {wrong[:5]} ({len(wrong)})'
+        print(f'{name}: every one of {len(addressed)} messages with a target ({", ".join(kinds)}) to system '
+              f'{system_id}')
         if name == FAILING:
             assert any(m.command == mavlink.MAV_CMD_DO_SET_MODE for _, m in hub.of(j, 'COMMAND_LONG', killed))
             continue
