@@ -195,9 +195,9 @@ def test_fleet_launch_refuses_naming_the_vehicle_and_the_field(tmp_path, vehicle
 
 
 def test_a_namespaced_node_gets_what_merged_parameters_says(tmp_path, ros_env):
-    """rcl gives a params file's `NAME:` section to /NAME only: under a namespace the node gets '/**', '/**/NAME'
-    and its fully qualified name (graph.NodeSpec.merged_parameters says the same; in_namespace merges the
-    sections into a '/**' dict for a fleet)."""
+    """rcl gives a params file's plain `NAME:` section to /NAME only: under a namespace the node gets '/**',
+    '/**/NAME' and '/NS/NAME' of the file itself. A namespaced NodeSpec is therefore started with merged_parameters
+    as one '/**' dict (launch_parameters, in ros_arguments and launch_graph): the node gets every section."""
     import json
     import sys
     params = tmp_path / 'p.yaml'
@@ -206,15 +206,18 @@ def test_a_namespaced_node_gets_what_merged_parameters_says(tmp_path, ros_env):
     probe = ('import json, sys, rclpy; rclpy.init(args=sys.argv); n = rclpy.create_node("x", '
              'allow_undeclared_parameters=True, automatically_declare_parameters_from_overrides=True); '
              'print(json.dumps(sorted(k for k in "abcd" if n.has_parameter(k))))')
-    for namespace, expected in (('cf1', ['b', 'c', 'd']), ('', ['a', 'c', 'd'])):
-        ns = ['-r', f'__ns:=/{namespace}'] if namespace else []
-        out = subprocess.run([sys.executable, '-c', probe, '--ros-args', '-r', '__node:=mavlink_bridge', *ns,
-                              '--params-file', str(params)], env=ros_env, capture_output=True, text=True, timeout=60)
-        assert json.loads(out.stdout.splitlines()[-1]) == expected, out.stderr
-        merged = graph.NodeSpec('mavlink_bridge', (str(params),), namespace).merged_parameters()
-        assert sorted(merged) == expected
-        spec = graph.in_namespace(graph.NodeSpec('mavlink_bridge', (str(params),)), 'cf1')
-        assert spec.parameters == ({'a': 1, 'c': 1, 'd': 1},) and spec.merged_parameters() == {'a': 1, 'c': 1, 'd': 1}
+
+    def given(ros_args):
+        out = subprocess.run([sys.executable, '-c', probe, *ros_args], env=ros_env, capture_output=True, text=True,
+                             timeout=60)
+        return json.loads(out.stdout.splitlines()[-1]) if out.stdout.strip() else out.stderr
+
+    raw = ['--ros-args', '-r', '__node:=mavlink_bridge', '-r', '__ns:=/cf1', '--params-file', str(params)]
+    assert given(raw) == ['b', 'c', 'd']                         # rcl: the plain `mavlink_bridge:` is skipped
+    for namespace, expected in (('cf1', ['a', 'b', 'c', 'd']), ('', ['a', 'c', 'd'])):
+        spec = graph.NodeSpec('mavlink_bridge', (str(params),), namespace)
+        assert sorted(spec.merged_parameters()) == expected
+        assert given(spec.ros_arguments(tmp_path)) == expected
 
 
 # --- the launched graphs -----------------------------------------------------------------------------------

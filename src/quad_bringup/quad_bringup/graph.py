@@ -65,11 +65,12 @@ class NodeSpec:
         return MODULES[self.name]
 
     def merged_parameters(self) -> dict:
-        """The parameters the node ends up with: each file's section for this node ('/**', '/**/NAME', or its
-        fully qualified name, with or without the leading '/'), then each dict, the later one winning. As rcl reads
-        a params file, a plain `NAME:` section is the node in the root namespace: a namespaced node never gets it
-        (`in_namespace` gives such a node its sections as a dict)."""
-        keys = ('/**', '/**/' + self.name, self.fqn[1:], self.fqn)
+        """The parameters the node is given: each file's section for this node ('/**', '/**/NAME', its name or its
+        fully qualified name), then each dict, the later one winning. rcl itself gives a file's plain `NAME:`
+        section to /NAME only, never to /NS/NAME: a namespaced node is started with these merged into one dict
+        (`launch_parameters`), so that it gets them all the same."""
+        keys = ('/**', '/**/' + self.name, self.name, '/' + self.name) + (
+            (self.fqn[1:], self.fqn) if self.namespace else ())
         merged = {}
         for entry in self.parameters:
             if isinstance(entry, dict):
@@ -80,6 +81,14 @@ class NodeSpec:
                 merged.update(parameters_of(data, key))
         return merged
 
+    def launch_parameters(self) -> list:
+        """What launch_ros and ros_arguments pass (files and dicts, in order): the parameters as given; under a
+        namespace merged_parameters as one dict (launch_ros writes it under '/**'), since rcl would skip the
+        files' `NAME:` sections there (test_launch_graph checks this against rcl)."""
+        if not self.namespace:
+            return list(self.parameters)
+        return [absolute_config_paths(self.merged_parameters())]
+
     def ros_arguments(self, out_dir: Path) -> list[str]:
         """`--ros-args -r __node:=NAME [-r __ns:=/NS] --params-file ...` as launch_ros gives them (dicts written
         under out_dir)."""
@@ -87,7 +96,7 @@ class NodeSpec:
         if self.namespace:
             args += ['-r', f'__ns:=/{self.namespace}']
         prefix = f'{self.namespace}_{self.name}' if self.namespace else self.name
-        for i, entry in enumerate(self.parameters):
+        for i, entry in enumerate(self.launch_parameters()):
             if isinstance(entry, dict):
                 path = Path(out_dir) / f'{prefix}_params_{i}.yaml'
                 path.write_text(yaml.safe_dump(params_content('/**', entry), sort_keys=False))
@@ -210,13 +219,6 @@ def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=
     ]
 
 
-def in_namespace(spec: NodeSpec, namespace: str) -> NodeSpec:
-    """spec under `namespace`, its parameters as it has them in the root namespace: the config files' `NAME:`
-    sections (which rcl gives only to /NAME) merged into one dict, which launch_ros and ros_arguments write under
-    '/**'."""
-    return NodeSpec(spec.name, (absolute_config_paths(spec.merged_parameters()),), namespace)
-
-
 FLEET_BRIDGE_KEYS = ('autopilot', 'fcu_url', 'system_id')   # what each vehicle of a real fleet must have
 
 
@@ -251,7 +253,7 @@ def fleet_bridge_graph(fleet_path, *, control_profile=None, hover_throttle: floa
                  'position_controller': {'controller': v.controller} if v.controller else {},
                  'mavlink_bridge': {'autopilot': v.autopilot, 'target_system': v.system_id,
                                     'source_system': v.system_id}}
-        nodes += [in_namespace(NodeSpec(s.name, s.parameters + (extra[s.name],)), v.name) for s in specs]
+        nodes += [NodeSpec(s.name, s.parameters + (extra[s.name],), v.name) for s in specs]
     return nodes
 
 

@@ -11,7 +11,7 @@ from quad_bringup import graph
 
 def launch_node(spec: graph.NodeSpec) -> Node:
     return Node(package=spec.package, executable=spec.executable, name=spec.name, namespace=spec.namespace or None,
-                output='screen', parameters=list(spec.parameters))
+                output='screen', parameters=spec.launch_parameters())
 
 
 def launch_description(kind: str) -> LaunchDescription:
