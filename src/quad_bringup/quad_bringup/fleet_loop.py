@@ -8,13 +8,8 @@ Stepping: a loop over Simulator instances. A numpy core vectorized over vehicles
 RK4 stage whatever N is; bench/bench_fleet.py measures both (docs/benchmarks.md, bench_fleet): at 1 kHz the loop
 over compiled Simulators is faster up to 64 vehicles, and the controllers (Python) cost more than the physics.
 
-Vehicle-vehicle collision: pair (i, j) collides when |p_i - p_j| < r_i + r_j. Between two ticks the relative
-position d(s) = d_0 + s (d_1 - d_0), s in [0, 1], is taken as linear, and its closest approach
-|d_0 + s* (d_1 - d_0)|, s* = clip(-d_0 . (d_1 - d_0) / |d_1 - d_0|^2, 0, 1), is compared with the radii: a
-graze between ticks is not missed. The linear model's error is at most a_rel dt^2 / 8 (0.25 mm at 20 m/s^2
-and 10 ms). A collision is an event (kind 'vehicle_collision': the other vehicle, the closest distance; its time
-is where the linear relative motion first reaches r_i + r_j) in both simulators' events; the flight goes on,
-as with obstacles, and the vehicle's metrics say it collided.
+Vehicle-vehicle collisions: quad_sim.vehicle_contact (the simulator node's fleet mode checks them the same way); the
+flight goes on, as with obstacles, and the vehicle's metrics say it collided.
 """
 
 import dataclasses
@@ -35,10 +30,9 @@ from quad_bringup.metrics import Flight, compute_metrics
 from quad_common import rotations
 from quad_control.loop import ControlLoop
 from quad_control.position import Limits, PositionController, PositionGains
-from quad_sim.simulator import Event, SimulationStopped
+from quad_sim.simulator import SimulationStopped
+from quad_sim.vehicle_contact import VEHICLE_COLLISION, VehicleContacts
 from quad_trajectory.fleet import Fleet, FleetPlan, load_fleet, plan_fleet
-
-VEHICLE_COLLISION = 'vehicle_collision'
 
 
 @dataclass
@@ -128,26 +122,6 @@ class _Vehicle:
         return m
 
 
-def closest_approach(p0, p1, i, j) -> np.ndarray:
-    """Pairs (i[k], j[k]): the smallest |p_i - p_j| while both move linearly from p0 to p1 (module docstring)."""
-    d0, d1 = p0[j] - p0[i], p1[j] - p1[i]
-    dd = d1 - d0
-    den = np.einsum('ij,ij->i', dd, dd)
-    s = np.clip(-np.einsum('ij,ij->i', d0, dd) / np.where(den > 0, den, 1.0), 0.0, 1.0)
-    return np.linalg.norm(d0 + s[:, None] * dd, axis=1)
-
-
-def contact_fraction(p0, p1, i, j, touch_m) -> float:
-    """The first s in [0, 1] with |d_0 + s (d_1 - d_0)| = touch_m (0 when already touching): the smaller root of
-    |dd|^2 s^2 + 2 (d_0 . dd) s + |d_0|^2 - touch^2 = 0."""
-    d0 = p0[j] - p0[i]
-    dd = (p1[j] - p1[i]) - d0
-    a, b, c = float(dd @ dd), 2.0 * float(d0 @ dd), float(d0 @ d0) - touch_m ** 2
-    if c <= 0.0 or a == 0.0:
-        return 0.0
-    return float(np.clip((-b - np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a), 0.0, 1.0))
-
-
 def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan: FleetPlan | None = None,
               refuse_conflicts: bool = True, controller_stops: dict | None = None) -> FleetRun:
     """Plans the fleet (plan_fleet: separation checked, deconflicted where the file asks) and flies every vehicle in
@@ -167,19 +141,14 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
     unknown = sorted(set(stops) - {v.name for v in vehicles})
     if unknown:
         raise ValueError(f'controller_stops: {unknown[0]!r} is not a vehicle of {fleet.name}')
-    n = len(vehicles)
-    pair_i, pair_j = np.triu_indices(n, 1)
-    radii = np.array([v.radius_m for v in vehicles])
-    touch = radii[pair_i] + radii[pair_j]
-    colliding = np.zeros(pair_i.size, dtype=bool)
+    contacts = VehicleContacts([v.name for v in vehicles], [v.sim for v in vehicles], [v.radius_m for v in vehicles])
     period_ns = round(1e9 / options.rate_hz)
     end_s = max(options.time_limit_factor * v.trajectory.duration_s + 10.0 + v.options.start_delay_s
                 for v in vehicles)
     vehicles[0].sim.warm_up()     # load the compiled kernels before the clock starts (wall_s is the flight's)
     wall = dict.fromkeys(('control', 'physics', 'collision'), 0.0)
     start_wall = time.perf_counter()
-    ticks, separations, collisions = [], [], []
-    p_prev = np.array([v.sim.state.position for v in vehicles])
+    ticks, separations = [], []
     for k in range(int(end_s * options.rate_hz) + 1):
         t_ns = k * period_ns
         t_s = t_ns * 1e-9
@@ -187,7 +156,7 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
             v.record(t_s)
         ticks.append(t_s)
         if all(v.done_s is not None or v.stopped or (v.name in stops and not v.sim.armed) for v in vehicles):
-            separations.append(_min_distance(p_prev, pair_i, pair_j))
+            separations.append(_min_distance(contacts.positions()))
             break
         w0 = time.perf_counter()
         for v in vehicles:
@@ -201,33 +170,21 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
                 except SimulationStopped as exc:
                     v.stopped = str(exc)
         w2 = time.perf_counter()
-        p = np.array([v.sim.state.position for v in vehicles])
-        if n > 1:
-            d = closest_approach(p_prev, p, pair_i, pair_j)
-            hit = d < touch
-            for q in np.flatnonzero(hit & ~colliding):
-                a, b = vehicles[pair_i[q]], vehicles[pair_j[q]]
-                t_hit = t_s + contact_fraction(p_prev, p, pair_i[q], pair_j[q], touch[q]) * period_ns * 1e-9
-                collisions.append((t_hit, a.name, b.name, float(d[q])))
-                for me, other in ((a, b), (b, a)):
-                    me.sim.events.append(Event(VEHICLE_COLLISION, t_hit, me.sim.state.position,
-                                               {'other': other.name, 'distance_m': round(float(d[q]), 4),
-                                                'radii_m': round(float(touch[q]), 4)}))
-            colliding = hit
-            separations.append(float(d.min()))
-        else:
-            separations.append(np.inf)
-        p_prev = p
+        separations.append(contacts.step(t_s, period_ns * 1e-9))
         wall['control'] += w1 - w0
         wall['physics'] += w2 - w1
         wall['collision'] += time.perf_counter() - w2
     wall['total'] = time.perf_counter() - start_wall
     events = sorted(((v.name, e) for v in vehicles for e in v.sim.events), key=lambda x: x[1].time_s)
-    return FleetRun([v.name for v in vehicles], {v.name: v.metrics() for v in vehicles}, events, collisions,
+    return FleetRun([v.name for v in vehicles], {v.name: v.metrics() for v in vehicles}, events, contacts.collisions,
                     np.array(ticks), np.array(separations[:len(ticks)]), fleet_plan, wall,
                     {v.name: np.array(v.positions) for v in vehicles},
                     {v.name: v.loop.controller.name for v in vehicles})
 
 
-def _min_distance(p, i, j) -> float:
-    return float(np.min(np.linalg.norm(p[j] - p[i], axis=1))) if i.size else float('inf')
+def _min_distance(p) -> float:
+    n = len(p)
+    if n < 2:
+        return float('inf')
+    i, j = np.triu_indices(n, 1)
+    return float(np.min(np.linalg.norm(p[j] - p[i], axis=1)))

@@ -172,6 +172,39 @@ def sim_graph(mission_path, *, controller: str | None = None, control_profile=No
     return [NodeSpec(name, tuple(params)) for name, params in nodes.items()]
 
 
+def fleet_sim_graph(fleet_path, *, speed_mps: float | None = None, sim: dict | None = None) -> list[NodeSpec]:
+    """A fleet's simulated flight: one sim_node stepping every vehicle under one /clock (vehicle_names: each
+    vehicle's topics under its name), and under each vehicle's namespace its trajectory_node (fleet_vehicle: its
+    part of the fleet file) and position_controller (its controller and profile, its vehicle file). sim: sim_node
+    parameters set last (fleet runs: the lockstep followers, duration_s)."""
+    from quad_trajectory.fleet import load_fleet
+
+    fleet = load_fleet(fleet_path)
+    sim_time = {'use_sim_time': True}
+    vehicle_files = [v.mission.vehicle_path or config('vehicles/crazyflie.yaml') for v in fleet.vehicles]
+    worlds = {v.mission.world_path or '' for v in fleet.vehicles}
+    if len(worlds) > 1:
+        raise ValueError(f'{fleet_path}: the vehicles name different worlds ({", ".join(sorted(worlds))}): one '
+                         'simulator flies them in one world')
+    nodes = [NodeSpec('sim_node', (config(CONFIG_FILES['sim_node']), {
+        **sim_time, 'mode': 'lockstep', 'vehicle': vehicle_files[0], 'world': worlds.pop(),
+        'vehicle_names': fleet.names, 'vehicle_files': vehicle_files,
+        'initial_positions': [float(x) for v in fleet.vehicles for x in v.mission.initial_position],
+        'robot_radii_m': [float(v.radius_m) for v in fleet.vehicles], **(sim or {})}))]
+    for v, vehicle in zip(fleet.vehicles, vehicle_files):
+        controller, profile = controller_and_profile(v.controller, v.profile_path)
+        trajectory = {**sim_time, 'mission_file': str(Path(fleet_path).resolve()), 'fleet_vehicle': v.name,
+                      'vehicle_file': vehicle}
+        if speed_mps is not None:
+            trajectory['speed_mps'] = float(speed_mps)
+        nodes.append(NodeSpec('trajectory_node', (config(CONFIG_FILES['trajectory_node']), trajectory), v.name))
+        nodes.append(NodeSpec('position_controller', (
+            config(CONFIG_FILES['position_controller']), *([profile] if profile else []),
+            {**sim_time, 'controller': controller, 'lockstep': True, 'wait_for_trajectory': True,
+             'vehicle': vehicle}), v.name))
+    return nodes
+
+
 def fly_graph(mission_path, *, sim: dict | None = None, **kwargs) -> list[NodeSpec]:
     """sim_graph (lockstep; kwargs: its controller, control_profile, vehicle, speed_mps) plus what only fly has:
     the recorder and fly's monitor as the simulator's lockstep followers, a longer lockstep timeout, then `sim`

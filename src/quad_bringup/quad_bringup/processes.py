@@ -23,9 +23,12 @@ class NodeProcess:
     ros_args: list
     log_path: Path
     popen: subprocess.Popen | None = field(default=None, repr=False)
+    argv: list = field(default_factory=list)   # before --ros-args
+    remap_name: bool = True                    # -r __node:=NAME (not for a process of several nodes)
 
     def command(self) -> list[str]:
-        return [sys.executable, '-m', self.module, '--ros-args', '-r', f'__node:={self.name}', *self.ros_args]
+        name = ['-r', f'__node:={self.name}'] if self.remap_name else []
+        return [sys.executable, '-m', self.module, *self.argv, '--ros-args', *name, *self.ros_args]
 
     def start(self, env):
         self.log_path.parent.mkdir(parents=True, exist_ok=True)

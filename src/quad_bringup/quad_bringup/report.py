@@ -41,18 +41,24 @@ HANDOVER_KEY = 'handover'   # the bridge's setpoints status: the hand-over phase
 _namespaced = contract.matches
 
 
-def load_flight(bag_dir) -> Flight:
-    """Extract a Flight from a bag; raises ValueError naming what is missing."""
+def load_flight(bag_dir, namespace: str = '') -> Flight:
+    """Extract a Flight from a bag; raises ValueError naming what is missing. namespace: one fleet vehicle's
+    flight (its topics under /NAMESPACE/, and /clock) from a fleet's bag."""
     ts = typestore()
     odom, cmds, latest, clock, engaged, handover = [], [], {}, [], [], []
     errors, collision, published = [], None, None
     reader, repair = open_bag_reader(bag_dir)
     try:
         wanted = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK, ENGAGED)
-        connections = [c for c in reader.connections if any(_namespaced(c.topic, w) for w in wanted)]
+        def match(topic, w):
+            if not namespace:
+                return _namespaced(topic, w)
+            return topic == w if w.startswith('/') else topic == f'/{namespace}/{w}'
+
+        connections = [c for c in reader.connections if any(match(c.topic, w) for w in wanted)]
         for conn, record_ns, raw in reader.messages(connections=connections):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
-            topic = next(w for w in wanted if _namespaced(conn.topic, w))
+            topic = next(w for w in wanted if match(conn.topic, w))
             if topic == ODOM:
                 odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg),
                              _ns(msg.header.stamp), record_ns))
@@ -87,7 +93,7 @@ def load_flight(bag_dir) -> Flight:
     finally:
         reader.close()
     if not odom:
-        raise ValueError(f'bag {bag_dir}: no odometry (topic odom) recorded')
+        raise ValueError(f'bag {bag_dir}: no odometry (topic {f"/{namespace}/" if namespace else ""}odom) recorded')
     odom.sort(key=lambda x: x[0])
     flight = Flight(
         odom_t=np.array([o[0] for o in odom]),
@@ -206,6 +212,7 @@ def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion |
     flight: the bag's Flight if the caller has loaded it already (load_flight)."""
     rule = rule or Completion()
     out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     flight = load_flight(bag_dir) if flight is None else flight
     metrics = dict(extra or {})
     metrics.update(compute_metrics(flight, rule, published_steps))

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from quad_bringup import cli
-from quad_bringup.fleet_loop import VEHICLE_COLLISION, closest_approach, contact_fraction, fly_fleet
+from quad_bringup.fleet_loop import fly_fleet
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
+from quad_sim.vehicle_contact import VEHICLE_COLLISION, closest_approach, contact_fraction
 from quad_trajectory.fleet import fleet_from_dict
 
 FORMATION = str(resolve_config('config/missions/fleets/formation4.yaml'))

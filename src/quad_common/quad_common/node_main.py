@@ -18,7 +18,8 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
     """Builds the node (an exception in `refused`, e.g. a bad parameter, or a command line rcl cannot parse, e.g. a
     missing --params-file: one error line naming it, exit 2), adds it to `make_executor(node)` (default a
     SingleThreadedExecutor) and runs `spin(node, executor)` (default executor.spin()) until interrupted; then
-    destroys the node and shuts the context down.
+    destroys the node and shuts the context down. make_node may return a list of nodes (one process hosting
+    several: quad_bringup.node_host); make_executor and spin then get the list.
 
     own_signals: SIGINT/SIGTERM/SIGHUP do not shut rclpy down; they make `node.stop_requested()` true and `spin`
     returns when it has finished (e.g. the simulator's final diagnostics and drain)."""
@@ -37,7 +38,8 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
         if _stopping(stop):
             return
         executor = make_executor(node) if make_executor else SingleThreadedExecutor()
-        executor.add_node(node)
+        for each in node if isinstance(node, list) else [node]:
+            executor.add_node(each)
         spin(node, executor) if spin else executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -80,8 +82,8 @@ def _finish(node, executor):
     try:
         if executor is not None:
             executor.shutdown()
-        if node is not None:
-            node.destroy_node()
+        for each in node if isinstance(node, list) else [] if node is None else [node]:
+            each.destroy_node()
     finally:
         rclpy.try_shutdown()
         ignore_stop_signals()

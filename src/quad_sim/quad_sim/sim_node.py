@@ -2,8 +2,9 @@
 
 lockstep: at sim time t_k publish odom (stamp t_k), then /clock (t_k); wait for a cmd/attitude_thrust stamped
 >= t_k or lockstep_timeout_s of wall time; advance lockstep_period_s holding that setpoint. After such a timeout
-each step waits LOST_STEP_TIMEOUT_S at most until a setpoint arrives again (a dead controller: the failsafe lands
-the vehicle in seconds, not one step per timeout; a controller that was only slow catches up). Until the first
+each step waits LOST_STEP_TIMEOUT_S at most until a setpoint arrives again, and not at all while no setpoint
+publisher is left (a dead controller: the failsafe lands the vehicle in seconds, not one step per timeout; a
+controller that was only slow catches up). Until the first
 setpoint arrives, step k is re-published every 0.1 s (for nodes that join late), and the timeout advances
 only when a controller (a cmd/attitude_thrust publisher with odom and /clock subscribers) is on the graph:
 start-up order does not matter, and a controller whose first tick is after t = 0 still starts the run.
@@ -14,6 +15,11 @@ and waits for the followers to acknowledge its last step (as long as they make p
 A setpoint stamped more than one period ahead of sim time is refused (counted, warned): taken as "the newest",
 it would make every later, correctly stamped one look old.
 realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * elapsed wall time.
+fleet (vehicle_names set): one Simulator per named vehicle, each with its topics under its name (cf1/odom,
+cf1/cmd/attitude_thrust, ... and its frame cf1/base_link), stepped together under one /clock: step k waits for
+every vehicle's setpoint (each vehicle's controller by the rules above), vehicle-vehicle contacts (robot radii)
+are events like obstacle collisions (quad_sim.vehicle_contact), and a vehicle whose controller died lands by its
+own failsafe while the others fly on. duration_s > 0 ends the run at that sim time (drained as on SIGINT).
 """
 
 import math
@@ -25,6 +31,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool
@@ -46,6 +53,7 @@ from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
 from quad_sim.disturbances import load_profile
 from quad_sim.simulator import PHYSICS_RATE_HZ, SimulationStopped, Simulator
+from quad_sim.vehicle_contact import VEHICLE_COLLISION, VehicleContacts
 
 NAME = 'sim_node'
 DIAGNOSTICS_PERIOD_S = 1.0  # sim time
@@ -53,6 +61,7 @@ STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first ste
 DRAIN_STALL_S = 30.0        # wall time, at shutdown, a follower may go without acknowledging anything new
 FOLLOWER_WARN_S = 5.0       # wall time waiting for a follower before each warning naming it
 LOST_STEP_TIMEOUT_S = 0.02  # wall time per step for a setpoint once one missed lockstep_timeout_s
+ROTOR_NAMES = [f'rotor_{i}' for i in range(4)]
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
@@ -84,6 +93,16 @@ SPECS = [
     Param('max_tracking_error_m', 0.0, 'stop the run when farther than this from control/reference; 0: off',
           min=0.0, max=1000.0, read_only=True),
     Param('seed', 0, 'random seed of gusts and odometry noise', min=0, max=2**31 - 1, read_only=True),
+    Param('vehicle_names', Parameter.Type.STRING_ARRAY, 'fleet: the vehicles, each with its topics under its name '
+          '(cf1/odom, ...); unset: one vehicle, topics in the node\'s namespace', read_only=True),
+    Param('vehicle_files', Parameter.Type.STRING_ARRAY, 'fleet: each vehicle\'s vehicle file; unset: `vehicle` for '
+          'all', read_only=True),
+    Param('initial_positions', Parameter.Type.DOUBLE_ARRAY, 'fleet: [x, y, z] of each vehicle, flat (m)',
+          read_only=True),
+    Param('robot_radii_m', Parameter.Type.DOUBLE_ARRAY, 'fleet: each vehicle\'s collision radius (m); unset: '
+          'robot_radius_m for all', min=0.0, max=5.0, read_only=True),
+    Param('duration_s', 0.0, 'lockstep: end the run (drained, exit 0) at this sim time; 0: run until stopped',
+          min=0.0, max=1e6, read_only=True),
     Param('lockstep_followers', '', 'lockstep: comma-separated node names whose acknowledgements each step waits for '
           '(quad_common.lockstep; e.g. recorder): nothing they record is lost', read_only=True),
 ]
@@ -94,158 +113,121 @@ def stamp_of(time_ns: int) -> Time:
     return Time(sec=time_ns // 1_000_000_000, nanosec=time_ns % 1_000_000_000)
 
 
-class SimNode(Node):
-    def __init__(self, **kwargs):
-        super().__init__(NAME, **kwargs)
-        self.params = ParameterSet(self, SPECS)
-        p = self.params
-        vehicle = load_vehicle(self._config(p['vehicle'], 'vehicle'), plant=p['plant'] or None)
-        world = load_world(self._config(p['world'], 'world')) if p['world'] else None
-        profile = load_profile(self._config(p['disturbances_file'], 'disturbances_file'), p['disturbances'])
-        self.sim = Simulator(vehicle, physics_rate_hz=p['physics_rate_hz'], initial_position=p['initial_position'],
-                             initial_yaw=p['initial_yaw'], disturbances=profile, world=world,
-                             robot_radius_m=p['robot_radius_m'], seed=p['seed'],
-                             setpoint_timeout_s=p['setpoint_timeout_s'])
-        self.sim.warm_up()
-        try:
-            self.steps_per_period = self.sim.steps_in(p['lockstep_period_s'])
-        except ValueError as exc:
-            raise ValueError(f'lockstep_period_s: {exc}') from None
-        self.followers = [f.strip() for f in p['lockstep_followers'].split(',') if f.strip()]
+class SimulatedVehicle:
+    """One vehicle of the simulator node: its Simulator, its topics (relative names after `prefix`: '' in the
+    node's namespace, 'cf1/' for a fleet vehicle) and its lockstep bookkeeping."""
+
+    def __init__(self, node, name: str, sim: Simulator, prefix: str, pace):
         c = contract
-        pace = (lambda topic: lockstep.PACED) if self.followers else c.qos  # followers: paced, deep history
-        self.odom_pub = self.create_publisher(Odometry, c.ODOM, pace(c.ODOM))
-        self.clock_pub = self.create_publisher(ClockMsg, c.CLOCK, pace(c.CLOCK))
-        self.tf_pub = self.create_publisher(TFMessage, c.TF, c.qos(c.TF)) if TFMessage else None
-        if TFMessage is None:
-            self.get_logger().warn('tf2_msgs is not installed here: /tf is not published (odom carries the pose)')
-        self.imu_pub = self.create_publisher(Imu, c.IMU, pace(c.IMU))
-        self.rotor_pub = self.create_publisher(JointState, c.ROTOR_SPEEDS, pace(c.ROTOR_SPEEDS))
-        self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, pace(c.DIAGNOSTICS))
+        self.node, self.name, self.sim, self.prefix = node, name, sim, prefix
+        self.odom_topic, self.setpoint_topic = prefix + c.ODOM, prefix + c.SETPOINT
+        self.body_frame = prefix + contract.BODY_FRAME
+        self.odom_pub = node.create_publisher(Odometry, self.odom_topic, pace(c.ODOM))
+        self.imu_pub = node.create_publisher(Imu, prefix + c.IMU, pace(c.IMU))
+        self.rotor_pub = node.create_publisher(JointState, prefix + c.ROTOR_SPEEDS, pace(c.ROTOR_SPEEDS))
+        self.diag_pub = node.create_publisher(DiagnosticArray, prefix + c.DIAGNOSTICS, pace(c.DIAGNOSTICS))
         # the simulated vehicle flies our setpoints from the start (a bridge says so only during a hand-over)
-        self.engaged_pub = self.create_publisher(Bool, c.ENGAGED, c.qos(c.ENGAGED))
+        self.engaged_pub = node.create_publisher(Bool, prefix + c.ENGAGED, c.qos(c.ENGAGED))
         self.engaged_pub.publish(Bool(data=True))
-        self.hot_subscriptions = [self.create_subscription(Imu, c.SETPOINT, self._on_setpoint, c.qos(c.SETPOINT),
-                                                           raw=True)]
-        self.acked_ns = dict.fromkeys(self.followers, -1)
-        for follower in self.followers:
-            self.hot_subscriptions.append(self.create_subscription(
-                ClockMsg, lockstep.ack_topic(follower),
-                lambda msg, f=follower: self._on_ack(f, msg), lockstep.ACK))
-        self.stop_requested = lambda: False  # main() replaces it with its signal flag
-        if p['max_tracking_error_m'] > 0:
-            self.hot_subscriptions.append(self.create_subscription(
-                MultiDOFJointTrajectory, c.REFERENCE, self._on_reference, c.qos(c.REFERENCE)))
-        self.hot_timers = []
-        self.create_service(Trigger, 'reset', self._on_reset)
-        self._rotor_names = [f'rotor_{i}' for i in range(4)]
-        self._odom_packer = cdr.OdometryPacker()
-        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
-        self._sensor_period_ns = int(round(1e9 / p['sensor_rate_hz'])) if p['sensor_rate_hz'] > 0 else 0
-        self._reset_bookkeeping()
-        self.get_logger().info(
-            f'{p["mode"]}: {vehicle.name} at {list(p["initial_position"])}, {p["physics_rate_hz"]:g} Hz physics, '
-            f'disturbances {profile.name}, world {p["world"] or "none"}')
+        self.setpoint_sub = node.create_subscription(Imu, self.setpoint_topic, self._on_setpoint,
+                                                     c.qos(c.SETPOINT), raw=True)
+        self.reference_sub = None
+        if node.params['max_tracking_error_m'] > 0:
+            self.reference_sub = node.create_subscription(MultiDOFJointTrajectory, prefix + c.REFERENCE,
+                                                          self._on_reference, c.qos(c.REFERENCE))
+        self._odom_packer = cdr.OdometryPacker(child_frame_id=self.body_frame)
+        self.reset_bookkeeping()
 
-    def _config(self, path, name):
-        try:
-            return resolve_config(path)
-        except FileNotFoundError as exc:
-            raise ValueError(f'{name} = {path!r}: {exc}') from None
-
-    def _reset_bookkeeping(self):
+    def reset_bookkeeping(self):
         self.setpoint_stamp_ns = -1
         self.setpoints_received = 0
         self.future_setpoints = 0
         self.controller_lost = False  # a setpoint missed lockstep_timeout_s: steps wait LOST_STEP_TIMEOUT_S at most
         self.steps_published = 0  # distinct odom (and /clock) stamps published
         self.last_odom_ns = -1
-        self._events_reported = 0
-        self._next_diagnostics_ns = 0
-        self._next_sensors_ns = 0
-        self._wall_start_s = time.monotonic()
-        self._sim_start_ns = self.sim.time_ns
+        self.events_reported = 0
+        self.next_diagnostics_ns = 0
+        self.next_sensors_ns = 0
 
-    # --- inputs ------------------------------------------------------------------------------------------
+    def _log(self):
+        return self.node.get_logger()
 
     def _on_setpoint(self, raw: bytes):
         """cmd/attitude_thrust, serialized (quad_common.cdr: the tick's critical path)."""
         stamp_ns = cdr.header_stamp_ns(raw, Imu)
         if stamp_ns < self.setpoint_stamp_ns:
             return  # older than the one applied
-        period_ns = self.steps_per_period * self.sim.step_ns
+        period_ns = self.node.steps_per_period * self.sim.step_ns
         if stamp_ns > self.sim.time_ns + period_ns:
             self.future_setpoints += 1
-            self.get_logger().warn(
-                f'setpoint refused: stamped {stamp_ns * 1e-9:.3f} s, ahead of sim time {self.sim.time_s:.3f} s by '
-                f'more than one period ({self.future_setpoints} so far; a clock other than /clock?)',
-                throttle_duration_sec=1.0)
+            self._log().warn(
+                f'{self.prefix}setpoint refused: stamped {stamp_ns * 1e-9:.3f} s, ahead of sim time '
+                f'{self.sim.time_s:.3f} s by more than one period ({self.future_setpoints} so far; a clock other '
+                'than /clock?)', throttle_duration_sec=1.0)
             return
         try:
             setpoint = cdr.imu_to_setpoint(raw)
             self.sim.set_setpoint(setpoint)
         except ValueError as exc:
-            self.get_logger().warn(f'setpoint refused: {exc}', throttle_duration_sec=1.0)
+            self._log().warn(f'{self.prefix}setpoint refused: {exc}', throttle_duration_sec=1.0)
             return
         self.setpoint_stamp_ns = stamp_ns
         self.setpoints_received += 1
         self.controller_lost = False
 
-    def _on_ack(self, follower: str, msg: ClockMsg):
-        self.acked_ns[follower] = max(self.acked_ns[follower], msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
-
-    def followers_behind(self, stamp_ns: int) -> list[str]:
-        """Followers whose newest acknowledged odometry is older than `stamp_ns`."""
-        return [f for f, acked in self.acked_ns.items() if acked < stamp_ns]
-
     def _on_reference(self, msg: MultiDOFJointTrajectory):
         if msg.points and msg.points[0].transforms and self.sim.stopped is None:
             try:
                 self.sim.check_tracking(conversions.vec3(msg.points[0].transforms[0].translation),
-                                        self.params['max_tracking_error_m'])
+                                        self.node.params['max_tracking_error_m'])
             except SimulationStopped as exc:
-                self._report_stop(exc)
+                self.report_stop(exc)
 
-    def _on_reset(self, request, response):
-        self.sim.reset()
-        self._reset_bookkeeping()
-        response.success, response.message = True, 'simulation reset to its initial state; time restarts at 0'
-        self.get_logger().info(response.message)
-        return response
+    def report_stop(self, exc):
+        self._log().error(f'{self.name + ": " if self.prefix else ""}{exc}')
+        self.publish_diagnostics()
 
-    # --- outputs -----------------------------------------------------------------------------------------
+    def has_setpoint_publisher(self) -> bool:
+        return self.node.count_publishers(self.setpoint_topic) > 0
 
-    def publish_step(self):
-        """odom and then /clock at the current sim time (contract order); then, every 1 / sensor_rate_hz of sim
-        time, /tf, imu and rotor_speeds (after /clock: the controller's tick does not wait for them)."""
-        time_ns = self.sim.time_ns
-        stamp = stamp_of(time_ns)
+    def controller_present(self) -> bool:
+        """A setpoint publisher that also listens to odom and /clock is on the graph (it may not tick at t = 0)."""
+        n = self.node
+        return (n.count_publishers(self.setpoint_topic) > 0 and n.count_subscribers(self.odom_topic) > 0
+                and n.count_subscribers(contract.CLOCK) > 0)
+
+    def publish_odometry(self, time_ns: int):
         self.odom_pub.publish(self._odom_packer.pack(self.sim.odometry_state(), time_ns))
-        self.clock_pub.publish(ClockMsg(clock=stamp))
         if time_ns != self.last_odom_ns:  # the first step is re-published until a setpoint comes: one step
             self.steps_published += 1
         self.last_odom_ns = time_ns
-        if time_ns >= self._next_sensors_ns:
-            self._next_sensors_ns = time_ns + self._sensor_period_ns
+
+    def publish_after_clock(self, time_ns: int, stamp):
+        """Every 1 / sensor_rate_hz of sim time /tf, imu and rotor_speeds; diagnostics on an event or each
+        DIAGNOSTICS_PERIOD_S."""
+        if time_ns >= self.next_sensors_ns:
+            self.next_sensors_ns = time_ns + self.node.sensor_period_ns
             self.publish_sensors(stamp)
-        if len(self.sim.events) > self._events_reported or time_ns >= self._next_diagnostics_ns:
+        if len(self.sim.events) > self.events_reported or time_ns >= self.next_diagnostics_ns:
             self.publish_diagnostics()
 
     def publish_sensors(self, stamp):
         truth = self.sim.state
-        if self.tf_pub is not None:
-            self.tf_pub.publish(TFMessage(transforms=[conversions.state_to_transform(truth, stamp)]))
-        self.imu_pub.publish(conversions.state_to_imu(truth, self.sim.specific_force_body_mps2, stamp))
-        rotors = JointState(name=self._rotor_names, velocity=self.sim.rotor_speeds_radps.tolist())
+        if self.node.tf_pub is not None:
+            self.node.tf_pub.publish(TFMessage(transforms=[conversions.state_to_transform(
+                truth, stamp, child_frame_id=self.body_frame)]))
+        self.imu_pub.publish(conversions.state_to_imu(truth, self.sim.specific_force_body_mps2, stamp,
+                                                      frame_id=self.body_frame))
+        rotors = JointState(name=ROTOR_NAMES, velocity=self.sim.rotor_speeds_radps.tolist())
         rotors.header.stamp = stamp
         self.rotor_pub.publish(rotors)
 
     def publish_diagnostics(self):
         sim = self.sim
         statuses = []
-        new_events = sim.events[self._events_reported:]
-        self._events_reported = len(sim.events)
-        self._next_diagnostics_ns = sim.time_ns + int(DIAGNOSTICS_PERIOD_S * 1e9)
+        new_events = sim.events[self.events_reported:]
+        self.events_reported = len(sim.events)
+        self.next_diagnostics_ns = sim.time_ns + int(DIAGNOSTICS_PERIOD_S * 1e9)
         collisions = [e for e in sim.events if e.kind == 'collision']
         if collisions:
             e = collisions[-1]
@@ -253,6 +235,13 @@ class SimNode(Node):
                                                f'collision {len(collisions)}: within {sim.robot_radius_m} m '
                                                'of an obstacle', {contract.COLLISION_TIME_S: repr(collisions[0].time_s),
                                                                    'collisions': len(collisions), **_place(e)}))
+        contacts = [e for e in sim.events if e.kind == VEHICLE_COLLISION]
+        if contacts:
+            e = contacts[-1]
+            statuses.append(diagnostics.status(contract.SIM_STATUS.format(VEHICLE_COLLISION), diagnostics.ERROR,
+                                               f'vehicle collision {len(contacts)}: with {e.detail["other"]}',
+                                               {contract.COLLISION_TIME_S: repr(contacts[0].time_s),
+                                                'collisions': len(contacts), **_place(e)}))
         failsafe = [e for e in sim.events if e.kind in ('failsafe', 'failsafe_cleared', 'disarmed')]
         if sim.failsafe_active or any(e.kind == 'failsafe' for e in new_events):
             e = failsafe[-1]
@@ -272,14 +261,10 @@ class SimNode(Node):
             contract.SIM_PUBLISHED, diagnostics.OK, 'distinct odom and /clock steps published (a bag '
             'is checked against it)',
             {'steps': self.steps_published, 'future_setpoints_refused': self.future_setpoints}))
-        rtf = self.real_time_factor()
+        rtf = self.node.real_time_factor()
         statuses.append(diagnostics.status(contract.SIM_STATUS.format('real_time_factor'), diagnostics.OK,
                                            f'{rtf:.2f}x', {'rtf': f'{rtf:.3f}'}))
         self.diag_pub.publish(diagnostics.array(stamp_of(sim.time_ns), statuses))
-
-    def real_time_factor(self) -> float:
-        wall_s = time.monotonic() - self._wall_start_s
-        return (self.sim.time_ns - self._sim_start_ns) * 1e-9 / wall_s if wall_s > 0 else 0.0
 
     def advance(self, steps):
         if self.sim.stopped is not None:
@@ -287,52 +272,209 @@ class SimNode(Node):
         try:
             self.sim.advance_steps(steps)
         except SimulationStopped as exc:
-            self._report_stop(exc)
+            self.report_stop(exc)
 
-    def _report_stop(self, exc):
-        self.get_logger().error(str(exc))
-        self.publish_diagnostics()
+
+class SimNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__(NAME, **kwargs)
+        self.params = ParameterSet(self, SPECS)
+        p = self.params
+        world = load_world(self._config(p['world'], 'world')) if p['world'] else None
+        profile = load_profile(self._config(p['disturbances_file'], 'disturbances_file'), p['disturbances'])
+        fleet = _fleet_layout(p)
+        sims = []
+        files_param = 'vehicle' if p['vehicle_files'] is None else 'vehicle_files'
+        for k, (_, vehicle_file, position, radius_m) in enumerate(fleet):
+            vehicle = load_vehicle(self._config(vehicle_file, files_param), plant=p['plant'] or None)
+            sims.append(Simulator(vehicle, physics_rate_hz=p['physics_rate_hz'], initial_position=position,
+                                  initial_yaw=p['initial_yaw'], disturbances=profile, world=world,
+                                  robot_radius_m=radius_m, seed=(p['seed'] + k) % 2**31,
+                                  setpoint_timeout_s=p['setpoint_timeout_s']))
+        self.sim = sims[0]   # the time base: every vehicle's simulator is stepped with it
+        self.sim.warm_up()
+        try:
+            self.steps_per_period = self.sim.steps_in(p['lockstep_period_s'])
+        except ValueError as exc:
+            raise ValueError(f'lockstep_period_s: {exc}') from None
+        self.followers = [f.strip() for f in p['lockstep_followers'].split(',') if f.strip()]
+        c = contract
+        pace = (lambda topic: lockstep.PACED) if self.followers else c.qos  # followers: paced, deep history
+        self.clock_pub = self.create_publisher(ClockMsg, c.CLOCK, pace(c.CLOCK))
+        self.tf_pub = self.create_publisher(TFMessage, c.TF, c.qos(c.TF)) if TFMessage else None
+        if TFMessage is None:
+            self.get_logger().warn('tf2_msgs is not installed here: /tf is not published (odom carries the pose)')
+        self.sensor_period_ns = int(round(1e9 / p['sensor_rate_hz'])) if p['sensor_rate_hz'] > 0 else 0
+        named = p['vehicle_names'] is not None
+        self.vehicles = [SimulatedVehicle(self, name, sim, f'{name}/' if named else '', pace)
+                         for (name, *_), sim in zip(fleet, sims)]
+        self.contacts = VehicleContacts([v.name for v in self.vehicles], sims, [r for *_, r in fleet])
+        self.hot_subscriptions = [v.setpoint_sub for v in self.vehicles]
+        self.acked_ns = dict.fromkeys(self.followers, -1)
+        for follower in self.followers:
+            self.hot_subscriptions.append(self.create_subscription(
+                ClockMsg, lockstep.ack_topic(follower),
+                lambda msg, f=follower: self._on_ack(f, msg), lockstep.ACK))
+        self.stop_requested = lambda: False  # main() replaces it with its signal flag
+        self.hot_subscriptions += [v.reference_sub for v in self.vehicles if v.reference_sub is not None]
+        self.hot_timers = []
+        self.create_service(Trigger, 'reset', self._on_reset)
+        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._reset_bookkeeping()
+        what = (f'{sims[0].vehicle.name} at {list(fleet[0][2])}' if not named else
+                f'{len(sims)} vehicles ({", ".join(v.name for v in self.vehicles)})')
+        self.get_logger().info(
+            f'{p["mode"]}: {what}, {p["physics_rate_hz"]:g} Hz physics, '
+            f'disturbances {profile.name}, world {p["world"] or "none"}')
+
+    def _config(self, path, name):
+        try:
+            return resolve_config(path)
+        except FileNotFoundError as exc:
+            raise ValueError(f'{name} = {path!r}: {exc}') from None
+
+    def _reset_bookkeeping(self):
+        for v in self.vehicles:
+            v.reset_bookkeeping()
+        self.contacts.reset()
+        self._wall_start_s = time.monotonic()
+        self._sim_start_ns = self.sim.time_ns
+        self._first_advance = None    # (wall s, sim ns) of the first step advanced
+
+    # --- the single vehicle's view (one vehicle: the node's own topics) ------------------------------------
+
+    @property
+    def setpoints_received(self) -> int:
+        return min(v.setpoints_received for v in self.vehicles)
+
+    @property
+    def future_setpoints(self) -> int:
+        return sum(v.future_setpoints for v in self.vehicles)
+
+    @property
+    def steps_published(self) -> int:
+        return self.vehicles[0].steps_published
+
+    @property
+    def last_odom_ns(self) -> int:
+        return self.vehicles[0].last_odom_ns
+
+    # --- inputs ------------------------------------------------------------------------------------------
+
+    def _on_ack(self, follower: str, msg: ClockMsg):
+        self.acked_ns[follower] = max(self.acked_ns[follower], msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+
+    def followers_behind(self, stamp_ns: int) -> list[str]:
+        """Followers whose newest acknowledged odometry is older than `stamp_ns`."""
+        return [f for f, acked in self.acked_ns.items() if acked < stamp_ns]
+
+    def _on_reset(self, request, response):
+        for v in self.vehicles:
+            v.sim.reset()
+        self._reset_bookkeeping()
+        response.success, response.message = True, 'simulation reset to its initial state; time restarts at 0'
+        self.get_logger().info(response.message)
+        return response
+
+    # --- outputs -----------------------------------------------------------------------------------------
+
+    def publish_step(self, vehicles=None):
+        """Every vehicle's odom and then /clock at the current sim time (contract order); then its sensors and
+        diagnostics when due (after /clock: the controller's tick does not wait for them). vehicles: only these
+        odometries (a re-publication for controllers that joined late)."""
+        time_ns = self.sim.time_ns
+        stamp = stamp_of(time_ns)
+        for v in self.vehicles if vehicles is None else vehicles:
+            v.publish_odometry(time_ns)
+        self.clock_pub.publish(ClockMsg(clock=stamp))
+        for v in self.vehicles:
+            v.publish_after_clock(time_ns, stamp)
+
+    def publish_diagnostics(self):
+        for v in self.vehicles:
+            v.publish_diagnostics()
+
+    def real_time_factor(self) -> float:
+        wall_s = time.monotonic() - self._wall_start_s
+        return (self.sim.time_ns - self._sim_start_ns) * 1e-9 / wall_s if wall_s > 0 else 0.0
+
+    def advance(self, steps):
+        t0_s = self.sim.time_s
+        if self._first_advance is None:
+            self._first_advance = (time.monotonic(), self.sim.time_ns, time.process_time())
+        for v in self.vehicles:
+            v.advance(steps)
+        if len(self.vehicles) > 1:
+            self.contacts.step(t0_s, steps * self.sim.step_ns * 1e-9)
 
     # --- modes -------------------------------------------------------------------------------------------
 
     def running(self) -> bool:
         return rclpy.ok(context=self.context) and not self.stop_requested()
 
+    def _ended(self) -> bool:
+        end_s = self.params['duration_s']
+        return end_s > 0 and self.sim.time_s >= end_s - 1e-9
+
     def run_lockstep(self, executor):
-        """The lockstep loop (see the module docstring); returns when rclpy shuts down or a stop is requested."""
+        """The lockstep loop (see the module docstring); returns when rclpy shuts down, a stop is requested or
+        duration_s is reached."""
         lag_ns = lockstep.FOLLOWER_LAG_STEPS * self.steps_per_period * self.sim.step_ns
         while self.running():
             self.publish_step()
             t_k = self.sim.time_ns
             self._await_followers(executor, max(t_k - lag_ns, 0))  # every follower has step 0 before step 1
-            now = time.monotonic()
-            # before the first setpoint a controller on the graph may have answered before it was matched (its
-            # answer lost): advance after STARTUP_REPUBLISH_S, its next tick answers
-            timeout_s = self.params['lockstep_timeout_s'] if self.setpoints_received else min(
-                self.params['lockstep_timeout_s'], STARTUP_REPUBLISH_S)
-            if self.controller_lost:  # one step per LOST_STEP_TIMEOUT_S: a controller that is only slow catches up
-                timeout_s = min(timeout_s, LOST_STEP_TIMEOUT_S)
-            deadline, republish_at = now + timeout_s, now + STARTUP_REPUBLISH_S
-            while self.setpoint_stamp_ns < t_k and self.running():
-                now = time.monotonic()
-                if now >= deadline:
-                    if self.setpoints_received > 0 and not self.controller_lost:
-                        self.controller_lost = True
-                        self.get_logger().warn(
-                            f'no setpoint for t = {t_k * 1e-9:.3f} s within lockstep_timeout_s: each step now waits '
-                            f'{LOST_STEP_TIMEOUT_S} s at most (the failsafe lands the vehicle) until one arrives')
-                    break
-                if self.setpoints_received == 0 and now >= republish_at:  # for nodes that joined late
-                    self.publish_step()
-                    republish_at = now + STARTUP_REPUBLISH_S
-                executor.spin_once(timeout_sec=min(deadline, republish_at) - now)
+            if self._ended():
+                break
+            self._await_setpoints(executor, t_k)
             if self.sim.time_ns != t_k:  # reset while waiting
                 continue
             if not self.running():
                 break
-            if self.setpoint_stamp_ns >= t_k or self.setpoints_received > 0 or self._controller_present():
+            if all(v.setpoint_stamp_ns >= t_k or v.setpoints_received > 0 or v.controller_present()
+                   for v in self.vehicles):
                 self.advance(self.steps_per_period)
+        if self._first_advance is not None:
+            wall_s = time.monotonic() - self._first_advance[0]
+            sim_s = (self.sim.time_ns - self._first_advance[1]) * 1e-9
+            self.get_logger().info(f'lockstep: stepped {sim_s:.3f} s of {len(self.vehicles)} vehicle(s) in '
+                                   f'{wall_s:.3f} s ({sim_s / max(wall_s, 1e-9):.2f}x real time; this process '
+                                   f'{time.process_time() - self._first_advance[2]:.3f} s of CPU)')
         self.drain(executor)
+
+    def _await_setpoints(self, executor, t_k: int):
+        """Spin until every vehicle has a setpoint stamped >= t_k or its wait ran out: lockstep_timeout_s; before
+        its first setpoint STARTUP_REPUBLISH_S at most (its odometry re-published each time, for controllers that
+        joined late or answered before they were matched); once one was missed, LOST_STEP_TIMEOUT_S at most."""
+        now = time.monotonic()
+        deadlines = {}
+        for v in self.vehicles:
+            timeout_s = self.params['lockstep_timeout_s'] if v.setpoints_received else min(
+                self.params['lockstep_timeout_s'], STARTUP_REPUBLISH_S)
+            if v.controller_lost:  # one step per LOST_STEP_TIMEOUT_S: a controller that is only slow catches up;
+                # none at all once it left the graph (a fleet's other vehicles fly on at full speed)
+                timeout_s = min(timeout_s, LOST_STEP_TIMEOUT_S if v.has_setpoint_publisher() else 0.0)
+            deadlines[v] = now + timeout_s
+        republish_at = now + STARTUP_REPUBLISH_S
+        waiting = [v for v in self.vehicles if v.setpoint_stamp_ns < t_k]
+        while waiting and self.running():
+            now = time.monotonic()
+            for v in [v for v in waiting if now >= deadlines[v]]:
+                waiting.remove(v)
+                if v.setpoints_received > 0 and not v.controller_lost:
+                    v.controller_lost = True
+                    self.get_logger().warn(
+                        f'{v.name}: ' * bool(v.prefix) + f'no setpoint for t = {t_k * 1e-9:.3f} s within '
+                        f'lockstep_timeout_s: each step now waits {LOST_STEP_TIMEOUT_S} s at most (the failsafe '
+                        'lands the vehicle) until one arrives')
+            if not waiting:
+                break
+            starting = [v for v in waiting if v.setpoints_received == 0]
+            if starting and now >= republish_at:  # for nodes that joined late
+                self.publish_step(starting)
+                republish_at = now + STARTUP_REPUBLISH_S
+            executor.spin_once(timeout_sec=max(min(min(deadlines[v] for v in waiting), republish_at) - now, 0.0))
+            waiting = [v for v in waiting if v.setpoint_stamp_ns < t_k]
 
     def _await_followers(self, executor, stamp_ns, timeout_s=None):
         """Spin until every follower has acknowledged odometry stamped >= stamp_ns (a warning every
@@ -377,11 +519,6 @@ class SimNode(Node):
                 return
             executor.spin_once(timeout_sec=0.05)
 
-    def _controller_present(self) -> bool:
-        """A setpoint publisher that also listens to odom and /clock is on the graph (it may not tick at t = 0)."""
-        return (self.count_publishers(contract.SETPOINT) > 0 and self.count_subscribers(contract.ODOM) > 0
-                and self.count_subscribers(contract.CLOCK) > 0)
-
     def start_realtime(self):
         period_s = 1.0 / self.params['odom_rate_hz']
         self._last_wall_s = time.monotonic()
@@ -397,6 +534,33 @@ class SimNode(Node):
         if steps > 0:
             self.advance(steps)
         self.publish_step()
+
+
+def _fleet_layout(p) -> list[tuple]:
+    """(name, vehicle file, initial position, robot radius) per vehicle: one from `vehicle`, `initial_position`
+    and `robot_radius_m`, or the fleet's from vehicle_names and its per-vehicle arrays (each checked: its length,
+    names a ROS name component can take, no name twice)."""
+    names = p['vehicle_names']
+    if names is None:
+        return [('', p['vehicle'], list(p['initial_position']), p['robot_radius_m'])]
+    n = len(names)
+    if n == 0:
+        raise ValueError('vehicle_names = [] refused: name at least one vehicle (or leave it unset for one)')
+    for name in names:
+        if not name or not (name[0].isalpha() and name.replace('_', 'a').isalnum()):
+            raise ValueError(f'vehicle_names: {name!r} refused: a letter then letters, digits or _ (a namespace)')
+        if names.count(name) > 1:
+            raise ValueError(f'vehicle_names: {name!r} refused: named twice')
+    files = p['vehicle_files'] if p['vehicle_files'] is not None else [p['vehicle']] * n
+    positions = p['initial_positions']
+    radii = p['robot_radii_m'] if p['robot_radii_m'] is not None else [p['robot_radius_m']] * n
+    for field, values, size in (('vehicle_files', files, n), ('initial_positions', positions, 3 * n),
+                                ('robot_radii_m', radii, n)):
+        if values is None or len(values) != size:
+            raise ValueError(f'{field} = {None if values is None else list(values)!r} refused: needs {size} values '
+                             f'for the {n} vehicles of vehicle_names')
+    return [(name, files[k], [float(x) for x in positions[3 * k:3 * k + 3]], float(radii[k]))
+            for k, name in enumerate(names)]
 
 
 def _place(event) -> dict:

@@ -69,6 +69,7 @@ class Fleet:
     name: str
     vehicles: list
     separation: SeparationOptions = field(default_factory=SeparationOptions)
+    data: dict = field(default_factory=dict, repr=False)   # the mapping it was read from
 
     @property
     def names(self) -> list:
@@ -274,7 +275,8 @@ def fleet_from_dict(data: dict, path: str = 'fleet') -> Fleet:
     fleet_vehicles = [_vehicle(entry, i, data, path, seen) for i, entry in enumerate(vehicles)]
     _refuse_shared_links(fleet_vehicles, path)
     options = _separation(data.get('separation') or {}, path)
-    return Fleet(path, str(data.get('name', os.path.splitext(os.path.basename(path))[0])), fleet_vehicles, options)
+    return Fleet(path, str(data.get('name', os.path.splitext(os.path.basename(path))[0])), fleet_vehicles, options,
+                 dict(data))
 
 
 def load_fleet(path) -> Fleet:
@@ -365,3 +367,38 @@ def vehicle_mission(fleet: Fleet, name: str, speed_mps: float | None = None) -> 
     if not plan.report.ok:
         raise ValueError(plan.refusal())
     return plan.fleet.vehicles[k].mission, plan.delays_s[k]
+
+
+def resolved_fleet(plan: FleetPlan) -> dict:
+    """The fleet file as flown: every vehicle's waypoints (start, offset and altitude layer applied), yaw and
+    start delay (after deconfliction) written out, its files absolute, deconfliction off. Each vehicle's part
+    plans to the same trajectory as in `plan` (a trajectory_node with fleet_vehicle plans only its own)."""
+    data = dict(plan.fleet.data)
+    base = os.path.dirname(os.path.abspath(plan.fleet.path))
+
+    def absolute(value):
+        return os.path.normpath(os.path.join(base, value)) if isinstance(value, str) and value else value
+
+    for key in ('vehicle', 'world'):
+        if key in data:
+            data[key] = absolute(data[key])
+    data.pop('waypoints', None)
+    if len(data['vehicles']) != len(plan.fleet.vehicles):
+        raise ValueError(f'{plan.fleet.path}: the fleet\'s data holds {len(data["vehicles"])} vehicles, its plan '
+                         f'{len(plan.fleet.vehicles)}')
+    entries = []
+    for raw, v, delay in zip(data['vehicles'], plan.fleet.vehicles, plan.delays_s):
+        entry = {k: val for k, val in raw.items() if k not in ('start', 'offset', 'waypoints', 'yaw')}
+        for key in ('vehicle', 'profile'):
+            if key in entry:
+                entry[key] = absolute(entry[key])
+        entry['waypoints'] = v.mission.waypoints.tolist()
+        yaw = v.mission.yaw
+        if yaw is not None:
+            entry['yaw'] = np.asarray(yaw, dtype=float).tolist()
+        entry['start_delay_s'] = float(delay)
+        entries.append(entry)
+    data['vehicles'] = entries
+    data['separation'] = {**(data.get('separation') or {}), 'deconflict': 'none'}
+    data.pop('yaw', None)
+    return data

@@ -1,5 +1,7 @@
-"""`quadflight fleet FLEET.yaml [--out DIR]`: plan a fleet mission, check its separation, and fly every vehicle
-offline (quad_bringup.fleet_loop: each vehicle's control loop against its own simulator, in lockstep; no ROS).
+"""`quadflight fleet FLEET.yaml [--out DIR] [--graph [--process-per-node]]`: plan a fleet mission, check its
+separation, and fly every vehicle: offline (quad_bringup.fleet_loop: each vehicle's control loop against its own
+simulator, in lockstep; no ROS), or with --graph through the ROS graph (quad_bringup.fleet_graph: one sim_node for
+the fleet under one /clock, each vehicle's nodes under its namespace, a rosbag2 bag of every vehicle).
 
 Refused (exit 2, one line) before flight: a separation conflict left after the file's deconfliction, or a plan that
 fails fly's feasibility check on its vehicle, unless --fly-anyway. The verdict: exit 0 when every vehicle completed
@@ -25,6 +27,14 @@ def add_arguments(parser):
     add_time_allocation_argument(parser)
     parser.add_argument('--disturbances', default='none', metavar='PROFILE',
                         help='simulator disturbance profile for every vehicle (config/disturbances.yaml)')
+    parser.add_argument('--graph', action='store_true',
+                        help='fly through the ROS graph (sim_node, trajectory_node and position_controller per '
+                             'vehicle, the recorder): a bag and the verdict from it; --out defaults to runs/')
+    parser.add_argument('--process-per-node', action='store_true',
+                        help='--graph: every node its own process (as launch_ros starts them) instead of one process '
+                             'for the vehicles\' nodes')
+    parser.add_argument('--no-figures', action='store_true',
+                        help='--graph: each vehicle\'s report without its figures (faster for a large fleet)')
     parser.add_argument('--fly-anyway', action='store_true',
                         help='fly a separation conflict or an infeasible plan instead of refusing it')
 
@@ -97,9 +107,23 @@ def run(args) -> int:
         if reasons and not args.fly_anyway:
             print(f'quadflight fleet: {reasons[0]} (--fly-anyway flies it)', file=sys.stderr)
             return EXIT_REFUSED
-        result = fly_fleet(fleet, LoopOptions(speed_mps=args.speed, plan_overrides=overrides or None,
-                                              disturbances=args.disturbances), fleet_plan=plan,
-                           refuse_conflicts=False)
+        if args.graph:
+            from quad_bringup.fleet_graph import default_out_dir, fly_graph
+
+            if args.disturbances != 'none':
+                raise ValueError('--disturbances is offline only (sim_node takes its profile from sim.yaml)')
+            args.out = args.out or default_out_dir(fleet.name)
+            result, timing = fly_graph(plan, args.out, speed_mps=args.speed, hosted=not args.process_per_node,
+                                       reports=True, figures=not args.no_figures)
+            result.wall_s['total'] = timing.flight_s
+            result.wall_s['command'] = timing.total_s
+        else:
+            result = fly_fleet(fleet, LoopOptions(speed_mps=args.speed, plan_overrides=overrides or None,
+                                                  disturbances=args.disturbances), fleet_plan=plan,
+                               refuse_conflicts=False)
+    except RuntimeError as exc:
+        print(f'quadflight fleet: {exc}', file=sys.stderr)
+        return EXIT_FAILED
     except ValueError as exc:
         print(f'quadflight fleet: {exc}', file=sys.stderr)
         return EXIT_REFUSED

@@ -1,5 +1,7 @@
-"""`quadflight fly MISSION.yaml`: fly a mission through the node graph in the lockstep simulator."""
+"""`quadflight fly MISSION.yaml`: fly a mission through the node graph in the lockstep simulator. A fleet mission (a
+`vehicles:` list) flies through the fleet's graph: `quadflight fleet FLEET.yaml --graph` (commands/fleet.py)."""
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -43,7 +45,30 @@ def options_from(args) -> FlightOptions:
                          time_limit_factor=args.time_limit_factor, quiet=args.quiet, fly_anyway=args.fly_anyway)
 
 
+# fly's options a fleet does not take: each vehicle's vehicle file, controller and profile are in the fleet file
+NOT_FOR_FLEETS = ('controller', 'vehicle', 'plant', 'disturbances', 'control_profile')
+
+
+def run_fleet(args) -> int:
+    from quad_bringup.commands import fleet
+
+    given = [name for name in NOT_FOR_FLEETS + ('position_tolerance', 'speed_tolerance', 'settle')
+             if getattr(args, name) is not None]
+    if given:
+        print(f'quadflight fly: --{given[0].replace("_", "-")} {getattr(args, given[0])} refused: {args.mission} is a '
+              'fleet mission (each vehicle names its vehicle file, controller and profile in it)', file=sys.stderr)
+        return 2
+    return fleet.run(argparse.Namespace(mission=Path(args.mission), out=args.out, speed=args.speed,
+                                        time_allocation=args.time_allocation, disturbances='none',
+                                        fly_anyway=args.fly_anyway, graph=True, process_per_node=False,
+                                        no_figures=False))
+
+
 def run(args) -> int:
+    from quad_trajectory.fleet import is_fleet_file
+
+    if is_fleet_file(args.mission):
+        return run_fleet(args)
     result = fly(options_from(args), log=lambda line: print(line, flush=True), defer_figures=True)
     if result.metrics is not None:
         print(metrics_table(result.metrics))

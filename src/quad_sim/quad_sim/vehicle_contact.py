@@ -1,0 +1,78 @@
+"""Vehicle-vehicle collisions of a fleet (robot radii), reported as simulator events like obstacle collisions.
+
+Pair (i, j) collides when |p_i - p_j| < r_i + r_j. Between two steps the relative position
+d(s) = d_0 + s (d_1 - d_0), s in [0, 1], is taken as linear, and its closest approach
+|d_0 + s* (d_1 - d_0)|, s* = clip(-d_0 . (d_1 - d_0) / |d_1 - d_0|^2, 0, 1), is compared with the radii: a
+graze between steps is not missed. The linear model's error is at most a_rel dt^2 / 8 (0.25 mm at 20 m/s^2
+and 10 ms). A collision is an event (kind VEHICLE_COLLISION: the other vehicle, the closest distance; its time
+is where the linear relative motion first reaches r_i + r_j) in both simulators' events; the flight goes on,
+as it does after an obstacle collision. A pair in contact is reported once, when the contact starts.
+"""
+
+import numpy as np
+
+from quad_sim.simulator import Event
+
+VEHICLE_COLLISION = 'vehicle_collision'
+
+
+def closest_approach(p0, p1, i, j) -> np.ndarray:
+    """Pairs (i[k], j[k]): the smallest |p_i - p_j| while both move linearly from p0 to p1 (module docstring)."""
+    d0, d1 = p0[j] - p0[i], p1[j] - p1[i]
+    dd = d1 - d0
+    den = np.einsum('ij,ij->i', dd, dd)
+    s = np.clip(-np.einsum('ij,ij->i', d0, dd) / np.where(den > 0, den, 1.0), 0.0, 1.0)
+    return np.linalg.norm(d0 + s[:, None] * dd, axis=1)
+
+
+def contact_fraction(p0, p1, i, j, touch_m) -> float:
+    """The first s in [0, 1] with |d_0 + s (d_1 - d_0)| = touch_m (0 when already touching): the smaller root of
+    |dd|^2 s^2 + 2 (d_0 . dd) s + |d_0|^2 - touch^2 = 0."""
+    d0 = p0[j] - p0[i]
+    dd = (p1[j] - p1[i]) - d0
+    a, b, c = float(dd @ dd), 2.0 * float(d0 @ dd), float(d0 @ d0) - touch_m ** 2
+    if c <= 0.0 or a == 0.0:
+        return 0.0
+    return float(np.clip((-b - np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a), 0.0, 1.0))
+
+
+class VehicleContacts:
+    """The pairwise contact check of N simulators stepped together: `step(t0_s, dt_s)` after each step."""
+
+    def __init__(self, names, simulators, radii_m):
+        self.names, self.sims = list(names), list(simulators)
+        n = len(self.sims)
+        self.pair_i, self.pair_j = np.triu_indices(n, 1)
+        radii = np.asarray(radii_m, dtype=float)
+        self.touch_m = radii[self.pair_i] + radii[self.pair_j]
+        self._colliding = np.zeros(self.pair_i.size, dtype=bool)
+        self.collisions = []           # (time_s, a, b, distance_m) of each contact's start
+        self._p = self.positions()
+
+    def positions(self) -> np.ndarray:
+        return np.array([s.state.position for s in self.sims])
+
+    def reset(self):
+        self._colliding[:] = False
+        self.collisions.clear()
+        self._p = self.positions()
+
+    def step(self, t0_s: float, dt_s: float) -> float:
+        """Checks the step from t0_s to t0_s + dt_s; returns the smallest pairwise distance in it (inf for one
+        vehicle). New contacts become events in both vehicles' simulators."""
+        p_prev, p = self._p, self.positions()
+        self._p = p
+        if not self.pair_i.size:
+            return float('inf')
+        d = closest_approach(p_prev, p, self.pair_i, self.pair_j)
+        hit = d < self.touch_m
+        for q in np.flatnonzero(hit & ~self._colliding):
+            a, b = self.pair_i[q], self.pair_j[q]
+            t_hit = t0_s + contact_fraction(p_prev, p, a, b, self.touch_m[q]) * dt_s
+            self.collisions.append((t_hit, self.names[a], self.names[b], float(d[q])))
+            for me, other in ((a, b), (b, a)):
+                self.sims[me].events.append(Event(VEHICLE_COLLISION, t_hit, self.sims[me].state.position,
+                                                  {'other': self.names[other], 'distance_m': round(float(d[q]), 4),
+                                                   'radii_m': round(float(self.touch_m[q]), 4)}))
+        self._colliding = hit
+        return float(d.min())

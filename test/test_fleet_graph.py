@@ -1,0 +1,152 @@
+"""Graph tests: a fleet through the ROS graph (quad_bringup.fleet_graph): one sim_node for every vehicle under one
+/clock, each vehicle's trajectory_node and position_controller under its namespace, the recorder's bag."""
+
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import rclpy
+import yaml
+from rosbags.rosbag2 import Reader
+from rosgraph_msgs.msg import Clock
+
+from quad_bringup import fleet_graph
+from quad_common import contract
+from quad_common.domains import isolated_domain
+from quad_trajectory.fleet import load_fleet, plan_fleet
+
+ROOT = Path(__file__).resolve().parents[1]
+QUADFLIGHT = str(ROOT / 'quadflight')
+TIMEOUT_S = 540     # a hang guard, far above a loaded run
+
+
+def two_abreast(tmp_path) -> Path:
+    """Two Crazyflies 1 m apart flying the same 1.5 m leg side by side."""
+    path = tmp_path / 'abreast.yaml'
+    path.write_text(f'name: abreast\nvehicle: {ROOT / "config/vehicles/crazyflie.yaml"}\n'
+                    'waypoints: [[0.0, 0.0, 1.0], [1.5, 0.0, 1.0]]\nyaw: 0.0\n'
+                    'trajectory: {method: minsnap, speed: 0.5, time_allocation: sqrt}\n'
+                    'vehicles:\n  - {name: cf1, offset: [0.0, -0.5, 0.0]}\n  - {name: cf2, offset: [0.0, 0.5, 0.0]}\n')
+    return path
+
+
+def test_a_formation_of_four_flies_through_the_graph_and_each_vehicle_completes(tmp_path, ros_env):
+    out = tmp_path / 'run'
+    done = subprocess.run([QUADFLIGHT, 'fleet', str(ROOT / 'config/missions/fleets/formation4.yaml'), '--graph',
+                           '--out', str(out), '--no-figures'],
+                          env=ros_env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    content = json.loads((out / 'fleet.json').read_text())
+    assert set(content['metrics']) == {'cf1', 'cf2', 'cf3', 'cf4'}
+    for name, m in content['metrics'].items():
+        assert m['completed'] and not m['collided'], (name, m)
+        assert m['rmse_m'] < 0.03, (name, m['rmse_m'])
+    assert content['collisions'] == []
+    for name, m in content['metrics'].items():   # each vehicle's report: the seed's table of its part of the bag
+        report = json.loads((out / 'vehicles' / name / 'metrics.json').read_text())
+        assert report['rmse_m'] == m['rmse_m'] and report['completion_rule']['source'] == 'vehicle crazyflie'
+        assert (out / 'vehicles' / name / 'report.md').is_file()
+    assert 0.7 < content['flown_minimum_separation']['distance_m'] < 0.9     # the 0.8 m square holds
+    with Reader(out / 'bag') as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    # every vehicle's odometry under its namespace, one step each of the one /clock: nothing lost
+    steps = counts[contract.CLOCK]
+    for name in content['metrics']:
+        assert counts[f'/{name}/{contract.ODOM}'] == steps, counts
+        assert counts[f'/{name}/{contract.SETPOINT}'] > 0.9 * steps
+    # cf4 flew pid, the others pd (each controller its own parameters)
+    params = yaml.safe_load((out / 'params.yaml').read_text())
+    assert [params[f'/{n}/position_controller']['ros__parameters']['controller'] for n in ('cf1', 'cf4')] == \
+        ['pd', 'pid']
+
+
+def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path):
+    """One process per node, as launch_ros starts them; cf1's controller is killed at t = 2 s: its simulator's
+    failsafe lands it, cf2 flies its plan to the end at full speed."""
+    plan = plan_fleet(load_fleet(two_abreast(tmp_path)))
+    run = fleet_graph.prepare(plan, tmp_path / 'run', hosted=False)
+    victim = next(p for p in run.nodes if 'cf1_position_controller' in p.log_path.name)
+    sim_times = []
+    with isolated_domain() as (domain, env):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        probe = rclpy.create_node('probe', context=ctx)
+        probe.create_subscription(Clock, contract.CLOCK, lambda m: sim_times.append(m.clock.sec + m.clock.nanosec
+                                                                                    * 1e-9), 10)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(probe)
+        try:
+            run.start(env)
+            deadline = time.monotonic() + TIMEOUT_S
+            while not (sim_times and sim_times[-1] >= 2.0):
+                assert time.monotonic() < deadline, 'the fleet never reached t = 2 s'
+                assert run.nodes[0].exit_code() is None, run.nodes[0].log_tail()
+                executor.spin_once(timeout_sec=0.1)
+            victim.signal_group(signal.SIGKILL)
+            executor.remove_node(probe)
+            probe.destroy_node()
+            run.await_end(deadline, expected_dead=[victim])
+        finally:
+            run.stop(log=lambda *_: None)
+            executor.shutdown()
+            rclpy.shutdown(context=ctx)
+    result = fleet_graph.fleet_run(run.bag, plan)
+    cf1, cf2 = result.metrics['cf1'], result.metrics['cf2']
+    assert cf2['completed'] and cf2['rmse_m'] < 0.03, cf2
+    assert not cf1['completed']
+    assert result.positions['cf1'][-1, 2] < 0.1, result.positions['cf1'][-1]     # landed by its failsafe
+    assert abs(result.positions['cf1'][-1, 0]) < 0.6        # where it was at t = 2 s, not along the leg
+    assert result.collisions == []
+    from quad_bringup.report import load_flight
+    assert any(name == contract.SIM_FAILSAFE for _, name, _ in load_flight(run.bag, namespace='cf1').errors)
+    assert not any(name == contract.SIM_FAILSAFE for _, name, _ in load_flight(run.bag, namespace='cf2').errors)
+    log = (run.out_dir / 'logs' / 'sim_node.log').read_text()
+    assert 'cf1: no setpoint' in log and 'cf2: no setpoint' not in log
+
+
+def test_sim_node_refuses_a_fleet_whose_arrays_do_not_match_naming_the_field(ros_env):
+    done = subprocess.run(
+        [str(ROOT / '.venv/bin/python'), '-m', 'quad_sim.sim_node', '--ros-args', '-p',
+         'vehicle_names:=[cf1, cf2]', '-p', 'initial_positions:=[0.0, 0.0, 1.0]'],
+        env=ros_env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert 'initial_positions = [0.0, 0.0, 1.0] refused: needs 6 values' in done.stderr
+    done = subprocess.run(
+        [str(ROOT / '.venv/bin/python'), '-m', 'quad_sim.sim_node', '--ros-args', '-p', 'vehicle_names:=[cf1, cf1]',
+         '-p', 'initial_positions:=[0.0, 0.0, 1.0, 1.0, 0.0, 1.0]'],
+        env=ros_env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "vehicle_names: 'cf1' refused: named twice" in done.stderr, done.stderr
+
+
+def test_node_host_refuses_an_unknown_node_and_a_node_given_twice(ros_env):
+    for args, text in ((['sim_node@cf1'], "node 'sim_node@cf1' refused"),
+                       (['position_controller@cf1', 'position_controller@cf1'], 'given twice')):
+        done = subprocess.run([str(ROOT / '.venv/bin/python'), '-m', 'quad_bringup.node_host', *args],
+                              env=ros_env, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 2 and text in done.stderr, done.stderr
+
+
+def test_flown_contacts_finds_a_crossing_between_samples():
+    t = np.array([0.0, 0.01])
+    a = np.array([[0.0, -0.1, 1.0], [0.0, 0.1, 1.0]])      # they swap sides between the samples
+    b = np.array([[0.0, 0.1, 1.0], [0.0, -0.1, 1.0]])
+    separation, collisions = fleet_graph.flown_contacts(t, [a, b], ['a', 'b'], [0.05, 0.05])
+    assert separation[1] == 0.0 and len(collisions) == 1
+    assert collisions[0][1:3] == ('a', 'b') and 0.0 < collisions[0][0] < 0.01
+
+
+def test_fly_takes_a_fleet_and_refuses_what_only_one_vehicle_has(tmp_path, ros_env):
+    fleet = str(two_abreast(tmp_path))
+    done = subprocess.run([QUADFLIGHT, 'fly', fleet, '--controller', 'pid'], env=ros_env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2 and '--controller pid refused' in done.stderr and 'fleet mission' in done.stderr
+    out = tmp_path / 'run'
+    done = subprocess.run([QUADFLIGHT, 'fly', fleet, '--out', str(out)], env=ros_env, capture_output=True,
+                          text=True, timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert 'through the ROS graph' in done.stdout
+    assert sorted(p.name for p in (out / 'vehicles').iterdir()) == ['cf1', 'cf2']
+    assert (out / 'vehicles' / 'cf2' / 'figures' / 'fig1_position_velocity.png').is_file()
