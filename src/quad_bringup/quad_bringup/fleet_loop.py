@@ -87,6 +87,7 @@ class _Vehicle:
         self.times, self.positions, self.velocities, self.quaternions = [], [], [], []
         self.done_s = None
         self.stopped = None
+        self.saturated_ticks = 0
 
     def record(self, t_s):
         truth = self.sim.state
@@ -107,6 +108,7 @@ class _Vehicle:
         if tick is None:
             self.stopped = f'no setpoint at t = {t_ns * 1e-9:.3f} s'
             return
+        self.saturated_ticks += tick.saturation.thrust or tick.saturation.tilt
         self.sim.set_setpoint(tick.setpoint)
 
     def metrics(self) -> dict:
@@ -117,6 +119,8 @@ class _Vehicle:
                         waypoints=self.plan.waypoints, collision_time_s=collision)
         m = compute_metrics(flight, self.options.rule)
         m['vehicle_collisions'] = sum(e.kind == VEHICLE_COLLISION for e in self.sim.events)
+        m['saturated_s'] = self.sim.saturated_steps * self.sim.step_s   # as closed_loop.run_offline reports them
+        m['saturated_fraction'] = self.saturated_ticks / max(len(self.times) - 1, 1)
         if self.stopped:
             m['stopped'] = self.stopped
         return m

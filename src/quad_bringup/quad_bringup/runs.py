@@ -32,8 +32,13 @@ METRIC_COLUMNS = ('time_planned_s', 'time_actual_s', 'length_planned_m', 'length
                   'max_tilt_deg', 'saturated_fraction', 'saturated_s', 'max_yaw_rate_radps', 'completed', 'collided')
 LABEL_COLUMNS = ('key', 'mode', 'mission', 'speed_mps', 'controller_name', 'controller', 'vehicle_name',
                  'disturbance_name', 'wind_speed_mps', 'seed')
-ROW_COLUMNS = LABEL_COLUMNS + METRIC_COLUMNS + ('failed', 'failure', 'wall_s', 'cpu_s', 'git_commit', 'versions',
-                                                 'params')
+# a fleet mission's row (docs/quad_bringup.md "Many flights", fleet missions): empty for a single vehicle
+FLEET_COLUMNS = ('fleet_size', 'vehicle_collisions', 'min_separation_m', 'planned_separation_m')
+ROW_COLUMNS = LABEL_COLUMNS + METRIC_COLUMNS + FLEET_COLUMNS + ('failed', 'failure', 'wall_s', 'cpu_s', 'git_commit',
+                                                                'versions', 'vehicles', 'params')
+# how a fleet row's metric comes from its vehicles' (the rest: the worst vehicle, max)
+FLEET_SUMS = ('length_planned_m', 'length_actual_m')
+FLEET_MEANS = ('avg_velocity_mps',)
 
 
 class SpecError(ValueError):
@@ -185,7 +190,10 @@ def disturbance_entry(entry, where: str) -> tuple[str, dict]:
 
 def mission_entry(entry, where: str) -> dict:
     """{mission, mission_sha, speed_mps, time_allocation} of a mission entry: a file, or {file, speed_mps,
-    time_allocation}; the mission is planned here so a bad one is refused before any run starts."""
+    time_allocation}; the mission is planned here so a bad one is refused before any run starts. A fleet mission
+    (a file with `vehicles:`, quad_trajectory.fleet) adds `fleet: True`; its plan is checked here too, but a
+    separation conflict is left to its runs (a failed row naming the pair)."""
+    from quad_trajectory.fleet import is_fleet_file, load_fleet, plan_fleet
     from quad_trajectory.mission import load_mission, plan_mission
 
     if isinstance(entry, str):
@@ -200,12 +208,16 @@ def mission_entry(entry, where: str) -> dict:
         raise SpecError(f'{where}.speed_mps = {speed!r} must be a number > 0')
     file = repo_relative(entry['file'])
     overrides = {'time_allocation': entry['time_allocation']} if entry.get('time_allocation') else {}
+    fleet = is_fleet_file(resolve_config(file))
     try:
-        plan_mission(load_mission(resolve_config(file)), speed_mps=speed, **overrides)
+        if fleet:
+            plan_fleet(load_fleet(resolve_config(file)), speed_mps=speed, **overrides)
+        else:
+            plan_mission(load_mission(resolve_config(file)), speed_mps=speed, **overrides)
     except (ValueError, KeyError, TypeError, OSError) as exc:
         raise SpecError(f'{where}: {exc}') from None
     return {'mission': file, 'mission_sha': file_sha(file), 'speed_mps': None if speed is None else float(speed),
-            'time_allocation': entry.get('time_allocation')}
+            'time_allocation': entry.get('time_allocation'), **({'fleet': True} if fleet else {})}
 
 
 def loop_defaults() -> dict:
@@ -334,9 +346,13 @@ def run_one(params: dict, graph_dir: str | None = None) -> dict:
     import numpy as np
 
     start, cpu = time.perf_counter(), time.process_time()
-    metrics, failure = None, None
+    metrics, failure, fleet = None, None, None
     try:
-        if params['mode'] == 'graph':
+        if params.get('fleet'):
+            if params['mode'] == 'graph':
+                raise ValueError(GRAPH_FLEET_REFUSAL)
+            metrics, failure, fleet = _fly_fleet(params)
+        elif params['mode'] == 'graph':
             where = Path(graph_dir) if graph_dir else Path(tempfile.mkdtemp(prefix='quadflight-graph-'))
             metrics, failure = _fly_graph(params, where / run_key(params))
         else:
@@ -349,6 +365,8 @@ def run_one(params: dict, graph_dir: str | None = None) -> dict:
     except Exception as exc:  # noqa: BLE001 - a run's failure is data for the table
         failure = f'{type(exc).__name__}: {exc}'
     metrics = metrics or {}
+    if failure is None and fleet is not None:
+        failure = fleet.pop('failure')
     if failure is None and not (metrics.get('completed') and not metrics.get('collided')):
         failure = 'collided' if metrics.get('collided') else 'not completed within the time limit'
     v = versions()
@@ -359,9 +377,79 @@ def run_one(params: dict, graph_dir: str | None = None) -> dict:
            'disturbance_name': params['disturbance_name'], 'wind_speed_mps': float(np.linalg.norm(wind)),
            'seed': params['seed']}
     for column in METRIC_COLUMNS:
-        value = metrics.get(column)
-        row[column] = float(value) if isinstance(value, (float, np.floating)) else value
+        row[column] = _plain(metrics.get(column))
+    row.update({c: (fleet or {}).get(c) for c in (*FLEET_COLUMNS, 'vehicles')})
     row.update(failed=failure is not None, failure=failure, wall_s=round(time.perf_counter() - start, 4),
                cpu_s=round(time.process_time() - cpu, 4),  # this process only (graph: not its nodes)
                git_commit=v['git_commit'], versions=v, params=params)
     return row
+
+
+GRAPH_FLEET_REFUSAL = ('sweep --graph flies one-vehicle missions only; drop --graph to fly the fleet offline '
+                       '(fleet_loop.fly_fleet), or fly it through the ROS graph alone with '
+                       '`quadflight fleet FLEET.yaml --graph`')
+
+
+def _plain(value):
+    """A metric as JSON keeps it (numpy scalars to Python)."""
+    import numpy as np
+
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    return float(value) if isinstance(value, (float, np.floating)) else value
+
+
+def _fly_fleet(params: dict) -> tuple[dict, str | None, dict]:
+    """A fleet mission flown offline (fleet_loop.fly_fleet) with the run's controller, gains, vehicle, plant,
+    disturbance, seed and loop options on every vehicle (a vehicle naming its own controller or profile in the
+    fleet file keeps it). Returns (the fleet's metrics, the simulator's stop reason or None, the fleet columns plus
+    `vehicles` {name: that vehicle's metrics and controller} and `failure`: the separation conflict (the pair, the
+    time, the distance), the vehicle-vehicle collisions or the vehicles that did not complete, None when all
+    completed)."""
+    import numpy as np
+
+    from quad_bringup.fleet_loop import fly_fleet
+    from quad_trajectory.fleet import load_fleet, plan_fleet
+
+    options = loop_options_of(params)
+    fleet = load_fleet(resolve_config(params['mission']))
+    plan = plan_fleet(fleet, speed_mps=options.speed_mps, **(options.plan_overrides or {}))
+    closest = plan.report.closest
+    columns = {'fleet_size': len(fleet.vehicles), 'planned_separation_m': None if closest is None else closest[2]}
+    if plan.refusal():   # the file's own deconfliction (if any) left a conflict: refused as `fleet` refuses it
+        return {}, None, {**columns, 'failure': 'separation conflict: ' + plan.refusal().split(
+            'separation conflict: ', 1)[-1], 'vehicles': {v.name: {} for v in fleet.vehicles}}
+    run = fly_fleet(fleet, options, fleet_plan=plan)
+    per = run.metrics
+    keep = (*METRIC_COLUMNS, 'vehicle_collisions', 'stopped')
+    vehicles = {name: {'controller': run.controllers.get(name), 'start_delay_s': float(delay),
+                       **{k: _plain(per[name].get(k)) for k in keep if k in per[name]}}
+                for name, delay in zip(run.names, plan.delays_s)}
+    metrics = {}
+    for column in METRIC_COLUMNS:
+        values = [m[column] for m in per.values() if m.get(column) is not None]
+        if column == 'completed':
+            metrics[column] = bool(values) and len(values) == len(per) and all(values)
+        elif column == 'collided':
+            metrics[column] = any(values) if values else None
+        elif values:
+            metrics[column] = float(sum(values) if column in FLEET_SUMS else
+                                    sum(values) / len(values) if column in FLEET_MEANS else max(values))
+    separation_m, separation_t = run.closest()
+    columns.update(vehicle_collisions=len(run.collisions),
+                   min_separation_m=separation_m if np.isfinite(separation_m) else None, vehicles=vehicles)
+    stopped = [f'{n}: {m["stopped"]}' for n, m in per.items() if m.get('stopped')]
+    failure = None
+    if run.collisions:
+        failure = 'vehicle collision: ' + '; '.join(f'{a} and {b} at t = {t:.2f} s ({d:.3f} m apart)'
+                                                    for t, a, b, d in run.collisions[:3]) + \
+            (f' (and {len(run.collisions) - 3} more)' if len(run.collisions) > 3 else '')
+    elif any(m.get('collided') for m in per.values()):
+        failure = 'collided: ' + ', '.join(n for n, m in per.items() if m.get('collided'))
+    elif not metrics.get('completed'):
+        failure = 'not completed within the time limit: ' + ', '.join(
+            n for n, m in per.items() if not m.get('completed'))
+    columns['failure'] = failure
+    return metrics, '; '.join(stopped) or None, columns

@@ -49,6 +49,10 @@ def expand(spec: dict, mode: str = 'offline', where: str = 'spec') -> list[dict]
             runs.entries(spec, 'disturbances', runs.disturbance_entry, ['none']),
             runs.seeds_entry(spec.get('seeds', 1), 'seeds')]
     options = runs.loop_options(spec.get('options'), 'options')
+    fleets = [i for i, m in enumerate(axes[0]) if m.get('fleet')]
+    if mode == 'graph' and fleets:
+        raise SpecError(f'missions[{fleets[0]}]: {axes[0][fleets[0]]["mission"]} is a fleet mission: '
+                        + runs.GRAPH_FLEET_REFUSAL)
     for key, axis in zip(('controllers', 'vehicles', 'disturbances'), axes[1:4]):
         names = [entry[0] for entry in axis]
         if len(set(names)) != len(names):
@@ -101,14 +105,19 @@ class RunTable:
         new_csv = not csv_path.exists() or csv_path.stat().st_size == 0
         self._jsonl = open(self.out_dir / 'runs.jsonl', 'a')
         self._csv_file = open(csv_path, 'a', newline='')
-        self._csv = csv.DictWriter(self._csv_file, runs.ROW_COLUMNS, extrasaction='ignore')
+        columns = runs.ROW_COLUMNS
+        if not new_csv:   # resuming a table an older version started: append under its own header
+            with open(csv_path, newline='') as f:
+                columns = next(csv.reader(f), None) or columns
+        self._columns = columns
+        self._csv = csv.DictWriter(self._csv_file, columns, extrasaction='ignore')
         if new_csv:
             self._csv.writeheader()
 
     def append(self, row: dict):
         self._jsonl.write(json.dumps(row, sort_keys=True, default=float) + '\n')
         self._jsonl.flush()
-        self._csv.writerow({k: _csv_value(row.get(k)) for k in runs.ROW_COLUMNS})
+        self._csv.writerow({k: _csv_value(row.get(k)) for k in self._columns})
         self._csv_file.flush()
         self.done[row['key']] = row
 
@@ -163,7 +172,10 @@ def _stats(values):
 
 def summarize(rows: list[dict]) -> list[dict]:
     """Per configuration (mission, speed, controller, vehicle, disturbance) over its seeds: RMSE median, p95,
-    worst (of the runs that have one), the worst max error, the median time over plan, failures."""
+    worst (of the runs that have one), the worst max error, the median time over plan, failures. With fleet rows
+    among them (a fleet mission's row: its worst vehicle's errors), also the vehicle-vehicle collisions and the
+    smallest flown separation (empty for single-vehicle configurations)."""
+    fleets = any(r.get('fleet_size') for r in rows)
     groups = {}
     for row in rows:
         groups.setdefault(tuple(row[c] for c in CONFIG_COLUMNS), []).append(row)
@@ -175,11 +187,18 @@ def summarize(rows: list[dict]) -> list[dict]:
                         'rmse_median_m': median, 'rmse_p95_m': p95, 'rmse_worst_m': worst,
                         'max_error_worst_m': _stats([r['max_error_m'] for r in group])[2],
                         'time_over_median_s': _stats([r['time_over_s'] for r in group])[0]})
+        if fleets:
+            fleet = [r for r in group if r.get('fleet_size')]
+            separations = [r['min_separation_m'] for r in fleet if r.get('min_separation_m') is not None]
+            flown = [r['vehicle_collisions'] for r in fleet if r.get('vehicle_collisions') is not None]
+            summary[-1].update(vehicles=max((r['fleet_size'] for r in fleet), default=None),
+                               vehicle_collisions=sum(flown) if flown else None,   # None: none flown (refused)
+                               min_separation_m=min(separations) if separations else None)
     return summary
 
 
 SUMMARY_FORMATS = {'rmse_median_m': '{:.4f}', 'rmse_p95_m': '{:.4f}', 'rmse_worst_m': '{:.4f}',
-                   'max_error_worst_m': '{:.4f}', 'time_over_median_s': '{:.2f}'}
+                   'max_error_worst_m': '{:.4f}', 'time_over_median_s': '{:.2f}', 'min_separation_m': '{:.3f}'}
 
 
 def summary_markdown(summary: list[dict]) -> str:

@@ -207,3 +207,64 @@ def test_local_pool_gives_the_serial_numbers(tmp_path):
     finally:
         pool.close()
     assert results[0]['rmse_m'] == serial[0] and results[1]['key'] == runs.run_key(params[1])
+
+
+FORMATION = {'file': 'config/missions/fleets/formation4.yaml', 'speed_mps': 1.5}
+CROSSING = 'config/missions/fleets/crossing2.yaml'
+
+
+def test_a_sweep_flies_fleet_missions_beside_single_ones(tmp_path, monkeypatch):
+    monkeypatch.setattr('quad_bringup.executors.make_executor', lambda scheduler, workers: SerialExecutor())
+    spec = {'missions': [FORMATION, WINDOW], 'seeds': 1,
+            'controllers': ['pd', {'name': 'fast', 'profile': 'config/control_fast.yaml'}]}
+    (tmp_path / 'spec.yaml').write_text(json.dumps(spec))
+    rows, summary = sweep.run_sweep(tmp_path / 'spec.yaml', tmp_path / 'out', log=lambda line: None)
+    assert len(rows) == 4 and not any(r['failed'] for r in rows), [r['failure'] for r in rows]
+    fleet = {r['controller_name']: r for r in rows if r['mission'] == 'formation4'}
+    assert set(fleet) == {'pd', 'fast'}
+    for name, row in fleet.items():
+        vehicles = row['vehicles']
+        assert list(vehicles) == ['cf1', 'cf2', 'cf3', 'cf4'] and row['fleet_size'] == 4
+        assert row['completed'] and row['collided'] is False and row['vehicle_collisions'] == 0
+        assert row['rmse_m'] == max(v['rmse_m'] for v in vehicles.values())
+        assert row['max_error_m'] == max(v['max_error_m'] for v in vehicles.values())
+        assert 0.3 < row['min_separation_m'] < 0.9 and row['planned_separation_m'] == pytest.approx(0.8)
+        flown = {'pd': 'pd', 'fast': 'se3'}[name]   # the point's controller; cf4 names its own (pid) and keeps it
+        assert [v['controller'] for v in vehicles.values()] == [flown, flown, flown, 'pid']
+    assert fleet['pd']['vehicles']['cf1']['rmse_m'] != fleet['fast']['vehicles']['cf1']['rmse_m']  # the gains flew
+    saturated = [v['saturated_fraction'] for v in fleet['pd']['vehicles'].values()]
+    assert 0 < fleet['pd']['saturated_fraction'] == max(saturated)
+    single = [r for r in rows if r['mission'] == 'window']
+    assert all(r['fleet_size'] is None and r['vehicles'] is None for r in single)
+    stored = {r['key']: r for r in sweep.read_rows(tmp_path / 'out')}
+    assert stored[fleet['fast']['key']]['vehicles'] == fleet['fast']['vehicles']
+    assert {(s['mission'], s['controller_name']): (s['vehicles'], s['min_separation_m']) for s in summary} == {
+        **{('formation4', n): (4, r['min_separation_m']) for n, r in fleet.items()},
+        ('window', 'pd'): (None, None), ('window', 'fast'): (None, None)}
+    assert 'min_separation_m' in (tmp_path / 'out' / 'summary.md').read_text()
+    assert (tmp_path / 'out' / 'figures' / 'rmse_by_controller.png').stat().st_size > 0
+    header = (tmp_path / 'out' / 'runs.csv').read_text().splitlines()[0].split(',')
+    assert {'fleet_size', 'vehicle_collisions', 'min_separation_m', 'vehicles'} <= set(header)
+    # the point's gains, plant and wind reach every vehicle of the fleet
+    base, pd = json.loads(json.dumps(fleet['pd']['params'])), fleet['pd']['vehicles']
+    soft = {**base['gains'], **{f'kp_{a}': base['gains'][f'kp_{a}'] / 3 for a in 'xyz'}}
+    soft = runs.run_one({**base, 'gains': soft})   # (deterministic: 1.07x for cf1-3, 1.14x for cf4)
+    assert all(soft['vehicles'][n]['rmse_m'] > 1.04 * pd[n]['rmse_m'] for n in pd)
+    heavy = runs.run_one({**base, 'plant': {'mass_error': 0.2}})   # the controllers believe the file's mass
+    assert all(heavy['vehicles'][n]['rmse_m'] > 1.2 * pd[n]['rmse_m'] for n in pd)
+    windy = runs.run_one({**base, 'disturbance_name': 'wind', 'disturbances': {'wind_mps': [1.5, 0.0, 0.0],
+                                                                                'body_drag': True}})
+    assert all(windy['vehicles'][n]['final_error_m'] > 10 * pd[n]['final_error_m'] for n in ('cf1', 'cf2', 'cf3'))
+    assert windy['failed'] and windy['failure'] == 'not completed within the time limit: cf1, cf2, cf3'  # pd: no ki
+
+
+def test_a_fleet_conflict_is_a_failed_row_naming_the_pair_and_graph_refuses_fleets():
+    spec = {'missions': [CROSSING], 'controllers': ['pd'], 'seeds': 1}
+    (params,) = sweep.expand(spec)
+    row = runs.run_one(params)
+    assert row['failed'] and row['failure'].startswith('separation conflict: cf1 and cf2 come 0.000 m apart')
+    assert row['fleet_size'] == 2 and row['rmse_m'] is None and set(row['vehicles']) == {'cf1', 'cf2'}
+    (s,) = sweep.summarize([row])
+    assert s['failures'] == 1 and s['min_separation_m'] is None and s['vehicle_collisions'] is None  # not flown
+    with pytest.raises(runs.SpecError, match=r'missions\[1\]: .*crossing2.yaml is a fleet mission.*drop --graph'):
+        sweep.expand({**spec, 'missions': [WINDOW, CROSSING]}, mode='graph')
