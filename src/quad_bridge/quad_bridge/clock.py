@@ -25,6 +25,7 @@ iteration" and killed the bridge in `offboard`, issue 28).
 
 import collections
 import math
+import statistics
 import threading
 
 import numpy as np
@@ -44,20 +45,22 @@ MAX_DRIFT = 0.2        # a fitted drift beyond 20 % (PX4 SIH under load: 7.5 %) 
 def _line(remote_ns, offset_ns):
     """(r_ref, offset at r_ref, drift, residuals, drift standard error) of the least-squares line
     offset = a + drift (r - r_ref), r_ref the newest point; drift 0 (standard error inf) and the smallest offset
-    when the points are too few, too close together, or say a drift no clock has."""
-    r = np.asarray(remote_ns, dtype=np.int64)
-    off = np.asarray(offset_ns, dtype=np.int64)
-    r_ref, off_ref = int(r[-1]), int(off.min())
-    x = (r - r_ref) / 1e9
-    y = (off - off_ref).astype(float)
-    if len(r) < MIN_FIT_POINTS or x.max() - x.min() < MIN_FIT_SPAN_S:
+    when the points are too few, too close together, or say a drift no clock has. On Python numbers: the window
+    holds at most ~40 points and the line is refitted ~20 times a second (every new bucket minimum), where
+    numpy's per-call overhead made it most of the receive thread's clock work (issue 26)."""
+    r_ref, off_ref = int(remote_ns[-1]), int(min(offset_ns))
+    x = [(r - r_ref) / 1e9 for r in remote_ns]
+    y = [float(o - off_ref) for o in offset_ns]
+    n = len(x)
+    if n < MIN_FIT_POINTS or max(x) - min(x) < MIN_FIT_SPAN_S:
         return r_ref, off_ref, 0.0, y, math.inf
-    dx = x - x.mean()
-    sxx = float(dx @ dx)
-    slope = float(dx @ y) / sxx          # least squares in closed form (np.polyfit's SVD: 10x the time)
-    intercept = float(y.mean()) - slope * float(x.mean())
-    residuals = y - (intercept + slope * x)
-    se = math.sqrt(float(residuals @ residuals) / (len(x) - 2) / sxx) / 1e9
+    x_mean, y_mean = sum(x) / n, sum(y) / n
+    dx = [xi - x_mean for xi in x]
+    sxx = sum([d * d for d in dx])
+    slope = sum([d * yi for d, yi in zip(dx, y)]) / sxx    # least squares in closed form
+    intercept = y_mean - slope * x_mean
+    residuals = [yi - (intercept + slope * xi) for xi, yi in zip(x, y)]
+    se = math.sqrt(sum([e * e for e in residuals]) / (n - 2) / sxx) / 1e9
     if abs(slope / 1e9) > MAX_DRIFT:
         return r_ref, off_ref, 0.0, y, math.inf
     return r_ref, off_ref + int(round(intercept)), float(slope) / 1e9, residuals, se
@@ -78,22 +81,26 @@ class ClockMapper:
 
     def observe(self, remote_us: int, arrival_ns: int):
         """A message stamped remote_us (autopilot boot time, us) arrived at local arrival_ns."""
+        with self._lock:
+            self._observe(remote_us, arrival_ns)
+
+    def _observe(self, remote_us, arrival_ns):
         remote_ns = int(remote_us) * 1000
         sample = arrival_ns - remote_ns
         bucket = remote_ns // self.bucket_ns
-        with self._lock:
-            self._oneway.append((arrival_ns, remote_ns, sample))
-            if self._minima and remote_ns < self._minima[-1][1] - self.window_ns:   # the autopilot rebooted
-                self._minima.clear()
-                self._sync.clear()
-            if self._minima and self._minima[-1][0] == bucket:
-                if sample < self._minima[-1][2]:
-                    self._minima[-1][1:] = [remote_ns, sample]
-                    self._fits = None
-            elif not self._minima or bucket > self._minima[-1][0]:
-                self._minima.append([bucket, remote_ns, sample])
+        self._oneway.append((arrival_ns, remote_ns, sample))
+        minima = self._minima
+        if minima and remote_ns < minima[-1][1] - self.window_ns:   # the autopilot rebooted
+            minima.clear()
+            self._sync.clear()
+        if minima and minima[-1][0] == bucket:
+            if sample < minima[-1][2]:
+                minima[-1][1:] = [remote_ns, sample]
                 self._fits = None
-            self._trim(arrival_ns)
+        elif not minima or bucket > minima[-1][0]:
+            minima.append([bucket, remote_ns, sample])
+            self._fits = None
+        self._trim(arrival_ns)
 
     def timesync(self, ts1_local_ns: int, tc1_remote_ns: int, reply_local_ns: int):
         rtt = reply_local_ns - ts1_local_ns
@@ -127,9 +134,10 @@ class ClockMapper:
         offset = [m[2] for m in self._minima]
         fit = _line(remote, offset)
         if math.isfinite(fit[4]):   # drop delayed buckets, refit on the lower envelope
-            keep = fit[3] <= np.median(fit[3]) + OUTLIER_NS
-            if keep.sum() >= MIN_FIT_POINTS:
-                fit = _line(np.asarray(remote)[keep], np.asarray(offset)[keep])
+            bound = statistics.median(fit[3]) + OUTLIER_NS
+            keep = [i for i, e in enumerate(fit[3]) if e <= bound]
+            if len(keep) >= MIN_FIT_POINTS:
+                fit = _line([remote[i] for i in keep], [offset[i] for i in keep])
         return fit
 
     def _sync_line(self, floor):
@@ -183,14 +191,17 @@ class ClockMapper:
         stream: messages of different kinds carry different times of the same instant (PX4's HIGHRES_IMU
         time_usec is ahead of LOCAL_POSITION_NED's whole time_boot_ms), so one guard for all would skip."""
         with self._lock:
-            line = self._chosen()
-            remote_ns = int(remote_us) * 1000
-            local = arrival_ns if line is None else min(remote_ns + _at(line, remote_ns), arrival_ns)
-            last_remote, last_local = self._last.get(stream, (-1, -1))
-            if remote_us >= last_remote and local < last_local:
-                local = min(last_local, arrival_ns)
-            self._last[stream] = (int(remote_us), local)
-            return local
+            return self._to_local_ns(remote_us, arrival_ns, stream)
+
+    def _to_local_ns(self, remote_us, arrival_ns, stream):
+        line = self._chosen()
+        remote_ns = int(remote_us) * 1000
+        local = arrival_ns if line is None else min(remote_ns + _at(line, remote_ns), arrival_ns)
+        last_remote, last_local = self._last.get(stream, (-1, -1))
+        if remote_us >= last_remote and local < last_local:
+            local = min(last_local, arrival_ns)
+        self._last[stream] = (int(remote_us), local)
+        return local
 
     def drift_ppm(self) -> float:
         """The chosen line's drift: (our clock's rate / the autopilot's) - 1, in parts per million."""

@@ -11,6 +11,7 @@ import numpy as np
 from quad_common.types import State
 
 _S = np.sqrt(0.5)
+S = float(_S)   # the same number as a Python float
 Q_NED_ENU = np.array([_S, _S, 0.0, 0.0])     # ENU vectors -> NED vectors
 Q_FLU_FRD = np.array([1.0, 0.0, 0.0, 0.0])   # FRD vectors -> FLU vectors
 

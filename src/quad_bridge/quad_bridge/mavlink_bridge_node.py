@@ -2,7 +2,7 @@
 
 Parts (docs/bridge.md): the link and its receive thread (mavlink_client), which also decodes and publishes
 telemetry (never waiting on the executor); the setpoint path (streamer: sent at once on arrival, in a
-subscriber node of its own with its own executor thread; a keep-alive thread re-sends); the hand-over
+subscriber node of its own with its own thread, which also runs the keep-alive that re-sends); the hand-over
 state machine and vehicle status under one lock (vehicle, handover); the autopilot backend (px4,
 ardupilot); a supervisor thread for the link, heartbeats, stream fall-backs and diagnostics; services on
 the node's own single-threaded executor.
@@ -544,8 +544,8 @@ class MavlinkBridge(Node):
         super().destroy_node()
 
 
-# GIL hand-over interval: the keep-alive thread must get the interpreter within ~1 ms of its deadline, not the
-# default 5 ms, while the receive thread and the executors run.
+# GIL hand-over interval: the setpoint thread (setpoints, the keep-alive) must get the interpreter within ~1 ms,
+# not the default 5 ms, while the receive thread and the executor run.
 GIL_SWITCH_INTERVAL_S = 0.001
 
 

@@ -14,6 +14,7 @@ MAVLink 2 is forced: MAVLINK20 must be set before pymavlink's dialect is first i
 
 import math
 import os
+import struct
 import threading
 import time
 
@@ -31,6 +32,22 @@ MAX_READS_PER_BATCH = 256     # datagrams (or stream chunks) read before handlin
 MAX_BATCH_S = 0.002
 MAVLINK2_MAGIC = 0xFD
 MAVLINK2_FRAME_BYTES = 12     # header 10 + CRC 2
+MAVLINK2_HEADER = struct.Struct('<BBBBBBBHB')   # magic, length, incompat, compat, seq, system, component, id
+CRC = struct.Struct('<H')
+EXTRA = tuple(bytes((i,)) for i in range(256))   # a CRC_EXTRA byte
+
+
+def frame_crc(header_and_payload, crc_extra: int) -> int:
+    """MAVLink's CRC (CRC-16/MCRF4XX) of a frame's bytes after the magic and the message's CRC_EXTRA: fastcrc's in
+    one call where pymavlink has it (its x25crc object and accumulate per part otherwise)."""
+    if _MCRF4XX is not None:
+        return _MCRF4XX(bytes(header_and_payload) + EXTRA[crc_extra], 0xFFFF)
+    crc = mavlink.x25crc(header_and_payload)
+    crc.accumulate(EXTRA[crc_extra])
+    return crc.crc
+
+
+_MCRF4XX = getattr(mavlink, 'mcrf4xx', None)   # pymavlink's own (fastcrc.crc16.mcrf4xx), None without fastcrc
 
 
 def check_fcu_url(url: str) -> str | None:
@@ -76,6 +93,73 @@ class Counted:
         return self._component
 
 
+class Decoded:
+    """A message decoded here, not by pymavlink: its fields as attributes, by pymavlink's names and with pymavlink's
+    values (numeric fields; arrays as lists), and pymavlink's accessors. For the kinds decoded that have no char
+    field: pymavlink's decode (the message object, its header object, the payload and CRC kept) was the larger part
+    of the receive thread's Python per message (issue 26)."""
+
+    __slots__ = ('_type', '_id', '_seq', '_system', '_component', '__dict__')
+
+    def get_type(self) -> str:
+        return self._type
+
+    def get_msgId(self) -> int:
+        return self._id
+
+    def get_seq(self) -> int:
+        return self._seq
+
+    def get_srcSystem(self) -> int:
+        return self._system
+
+    def get_srcComponent(self) -> int:
+        return self._component
+
+    def get_signed(self) -> bool:
+        return False
+
+    def __repr__(self):
+        return f'{self._type} {self.__dict__}'
+
+
+class Layout:
+    """How one kind's payload decodes: its struct, the full payload size, and each field (declared order) as a
+    slice of the unpacked tuple (wire order), exactly as pymavlink's decode orders them."""
+
+    __slots__ = ('kind', 'names', 'unpack', 'size', 'picks', 'plain', 'crc_extra')
+
+    def __init__(self, cls):
+        self.kind, self.names, self.crc_extra = cls.msgname, tuple(cls.fieldnames), cls.crc_extra
+        self.unpack, self.size = cls.unpacker.unpack_from, cls.unpacker.size
+        starts = [sum(cls.lengths[:order]) for order in range(len(cls.lengths))]
+        self.picks = tuple((starts[order], cls.lengths[order]) for order in cls.orders)
+        self.plain = all(n == 1 for _, n in self.picks) and list(cls.orders) == list(range(len(cls.orders)))
+
+    @staticmethod
+    def usable(cls) -> bool:
+        """Numeric fields only (char fields are strings in pymavlink's message, which it decodes itself)."""
+        return 'char' not in cls.fieldtypes
+
+
+def decode_payload(layout: Layout, frame, seq: int, system: int, component: int) -> Decoded:
+    """The payload of an unsigned MAVLink 2 frame whose length and CRC were checked: zero-padded to the full size
+    (MAVLink 2 drops trailing zeros), extensions beyond the dialect's cut off, as pymavlink's decode does."""
+    payload = frame[10:-2]
+    if len(payload) < layout.size:
+        payload = bytes(payload) + bytes(layout.size - len(payload))
+    values = layout.unpack(payload)
+    msg = Decoded()
+    msg._type, msg._id, msg._seq, msg._system, msg._component = (layout.kind, frame[7] | frame[8] << 8 | frame[9] << 16,
+                                                                 seq, system, component)
+    if layout.plain:
+        msg.__dict__.update(zip(layout.names, values))
+    else:
+        msg.__dict__.update((name, values[i] if n == 1 else list(values[i:i + n]))
+                            for name, (i, n) in zip(layout.names, layout.picks))
+    return msg
+
+
 class MavlinkClient:
     """on_message(msg) is called from the receive thread for every parsed message (never BAD_DATA): a pymavlink
     message for the kinds in `decode` (names; None: every kind), a Counted for the others."""
@@ -101,6 +185,9 @@ class MavlinkClient:
         self.drained_s = -math.inf  # monotonic time at which the receive thread had read all the link delivered
         self._decoded_ids = None if decode is None else frozenset(
             getattr(mavlink, f'MAVLINK_MSG_ID_{name}') for name in (*decode, *CLIENT_DECODES))
+        # the kinds decoded here (Decoded) rather than by pymavlink: every decoded kind with numeric fields only
+        self._layouts = {} if decode is None else {
+            i: Layout(mavlink.mavlink_map[i]) for i in self._decoded_ids if Layout.usable(mavlink.mavlink_map[i])}
         self._full_decode = self.conn.mav.decode
         self._datagrams = isinstance(self.conn, mavutil.mavudp)   # whole frames per read (_split)
         self._clock = time.monotonic
@@ -122,6 +209,30 @@ class MavlinkClient:
         """mav.<name>_send(*args) under the send lock (pymavlink's encoder is not thread-safe)."""
         with self._send_lock:
             getattr(self.conn.mav, name + '_send')(*args)
+
+    def send_attitude_target(self, time_boot_ms, target_system, target_component, type_mask, q, roll_rate,
+                             pitch_rate, yaw_rate, thrust):
+        """SET_ATTITUDE_TARGET, the bytes pymavlink's set_attitude_target_send puts on the wire (MAVLink 2, the
+        payload's trailing zeros cut, the same sequence number and counters), without its message object and
+        header object: every setpoint goes through here (issue 26). A signing link, or one with a send callback,
+        goes through pymavlink."""
+        with self._send_lock:
+            mav = self.conn.mav
+            cls = mavlink.MAVLink_set_attitude_target_message
+            if mav.signing.sign_outgoing or mav.send_callback is not None or mavlink.WIRE_PROTOCOL_VERSION != '2.0':
+                mav.set_attitude_target_send(time_boot_ms, target_system, target_component, type_mask, q, roll_rate,
+                                             pitch_rate, yaw_rate, thrust)
+                return
+            payload = cls.unpacker.pack(time_boot_ms, *q, roll_rate, pitch_rate, yaw_rate, thrust, target_system,
+                                        target_component, type_mask)
+            payload = payload.rstrip(b'\x00') or payload[:1]    # MAVLink 2 truncation (pymavlink keeps one byte)
+            frame = MAVLINK2_HEADER.pack(MAVLINK2_MAGIC, len(payload), 0, 0, mav.seq, mav.srcSystem,
+                                         mav.srcComponent, cls.id & 0xFFFF, cls.id >> 16) + payload
+            frame += CRC.pack(frame_crc(frame[1:], cls.crc_extra))
+            self.conn.write(frame)
+            mav.seq = (mav.seq + 1) % 256
+            mav.total_packets_sent += 1
+            mav.total_bytes_sent += len(frame)
 
     def signing_problem(self) -> str:
         """quad_bridge.signing's verdict on this link's counts, or ''."""
@@ -175,18 +286,22 @@ class MavlinkClient:
                         del self._params[(target_system, name)]
 
     def _decode(self, msgbuf):
-        """pymavlink's decode for the kinds decoded, a signed frame, MAVLink 1 or any frame it would refuse;
-        for the others the same length and CRC checks and a Counted."""
+        """An unsigned MAVLink 2 frame of the dialect with a good length and CRC: a Decoded for the kinds decoded
+        with numeric fields only, a Counted for the kinds not decoded. pymavlink's decode for the rest (a signed
+        frame or link, MAVLink 1, the kinds with char fields, an unknown id, a bad length or CRC: its errors are
+        BAD_DATA as before)."""
         if self._decoded_ids is None or self.signing or msgbuf[0] != MAVLINK2_MAGIC or msgbuf[2] != 0:
             return self._full_decode(msgbuf)
         msg_id = msgbuf[7] | msgbuf[8] << 8 | msgbuf[9] << 16
         kind = mavlink.mavlink_map.get(msg_id)
-        if msg_id in self._decoded_ids or kind is None or len(msgbuf) != msgbuf[1] + MAVLINK2_FRAME_BYTES:
+        layout = self._layouts.get(msg_id)
+        if kind is None or len(msgbuf) != msgbuf[1] + MAVLINK2_FRAME_BYTES or (
+                layout is None and msg_id in self._decoded_ids):
             return self._full_decode(msgbuf)
-        crc = mavlink.x25crc(msgbuf[1:-2])
-        crc.accumulate(bytes((kind.crc_extra,)))
-        if crc.crc != (msgbuf[-2] | msgbuf[-1] << 8):
+        if frame_crc(msgbuf[1:-2], kind.crc_extra) != (msgbuf[-2] | msgbuf[-1] << 8):
             return self._full_decode(msgbuf)   # raises pymavlink's CRC error: BAD_DATA as before
+        if layout is not None:
+            return decode_payload(layout, msgbuf, msgbuf[4], msgbuf[5], msgbuf[6])
         return Counted(kind.msgname, msg_id, msgbuf[4], msgbuf[5], msgbuf[6])
 
     def _split(self, data, batch) -> bytes:
@@ -221,7 +336,10 @@ class MavlinkClient:
             data = received = conn.recv()
             if self._datagrams and data and conn.mav.buf_len() == 0:
                 data = self._split(data, batch)   # what is left for the parser: b'' after whole frames
-            batch += conn.mav.parse_buffer(data) or []   # a parse of nothing still yields what the parser held
+                if data:
+                    batch += conn.mav.parse_buffer(data) or []
+            else:
+                batch += conn.mav.parse_buffer(data) or []   # a parse of nothing still yields what the parser held
             if not received:   # the read, not what _split left (that ended every batch after one datagram)
                 return batch, time.monotonic() if conn.mav.buf_len() == 0 else None
             if getattr(conn, 'fd', None) is None:   # nothing to poll (select only slept): one read per wake-up
@@ -249,7 +367,7 @@ class MavlinkClient:
             self.bad_data += 1
             self.bad_signature += getattr(msg, 'reason', '') == 'Invalid signature'
             return
-        if not isinstance(msg, Counted) and msg.get_signed():
+        if msg.__class__ is not Counted and msg.get_signed():
             self.conn.post_message(msg)    # of pymavlink's bookkeeping the bridge needs only the signing link id
         if kind == 'COMMAND_ACK':
             with self._acks_lock:

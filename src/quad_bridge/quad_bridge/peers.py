@@ -63,6 +63,10 @@ class LinkPeers:
         while the target is 'the first heartbeat' (target_system 0), which may have picked the wrong one."""
         if system is None:
             return ''
+        with self._lock:   # the usual answer without counting (asked before every setpoint sent)
+            if len(self._switches.get((system, component), ())) < SWITCHES_MIN and all(
+                    s == system for s in self._vehicles):
+                return ''
         why = self.duplicate(system, component, now_s)
         if why:
             return why

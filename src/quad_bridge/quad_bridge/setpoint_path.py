@@ -1,20 +1,27 @@
-"""The setpoint half of mavlink_bridge (rclpy): `cmd/attitude_thrust` through a node and an executor thread of its
-own (services waiting for an ACK never delay a setpoint, a setpoint never waits for them), checked, and put on
-the wire at once by quad_bridge.streamer when the hand-over allows it."""
+"""The setpoint half of mavlink_bridge (rclpy): `cmd/attitude_thrust` through a node and a thread of its own
+(services waiting for an ACK never delay a setpoint, a setpoint never waits for them), checked, and put on the
+wire at once by quad_bridge.streamer when the hand-over allows it.
+
+The thread waits on a wait set of its own (the subscription and a wake-up guard condition), bounded by the
+keep-alive's next deadline, and runs the keep-alive itself (SetpointStreamer.tick): one thread and one wake-up
+per setpoint where a setpoint thread, an executor's periodic pass over the node and a keep-alive thread woke
+each period before (issue 26). After a stall it takes every setpoint queued, oldest first, each on the wire as
+it is taken, so the newest goes out last and wins (the subscription keeps the newest SETPOINT_QUEUE_DEPTH, and
+the publisher's KEEP_LAST history drops its oldest, never its newest)."""
 
 import math
 import threading
 
 import rclpy
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy  # WaitSet, GuardCondition
 from sensor_msgs.msg import Imu
 
 from quad_bridge import frames
 from quad_bridge.mavlink_client import mavlink
-from quad_bridge.setpoint import check_setpoint
+from quad_bridge.setpoint import setpoint_from_cdr
 from quad_bridge.setpoint_source import SetpointSource, fully_qualified
 from quad_bridge.streamer import SetpointStreamer
-from quad_common import cdr, contract
-from quad_common.hot_path import HotPathExecutor
+from quad_common import contract
 
 # DDS keeps this many setpoints for us while the interpreter is busy elsewhere (its reader thread is not held by
 # the GIL): a 0.1 s stall at 500 Hz loses none (bench/bench_bridge.py; depth 10 lost 3-5 % at 100-500 Hz).
@@ -31,8 +38,10 @@ class SetpointPath:
         self.bridge, self.params, self.log = bridge, bridge.params, bridge.get_logger()
         self.counts_lock = threading.Lock()
         self.refused = self.clamped = self.clamp_short = 0
+        self._wake = _rclpy.GuardCondition(bridge.context.handle)
         self.streamer = SetpointStreamer(self.send, may_stream, self.params['setpoint_rate_hz'],
-                                         self.params['setpoint_timeout_s'], on_quiet, on_error=self._error)
+                                         self.params['setpoint_timeout_s'], on_quiet, on_error=self._error,
+                                         wake=self._wake.trigger_guard_condition)
         # Its own name through a node-local remap: rcl applies local remaps before the process-wide ones, so the
         # `-r __node:=NAME` that launch_ros gives the process renames the bridge, never this node too.
         name = f'{bridge.get_name()}_setpoints'
@@ -43,10 +52,7 @@ class SetpointPath:
                                                  raw=True)
         source = fully_qualified(self.params['setpoint_source'], bridge.get_namespace())
         self.source = SetpointSource(self.node, self.sub, source, self.log) if source else None
-        self.executor = HotPathExecutor(lambda: ([self.sub], []), context=bridge.context,
-                                        take=self.source.take if self.source else None)
-        if not self.source:   # the node has nothing but the setpoint subscription: with a source gate the stock
-            self.executor.add_node(self.node)   # executor's pass must never take a setpoint past it
+        self._take = self.source.take_one if self.source else self._take_any
         self.stopping = threading.Event()
         self.thread = threading.Thread(target=self._spin, name='setpoint-rx', daemon=True)
 
@@ -57,9 +63,10 @@ class SetpointPath:
     def stop(self):
         self.stopping.set()
         self.streamer.stop()
+        self._wake.trigger_guard_condition()
         self.thread.join(timeout=2.0)
-        self.executor.shutdown()
         self.node.destroy_node()
+        self._wake.destroy_when_not_in_use()
         if self.source:
             self.source.close()
 
@@ -72,14 +79,37 @@ class SetpointPath:
         """Who was refused as not setpoint_source (for a service's answer), or ''."""
         return self.source.counts()['refused_publishers'] if self.source else ''
 
+    def _take_any(self, sub):
+        """(taken, serialized setpoint or None) without a source gate."""
+        taken = sub.handle.take_message(sub.msg_type, True)
+        return (False, None) if taken is None else (True, taken[0])
+
     def _spin(self):
-        context = self.bridge.context
-        while context.ok() and not self.stopping.is_set():
+        context, sub, streamer = self.bridge.context, self.sub, self.streamer
+        wait_set = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, context.handle)
+        delay_s = 0.0
+        while not self.stopping.is_set():
+            wait_set.clear_entities()
+            wait_set.add_subscription(sub.handle)
+            wait_set.add_guard_condition(self._wake)
             try:
-                self.executor.spin_once(timeout_sec=0.2)
+                wait_set.wait(int(delay_s * 1e9))
+                if wait_set.is_ready('subscription', 0):
+                    self._take_all(sub)
             except Exception:
                 if context.ok() and not self.stopping.is_set():
                     raise
+                return
+            delay_s = streamer.tick()
+
+    def _take_all(self, sub):
+        """Every setpoint queued, in order (on_setpoint: each on the wire as it is taken)."""
+        while True:
+            taken, raw = self._take(sub)
+            if not taken:
+                return
+            if raw is not None:
+                self.on_setpoint(raw)
 
     def on_setpoint(self, raw: bytes):
         """A serialized cmd/attitude_thrust (quad_common.cdr: no Python message object on the hot path)."""
@@ -88,8 +118,7 @@ class SetpointPath:
             backend = vehicle.status.backend
         f_max = backend.max_specific_force(self.bridge.flying_config) if backend else math.inf
         try:
-            sp, clamped, kept = check_setpoint(cdr.imu_to_setpoint(raw), math.radians(self.params['max_tilt_deg']),
-                                               f_max)
+            sp, clamped, kept = setpoint_from_cdr(raw, math.radians(self.params['max_tilt_deg']), f_max)
         except ValueError as exc:
             with self.counts_lock:
                 self.refused += 1
@@ -116,8 +145,8 @@ class SetpointPath:
         else:
             mask, rates = 0, tuple(map(float, frames.body_flu_frd(sp.body_rates)))
         q = frames.enu_to_mavlink_quaternion(sp.quaternion)
-        self.bridge.client.send('set_attitude_target', int(self.bridge.now_s() * 1000) & 0xFFFFFFFF, system,
-                                self.params['target_component'], mask, q, *rates, thrust)
+        self.bridge.client.send_attitude_target(int(self.bridge.now_s() * 1000) & 0xFFFFFFFF, system,
+                                                self.params['target_component'], mask, q, *rates, thrust)
 
     def _error(self, exc):
         self.log.error(f'setpoint keep-alive: {exc!r}', throttle_duration_sec=1.0)

@@ -113,15 +113,20 @@ class SerializedTake:
         if self._rcutils.rcutils_uint8_array_init(ctypes.byref(self._message), ctypes.c_size_t(capacity),
                                                   ctypes.byref(self._allocator)) != RCL_RET_OK:
             raise MemoryError('rcutils_uint8_array_init failed')
+        # made once: every setpoint is taken through here (issue 26)
+        self._take_c = self._rcl.rcl_take_serialized_message
+        self._message_ref, self._info_ref = ctypes.byref(self._message), ctypes.byref(self._info)
+        self._gid_address = ctypes.addressof(self._info) + _MessageInfo.publisher_gid.offset + _Gid.data.offset
 
     def __call__(self, subscription):
-        with subscription.handle:
-            ret = self._rcl.rcl_take_serialized_message(subscription.handle.pointer, ctypes.byref(self._message),
-                                                        ctypes.byref(self._info), None)
+        handle = subscription.handle
+        with handle:
+            ret = self._take_c(handle.pointer, self._message_ref, self._info_ref, None)
         if ret != RCL_RET_OK:   # RCL_RET_SUBSCRIPTION_TAKE_FAILED: nothing there after all
             return None
-        return (ctypes.string_at(self._message.buffer, self._message.buffer_length),
-                bytes(self._info.publisher_gid.data))
+        message = self._message
+        return (ctypes.string_at(message.buffer, message.buffer_length),
+                ctypes.string_at(self._gid_address, RMW_GID_STORAGE_SIZE))
 
     def close(self):
         if self._message.buffer:
@@ -130,8 +135,8 @@ class SerializedTake:
 
 
 class SetpointSource:
-    """The gate on the setpoint subscription of `node`: take(sub) for quad_common's HotPathExecutor, returning the
-    serialized setpoint only when its publisher is `source` (refusals counted and logged, throttled)."""
+    """The gate on the setpoint subscription of `node`: take(sub) returns the serialized setpoint only when its
+    publisher is `source` (refusals counted and logged, throttled); take_one(sub) also says whether one was taken."""
 
     def __init__(self, node, subscription, source: str, log):
         self.node, self.log = node, log
@@ -141,14 +146,18 @@ class SetpointSource:
         self._take = SerializedTake()
 
     def take(self, subscription):
+        return self.take_one(subscription)[1]
+
+    def take_one(self, subscription):
+        """(a setpoint was taken, its serialized bytes if its publisher is admitted else None)."""
         taken = self._take(subscription)
         if taken is None:
-            return None
+            return False, None
         raw, gid = taken
         if self.gate.admit(gid):
-            return raw
+            return True, raw
         self.log.warn(self.gate.why_refused(gid), throttle_duration_sec=1.0)
-        return None
+        return True, None
 
     def counts(self) -> dict:
         return self.gate.counts()

@@ -1,9 +1,13 @@
-"""The setpoint path: a new setpoint goes on the wire at once; a keep-alive thread re-sends the newest one
+"""The setpoint path: a new setpoint goes on the wire at once; a keep-alive re-sends the newest one
 only when none went out for a whole period (the stream autopilots need to stay in offboard), and watches for a
 stale stream. No rclpy: the caller hands in what to send and whether it may.
 
     submit(sp) -> [may_send?] -> send(sp)                  (the subscriber's thread, no waiting)
-    keep-alive thread: every period without a send -> send(newest); nothing sent for timeout_s -> on_stale()
+    keep-alive: every period without a send -> send(newest); nothing sent for timeout_s -> on_stale()
+
+The keep-alive runs in a thread of its own (start()), or, with `wake`, in the owner's thread: the owner calls
+tick() when the delay tick() last returned has passed (mavlink_bridge: the setpoint thread, whose wait for the
+next setpoint is bounded by it, so a setpoint stream at the keep-alive rate wakes one thread, not two; issue 26).
 """
 
 import math
@@ -12,13 +16,16 @@ import time
 
 from quad_bridge.link import RateMeter
 
+MIN_WAIT_S = 0.0005   # the keep-alive's shortest wait
+
 
 class SetpointStreamer:
     def __init__(self, send, may_send, rate_hz: float, timeout_s: float, on_stale, on_error=None,
-                 clock=time.monotonic):
+                 clock=time.monotonic, wake=None):
         """send(sp): puts one setpoint on the wire; may_send() -> bool: the hand-over allows it now;
         on_stale(wire_age_s, input_age_s): nothing went out for timeout_s after a send (called once per quiet
-        spell); input_age_s > timeout_s says the setpoints themselves stopped."""
+        spell); input_age_s > timeout_s says the setpoints themselves stopped. wake(): wakes the owner's thread
+        to call tick() now (the owner runs the keep-alive; start() then starts no thread)."""
         self._send, self._may_send, self._on_stale, self._on_error = send, may_send, on_stale, on_error
         self.period_s, self.timeout_s, self.clock = 1.0 / rate_hz, timeout_s, clock
         self.lock = threading.Lock()  # one sender at a time, and the fields below
@@ -31,15 +38,18 @@ class SetpointStreamer:
         self._unsent = False          # the newest setpoint has not been on the wire
         self._stop = threading.Event()
         self._wake = threading.Event()
-        self._thread = threading.Thread(target=self._run, name='setpoint-keepalive', daemon=True)
+        self._owner_wake = wake
+        self._thread = None if wake else threading.Thread(target=self._run, name='setpoint-keepalive', daemon=True)
 
     def start(self):
-        self._thread.start()
+        if self._thread:
+            self._thread.start()
 
     def stop(self):
         self._stop.set()
         self._wake.set()
-        self._thread.join(timeout=2.0)
+        if self._thread:
+            self._thread.join(timeout=2.0)
 
     def fresh(self, now_s=None) -> bool:
         now_s = self.clock() if now_s is None else now_s
@@ -61,7 +71,10 @@ class SetpointStreamer:
         with self.lock:
             if self.fresh() and self._may_send():
                 self._emit(self.clock())
-        self._wake.set()
+        if self._owner_wake:
+            self._owner_wake()
+        else:
+            self._wake.set()
 
     def _emit(self, now):
         self._send(self.setpoint)
@@ -75,14 +88,19 @@ class SetpointStreamer:
 
     def _run(self):
         while not self._stop.is_set():
-            try:
-                delay_s = self._tick()
-            except Exception as exc:  # the keep-alive must not die silently
-                if self._on_error:
-                    self._on_error(exc)
-                delay_s = self.period_s
-            self._wake.wait(max(delay_s, 0.0005))
+            self._wake.wait(self.tick())
             self._wake.clear()
+
+    def tick(self) -> float:
+        """The keep-alive's work now (_tick); returns the seconds until it is due again (>= MIN_WAIT_S). Never
+        raises: an error goes to on_error (the keep-alive must not die silently)."""
+        try:
+            delay_s = self._tick()
+        except Exception as exc:
+            if self._on_error:
+                self._on_error(exc)
+            delay_s = self.period_s
+        return max(delay_s, MIN_WAIT_S)
 
     def _tick(self) -> float:
         """Re-send when a period passed without a send; report once when the setpoints stopped for timeout_s, or

@@ -4,6 +4,8 @@ Units per the MAVLink common message set: HIGHRES_IMU m/s^2 and rad/s; SCALED_IM
 (ArduPilot sends RAW_IMU in the same units, GCS_Common.cpp send_raw_imu).
 """
 
+import math
+
 import numpy as np
 
 from quad_bridge import frames
@@ -28,6 +30,45 @@ def state_from_local_position(msg, q_ned, rates_frd) -> State:
     return frames.state_from_ned(State(position=np.array([msg.x, msg.y, msg.z]),
                                        velocity=np.array([msg.vx, msg.vy, msg.vz]),
                                        quaternion=q_ned, body_rates=np.asarray(rates_frd, float)))
+
+
+def attitude_enu(msg) -> tuple:
+    """ATTITUDE_QUATERNION -> (quaternion ENU/FLU (x, y, z, w), body rates FLU) as Python floats: the arithmetic
+    of frames.from_mavlink_quaternion, quaternion_ned_to_enu and body_flu_frd without their arrays (every
+    attitude message; issue 26)."""
+    w, x, y, z = float(msg.q1), float(msg.q2), float(msg.q3), float(msg.q4)
+    sign = -frames.S if -w - z < 0 else frames.S
+    return ((sign * (-x - y), sign * (y - x), sign * (z - w), sign * (-w - z)),
+            (float(msg.rollspeed), -float(msg.pitchspeed), -float(msg.yawspeed)))
+
+
+def local_position_enu(msg) -> tuple:
+    """LOCAL_POSITION_NED -> (position, velocity) in ENU as Python floats (frames.world_enu_ned's map)."""
+    return (float(msg.y), float(msg.x), -float(msg.z)), (float(msg.vy), float(msg.vx), -float(msg.vz))
+
+
+def body_velocity(q, v) -> tuple:
+    """R(q)^T v on Python floats (quad_common.conversions.body_velocity's arithmetic, rotations.to_matrix's
+    entries): the odometry twist's linear part."""
+    x, y, z, w = q
+    r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+    r10, r11, r12 = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+    r20, r21, r22 = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+    vx, vy, vz = v
+    return (r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz)
+
+
+def finite(*vectors) -> bool:
+    return all(map(math.isfinite, sum(vectors, ())))
+
+
+def imu_flu_floats(msg) -> tuple:
+    """imu_flu as Python floats: (specific force m/s^2, body rates rad/s) in FLU."""
+    acc = (float(msg.xacc), float(msg.yacc), float(msg.zacc))
+    gyro = (float(msg.xgyro), float(msg.ygyro), float(msg.zgyro))
+    if msg.get_type() != 'HIGHRES_IMU':
+        acc, gyro = tuple(a * MILLI_G_MPS2 for a in acc), tuple(g * 1e-3 for g in gyro)
+    return (acc[0], -acc[1], -acc[2]), (gyro[0], -gyro[1], -gyro[2])
 
 
 def state_from_odometry(msg) -> State | None:

@@ -10,11 +10,19 @@ from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import BatteryState, Imu
 
-from quad_bridge import frames
 from quad_bridge.clock import ClockMapper
 from quad_bridge.streams import StreamSelector
-from quad_bridge.telemetry import imu_flu, state_from_local_position, state_from_odometry, time_us
+from quad_bridge.telemetry import (
+    attitude_enu,
+    body_velocity,
+    finite,
+    imu_flu_floats,
+    local_position_enu,
+    state_from_odometry,
+    time_us,
+)
 from quad_common import cdr, contract
+from quad_common.types import State
 
 ODOM_GAP_WINDOW_S = 10.0   # diagnostics' odom_gap_max_ms: the longest gap between odometry publications this recent
 TIMESTAMPED = ('ATTITUDE_QUATERNION', 'LOCAL_POSITION_NED', 'ODOMETRY', 'HIGHRES_IMU', 'SCALED_IMU', 'RAW_IMU')
@@ -29,6 +37,15 @@ def stamp(ns: int) -> Time:
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
+class OdometryFloats(cdr.OdometryPacker):
+    """cdr.OdometryPacker's bytes from Python floats (position, quaternion, body velocity, body rates), the
+    layout it holds: LOCAL_POSITION_NED's odometry without a State's arrays between (issue 26)."""
+
+    def pack_floats(self, position, quaternion, v_body, rates, time_ns: int) -> bytes:
+        return self._struct.pack(cdr.CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._frames,
+                                 *position, *quaternion, *v_body, *rates)
+
+
 class TelemetryPublisher:
     def __init__(self, node, vehicle, client, on_state, grace_s: float):
         """on_state(state): every published odometry state (ENU/FLU), e.g. for the geofence."""
@@ -40,9 +57,11 @@ class TelemetryPublisher:
         self.log = node.get_logger()
         self.clock = ClockMapper()
         self.streams = None            # StreamSelector once the backend is known
-        self.odom_packer = cdr.OdometryPacker()   # serialized: ~10x cheaper than building the messages
+        self.odom_packer = OdometryFloats()   # serialized: ~10x cheaper than building the messages
         self.imu_packer = cdr.ImuPacker()
         self.timesync_ts1 = None
+        self.attitude = None           # the latest ATTITUDE_QUATERNION: (quaternion ENU/FLU, body rates FLU), floats
+        self.quaternion = None         # the latest published odometry's quaternion (floats), for `imu`
         self.last_odom_s = None        # monotonic time of the newest odometry publication (None: none since up)
         self.odom_gaps = deque()       # (monotonic time, time since the previous publication) over ODOM_GAP_WINDOW_S
         self.handlers = {kind: getattr(self, name) for kind, name in HANDLERS.items()}
@@ -91,15 +110,18 @@ class TelemetryPublisher:
             return max((gap for t, gap in self.odom_gaps if t >= since_s), default=0.0)
 
     def on_attitude_quaternion(self, msg, stamp_ns):
-        with self.vehicle.lock:
-            self.vehicle.status.q_ned = frames.from_mavlink_quaternion([msg.q1, msg.q2, msg.q3, msg.q4])
-            self.vehicle.status.rates_frd = np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
+        self.attitude = attitude_enu(msg)   # read by this thread only (on_local_position_ned)
 
     def on_local_position_ned(self, msg, stamp_ns):
-        with self.vehicle.lock:
-            q, rates = self.vehicle.status.q_ned, self.vehicle.status.rates_frd
-        if self.streams.uses('odometry', 'LOCAL_POSITION_NED') and q is not None:
-            self.publish_state(state_from_local_position(msg, q, rates), stamp_ns)
+        """LOCAL_POSITION_NED + the latest ATTITUDE_QUATERNION -> `odom`, on Python floats (the arithmetic of
+        telemetry.state_from_local_position and conversions.body_velocity)."""
+        if self.attitude is None or not self.streams.uses('odometry', 'LOCAL_POSITION_NED'):
+            return
+        (q, rates), (p, v) = self.attitude, local_position_enu(msg)
+        if not finite(p, v, q, rates):
+            return
+        state = State(position=np.array(p), velocity=np.array(v), quaternion=np.array(q), body_rates=np.array(rates))
+        self._published(state, q, self.odom_packer.pack_floats(p, q, body_velocity(q, v), rates, stamp_ns))
 
     def on_odometry(self, msg, stamp_ns):
         if self.streams.uses('odometry', 'ODOMETRY'):
@@ -108,25 +130,28 @@ class TelemetryPublisher:
                 self.publish_state(state, stamp_ns)
 
     def publish_state(self, state, stamp_ns):
-        if not state.is_finite():
-            return
+        if state.is_finite():
+            self._published(state, tuple(state.quaternion.tolist()), self.odom_packer.pack(state, stamp_ns))
+
+    def _published(self, state, quaternion, odometry: bytes):
+        """Publishes a serialized `odom` of `state` (~10x cheaper than an Odometry()); the gap bookkeeping."""
         now_s = time.monotonic()
         with self.vehicle.lock:
             self.vehicle.status.state = state
+            self.quaternion = quaternion
             if self.last_odom_s is not None:
                 self.odom_gaps.append((now_s, now_s - self.last_odom_s))
                 while self.odom_gaps[0][0] < now_s - ODOM_GAP_WINDOW_S:
                     self.odom_gaps.popleft()
             self.last_odom_s = now_s
-        self.odom_pub.publish(self.odom_packer.pack(state, stamp_ns))  # serialized: ~10x cheaper than Odometry()
+        self.odom_pub.publish(odometry)
         self.on_state(state)
 
     def on_imu(self, msg, stamp_ns):
         if not self.streams.uses('imu', msg.get_type()):
             return
-        acc, gyro = imu_flu(msg)
-        state = self.vehicle.status.state
-        self.imu_pub.publish(self.imu_packer.pack(None if state is None else state.quaternion, gyro, acc, stamp_ns))
+        acc, gyro = imu_flu_floats(msg)
+        self.imu_pub.publish(self.imu_packer.pack(self.quaternion, gyro, acc, stamp_ns))
 
     def on_sys_status(self, msg, stamp_ns):
         s = self.vehicle.status

@@ -5,8 +5,6 @@ services and diagnostics read it. Holds the hand-over state machine too, so that
 import threading
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from quad_bridge.handover import Handover
 
 
@@ -18,8 +16,6 @@ class VehicleStatus:
     mode: str = ''
     armed: bool = False
     prearm_ready: bool | None = None
-    q_ned: np.ndarray | None = None   # latest attitude (NED/FRD, x y z w)
-    rates_frd: np.ndarray = field(default_factory=lambda: np.zeros(3))
     state: object = None              # latest quad_common State in ENU/FLU
     params: dict = field(default_factory=dict)  # semantic parameters read from the vehicle
     rtt_ms: float = float('nan')

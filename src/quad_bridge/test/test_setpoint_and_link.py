@@ -1,6 +1,7 @@
 """Setpoint checks (NaN/inf refused, tilt clamped keeping yaw) and the link state machine."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -136,3 +137,55 @@ def test_the_float_path_of_check_setpoint_gives_what_the_numpy_path_gives(monkey
         assert np.array_equal(a.quaternion, b.quaternion) and a.specific_force_mps2 == b.specific_force_mps2
         assert (a.body_rates is None) == (b.body_rates is None)
         assert a.body_rates is None or np.array_equal(a.body_rates, b.body_rates)
+
+
+def _serialized(q, f, rates=None, frame_id='base_link', q_unset=False, f_unset=False):
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import Imu
+
+    msg = Imu()
+    msg.header.frame_id = frame_id
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = map(float, q)
+    msg.linear_acceleration.z = float(f)
+    if rates is None:
+        msg.angular_velocity_covariance[0] = -1.0
+    else:
+        msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = map(float, rates)
+    msg.orientation_covariance[0] = -1.0 if q_unset else 0.0
+    msg.linear_acceleration_covariance[0] = -1.0 if f_unset else 0.0
+    return serialize_message(msg)
+
+
+def test_the_float_path_from_cdr_gives_what_imu_to_setpoint_and_check_setpoint_give():
+    """setpoint_from_cdr (issue 26) against cdr.imu_to_setpoint + check_setpoint: the same values, bit for bit,
+    the same clamping and the same errors, for setpoints within the tilt limit and beyond, with and without body
+    rates, frame ids of every alignment, unset fields, NaN, inf, a zero quaternion and a negative thrust."""
+    from quad_bridge.setpoint import setpoint_from_cdr
+    from quad_common import cdr
+
+    rng = np.random.default_rng(7)
+    cases = []
+    for k in range(300):
+        q = rotations.from_euler(*rng.normal(scale=0.5, size=3)) * rng.uniform(0.5, 2.0)
+        rates = rng.normal(size=3) if k % 2 else None
+        cases.append(_serialized(q, rng.uniform(0.0, 30.0), rates, frame_id='b' * (k % 9)))
+    for bad in ([math.nan, 0, 0, 1], [0, 0, 0, 0], [math.inf, 0, 0, 1]):
+        cases.append(_serialized(bad, 9.81))
+    cases += [_serialized([0, 0, 0, 1], -1.0), _serialized([0, 0, 0, 1], math.nan),
+              _serialized([0, 0, 0, 1], 9.81, [0.0, math.inf, 0.0]), _serialized([0, 0, 0, 1], 9.81, q_unset=True),
+              _serialized([0, 0, 0, 1], 9.81, f_unset=True)]
+    clamped = errors = 0
+    for raw in cases:
+        try:
+            expected = check_setpoint(cdr.imu_to_setpoint(raw), math.radians(35.0), 25.0)
+        except ValueError as exc:
+            with pytest.raises(ValueError, match=re.escape(str(exc))):
+                setpoint_from_cdr(raw, math.radians(35.0), 25.0)
+            errors += 1
+            continue
+        (sp, was_clamped, kept), (sp0, clamped0, kept0) = setpoint_from_cdr(raw, math.radians(35.0), 25.0), expected
+        assert (was_clamped, kept) == (clamped0, kept0)
+        assert sp.quaternion.tolist() == sp0.quaternion.tolist() and sp.specific_force_mps2 == sp0.specific_force_mps2
+        assert (sp.body_rates is None and sp0.body_rates is None) or sp.body_rates.tolist() == sp0.body_rates.tolist()
+        clamped += was_clamped
+    assert clamped > 20 and errors == 8

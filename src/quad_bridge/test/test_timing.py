@@ -219,3 +219,51 @@ def test_timesync_answered_late_on_a_loaded_machine_does_not_invent_a_drift():
     for seed in (1, 2, 3):   # a line through TIMESYNC alone: -289, -2978, 9 ppm
         clock, _ = _drifting_link(1.0, 20.0, reply_ms=(100.0, 400.0), seed=seed)
         assert abs(clock.drift_ppm()) < 100.0, seed
+
+
+def test_the_clock_line_on_python_numbers_is_numpys_least_squares():
+    """clock._line (Python numbers since issue 26) against numpy's least squares on the same points: offset,
+    drift, residuals and standard error; too few points or too short a span give drift 0 as before."""
+    import numpy as np
+
+    from quad_bridge import clock as clk
+
+    rng = np.random.default_rng(5)
+    for drift in (0.0, 1e-4, -0.02, 0.15):
+        remote = np.cumsum(rng.integers(200_000_000, 300_000_000, size=40)) + 10**12
+        offset = (10**15 + drift * (remote - remote[-1]) + rng.exponential(3e5, size=40)).astype(np.int64)
+        r_ref, off_ref, d, residuals, se = clk._line(remote.tolist(), offset.tolist())
+        x, y = (remote - remote[-1]) / 1e9, (offset - offset.min()).astype(float)
+        slope, intercept = np.polyfit(x, y, 1)
+        expected_residuals = y - (intercept + slope * x)
+        assert r_ref == remote[-1] and off_ref == offset.min() + int(round(intercept))
+        assert d == pytest.approx(slope / 1e9, rel=1e-9, abs=1e-15)
+        np.testing.assert_allclose(residuals, expected_residuals, atol=1e-3)
+        assert se == pytest.approx(np.sqrt(expected_residuals @ expected_residuals / 38 / ((x - x.mean()) ** 2).sum())
+                                   / 1e9, rel=1e-6)
+    few = clk._line([10**9, 2 * 10**9], [5, 7])
+    assert few[2] == 0.0 and few[4] == math.inf and few[1] == 5
+
+
+def test_after_a_stall_every_queued_setpoint_is_taken_oldest_first_and_the_newest_goes_out_last():
+    """SetpointPath._take_all on a backlog (the setpoint thread held while the controller kept publishing): each
+    queued setpoint is handled in order, a refused publisher's skipped, and the newest is the last on the wire and
+    the one the keep-alive re-sends."""
+    from quad_bridge.setpoint_path import SetpointPath
+
+    clock, sent = FakeClock(), []
+    streamer = SetpointStreamer(sent.append, lambda: True, 50.0, 0.5, lambda *a: None, clock=clock)
+    queue = [(True, 1), (True, None), (True, 2), (True, 3), (False, None)]   # None: a refused publisher's
+
+    class Path:
+        def _take(self, sub):
+            return queue.pop(0)
+
+        def on_setpoint(self, raw):
+            streamer.submit(raw)
+
+    SetpointPath._take_all(Path(), sub=None)
+    assert sent == [1, 2, 3] and not queue
+    clock.t += 0.021
+    streamer.tick()
+    assert sent[-1] == 3 and streamer.keepalives == 1
