@@ -6,9 +6,10 @@ their semantics as launch 3.x and launch_ros 0.26 (ROS 2 Jazzy) define them:
   unless the command line (`name:=value`) already set it; no default and no value is an error.
 - LaunchConfiguration(name).perform(context): the configuration's value (an undeclared one is an error).
 - OpaqueFunction(function): function(context) returns more entities, visited in turn.
-- launch_ros Node(package, executable, name, parameters, ...): runs `<prefix of package>/lib/<package>/<executable>
-  --ros-args -r __node:=<name> --params-file F ...`, one --params-file per parameters entry in order: a string
-  is a file path, a dict is written to a temporary file as {'/**': {'ros__parameters': dict}}.
+- launch_ros Node(package, executable, name, namespace, parameters, ...): runs `<prefix of package>/lib/<package>/
+  <executable> --ros-args -r __node:=<name> [-r __ns:=/<namespace>] --params-file F ...`, one --params-file per
+  parameters entry in order: a string is a file path, a dict is written to a temporary file as
+  {'/**': {'ros__parameters': dict}}; a relative namespace is made absolute (a leading '/').
 
 evaluate(launch_file, **arguments) -> [LaunchedNode]; LaunchedNode.command(tmp_dir) -> argv.
 """
@@ -77,13 +78,16 @@ class LaunchedNode:
     executable: str
     name: str
     parameters: list
+    namespace: str = ''    # '' or absolute (/cf1)
 
     def command(self, tmp_dir: Path, prefix: Path) -> list[str]:
         """The argv launch_ros runs (prefix: the package's install prefix, as ament_index gives it)."""
         argv = [str(prefix / 'lib' / self.package / self.executable), '--ros-args', '-r', f'__node:={self.name}']
+        if self.namespace:
+            argv += ['-r', f'__ns:={self.namespace}']
         for i, entry in enumerate(self.parameters):
             if isinstance(entry, dict):
-                path = Path(tmp_dir) / f'launch_params_{self.name}_{i}'
+                path = Path(tmp_dir) / f'launch_params_{self.namespace.strip("/").replace("/", "_")}_{self.name}_{i}'
                 path.write_text(yaml.dump({'/**': {'ros__parameters': entry}}, default_flow_style=False))
                 entry = path
             elif not isinstance(entry, (str, Path)):
@@ -95,9 +99,12 @@ class LaunchedNode:
 class Node:
     def __init__(self, *, package, executable, name=None, namespace=None, parameters=None, remappings=None,
                  arguments=None, output='log', **_):
-        if namespace or remappings or arguments:
-            raise LaunchError('the stand-in does not model namespace, remappings or arguments')
-        self.launched = LaunchedNode(package, executable, name, list(parameters or []))
+        if remappings or arguments:
+            raise LaunchError('the stand-in does not model remappings or arguments')
+        if namespace and not isinstance(namespace, str):
+            raise LaunchError(f'namespace {namespace!r}: the stand-in models a plain string')
+        namespace = ('/' + namespace.lstrip('/')).rstrip('/') if namespace else ''
+        self.launched = LaunchedNode(package, executable, name, list(parameters or []), namespace)
 
     def visit(self, context):
         return []

@@ -5,7 +5,10 @@ nodes started as launch_ros starts them: the installed console script, `--ros-ar
 - sim.launch.py is the graph `quadflight fly` starts (same nodes, same parameters but fly's lockstep followers),
   and flies a mission to completion;
 - px4.launch.py / ardupilot.launch.py pass every documented launch argument to its node; against the emulated
-  autopilot, `offboard` called 20 s after launch does not dash: the plan starts from where the vehicle is.
+  autopilot, `offboard` called 20 s after launch does not dash: the plan starts from where the vehicle is;
+- fleet.launch.py starts each vehicle's three nodes under its namespace with its autopilot, fcu_url and system id,
+  and refuses a vehicle without them, shared system ids and a fleet whose plans conflict (test_bridge_fleet.py
+  flies it against three emulated vehicles).
 """
 
 import ast
@@ -17,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from ament_index_python.packages import get_package_prefix
 from bridge_graph import VEHICLE_FILE, VEHICLE_PARAMS, WAIT_S, Observer, Processes, free_udp_port
 from launch_standin import evaluate
@@ -59,6 +63,9 @@ def test_launch_file_starts_installed_executables_with_existing_params_files(kin
         argv = node.command(tmp_path, Path(get_package_prefix(node.package)))
         assert Path(argv[0]).is_file(), f'{argv[0]} is not installed (colcon build)'
         assert argv[1:4] == ['--ros-args', '-r', f'__node:={node.name}']
+        if node.namespace:
+            assert argv[4:6] == ['-r', f'__ns:={node.namespace}']
+            argv = argv[:4] + argv[6:]
         files = argv[5::2]
         assert files and all(Path(f).is_file() for f in files) and argv[4::2] == ['--params-file'] * len(files)
 
@@ -117,6 +124,100 @@ def test_bridge_launch_arguments_reach_their_nodes(autopilot):
     assert defaults['mavlink_bridge']['hover_throttle'] == 0.5     # the bridge config's
     with pytest.raises(ValueError, match="hover_throttle 'half' refused"):
         evaluate(LAUNCH / f'{autopilot}.launch.py', hover_throttle='half')
+
+
+def _fleet_file(tmp_path, vehicles, **fleet):
+    """A fleet file of px4_quad vehicles on a shared path: vehicles = [(name, {key: value})]."""
+    data = {'name': 'fleet', 'vehicle': VEHICLE_FILE, 'robot_radius_m': 0.3, 'waypoints': [[0, 0, 1], [1, 0, 1]],
+            'trajectory': {'speed': SPEED_MPS}, **fleet,
+            'vehicles': [{'name': name, **keys} for name, keys in vehicles]}
+    path = tmp_path / 'fleet.yaml'
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_fleet_launch_starts_three_nodes_per_vehicle_under_its_namespace(tmp_path):
+    nodes = evaluate(LAUNCH / 'fleet.launch.py')           # config/missions/fleets/sitl3.yaml
+    assert [(n.namespace, n.name) for n in nodes] == [(f'/{v}', n) for v in ('px4_1', 'px4_2', 'apm_3') for n in
+                                                      ('trajectory_node', 'position_controller', 'mavlink_bridge')]
+    p = {(n.namespace, n.name): graph.NodeSpec(n.name, tuple(n.parameters), n.namespace[1:]).merged_parameters()
+         for n in nodes}
+    for ns, autopilot, url, system_id in (('/px4_1', 'px4', 'udpin:0.0.0.0:14540', 1),
+                                          ('/px4_2', 'px4', 'udpin:0.0.0.0:14541', 2),
+                                          ('/apm_3', 'ardupilot', 'tcp:127.0.0.1:5770', 3)):
+        bridge, control, traj = (p[(ns, n)] for n in ('mavlink_bridge', 'position_controller', 'trajectory_node'))
+        assert (bridge['autopilot'], bridge['fcu_url'], bridge['target_system'], bridge['source_system']) == (
+            autopilot, url, system_id, system_id)
+        assert bridge['setpoint_source'] == 'position_controller'     # relative: its namespace's controller
+        own = graph.NodeSpec('mavlink_bridge', (str(ROOT / 'config' / f'bridge_{autopilot}.yaml'),)).merged_parameters()
+        assert {k: bridge[k] for k in own if k not in ('fcu_url', 'target_system', 'source_system')} == \
+            {k: v for k, v in own.items() if k not in ('fcu_url', 'target_system', 'source_system')}
+        assert traj['mission_file'] == str(ROOT / 'config' / 'missions' / 'fleets' / 'sitl3.yaml')
+        assert traj['fleet_vehicle'] == ns[1:] and not traj['use_sim_time']
+        assert traj['vehicle_file'] == control['vehicle'] == str(ROOT / 'config' / 'vehicles' / 'px4_quad.yaml')
+        real = graph.NodeSpec('position_controller', (str(ROOT / 'config' / 'control.yaml'),
+                                                      str(ROOT / 'config' / 'control_real.yaml'))).merged_parameters()
+        assert {k: control[k] for k in real if k != 'vehicle'} == {k: v for k, v in real.items() if k != 'vehicle'}
+        assert control['wait_for_engagement'] and not control['lockstep']
+    # the launch arguments: a vehicle's own profile and controller win over control_profile
+    fleet = _fleet_file(tmp_path, [
+        ('a', {'autopilot': 'px4', 'fcu_url': 'udpin:127.0.0.1:14600', 'system_id': 7, 'offset': [0, -1, 0]}),
+        ('b', {'autopilot': 'ardupilot', 'fcu_url': 'udpin:127.0.0.1:14601', 'system_id': 8, 'offset': [0, 1, 0],
+               'controller': 'pid', 'profile': str(ROOT / 'config' / 'control_real.yaml')})])
+    nodes = evaluate(LAUNCH / 'fleet.launch.py', mission=str(fleet), control_profile='control_fast.yaml',
+                     hover_throttle='0.42', vehicle_params='adopt')
+    p = {(n.namespace, n.name): graph.NodeSpec(n.name, tuple(n.parameters), n.namespace[1:]).merged_parameters()
+         for n in nodes}
+    assert p[('/a', 'position_controller')]['controller'] == 'se3'           # control_fast.yaml's
+    assert p[('/b', 'position_controller')]['controller'] == 'pid'
+    for ns in ('/a', '/b'):
+        assert p[(ns, 'mavlink_bridge')]['hover_throttle'] == 0.42
+        assert p[(ns, 'mavlink_bridge')]['vehicle_params'] == 'adopt'
+    assert p[('/b', 'mavlink_bridge')]['target_system'] == 8 and p[('/b', 'mavlink_bridge')]['autopilot'] == 'ardupilot'
+
+
+@pytest.mark.parametrize('vehicles, fleet, message', [
+    ([('a', {'autopilot': 'px4', 'fcu_url': 'udpin:127.0.0.1:14600', 'offset': [0, -1, 0]})], {},
+     r"vehicles\[0\] \(a\): system_id is missing: a vehicle flown through a bridge needs autopilot, fcu_url, "
+     r"system_id"),
+    ([('a', {'system_id': 1, 'fcu_url': 'udpin:127.0.0.1:14600'})], {},
+     r"vehicles\[0\] \(a\): autopilot is missing"),
+    ([('a', {'autopilot': 'px4', 'system_id': 1, 'fcu_url': 'udpin:127.0.0.1:14600'}),
+      ('b', {'autopilot': 'px4', 'system_id': 2, 'fcu_url': 'udpin:127.0.0.1:14601', 'offset': [0, 0.2, 0]})], {},
+     r"separation conflict: a and b come 0.200 m apart"),
+    ([('a', {'autopilot': 'px4', 'system_id': 1, 'fcu_url': 'udpin:127.0.0.1:14600'}),
+      ('b', {'autopilot': 'px4', 'system_id': 1, 'fcu_url': 'udpin:127.0.0.1:14601', 'offset': [0, 1, 0]})], {},
+     r"vehicles\[1\] \(b\): system_id = 1 is already vehicles\[0\] \(a\)'s"),
+])
+def test_fleet_launch_refuses_naming_the_vehicle_and_the_field(tmp_path, vehicles, fleet, message):
+    with pytest.raises(ValueError, match=message):
+        evaluate(LAUNCH / 'fleet.launch.py', mission=str(_fleet_file(tmp_path, vehicles, **fleet)))
+
+
+def test_a_namespaced_node_gets_what_merged_parameters_says(tmp_path, ros_env):
+    """rcl gives a params file's plain `NAME:` section to /NAME only: under a namespace the node gets '/**',
+    '/**/NAME' and '/NS/NAME' of the file itself. A namespaced NodeSpec is therefore started with merged_parameters
+    as one '/**' dict (launch_parameters, in ros_arguments and launch_graph): the node gets every section."""
+    import json
+    import sys
+    params = tmp_path / 'p.yaml'
+    params.write_text(yaml.safe_dump({name: {'ros__parameters': {key: 1}} for name, key in (
+        ('mavlink_bridge', 'a'), ('/cf1/mavlink_bridge', 'b'), ('/**/mavlink_bridge', 'c'), ('/**', 'd'))}))
+    probe = ('import json, sys, rclpy; rclpy.init(args=sys.argv); n = rclpy.create_node("x", '
+             'allow_undeclared_parameters=True, automatically_declare_parameters_from_overrides=True); '
+             'print(json.dumps(sorted(k for k in "abcd" if n.has_parameter(k))))')
+
+    def given(ros_args):
+        out = subprocess.run([sys.executable, '-c', probe, *ros_args], env=ros_env, capture_output=True, text=True,
+                             timeout=60)
+        return json.loads(out.stdout.splitlines()[-1]) if out.stdout.strip() else out.stderr
+
+    raw = ['--ros-args', '-r', '__node:=mavlink_bridge', '-r', '__ns:=/cf1', '--params-file', str(params)]
+    assert given(raw) == ['b', 'c', 'd']                         # rcl: the plain `mavlink_bridge:` is skipped
+    for namespace, expected in (('cf1', ['a', 'b', 'c', 'd']), ('', ['a', 'c', 'd'])):
+        spec = graph.NodeSpec('mavlink_bridge', (str(params),), namespace)
+        assert sorted(spec.merged_parameters()) == expected
+        assert given(spec.ros_arguments(tmp_path)) == expected
 
 
 # --- the launched graphs -----------------------------------------------------------------------------------

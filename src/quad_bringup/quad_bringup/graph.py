@@ -65,9 +65,12 @@ class NodeSpec:
         return MODULES[self.name]
 
     def merged_parameters(self) -> dict:
-        """The parameters the node ends up with: each file's section for this node ('/**', its name or its fully
-        qualified name), then each dict, the later one winning."""
-        keys = ('/**', self.name, '/' + self.name) + ((self.fqn[1:], self.fqn) if self.namespace else ())
+        """The parameters the node is given: each file's section for this node ('/**', '/**/NAME', its name or its
+        fully qualified name), then each dict, the later one winning. rcl itself gives a file's plain `NAME:`
+        section to /NAME only, never to /NS/NAME: a namespaced node is started with these merged into one dict
+        (`launch_parameters`), so that it gets them all the same."""
+        keys = ('/**', '/**/' + self.name, self.name, '/' + self.name) + (
+            (self.fqn[1:], self.fqn) if self.namespace else ())
         merged = {}
         for entry in self.parameters:
             if isinstance(entry, dict):
@@ -78,6 +81,14 @@ class NodeSpec:
                 merged.update(parameters_of(data, key))
         return merged
 
+    def launch_parameters(self) -> list:
+        """What launch_ros and ros_arguments pass (files and dicts, in order): the parameters as given; under a
+        namespace merged_parameters as one dict (launch_ros writes it under '/**'), since rcl would skip the
+        files' `NAME:` sections there (test_launch_graph checks this against rcl)."""
+        if not self.namespace:
+            return list(self.parameters)
+        return [absolute_config_paths(self.merged_parameters())]
+
     def ros_arguments(self, out_dir: Path) -> list[str]:
         """`--ros-args -r __node:=NAME [-r __ns:=/NS] --params-file ...` as launch_ros gives them (dicts written
         under out_dir)."""
@@ -85,7 +96,7 @@ class NodeSpec:
         if self.namespace:
             args += ['-r', f'__ns:=/{self.namespace}']
         prefix = f'{self.namespace}_{self.name}' if self.namespace else self.name
-        for i, entry in enumerate(self.parameters):
+        for i, entry in enumerate(self.launch_parameters()):
             if isinstance(entry, dict):
                 path = Path(out_dir) / f'{prefix}_params_{i}.yaml'
                 path.write_text(yaml.safe_dump(params_content('/**', entry), sort_keys=False))
@@ -241,6 +252,44 @@ def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=
     ]
 
 
+FLEET_BRIDGE_KEYS = ('autopilot', 'fcu_url', 'system_id')   # what each vehicle of a real fleet must have
+
+
+def fleet_bridge_graph(fleet_path, *, control_profile=None, hover_throttle: float | None = None,
+                       vehicle_params: str = '') -> list[NodeSpec]:
+    """A fleet of real (or emulated) vehicles: per vehicle, under its name as namespace, bridge_graph's three
+    nodes. trajectory_node flies its plan of the fleet file (`fleet_vehicle`; its start delay and altitude layer
+    as the file deconflicts), position_controller its own controller and profile (else control_profile, else
+    control_real.yaml), mavlink_bridge its `autopilot`'s config with its `fcu_url` and its MAVLink `system_id` as
+    target_system (only that vehicle is commanded and listened to, whoever else is on the link) and as
+    source_system (the companion computer of that vehicle). The fleet's plans are checked for separation first
+    (quad_trajectory.fleet.plan_fleet): a conflict is refused as `quadflight plan` refuses it."""
+    from quad_trajectory.fleet import load_fleet, plan_fleet
+
+    fleet = load_fleet(fleet_path)
+    for i, v in enumerate(fleet.vehicles):
+        for key in FLEET_BRIDGE_KEYS:
+            if getattr(v, key) is None:
+                raise ValueError(f'{fleet.path}: vehicles[{i}] ({v.name}): {key} is missing: a vehicle flown through '
+                                 f'a bridge needs {", ".join(FLEET_BRIDGE_KEYS)} (docs/bridge.md, "Fleets of real '
+                                 'vehicles")')
+    refusal = plan_fleet(fleet).refusal()
+    if refusal:
+        raise ValueError(refusal)
+    path = str(Path(fleet_path).resolve())
+    nodes = []
+    for v in fleet.vehicles:
+        vehicle = v.mission.vehicle_path or config(REAL_VEHICLE)
+        specs = bridge_graph(v.autopilot, path, vehicle=vehicle, control_profile=v.profile_path or control_profile,
+                             fcu_url=v.fcu_url, hover_throttle=hover_throttle, vehicle_params=vehicle_params)
+        extra = {'trajectory_node': {'fleet_vehicle': v.name},
+                 'position_controller': {'controller': v.controller} if v.controller else {},
+                 'mavlink_bridge': {'autopilot': v.autopilot, 'target_system': v.system_id,
+                                    'source_system': v.system_id}}
+        nodes += [NodeSpec(s.name, s.parameters + (extra[s.name],), v.name) for s in specs]
+    return nodes
+
+
 # --- launch arguments: (name, default, description); '' = the graph's own default ----------------------------
 SIM_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/maze.yaml', 'mission YAML: a path, or one under config/'),
@@ -260,7 +309,16 @@ BRIDGE_LAUNCH_ARGUMENTS = (
                            'the bridge config\'s'),
     ('vehicle_params', '', 'check | adopt | ignore the vehicle\'s semantic parameters; empty: the bridge config\'s'),
 )
-LAUNCH_FILES = {'sim': SIM_LAUNCH_ARGUMENTS, 'px4': BRIDGE_LAUNCH_ARGUMENTS, 'ardupilot': BRIDGE_LAUNCH_ARGUMENTS}
+FLEET_LAUNCH_ARGUMENTS = (
+    ('mission', 'missions/fleets/sitl3.yaml', 'fleet YAML whose vehicles have autopilot, fcu_url and system_id: a '
+                                              'path, or one under config/'),
+    ('control_profile', '', 'position_controller profile over control.yaml of the vehicles without their own '
+                            'profile; empty: ' + REAL_VEHICLE_PROFILE),
+    ('hover_throttle', '', 'every vehicle\'s hover thrust; empty: the bridge configs\''),
+    ('vehicle_params', '', 'check | adopt | ignore the vehicles\' semantic parameters; empty: the bridge configs\''),
+)
+LAUNCH_FILES = {'sim': SIM_LAUNCH_ARGUMENTS, 'px4': BRIDGE_LAUNCH_ARGUMENTS, 'ardupilot': BRIDGE_LAUNCH_ARGUMENTS,
+                'fleet': FLEET_LAUNCH_ARGUMENTS}
 
 
 def config_path(value: str) -> str:
@@ -285,6 +343,9 @@ def graph_from_arguments(kind: str, args: dict) -> list[NodeSpec]:
         hover_throttle = float(hover) if hover else None
     except ValueError:
         raise ValueError(f'hover_throttle {hover!r} refused: must be a number') from None
+    if kind == 'fleet':
+        return fleet_bridge_graph(config_path(args['mission']), control_profile=config_path(args['control_profile'])
+                                  or None, hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'])
     return bridge_graph(kind, config_path(args['mission']), vehicle=config_path(args['vehicle']),
                         control_profile=config_path(args['control_profile']), fcu_url=args['fcu_url'],
                         hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'])

@@ -11,11 +11,11 @@ from quad_bringup import graph
 
 def launch_node(spec: graph.NodeSpec) -> Node:
     return Node(package=spec.package, executable=spec.executable, name=spec.name, namespace=spec.namespace or None,
-                output='screen', parameters=list(spec.parameters))
+                output='screen', parameters=spec.launch_parameters())
 
 
 def launch_description(kind: str) -> LaunchDescription:
-    """launch/<kind>.launch.py: kind sim | px4 | ardupilot (quad_bringup.graph.LAUNCH_FILES)."""
+    """launch/<kind>.launch.py: kind sim | px4 | ardupilot | fleet (quad_bringup.graph.LAUNCH_FILES)."""
     arguments = graph.LAUNCH_FILES[kind]
 
     def nodes(context):

@@ -23,9 +23,13 @@ from quad_trajectory import separation
 from quad_trajectory.mission import Mission, mission_from_dict, plan_mission
 
 FLEET_KEYS = frozenset({'name', 'vehicles', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m',
-                        'separation'})
+                        'separation', 'autopilot'})
 VEHICLE_KEYS = frozenset({'name', 'vehicle', 'start', 'waypoints', 'offset', 'yaw', 'trajectory', 'robot_radius_m',
-                          'controller', 'profile', 'start_delay_s'})
+                          'controller', 'profile', 'start_delay_s', 'autopilot', 'fcu_url', 'system_id'})
+AUTOPILOTS = ('px4', 'ardupilot')   # a real vehicle's autopilot (quad_bridge's backends)
+SYSTEM_ID_RANGE = (1, 255)          # a vehicle's MAVLink system id (PX4 MAV_SYS_ID, ArduPilot SYSID_THISMAV)
+_FCU_SCHEMES = ('udpin:', 'udpout:', 'udp:', 'udpbcast:', 'tcp:', 'tcpin:')
+_LISTENING = ('udpin:', 'udp:', 'tcpin:')   # the bridge binds the port: any two on one port collide
 SEPARATION_KEYS = frozenset({'min_m', 'margin_m', 'deconflict', 'delay_step_s', 'max_delay_s', 'layer_m',
                              'max_layers'})
 DECONFLICT = ('none', 'delays', 'altitude')
@@ -54,6 +58,9 @@ class FleetVehicle:
     controller: str | None = None       # None: the profile's, else pd
     profile_path: str | None = None     # a position_controller params file (config/control*.yaml)
     offset: np.ndarray | None = None
+    autopilot: str | None = None        # real vehicles (the fleet bridge graph): px4 | ardupilot
+    fcu_url: str | None = None          # its bridge's MAVLink address (mavlink_bridge fcu_url)
+    system_id: int | None = None        # its MAVLink system id (the bridge's target_system)
 
 
 @dataclass
@@ -124,6 +131,39 @@ def _separation(data, path) -> SeparationOptions:
     return dataclasses.replace(o, **values)
 
 
+def _autopilot(value):
+    if value not in AUTOPILOTS:
+        raise ValueError(f'autopilot = {value!r} must be one of {", ".join(AUTOPILOTS)}')
+    return value
+
+
+def _fcu_url(value):
+    """The bridge's MAVLink address: udpin:/udpout:/udp:/udpbcast:/tcp:/tcpin:HOST:PORT or a serial device."""
+    ok = isinstance(value, str) and (value.startswith('/dev/') or value.upper().startswith('COM'))
+    if isinstance(value, str) and value.startswith(_FCU_SCHEMES):
+        host, _, port = value.split(':', 1)[1].rpartition(':')
+        ok = bool(host) and port.isdigit() and 0 < int(port) <= 65535
+    if not ok:
+        raise ValueError(f'fcu_url = {value!r} must be udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT (or udp:, '
+                         'udpbcast:, tcpin:) or a serial device')
+    return value
+
+
+def fcu_endpoint(url: str):
+    """What two bridges must not share: the port a listening URL binds (any host), else the address it talks to."""
+    if url.startswith(_LISTENING):
+        return ('listens on port', url.rpartition(':')[2])
+    return ('talks to', url.split(':', 1)[1] if url.startswith(_FCU_SCHEMES) else url)
+
+
+def _system_id(value):
+    lo, hi = SYSTEM_ID_RANGE
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ValueError(f'system_id = {value!r} must be a whole number {lo}..{hi} (the vehicle\'s MAVLink system '
+                         'id: PX4 MAV_SYS_ID, ArduPilot SYSID_THISMAV)')
+    return value
+
+
 def _vehicle(entry, index, data, path, seen) -> FleetVehicle:
     name = entry.get('name') if isinstance(entry, dict) else None
     where = f'vehicles[{index}]' + (f' ({name})' if isinstance(name, str) else '')
@@ -175,6 +215,10 @@ def _vehicle(entry, index, data, path, seen) -> FleetVehicle:
         profile = entry.get('profile')
         if profile is not None and (not isinstance(profile, str) or not profile):
             raise ValueError(f'profile = {profile!r} must be a control profile file (relative to the fleet file)')
+        autopilot = entry.get('autopilot', data.get('autopilot'))
+        autopilot = None if autopilot is None else _autopilot(autopilot)
+        fcu_url = None if entry.get('fcu_url') is None else _fcu_url(entry['fcu_url'])
+        system_id = None if entry.get('system_id') is None else _system_id(entry['system_id'])
     except ValueError as exc:
         raise ValueError(f'{path}: {where}: {exc}') from None
     try:
@@ -185,7 +229,28 @@ def _vehicle(entry, index, data, path, seen) -> FleetVehicle:
         raise ValueError(f'{path}: {where}: {text}') from None
     radius = mission.options.robot_radius_m or DEFAULT_RADIUS_M
     profile_path = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)), profile)) if profile else None
-    return FleetVehicle(name, mission, radius, delay, controller, profile_path, offset)
+    return FleetVehicle(name, mission, radius, delay, controller, profile_path, offset, autopilot, fcu_url, system_id)
+
+
+def _refuse_shared_links(vehicles, path):
+    """Two vehicles with one MAVLink system id, or two bridges on one port / address, are refused."""
+    ids, endpoints = {}, {}
+    for i, v in enumerate(vehicles):
+        where = f'{path}: vehicles[{i}] ({v.name})'
+        if v.system_id is not None:
+            if v.system_id in ids:
+                j = ids[v.system_id]
+                raise ValueError(f'{where}: system_id = {v.system_id!r} is already vehicles[{j}] '
+                                 f'({vehicles[j].name})\'s: every vehicle needs its own MAVLink system id')
+            ids[v.system_id] = i
+        if v.fcu_url is not None:
+            endpoint = fcu_endpoint(v.fcu_url)
+            if endpoint in endpoints:
+                j = endpoints[endpoint]
+                raise ValueError(f'{where}: fcu_url = {v.fcu_url!r} {endpoint[0]} {endpoint[1]} as vehicles[{j}] '
+                                 f'({vehicles[j].name})\'s fcu_url = {vehicles[j].fcu_url!r} does: every bridge '
+                                 'needs its own port')
+            endpoints[endpoint] = i
 
 
 def fleet_from_dict(data: dict, path: str = 'fleet') -> Fleet:
@@ -202,7 +267,13 @@ def fleet_from_dict(data: dict, path: str = 'fleet') -> Fleet:
     if not isinstance(vehicles, list) or not vehicles:
         raise ValueError(f'{path}: vehicles = {vehicles!r} must be a list of at least one vehicle')
     seen = {}
+    if 'autopilot' in data:
+        try:
+            _autopilot(data['autopilot'])
+        except ValueError as exc:
+            raise ValueError(f'{path}: {exc}') from None
     fleet_vehicles = [_vehicle(entry, i, data, path, seen) for i, entry in enumerate(vehicles)]
+    _refuse_shared_links(fleet_vehicles, path)
     options = _separation(data.get('separation') or {}, path)
     return Fleet(path, str(data.get('name', os.path.splitext(os.path.basename(path))[0])), fleet_vehicles, options,
                  dict(data))
@@ -281,6 +352,21 @@ def plan_fleet(fleet: Fleet, speed_mps: float | None = None, **overrides) -> Fle
                 plans[k] = result
     final = separation.check(trajectories, names, new_delays, req)
     return FleetPlan(fleet, plans, new_delays, final, changes, before=report)
+
+
+def vehicle_mission(fleet: Fleet, name: str, speed_mps: float | None = None) -> tuple[Mission, float]:
+    """One vehicle's mission and start delay as the fleet flies it (trajectory_node's `fleet_vehicle`): its own,
+    or, where the file deconflicts, after plan_fleet's deconfliction (a later start, another altitude layer)."""
+    if name not in fleet.names:
+        raise ValueError(f'{fleet.path}: fleet_vehicle = {name!r} is not one of its vehicles '
+                         f'({", ".join(fleet.names)})')
+    k = fleet.names.index(name)
+    if fleet.separation.deconflict == 'none':
+        return fleet.vehicles[k].mission, fleet.vehicles[k].start_delay_s
+    plan = plan_fleet(fleet, speed_mps=speed_mps)
+    if not plan.report.ok:
+        raise ValueError(plan.refusal())
+    return plan.fleet.vehicles[k].mission, plan.delays_s[k]
 
 
 def resolved_fleet(plan: FleetPlan) -> dict:

@@ -36,8 +36,9 @@ DIAG_NAME = 'trajectory_node: trajectory'
 PARAMS = [
     Param('mission_file', '', 'mission YAML (docs/missions.md); when set, its waypoints, options, vehicle and world '
           'are used and the planning parameters below are ignored, except speed_mps', read_only=True),
-    Param('fleet_vehicle', '', 'when mission_file is a fleet mission: the vehicle of it to plan (its waypoints, '
-          'options and vehicle; its start_delay_s added to start_delay_s)', read_only=True),
+    Param('fleet_vehicle', '', 'with a fleet mission_file (docs/missions.md "Fleets"): the vehicle whose plan this '
+          'node publishes (its name; deconflicted as the fleet file says); its start delay is added to '
+          'start_delay_s', read_only=True),
     Param('waypoints', Parameter.Type.DOUBLE_ARRAY, 'flat [x0, y0, z0, x1, y1, z1, ...] in metres (map frame); '
           'planned at start when given'),
     Param('yaw', [0.0], 'yaw (rad): one value, or one per waypoint'),
@@ -72,7 +73,7 @@ class TrajectoryNode(Node):
     def __init__(self, **kwargs):
         super().__init__('trajectory_node', **kwargs)
         self.params = ParameterSet(self, PARAMS, validate=self._check, on_change=self._replan_current)
-        self.fleet_delay_s = 0.0
+        self.fleet_delay_s = 0.0   # a fleet vehicle's own start delay (after deconfliction)
         self.mission = self._load_mission() if self.params['mission_file'] else None
         if self.mission:   # vehicle_file, when given, sets the limits over the mission's vehicle
             self.vehicle = load_vehicle(self.params['vehicle_file']) if self.params['vehicle_file'] \
@@ -110,17 +111,18 @@ class TrajectoryNode(Node):
             self._plan_and_publish(flat.reshape(-1, 3), self._yaw_param(), raise_errors=True)
 
     def _load_mission(self):
+        from quad_trajectory.fleet import is_fleet_file, load_fleet, vehicle_mission
         path, name = self.params['mission_file'], self.params['fleet_vehicle']
+        if not name and is_fleet_file(path):
+            raise ValueError(f'mission_file = {path!r} is a fleet mission: set fleet_vehicle to the vehicle to plan '
+                             f'({", ".join(load_fleet(path).names)})')
         if not name:
             return load_mission(path)
-        from quad_trajectory.fleet import load_fleet
-
-        fleet = load_fleet(path)
-        vehicle = next((v for v in fleet.vehicles if v.name == name), None)
-        if vehicle is None:
-            raise ValueError(f'fleet_vehicle = {name!r} refused: not a vehicle of {path} ({", ".join(fleet.names)})')
-        self.fleet_delay_s = vehicle.start_delay_s
-        return vehicle.mission
+        if not is_fleet_file(path):
+            raise ValueError(f'fleet_vehicle = {name!r}: mission_file = {path!r} is not a fleet mission (no vehicles:)')
+        speed = self.params['speed_mps'] or None
+        mission, self.fleet_delay_s = vehicle_mission(load_fleet(path), name, speed_mps=speed)
+        return mission
 
     # --- options ----------------------------------------------------------------------------
     def _options(self, values=None) -> planner.PlanOptions:

@@ -153,3 +153,69 @@ def test_single_vehicle_missions_are_not_fleets_and_load_unchanged():
     assert load_mission(maze).waypoints.shape[1] == 3
     with pytest.raises(ValueError, match='a fleet mission'):   # never one vehicle of a fleet by mistake
         load_mission(FORMATION)
+
+
+# --- real vehicles: autopilot, fcu_url, system_id (the fleet bridge graph, docs/bridge.md) -----------------------
+
+SITL3 = str(resolve_config('config/missions/fleets/sitl3.yaml'))
+
+
+def test_real_vehicle_keys_are_read():
+    fleet = load_fleet(SITL3)
+    assert [(v.autopilot, v.fcu_url, v.system_id) for v in fleet.vehicles] == [
+        ('px4', 'udpin:0.0.0.0:14540', 1), ('px4', 'udpin:0.0.0.0:14541', 2), ('ardupilot', 'tcp:127.0.0.1:5770', 3)]
+    assert plan_fleet(fleet).report.ok
+    assert load_fleet(FORMATION).vehicles[0].system_id is None    # optional: a simulated fleet has none
+
+
+def _sitl3(change):
+    data = load_yaml(SITL3)
+    change(data)
+    return fleet_from_dict(data, SITL3)
+
+
+@pytest.mark.parametrize('change, message', [
+    (lambda d: d['vehicles'][1].update(system_id=1),
+     r"vehicles\[1\] \(px4_2\): system_id = 1 is already vehicles\[0\] \(px4_1\)'s"),
+    (lambda d: d['vehicles'][1].update(fcu_url='udpin:127.0.0.1:14540'),
+     r"vehicles\[1\] \(px4_2\): fcu_url = 'udpin:127.0.0.1:14540' listens on port 14540 as vehicles\[0\] \(px4_1\)'s"),
+    (lambda d: d['vehicles'][2].update(fcu_url='udpout:10.0.0.2:14540'), None),   # another host's port: fine
+    (lambda d: d['vehicles'][0].update(fcu_url='tcp:127.0.0.1:5770'),
+     r"vehicles\[2\] \(apm_3\): fcu_url = 'tcp:127.0.0.1:5770' talks to 127.0.0.1:5770 as vehicles\[0\]"),
+    (lambda d: d['vehicles'][0].update(system_id=0), r"vehicles\[0\] \(px4_1\): system_id = 0 must be a whole number"),
+    (lambda d: d['vehicles'][0].update(system_id=256), r"system_id = 256 must be a whole number 1..255"),
+    (lambda d: d['vehicles'][0].update(system_id='1'), r"system_id = '1' must be a whole number"),
+    (lambda d: d['vehicles'][0].update(system_id=True), r"system_id = True must be a whole number"),
+    (lambda d: d['vehicles'][0].update(autopilot='betaflight'),
+     r"vehicles\[0\] \(px4_1\): autopilot = 'betaflight' must be one of px4, ardupilot"),
+    (lambda d: d.update(autopilot='inav'), r"sitl3.yaml: autopilot = 'inav' must be one of px4, ardupilot"),
+    (lambda d: d['vehicles'][0].update(fcu_url='udpin:14540'), r"vehicles\[0\] \(px4_1\): fcu_url = 'udpin:14540' "
+                                                                r"must be udpin:HOST:PORT"),
+    (lambda d: d['vehicles'][0].update(fcu_url=14540), r"fcu_url = 14540 must be udpin:HOST:PORT"),
+    (lambda d: d['vehicles'][0].update(system_idd=1), r"system_idd = 1 is not a known key"),
+])
+def test_real_vehicle_errors_name_the_vehicle_the_field_and_the_value(change, message):
+    if message is None:
+        _sitl3(change)
+        return
+    with pytest.raises(ValueError, match=message):
+        _sitl3(change)
+
+
+def test_the_fleets_autopilot_is_every_vehicles_default():
+    def change(d):
+        d['autopilot'] = 'ardupilot'
+        del d['vehicles'][0]['autopilot']
+    fleet = _sitl3(change)
+    assert [v.autopilot for v in fleet.vehicles] == ['ardupilot', 'px4', 'ardupilot']
+
+
+def test_vehicle_mission_is_the_vehicles_own_or_deconflicted():
+    from quad_trajectory.fleet import vehicle_mission
+    mission, delay = vehicle_mission(crossing(deconflict='none'), 'cf2')
+    assert delay == 0.0 and mission.waypoints[0].tolist() == [-2.0, 0.0, 1.0]
+    assert vehicle_mission(crossing(deconflict='delays'), 'cf2')[1] == 0.5
+    mission, delay = vehicle_mission(crossing(deconflict='altitude'), 'cf2')
+    assert delay == 0.0 and mission.waypoints[:, 2] == pytest.approx([1.5, 1.5])
+    with pytest.raises(ValueError, match=r"fleet_vehicle = 'cf9' is not one of its vehicles \(cf1, cf2\)"):
+        vehicle_mission(crossing(), 'cf9')

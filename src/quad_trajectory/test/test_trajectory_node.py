@@ -26,6 +26,8 @@ from quad_trajectory.trajectory_node import TrajectoryNode
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 FLAT = [0.0, 0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.5]
+_FLEETS = os.path.join(os.path.dirname(os.path.dirname(DEFAULT_MISSION_PATH)), 'missions', 'fleets')
+FORMATION, CROSSING = os.path.join(_FLEETS, 'formation4.yaml'), os.path.join(_FLEETS, 'crossing2.yaml')
 
 
 class Graph(ProbeGraph):
@@ -109,6 +111,25 @@ def test_mission_file_with_world_and_speed_override(graph):
     assert (cubes[0].pose.position.x, cubes[0].scale.y) == pytest.approx(((b[0] + b[1]) / 2, b[3] - b[2]))
 
 
+def test_fleet_vehicle_plans_that_vehicle_of_a_fleet_deconflicted(graph, tmp_path):
+    """A fleet bridge graph's trajectory_node (graph.fleet_bridge_graph): one vehicle's plan of a fleet file, with
+    the start delay the file's deconfliction gives it (crossing2: cf2 starts 0.5 s later)."""
+    import yaml
+    data = yaml.safe_load(open(CROSSING))
+    data['vehicle'] = os.path.join(os.path.dirname(CROSSING), data['vehicle'])
+    data['separation']['deconflict'] = 'delays'
+    fleet = tmp_path / 'crossing.yaml'
+    fleet.write_text(yaml.safe_dump(data))
+    node = graph.start(mission_file=str(fleet), fleet_vehicle='cf2')
+    msg = graph.wait_for('trajectory')
+    _, sampled = msg_to_sampled(msg)
+    np.testing.assert_allclose(sampled.position[0, :3], [-2.0, 0.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(sampled.position[-1, :3], [2.0, 0.0, 1.0], atol=1e-9)
+    assert node.fleet_delay_s == 0.5
+    lead_s = stamp_to_s(msg.header.stamp) - node.get_clock().now().nanoseconds * 1e-9
+    assert 1.0 < lead_s <= 1.5     # start_delay_s 1.0 + 0.5, less the time since it was stamped
+
+
 def test_replans_on_a_path_and_refuses_a_bad_one_keeping_the_previous(graph):
     graph.start(waypoints=FLAT)
     first = graph.wait_for('trajectory')
@@ -153,6 +174,9 @@ def test_parameter_change_replans_and_bad_value_is_refused(graph):
     (['-p', 'waypoints:=[0.0, 0.0, 1.0, 1.0]'], 'multiple of 3'),
     (['-p', 'mission_file:=/nonexistent/m.yaml'], '/nonexistent/m.yaml: file not found'),
     (['-p', 'waypoints:=[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]'], 'at least two distinct'),
+    (['-p', f'mission_file:={FORMATION}'], 'is a fleet mission: set fleet_vehicle to the vehicle to plan (cf1, cf2'),
+    (['-p', f'mission_file:={FORMATION}', '-p', 'fleet_vehicle:=cf9'], "fleet_vehicle = 'cf9' is not one of"),
+    (['-p', f'mission_file:={DEFAULT_MISSION_PATH}', '-p', 'fleet_vehicle:=cf1'], 'is not a fleet mission'),
 ])
 def test_bad_start_up_parameters_exit_2_naming_the_field(args, words):
     with isolated_domain() as (_, env):
