@@ -176,6 +176,27 @@ def test_fleet_launch_starts_three_nodes_per_vehicle_under_its_namespace(tmp_pat
     assert p[('/b', 'mavlink_bridge')]['target_system'] == 8 and p[('/b', 'mavlink_bridge')]['autopilot'] == 'ardupilot'
 
 
+def test_fleet_sim_launch_starts_one_simulator_and_each_vehicles_nodes_as_fly_does(tmp_path):
+    nodes = evaluate(LAUNCH / 'fleet_sim.launch.py')        # config/missions/fleets/formation4.yaml
+    names = ('cf1', 'cf2', 'cf3', 'cf4')
+    assert [(n.namespace or '', n.name) for n in nodes] == [('', 'sim_node')] + [
+        (f'/{v}', n) for v in names for n in ('trajectory_node', 'position_controller')]
+    launched = {(n.namespace or '', n.name): graph.NodeSpec(n.name, tuple(n.parameters),
+                                                             (n.namespace or '/')[1:]).merged_parameters()
+                for n in nodes}
+    flown = {(s.namespace, s.name): s.merged_parameters()
+             for s in graph.fleet_sim_graph(ROOT / 'config' / 'missions' / 'fleets' / 'formation4.yaml')}
+    assert launched.keys() == {(f'/{ns}' if ns else '', n) for ns, n in flown}
+    for (ns, name), values in flown.items():
+        assert launched[(f'/{ns}' if ns else '', name)] == values
+    sim = launched[('', 'sim_node')]
+    assert sim['vehicle_names'] == list(names) and len(sim['initial_positions']) == 12
+    assert launched[('/cf4', 'position_controller')]['controller'] == 'pid'
+    crossing = str(ROOT / 'config' / 'missions' / 'fleets' / 'crossing2.yaml')
+    with pytest.raises(ValueError, match='separation conflict: cf1 and cf2'):
+        evaluate(LAUNCH / 'fleet_sim.launch.py', mission=crossing)
+
+
 @pytest.mark.parametrize('vehicles, fleet, message', [
     ([('a', {'autopilot': 'px4', 'fcu_url': 'udpin:127.0.0.1:14600', 'offset': [0, -1, 0]})], {},
      r"vehicles\[0\] \(a\): system_id is missing: a vehicle flown through a bridge needs autopilot, fcu_url, "

@@ -317,8 +317,11 @@ FLEET_LAUNCH_ARGUMENTS = (
     ('hover_throttle', '', 'every vehicle\'s hover thrust; empty: the bridge configs\''),
     ('vehicle_params', '', 'check | adopt | ignore the vehicles\' semantic parameters; empty: the bridge configs\''),
 )
+FLEET_SIM_LAUNCH_ARGUMENTS = (
+    ('mission', 'missions/fleets/formation4.yaml', 'fleet YAML: a path, or one under config/'),
+)
 LAUNCH_FILES = {'sim': SIM_LAUNCH_ARGUMENTS, 'px4': BRIDGE_LAUNCH_ARGUMENTS, 'ardupilot': BRIDGE_LAUNCH_ARGUMENTS,
-                'fleet': FLEET_LAUNCH_ARGUMENTS}
+                'fleet': FLEET_LAUNCH_ARGUMENTS, 'fleet_sim': FLEET_SIM_LAUNCH_ARGUMENTS}
 
 
 def config_path(value: str) -> str:
@@ -338,6 +341,13 @@ def graph_from_arguments(kind: str, args: dict) -> list[NodeSpec]:
         return sim_graph(config_path(args['mission']), controller=args['controller'] or None,
                          control_profile=config_path(args['control_profile']) or None,
                          vehicle=config_path(args['vehicle']) or None, mode=args['mode'], rtf=rtf)
+    if kind == 'fleet_sim':
+        from quad_trajectory.fleet import load_fleet, plan_fleet
+
+        refusal = plan_fleet(load_fleet(config_path(args['mission']))).refusal()
+        if refusal:
+            raise ValueError(refusal)
+        return fleet_sim_graph(config_path(args['mission']))
     hover = args['hover_throttle']
     try:
         hover_throttle = float(hover) if hover else None
