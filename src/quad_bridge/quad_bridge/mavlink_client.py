@@ -93,28 +93,13 @@ class Counted:
         return self._component
 
 
-class Decoded:
+class Decoded(Counted):
     """A message decoded here, not by pymavlink: its fields as attributes, by pymavlink's names and with pymavlink's
-    values (numeric fields; arrays as lists), and pymavlink's accessors. For the kinds decoded that have no char
-    field: pymavlink's decode (the message object, its header object, the payload and CRC kept) was the larger part
-    of the receive thread's Python per message (issue 26)."""
+    values (numeric fields; arrays as lists), and pymavlink's accessors (Counted's). For the kinds decoded that have
+    no char field: pymavlink's decode (the message object, its header object, the payload and CRC kept) was the
+    larger part of the receive thread's Python per message (issue 26)."""
 
-    __slots__ = ('_type', '_id', '_seq', '_system', '_component', '__dict__')
-
-    def get_type(self) -> str:
-        return self._type
-
-    def get_msgId(self) -> int:
-        return self._id
-
-    def get_seq(self) -> int:
-        return self._seq
-
-    def get_srcSystem(self) -> int:
-        return self._system
-
-    def get_srcComponent(self) -> int:
-        return self._component
+    __slots__ = ('__dict__',)
 
     def get_signed(self) -> bool:
         return False
@@ -149,9 +134,7 @@ def decode_payload(layout: Layout, frame, seq: int, system: int, component: int)
     if len(payload) < layout.size:
         payload = bytes(payload) + bytes(layout.size - len(payload))
     values = layout.unpack(payload)
-    msg = Decoded()
-    msg._type, msg._id, msg._seq, msg._system, msg._component = (layout.kind, frame[7] | frame[8] << 8 | frame[9] << 16,
-                                                                 seq, system, component)
+    msg = Decoded(layout.kind, frame[7] | frame[8] << 8 | frame[9] << 16, seq, system, component)
     if layout.plain:
         msg.__dict__.update(zip(layout.names, values))
     else:
