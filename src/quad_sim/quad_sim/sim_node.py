@@ -212,15 +212,20 @@ class SimulatedVehicle:
             self.publish_diagnostics()
 
     def publish_sensors(self, stamp):
+        """/tf, imu and rotor_speeds, each only while something subscribes to it (building them is most of their
+        cost: a fleet's vehicles publish them to nobody)."""
         truth = self.sim.state
-        if self.node.tf_pub is not None:
-            self.node.tf_pub.publish(TFMessage(transforms=[conversions.state_to_transform(
+        tf_pub = self.node.tf_pub
+        if tf_pub is not None and tf_pub.get_subscription_count():
+            tf_pub.publish(TFMessage(transforms=[conversions.state_to_transform(
                 truth, stamp, child_frame_id=self.body_frame)]))
-        self.imu_pub.publish(conversions.state_to_imu(truth, self.sim.specific_force_body_mps2, stamp,
-                                                      frame_id=self.body_frame))
-        rotors = JointState(name=ROTOR_NAMES, velocity=self.sim.rotor_speeds_radps.tolist())
-        rotors.header.stamp = stamp
-        self.rotor_pub.publish(rotors)
+        if self.imu_pub.get_subscription_count():
+            self.imu_pub.publish(conversions.state_to_imu(truth, self.sim.specific_force_body_mps2, stamp,
+                                                          frame_id=self.body_frame))
+        if self.rotor_pub.get_subscription_count():
+            rotors = JointState(name=ROTOR_NAMES, velocity=self.sim.rotor_speeds_radps.tolist())
+            rotors.header.stamp = stamp
+            self.rotor_pub.publish(rotors)
 
     def publish_diagnostics(self):
         sim = self.sim
