@@ -26,11 +26,16 @@ def hover_rotor_speed_sum_radps(vehicle) -> float:
     return 4.0 * math.sqrt(vehicle.plant_mass_kg * GRAVITY_MPS2 / (4.0 * vehicle.k_eta))
 
 
+def check_drag(per_s: float):
+    """ValueError naming --drag-per-s unless it is a number in [0, 10] (checked before the vehicle file is read)."""
+    if not (math.isfinite(per_s) and 0.0 <= per_s <= 10.0):
+        raise ValueError(f'--drag-per-s = {per_s!r} must be a number in [0, 10] (PX4 SIH: {PX4_SIH_DRAG_PER_S})')
+
+
 def with_linear_drag(vehicle, per_s: float):
     """(vehicle, quad_sim DisturbanceProfile) decelerating at per_s (m/s^2 per m/s) on every axis near hover;
     per_s 0: the vehicle unchanged and no drag (the emulator's default). Raises ValueError naming the option."""
-    if not (math.isfinite(per_s) and 0.0 <= per_s <= 10.0):
-        raise ValueError(f'--drag-per-s = {per_s!r} must be a number in [0, 10] (PX4 SIH: {PX4_SIH_DRAG_PER_S})')
+    check_drag(per_s)
     if per_s == 0.0:
         return vehicle, None
     c = per_s * vehicle.plant_mass_kg / hover_rotor_speed_sum_radps(vehicle)

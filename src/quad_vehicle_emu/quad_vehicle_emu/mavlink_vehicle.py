@@ -29,7 +29,7 @@ from quad_vehicle_emu import ned  # noqa: E402
 from quad_vehicle_emu import protocol as p  # noqa: E402
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, default_tau_s, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
-from quad_vehicle_emu.drag import with_linear_drag  # noqa: E402
+from quad_vehicle_emu.drag import check_drag, with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import Estimate  # noqa: E402
 
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
@@ -94,6 +94,7 @@ class MavlinkVehicle:
         self.args = args
         self.flavour = args.autopilot
         self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))  # bad parameters: first
+        check_drag(args.drag_per_s)
         vehicle, drag = with_linear_drag(emulated_vehicle(args.vehicle), args.drag_per_s)
         self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
