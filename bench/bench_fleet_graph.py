@@ -11,14 +11,20 @@ from quad_bringup.fleet_graph import fly_graph
 from quad_bringup.fleet_loop import fly_fleet
 from quad_trajectory.fleet import plan_fleet
 
-NOTE = ('\nThe lockstep is serial: each step sim_node publishes every odometry, the controllers answer, sim_node '
-        'takes every setpoint and advances; on this machine ~0.35 ms of Python per vehicle and step on each side (a '
-        'reliable DDS write to two readers, the simulator and the recorder, is ~0.1 ms of it), so the rate falls as '
-        '1/N. The goals (>= 5x at 4, >= 1x at 16) are not met here: 3.4x and 0.9x on a quiet machine (load ~1), '
-        '2.2x and 0.65x at load 6. One process for the vehicles\' nodes is 2.6x faster than one per node at 4 '
-        'vehicles (one interpreter, one DDS participant, one /clock take, every controller\'s tick in one executor '
-        'pass). At 64 vehicles each wake-up of an executor walks every entity (O(N) per message, O(N^2) per step). '
-        'Still 10 to 18x faster than Crazyswarm2\'s published figures at 1 and 16 vehicles.')
+NOTE = ('\n' +
+        'The lockstep is serial: each step sim_node publishes every odometry, the controllers answer, '
+        'sim_node takes every setpoint and advances, so the rate falls as 1/N (a reliable DDS write to two '
+        'readers, the simulator or controller and the recorder, is ~0.1 ms per vehicle and step on each '
+        'side). From run to run it varies widely here: 13 runs with 4 vehicles on the quiet machine (load ~1) '
+        'gave 1.9-7.1x, median 4.6x; 6 with 16 gave 0.98-1.7x, median 1.3x; the slow runs lose ~3.6 s once (a '
+        'stall not found yet). Goals (>= 5x at 4, >= 1x at 16): 16 met in the median, 4 not. Building /tf, '
+        "imu and rotor_speeds and the controllers' control/reference only while subscribed (a fleet publishes "
+        "them to nobody) took 4 vehicles from 3.4x to 5-7x. One process for the vehicles' nodes is 2.3-3.7x "
+        'faster than one per node at 4 vehicles (one interpreter, one DDS participant, one /clock take, every '
+        "controller's tick in one executor pass). At 64 vehicles each wake-up of an executor walks every "
+        "entity (O(N) per message, O(N^2) per step). 10 to 26x faster than Crazyswarm2's published figures at "
+        '1 and 16 vehicles.')
+
 SIZES = (1, 4, 16, 64)
 PER_NODE_SIZES = (1, 4)      # one process per node (as launch_ros starts them) beside one process for the vehicles
 CRAZYSWARM2 = {1: '0.70x', 4: '0.15x (5 drones)', 16: '0.05x', 64: ''}   # IMRCLab/crazyswarm2 issue 890
