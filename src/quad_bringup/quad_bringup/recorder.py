@@ -54,6 +54,15 @@ DEFAULT_TOPICS = {name: TopicSpec(t.msgtype, latched=t.latched) for name, t in c
                   if name != contract.BATTERY}
 
 
+def contract_spec(topic: str) -> TopicSpec | None:
+    """The contract's spec of `topic`: its own name ('odom'), or the contract topic a namespaced name ends with
+    ('/cf1/odom', '/cf1/cmd/attitude_thrust': a fleet vehicle's); None for any other topic."""
+    if topic in DEFAULT_TOPICS:
+        return DEFAULT_TOPICS[topic]
+    names = [name for name in DEFAULT_TOPICS if not name.startswith('/') and contract.matches(topic, name)]
+    return DEFAULT_TOPICS[max(names, key=len)] if names else None
+
+
 def installed(spec: TopicSpec) -> bool:
     """Whether the message package of `spec` can be imported here (tf2_msgs is not among the PyPI wheels)."""
     return importlib.util.find_spec(spec.msgtype.split('/')[0]) is not None

@@ -1,10 +1,10 @@
 """Node `recorder`: raw (serialized) subscriptions -> a rosbag2 bag (MCAP), see recorder.py.
 
-Topics of DEFAULT_TOPICS are subscribed at once with the QoS their publishers use (latched
-trajectory topics transient_local); any other topic is subscribed when it appears in the
-graph, with its type and durability taken from its publishers. Timestamps are receive times
-(system clock, as `ros2 bag record` does). SIGINT/SIGTERM/SIGHUP close the bag cleanly, and so does the death of
-the process that started it (quad_common.lifeline.bind_to_parent).
+Topics of DEFAULT_TOPICS, and a fleet vehicle's namespaced ones (/cf1/odom: recorder.contract_spec), are
+subscribed at once with the QoS their publishers use (latched trajectory topics transient_local); any other topic
+is subscribed when it appears in the graph, with its type and durability taken from its publishers. Timestamps
+are receive times (system clock, as `ros2 bag record` does). SIGINT/SIGTERM/SIGHUP close the bag cleanly, and so
+does the death of the process that started it (quad_common.lifeline.bind_to_parent).
 
 A lockstep follower (quad_common.lockstep): it acknowledges the odometry it has written, so a simulator started
 with lockstep_followers:=recorder never publishes more than the bag can take. The subscriptions are served in
@@ -29,7 +29,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, installed
+from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, contract_spec, installed
 from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.lifeline import bind_to_parent
@@ -79,11 +79,12 @@ class RecorderNode(Node):
         self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
         self._raw_subscriptions = {}
         self._pending = []
-        # the lockstep steps it acknowledges: the newest odom and /clock stamps both taken (a step's /clock follows
-        # its odom on the wire; acknowledging odom alone let the simulator exit with its last /clock unsent)
-        self._paced_newest_ns = {t: -1 for t in (ODOM, CLOCK) if t in self.params['topics']}
+        # the lockstep steps it acknowledges: the newest odom and /clock stamps all taken (a step's /clock follows
+        # its odom on the wire; acknowledging odom alone let the simulator exit with its last /clock unsent); a
+        # fleet's: every vehicle's odom (/cf1/odom, ...) and /clock
+        self._paced_newest_ns = {t: -1 for t in self.params['topics'] if t == CLOCK or contract.matches(t, ODOM)}
         for topic in self.params['topics']:
-            spec = DEFAULT_TOPICS.get(topic)
+            spec = contract_spec(topic)
             if spec is None:
                 self._pending.append(topic)
             elif not installed(spec):  # e.g. tf2_msgs is not among the PyPI ROS wheels
@@ -111,7 +112,7 @@ class RecorderNode(Node):
         def on_message(data: bytes, topic=topic):
             self.bag.write(topic, time.time_ns(), data)
             if topic in self._paced_newest_ns:
-                stamp_ns = cdr.header_stamp_ns(data, Odometry) if topic == ODOM else _clock_ns(data)
+                stamp_ns = _clock_ns(data) if topic == CLOCK else cdr.header_stamp_ns(data, Odometry)
                 self._paced_newest_ns[topic] = max(self._paced_newest_ns[topic], stamp_ns)
                 self.ack.taken(min(self._paced_newest_ns.values()))
                 if self.ack_after:  # nothing acknowledged until the bag has these (e.g. the latched plan)

@@ -181,3 +181,12 @@ def test_recorder_status_goes_under_the_contracts_name_whatever_the_node_is_call
         executor.shutdown()
     assert [(s.name, {kv.key: kv.value for kv in s.values}) for s in statuses[:1]] == \
         [(contract.RECORDER_STATUS, {'odom': '0'})], out
+
+
+def test_a_fleet_vehicles_topics_have_the_contracts_specs():
+    from quad_bringup.recorder import DEFAULT_TOPICS, contract_spec
+    assert contract_spec('/cf1/odom') == DEFAULT_TOPICS['odom']
+    assert contract_spec('/cf1/cmd/attitude_thrust') == DEFAULT_TOPICS['cmd/attitude_thrust']
+    assert contract_spec('/cf1/trajectory') == DEFAULT_TOPICS['trajectory'] and DEFAULT_TOPICS['trajectory'].latched
+    assert contract_spec('/cf1/trajectory/path') == DEFAULT_TOPICS['trajectory/path']
+    assert contract_spec('/clock') == DEFAULT_TOPICS['/clock'] and contract_spec('/cf1/unknown') is None
