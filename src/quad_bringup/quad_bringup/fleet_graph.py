@@ -28,7 +28,7 @@ from quad_bringup.report import load_flight, write_report
 from quad_common import contract
 from quad_common.domain_probe import foreign_nodes
 from quad_common.domains import isolated_domain
-from quad_sim.vehicle_contact import closest_approach, contact_fraction
+from quad_sim.vehicle_contact import ContactRule
 from quad_trajectory.fleet import FleetPlan, resolved_fleet
 
 SETTLE_S = 3.0              # sim time flown after the latest planned end (the completion rule's settle window)
@@ -203,26 +203,16 @@ def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_
 
 def flown_contacts(t, positions, names, radii_m) -> tuple[np.ndarray, list]:
     """(the smallest pairwise distance at each sample, [(time_s, a, b, distance_m)] of each contact's start),
-    with quad_sim.vehicle_contact's linear closest approach between samples."""
-    n = len(positions)
-    if n < 2:
+    by the simulator's contact rule (quad_sim.vehicle_contact.ContactRule) between samples."""
+    if len(positions) < 2:
         return np.full(len(t), np.inf), []
     p = np.stack(positions, axis=1)            # (samples, vehicles, 3)
-    i, j = np.triu_indices(n, 1)
-    touch = np.asarray(radii_m)[i] + np.asarray(radii_m)[j]
+    rule = ContactRule(names, radii_m)
     separation = np.empty(len(t))
-    separation[0] = float(np.min(np.linalg.norm(p[0, j] - p[0, i], axis=1)))
-    colliding = np.zeros(i.size, dtype=bool)
-    collisions = []
+    separation[0] = float(np.min(np.linalg.norm(p[0, rule.pair_j] - p[0, rule.pair_i], axis=1)))
     for k in range(1, len(t)):
-        d = closest_approach(p[k - 1], p[k], i, j)
-        hit = d < touch
-        for q in np.flatnonzero(hit & ~colliding):
-            s = contact_fraction(p[k - 1], p[k], i[q], j[q], touch[q])
-            collisions.append((float(t[k - 1] + s * (t[k] - t[k - 1])), names[i[q]], names[j[q]], float(d[q])))
-        colliding = hit
-        separation[k] = float(d.min())
-    return separation, collisions
+        separation[k] = rule.check(p[k - 1], p[k], t[k - 1], t[k] - t[k - 1])[0]
+    return separation, rule.collisions
 
 
 def default_out_dir(fleet_name: str) -> Path:

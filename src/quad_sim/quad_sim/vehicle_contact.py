@@ -36,43 +36,65 @@ def contact_fraction(p0, p1, i, j, touch_m) -> float:
     return float(np.clip((-b - np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a), 0.0, 1.0))
 
 
-class VehicleContacts:
-    """The pairwise contact check of N simulators stepped together: `step(t0_s, dt_s)` after each step."""
+class ContactRule:
+    """The pairwise contact rule over successive positions of N vehicles: `check(p_prev, p, t0_s, dt_s)` per step
+    (the simulator's between physics steps, the report's between recorded samples)."""
 
-    def __init__(self, names, simulators, radii_m):
-        self.names, self.sims = list(names), list(simulators)
-        n = len(self.sims)
-        self.pair_i, self.pair_j = np.triu_indices(n, 1)
+    def __init__(self, names, radii_m):
+        self.names = list(names)
+        self.pair_i, self.pair_j = np.triu_indices(len(self.names), 1)
         radii = np.asarray(radii_m, dtype=float)
         self.touch_m = radii[self.pair_i] + radii[self.pair_j]
         self._colliding = np.zeros(self.pair_i.size, dtype=bool)
         self.collisions = []           # (time_s, a, b, distance_m) of each contact's start
+
+    def reset(self):
+        self._colliding[:] = False
+        self.collisions.clear()
+
+    def check(self, p_prev, p, t0_s: float, dt_s: float) -> tuple[float, list]:
+        """(the smallest pairwise distance from p_prev to p, inf for one vehicle; [(q, time_s, distance_m)] of the
+        pairs whose contact starts in the step, also appended to `collisions` by name)."""
+        if not self.pair_i.size:
+            return float('inf'), []
+        d = closest_approach(p_prev, p, self.pair_i, self.pair_j)
+        hit = d < self.touch_m
+        started = []
+        for q in np.flatnonzero(hit & ~self._colliding):
+            a, b = self.pair_i[q], self.pair_j[q]
+            t_hit = t0_s + contact_fraction(p_prev, p, a, b, self.touch_m[q]) * dt_s
+            started.append((q, t_hit, float(d[q])))
+            self.collisions.append((t_hit, self.names[a], self.names[b], float(d[q])))
+        self._colliding = hit
+        return float(d.min()), started
+
+
+class VehicleContacts(ContactRule):
+    """The contact rule on N simulators stepped together: `step(t0_s, dt_s)` after each step; a contact is an
+    event in both vehicles' simulators."""
+
+    def __init__(self, names, simulators, radii_m):
+        super().__init__(names, radii_m)
+        self.sims = list(simulators)
         self._p = self.positions()
 
     def positions(self) -> np.ndarray:
         return np.array([s.state.position for s in self.sims])
 
     def reset(self):
-        self._colliding[:] = False
-        self.collisions.clear()
+        super().reset()
         self._p = self.positions()
 
     def step(self, t0_s: float, dt_s: float) -> float:
         """Checks the step from t0_s to t0_s + dt_s; returns the smallest pairwise distance in it (inf for one
-        vehicle). New contacts become events in both vehicles' simulators."""
+        vehicle)."""
         p_prev, p = self._p, self.positions()
         self._p = p
-        if not self.pair_i.size:
-            return float('inf')
-        d = closest_approach(p_prev, p, self.pair_i, self.pair_j)
-        hit = d < self.touch_m
-        for q in np.flatnonzero(hit & ~self._colliding):
+        closest, started = self.check(p_prev, p, t0_s, dt_s)
+        for q, t_hit, distance_m in started:
             a, b = self.pair_i[q], self.pair_j[q]
-            t_hit = t0_s + contact_fraction(p_prev, p, a, b, self.touch_m[q]) * dt_s
-            self.collisions.append((t_hit, self.names[a], self.names[b], float(d[q])))
             for me, other in ((a, b), (b, a)):
                 self.sims[me].events.append(Event(VEHICLE_COLLISION, t_hit, self.sims[me].state.position,
-                                                  {'other': self.names[other], 'distance_m': round(float(d[q]), 4),
+                                                  {'other': self.names[other], 'distance_m': round(distance_m, 4),
                                                    'radii_m': round(float(self.touch_m[q]), 4)}))
-        self._colliding = hit
-        return float(d.min())
+        return closest
