@@ -109,6 +109,49 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
     assert 'cf1: no setpoint' in log and 'cf2: no setpoint' not in log
 
 
+def test_the_simulator_hosted_with_the_vehicles_stops_on_sigint_and_loses_nothing(tmp_path):
+    """The default layout: sim_node and every vehicle's nodes in one node_host process. SIGINT at t >= 1 s: the
+    simulator (not rclpy) takes it, publishes its final diagnostics, drains the recorder and the process exits 0;
+    every step it published is in the bag, for each vehicle."""
+    plan = plan_fleet(load_fleet(two_abreast(tmp_path)))
+    run = fleet_graph.prepare(plan, tmp_path / 'run')
+    assert [p.name for p in run.nodes] == ['node_host'] and run.nodes[0].argv[0] == 'sim_node', run.nodes
+    host = run.nodes[0]
+    with isolated_domain() as (domain, env):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        probe = rclpy.create_node('probe', context=ctx)
+        sim_times = []
+        probe.create_subscription(Clock, contract.CLOCK, lambda m: sim_times.append(m.clock.sec), 10)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(probe)
+        try:
+            run.start(env)
+            deadline = time.monotonic() + TIMEOUT_S
+            while not (sim_times and sim_times[-1] >= 1):
+                assert time.monotonic() < deadline, 'the fleet never reached t = 1 s'
+                assert host.exit_code() is None, host.log_tail()
+                executor.spin_once(timeout_sec=0.1)
+            executor.remove_node(probe)
+            probe.destroy_node()
+            host.signal_group(signal.SIGINT)
+            while host.exit_code() is None:
+                assert time.monotonic() < deadline, 'node_host did not stop after SIGINT'
+                time.sleep(0.05)   # polling a child's exit (no event to await but waitpid)
+        finally:
+            codes = run.stop(log=lambda *_: None)
+            executor.shutdown()
+            rclpy.shutdown(context=ctx)
+    assert host.exit_code() == 0 and codes['recorder'] == 0, (codes, host.log_tail())
+    log = host.log_path.read_text()
+    assert 'lockstep: stepped' in log and 'may miss the last steps' not in log, log
+    result = fleet_graph.fleet_run(run.bag, plan)
+    for name, m in result.metrics.items():
+        assert m['record']['complete'] and m['record']['odom_recorded'] == m['record']['steps_published'] > 100, \
+            (name, m['record'])
+        assert not m['completed']        # stopped mid-flight
+
+
 def test_sim_node_refuses_a_fleet_whose_arrays_do_not_match_naming_the_field(ros_env):
     done = subprocess.run(
         [str(ROOT / '.venv/bin/python'), '-m', 'quad_sim.sim_node', '--ros-args', '-p',

@@ -2,10 +2,13 @@
 under one /clock, each vehicle's trajectory_node and position_controller under its namespace, the recorder as the
 simulator's lockstep follower (nothing lost), then each vehicle's metrics from the bag.
 
-Processes: the recorder, sim_node, and the vehicles' nodes: in one process (quad_bringup.node_host; the default:
-one interpreter and one DDS participant for all of them) or one process per node (hosted=False, as launch_ros
-starts them). Everything runs on simulated time; sim_node ends the run at duration_s (the latest planned end plus
-SETTLE_S), drains the recorder and exits; then the rest is stopped (processes.stop: SIGINT, SIGTERM, SIGKILL).
+Processes: the recorder, and sim_node with the vehicles' nodes in one process (quad_bringup.node_host; the
+default: one interpreter and one DDS participant for all of them, so odometry and setpoints go from writer to
+reader inside the process, and the lockstep loop serves every controller's tick in its own wait) or one process
+per node (hosted=False, as launch_ros starts them). The recorder is always a process of its own: it records on the
+other core while the lockstep steps. Everything runs on simulated time; sim_node ends the run at duration_s (the
+latest planned end plus SETTLE_S), drains the recorder and exits; then the rest is stopped (processes.stop: SIGINT,
+SIGTERM, SIGKILL).
 
 Per vehicle the bag holds /NAME/odom, /NAME/cmd/attitude_thrust, /NAME/trajectory and /NAME/diagnostics (the
 simulator's collision, vehicle_collision and failsafe events); report.load_flight reads one vehicle's part. The
@@ -54,13 +57,15 @@ def duration_s(plan: FleetPlan) -> float:
 
 
 def node_processes(specs, params_file: Path, log_dir: Path, hosted: bool) -> list[processes.NodeProcess]:
-    """sim_node, then the vehicles' nodes: one node_host process for all of them, or one process each."""
+    """The simulator's process first: one node_host process for sim_node and every vehicle's nodes, or one
+    process per node (sim_node, then the vehicles')."""
     args = ['--params-file', str(params_file)]
-    sim = [processes.NodeProcess(s.name, s.module, args, log_dir / 'sim_node.log') for s in specs if not s.namespace]
     vehicles = [s for s in specs if s.namespace]
     if hosted:
-        return sim + [processes.NodeProcess('node_host', 'quad_bringup.node_host', args, log_dir / 'node_host.log',
-                                            argv=[f'{s.name}@{s.namespace}' for s in vehicles], remap_name=False)]
+        return [processes.NodeProcess('node_host', 'quad_bringup.node_host', args, log_dir / 'node_host.log',
+                                      argv=[s.name if not s.namespace else f'{s.name}@{s.namespace}' for s in specs],
+                                      remap_name=False)]
+    sim = [processes.NodeProcess(s.name, s.module, args, log_dir / 'sim_node.log') for s in specs if not s.namespace]
     return sim + [processes.NodeProcess(s.name, s.module, ['-r', f'__ns:=/{s.namespace}', *args],
                                         log_dir / f'{s.namespace}_{s.name}.log') for s in vehicles]
 
@@ -71,7 +76,7 @@ class GraphRun:
     plan: FleetPlan
     out_dir: Path
     recorder: processes.NodeProcess
-    nodes: list                # sim_node first, then the vehicles' process(es)
+    nodes: list                # the simulator's process first (node_host, or sim_node), then the vehicles'
     end_s: float               # sim time at which sim_node ends the run
 
     @property
@@ -83,8 +88,8 @@ class GraphRun:
             p.start(env)
 
     def await_end(self, deadline: float, expected_dead=()):
-        """Until sim_node has ended the run (exit 0); RuntimeError naming a process that exits before it (except
-        those in expected_dead), or the deadline (time.monotonic) passing."""
+        """Until the simulator's process has ended the run (exit 0); RuntimeError naming a process that exits before
+        it (except those in expected_dead), or the deadline (time.monotonic) passing."""
         sim = self.nodes[0]
         others = [p for p in [self.recorder, *self.nodes[1:]] if p not in expected_dead]
         while sim.exit_code() is None:
@@ -96,7 +101,7 @@ class GraphRun:
                 raise RuntimeError(f'the flight did not end in time (logs in {self.out_dir / "logs"})')
             time.sleep(0.05)  # polling children's exits (no event to await for them but waitpid, one at a time)
         if sim.exit_code() != 0:
-            raise RuntimeError(f'sim_node exited {sim.exit_code()}: {sim.log_tail(4)}')
+            raise RuntimeError(f'{sim.name} exited {sim.exit_code()}: {sim.log_tail(4)}')
 
     def stop(self, log=print) -> dict:
         """The vehicles' nodes and the simulator, then the recorder (its bag closed last): {name: exit code}."""
@@ -137,14 +142,14 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
     run = prepare(plan, out_dir, speed_mps=speed_mps, hosted=hosted)
     timing = GraphTiming()
     log(f'flying {plan.fleet.name} ({len(plan.fleet.names)} vehicles) through the ROS graph '
-        f'({"one process for the vehicles" if hosted else "one process per node"}) -> {run.out_dir}')
+        f'({"one process for the simulator and the vehicles" if hosted else "one process per node"}) -> {run.out_dir}')
     with isolated_domain(probe=lambda d: foreign_nodes(d, DOMAIN_PROBE_S)) as (_domain, env):
         start = time.monotonic()
         try:
             run.start(env)
             run.await_end(start + timeout_s)
             timing.cpu_s = {p.name: cpu_s(p.pid) for p in [run.recorder, *run.nodes[1:]]}
-            timing.flight_s = _stepping_s(run.out_dir / 'logs' / 'sim_node.log', time.monotonic() - start)
+            timing.flight_s = _stepping_s(run.nodes[0].log_path, time.monotonic() - start)
         finally:
             timing.processes = run.stop(log=log)
             timing.total_s = time.monotonic() - start

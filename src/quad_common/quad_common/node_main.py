@@ -34,7 +34,8 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
     try:
         node = make_node()
         if own_signals:
-            node.stop_requested = lambda: bool(stop)
+            for each in node if isinstance(node, list) else [node]:
+                each.stop_requested = lambda: bool(stop)
         if _stopping(stop):
             return
         executor = make_executor(node) if make_executor else SingleThreadedExecutor()

@@ -332,6 +332,11 @@ class SimNode(Node):
             f'{p["mode"]}: {what}, {p["physics_rate_hz"]:g} Hz physics, '
             f'disturbances {profile.name}, world {p["world"] or "none"}')
 
+    def hot_entities(self):
+        """The lockstep's per-step entities (quad_common.hot_path): every vehicle's setpoints, the followers'
+        acknowledgements, the realtime tick."""
+        return self.hot_subscriptions, self.hot_timers
+
     def _config(self, path, name):
         try:
             return resolve_config(path)
@@ -345,6 +350,7 @@ class SimNode(Node):
         self._wall_start_s = time.monotonic()
         self._sim_start_ns = self.sim.time_ns
         self._first_advance = None    # (wall s, sim ns) of the first step advanced
+        self._longest = {}            # kind -> (the longest wait s while stepping, at t ns, who it waited for)
 
     # --- the single vehicle's view (one vehicle: the node's own topics) ------------------------------------
 
@@ -428,10 +434,16 @@ class SimNode(Node):
         while self.running():
             self.publish_step()
             t_k = self.sim.time_ns
+            waited = time.monotonic()
+            behind = self.followers_behind(max(t_k - lag_ns, 0))
             self._await_followers(executor, max(t_k - lag_ns, 0))  # every follower has step 0 before step 1
+            now = time.monotonic()
+            self._longest_wait('followers', now - waited, t_k, behind)
             if self._ended():
                 break
+            waiting = [v.name for v in self.vehicles if v.setpoint_stamp_ns < t_k]
             self._await_setpoints(executor, t_k)
+            self._longest_wait('setpoints', time.monotonic() - now, t_k, waiting)
             if self.sim.time_ns != t_k:  # reset while waiting
                 continue
             if not self.running():
@@ -445,7 +457,16 @@ class SimNode(Node):
             self.get_logger().info(f'lockstep: stepped {sim_s:.3f} s of {len(self.vehicles)} vehicle(s) in '
                                    f'{wall_s:.3f} s ({sim_s / max(wall_s, 1e-9):.2f}x real time; this process '
                                    f'{time.process_time() - self._first_advance[2]:.3f} s of CPU)')
+            for what, (wait_s, t_ns, who) in self._longest.items():
+                self.get_logger().info(f'lockstep: longest wait for {what} {wait_s * 1e3:.1f} ms at t = '
+                                       f'{t_ns * 1e-9:.3f} s ({", ".join(who) or "none behind at its start"})')
         self.drain(executor)
+
+    def _longest_wait(self, what: str, wait_s: float, t_ns: int, who):
+        """Keeps the longest wall-time wait of each kind while stepping (logged at the end: where a slow run lost
+        its time)."""
+        if self._first_advance is not None and wait_s > self._longest.get(what, (0.0,))[0]:
+            self._longest[what] = (wait_s, t_ns, list(who))
 
     def _await_setpoints(self, executor, t_k: int):
         """Spin until every vehicle has a setpoint stamped >= t_k or its wait ran out: lockstep_timeout_s; before
@@ -574,7 +595,8 @@ def _place(event) -> dict:
             'z': f'{event.position[2]:.3f}', **event.detail}
 
 
-def _spin(node, executor):
+def spin(node, executor):
+    """The simulator's loop: lockstep, or realtime paced by its wall-clock tick."""
     if node.params['mode'] == 'lockstep':
         node.run_lockstep(executor)
     else:
@@ -585,8 +607,8 @@ def _spin(node, executor):
 
 def main(args=None):
     run_node(NAME, SimNode, refused=(ValueError, SimulationStopped),
-             make_executor=lambda node: HotPathExecutor(lambda: (node.hot_subscriptions, node.hot_timers)),
-             spin=_spin, args=args, own_signals=True)
+             make_executor=lambda node: HotPathExecutor(node.hot_entities),
+             spin=spin, args=args, own_signals=True)
 
 
 if __name__ == '__main__':

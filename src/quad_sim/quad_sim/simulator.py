@@ -184,6 +184,11 @@ class Simulator:
                      body_rates=np.array(x[10:13]))
 
     @property
+    def position_m(self) -> np.ndarray:
+        """The true position (a view: copy it to keep it)."""
+        return self._x[0:3]
+
+    @property
     def rotor_speeds_radps(self) -> np.ndarray:
         return np.array(self._x[13:17])
 

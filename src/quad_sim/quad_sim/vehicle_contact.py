@@ -79,7 +79,7 @@ class VehicleContacts(ContactRule):
         self._p = self.positions()
 
     def positions(self) -> np.ndarray:
-        return np.array([s.state.position for s in self.sims])
+        return np.array([s.position_m for s in self.sims])
 
     def reset(self):
         super().reset()
