@@ -129,6 +129,7 @@ class PositionControllerNode(Node):
         self.trajectory_sub = self.create_subscription(MultiDOFJointTrajectory, c.TRAJECTORY,
                                                        self.trajectory_decoder.submit, c.qos(c.TRAJECTORY), raw=True)
         self.timer = self.create_timer(1.0 / self.params['rate_hz'], self._on_tick)
+        self._clock_subs = (-1, [])   # (the node's subscription count, its /clock subscription): hot_entities
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=self.steady)
         self.get_logger().info(f"{self.params['controller']} at {self.params['rate_hz']} Hz, "
@@ -137,7 +138,10 @@ class PositionControllerNode(Node):
     def hot_entities(self):
         """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
         trajectory's bytes and its decoded result (rare, but a new plan must not wait for the slow pass)."""
-        clock = [s for s in self.subscriptions if s.topic_name == contract.CLOCK]
+        subscriptions = self._subscriptions   # rclpy 7.1 (quad_common.hot_path.CHECKED_RCLPY_VERSION): a list
+        if self._clock_subs[0] != len(subscriptions):   # asked before every wait: look up /clock's only when changed
+            self._clock_subs = (len(subscriptions), [s for s in subscriptions if s.topic_name == contract.CLOCK])
+        clock = self._clock_subs[1]
         engaged = [self.engaged_sub] if self.engaged_sub is not None else []
         return clock + engaged + [self.odom_sub, self.trajectory_sub], [self.timer], [self.trajectory_ready]
 
