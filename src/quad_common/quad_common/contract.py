@@ -4,6 +4,7 @@ types and QoS, the diagnostic status names and keys that carry events, and the `
 No rclpy here (the report and the offline tools read it too); `qos(topic)` builds the rclpy profile on demand.
 """
 
+import re
 from dataclasses import dataclass
 
 # --- topics (relative names: a namespace prefixes them; /clock and /tf are global) --------------------------
@@ -52,6 +53,14 @@ TOPICS = {t.name: t for t in (
     Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray'),
     Topic(ENGAGED, 'std_msgs/msg/Bool', latched=True, depth=1),
 )}
+
+
+VEHICLE_NAME_RULE = 'a letter then letters, digits or _ (it becomes the vehicle\'s namespace)'
+
+
+def is_vehicle_name(name) -> bool:
+    """A fleet vehicle's name: one ROS namespace component (/cf1/odom), ASCII (VEHICLE_NAME_RULE)."""
+    return isinstance(name, str) and re.fullmatch(r'[A-Za-z][A-Za-z0-9_]*', name) is not None
 
 
 def qos(topic: str, depth: int | None = None):

@@ -573,8 +573,8 @@ def _fleet_layout(p) -> list[tuple]:
     if n == 0:
         raise ValueError('vehicle_names = [] refused: name at least one vehicle (or leave it unset for one)')
     for name in names:
-        if not name or not (name[0].isalpha() and name.replace('_', 'a').isalnum()):
-            raise ValueError(f'vehicle_names: {name!r} refused: a letter then letters, digits or _ (a namespace)')
+        if not contract.is_vehicle_name(name):
+            raise ValueError(f'vehicle_names: {name!r} refused: {contract.VEHICLE_NAME_RULE}')
         if names.count(name) > 1:
             raise ValueError(f'vehicle_names: {name!r} refused: named twice')
     files = p['vehicle_files'] if p['vehicle_files'] is not None else [p['vehicle']] * n

@@ -13,11 +13,11 @@ and checks again.
 
 import dataclasses
 import os
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from quad_common import contract
 from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos
 from quad_trajectory import separation
 from quad_trajectory.mission import Mission, mission_from_dict, plan_mission
@@ -35,7 +35,6 @@ SEPARATION_KEYS = frozenset({'min_m', 'margin_m', 'deconflict', 'delay_step_s', 
 DECONFLICT = ('none', 'delays', 'altitude')
 DEFAULT_RADIUS_M = 0.1       # a vehicle without robot_radius_m: the simulator's default robot radius
 DEFAULT_MARGIN_M = 0.1       # tracking error and odometry noise on top of the two radii
-_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*$')   # a ROS namespace component
 
 
 @dataclass
@@ -169,9 +168,8 @@ def _vehicle(entry, index, data, path, seen) -> FleetVehicle:
     where = f'vehicles[{index}]' + (f' ({name})' if isinstance(name, str) else '')
     if not isinstance(entry, dict):
         raise ValueError(f'{path}: {where} = {entry!r} must be a mapping with a name')
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise ValueError(f'{path}: {where}: name = {name!r} must be a letter then letters, digits or _ '
-                         '(it becomes the vehicle\'s namespace)')
+    if not contract.is_vehicle_name(name):
+        raise ValueError(f'{path}: {where}: name = {name!r} must be {contract.VEHICLE_NAME_RULE}')
     if name in seen:
         raise ValueError(f'{path}: {where}: name = {name!r} is already vehicles[{seen[name]}]\'s')
     seen[name] = index
