@@ -5,6 +5,7 @@ import json
 import signal
 import subprocess
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,37 @@ def two_abreast(tmp_path) -> Path:
                     'trajectory: {method: minsnap, speed: 0.5, time_allocation: sqrt}\n'
                     'vehicles:\n  - {name: cf1, offset: [0.0, -0.5, 0.0]}\n  - {name: cf2, offset: [0.0, 0.5, 0.0]}\n')
     return path
+
+
+@contextmanager
+def flying_until(run, sim_time_s: float):
+    """Starts the run's processes in an isolated domain and returns from __enter__ once its /clock reached
+    sim_time_s (a probe node, removed before the body runs), giving {'deadline': the hang guard's}; stops every
+    process at the end (their exit codes in its 'codes')."""
+    sim_times, flight = [], {}
+    with isolated_domain() as (domain, env):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        probe = rclpy.create_node('probe', context=ctx)
+        probe.create_subscription(Clock, contract.CLOCK,
+                                  lambda m: sim_times.append(m.clock.sec + m.clock.nanosec * 1e-9), 10)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(probe)
+        try:
+            run.start(env)
+            deadline = time.monotonic() + TIMEOUT_S
+            while not (sim_times and sim_times[-1] >= sim_time_s):
+                assert time.monotonic() < deadline, f'the fleet never reached t = {sim_time_s} s'
+                assert run.nodes[0].exit_code() is None, run.nodes[0].log_tail()
+                executor.spin_once(timeout_sec=0.1)
+            executor.remove_node(probe)
+            probe.destroy_node()
+            flight['deadline'] = deadline
+            yield flight
+        finally:
+            flight['codes'] = run.stop(log=lambda *_: None)
+            executor.shutdown()
+            rclpy.shutdown(context=ctx)
 
 
 def test_a_formation_of_four_flies_through_the_graph_and_each_vehicle_completes(tmp_path, ros_env):
@@ -71,30 +103,9 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
     plan = plan_fleet(load_fleet(two_abreast(tmp_path)))
     run = fleet_graph.prepare(plan, tmp_path / 'run', hosted=False)
     victim = next(p for p in run.nodes if 'cf1_position_controller' in p.log_path.name)
-    sim_times = []
-    with isolated_domain() as (domain, env):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=domain)
-        probe = rclpy.create_node('probe', context=ctx)
-        probe.create_subscription(Clock, contract.CLOCK, lambda m: sim_times.append(m.clock.sec + m.clock.nanosec
-                                                                                    * 1e-9), 10)
-        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        executor.add_node(probe)
-        try:
-            run.start(env)
-            deadline = time.monotonic() + TIMEOUT_S
-            while not (sim_times and sim_times[-1] >= 2.0):
-                assert time.monotonic() < deadline, 'the fleet never reached t = 2 s'
-                assert run.nodes[0].exit_code() is None, run.nodes[0].log_tail()
-                executor.spin_once(timeout_sec=0.1)
-            victim.signal_group(signal.SIGKILL)
-            executor.remove_node(probe)
-            probe.destroy_node()
-            run.await_end(deadline, expected_dead=[victim])
-        finally:
-            run.stop(log=lambda *_: None)
-            executor.shutdown()
-            rclpy.shutdown(context=ctx)
+    with flying_until(run, 2.0) as flight:
+        victim.signal_group(signal.SIGKILL)
+        run.await_end(flight['deadline'], expected_dead=[victim])
     result = fleet_graph.fleet_run(run.bag, plan)
     cf1, cf2 = result.metrics['cf1'], result.metrics['cf2']
     assert cf2['completed'] and cf2['rmse_m'] < 0.03, cf2
@@ -117,31 +128,12 @@ def test_the_simulator_hosted_with_the_vehicles_stops_on_sigint_and_loses_nothin
     run = fleet_graph.prepare(plan, tmp_path / 'run')
     assert [p.name for p in run.nodes] == ['node_host'] and run.nodes[0].argv[0] == 'sim_node', run.nodes
     host = run.nodes[0]
-    with isolated_domain() as (domain, env):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=domain)
-        probe = rclpy.create_node('probe', context=ctx)
-        sim_times = []
-        probe.create_subscription(Clock, contract.CLOCK, lambda m: sim_times.append(m.clock.sec), 10)
-        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        executor.add_node(probe)
-        try:
-            run.start(env)
-            deadline = time.monotonic() + TIMEOUT_S
-            while not (sim_times and sim_times[-1] >= 1):
-                assert time.monotonic() < deadline, 'the fleet never reached t = 1 s'
-                assert host.exit_code() is None, host.log_tail()
-                executor.spin_once(timeout_sec=0.1)
-            executor.remove_node(probe)
-            probe.destroy_node()
-            host.signal_group(signal.SIGINT)
-            while host.exit_code() is None:
-                assert time.monotonic() < deadline, 'node_host did not stop after SIGINT'
-                time.sleep(0.05)   # polling a child's exit (no event to await but waitpid)
-        finally:
-            codes = run.stop(log=lambda *_: None)
-            executor.shutdown()
-            rclpy.shutdown(context=ctx)
+    with flying_until(run, 1.0) as flight:
+        host.signal_group(signal.SIGINT)
+        while host.exit_code() is None:
+            assert time.monotonic() < flight['deadline'], 'node_host did not stop after SIGINT'
+            time.sleep(0.05)   # polling a child's exit (no event to await but waitpid)
+    codes = flight['codes']
     assert host.exit_code() == 0 and codes['recorder'] == 0, (codes, host.log_tail())
     log = host.log_path.read_text()
     assert 'lockstep: stepped' in log and 'may miss the last steps' not in log, log
