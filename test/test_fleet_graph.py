@@ -113,9 +113,15 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
     assert result.positions['cf1'][-1, 2] < 0.1, result.positions['cf1'][-1]     # landed by its failsafe
     assert abs(result.positions['cf1'][-1, 0]) < 0.6        # where it was at t = 2 s, not along the leg
     assert result.collisions == []
-    from quad_bringup.report import load_flight
-    assert any(name == contract.SIM_FAILSAFE for _, name, _ in load_flight(run.bag, namespace='cf1').errors)
-    assert not any(name == contract.SIM_FAILSAFE for _, name, _ in load_flight(run.bag, namespace='cf2').errors)
+    from quad_bringup.report import load_flight, load_flights
+    alone = {n: load_flight(run.bag, namespace=n) for n in ('cf1', 'cf2')}
+    assert any(name == contract.SIM_FAILSAFE for _, name, _ in alone['cf1'].errors)
+    assert not any(name == contract.SIM_FAILSAFE for _, name, _ in alone['cf2'].errors)
+    for name, flight in load_flights(run.bag, ['cf1', 'cf2']).items():   # one read of the bag: the same flights
+        for field in ('odom_t', 'position', 'cmd_t', 'cmd_euler', 'clock_stamps_ns'):
+            assert np.array_equal(getattr(flight, field), getattr(alone[name], field)), (name, field)
+        assert flight.errors == alone[name].errors and flight.sim_published == alone[name].sim_published
+    assert not np.array_equal(alone['cf1'].position[-1], alone['cf2'].position[-1])
     log = (run.out_dir / 'logs' / 'sim_node.log').read_text()
     assert 'cf1: no setpoint' in log and 'cf2: no setpoint' not in log
 

@@ -11,8 +11,8 @@ latest planned end plus SETTLE_S), drains the recorder and exits; then the rest 
 SIGTERM, SIGKILL).
 
 Per vehicle the bag holds /NAME/odom, /NAME/cmd/attitude_thrust, /NAME/trajectory and /NAME/diagnostics (the
-simulator's collision, vehicle_collision and failsafe events); report.load_flight reads one vehicle's part. The
-fleet's flown separation and its collisions are computed from the recorded odometry with the simulator's own
+simulator's collision, vehicle_collision and failsafe events); report.load_flights reads every vehicle's part in one
+read. The fleet's flown separation and its collisions are computed from the recorded odometry with the simulator's own
 contact rule (quad_sim.vehicle_contact), beside the events the simulator reported.
 """
 
@@ -27,7 +27,7 @@ import yaml
 from quad_bringup import graph, processes
 from quad_bringup.fleet_loop import FleetRun
 from quad_bringup.metrics import Completion, compute_metrics
-from quad_bringup.report import load_flight, write_report
+from quad_bringup.report import load_flights, write_report
 from quad_common import contract
 from quad_common.domain_probe import foreign_nodes
 from quad_common.domains import isolated_domain
@@ -184,7 +184,7 @@ def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_
     separation and collisions on a common time base (the first vehicle's odometry stamps: in lockstep every
     vehicle has one at each step)."""
     names = plan.fleet.names
-    flights = {n: load_flight(bag_dir, namespace=n) for n in names}
+    flights = load_flights(bag_dir, names)
     controllers = {v.name: graph.controller_and_profile(v.controller, v.profile_path)[0] for v in plan.fleet.vehicles}
     metrics = {}
     rules = {v.name: rule or Completion.for_vehicle(v.mission.vehicle) for v in plan.fleet.vehicles}

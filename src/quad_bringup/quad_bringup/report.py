@@ -41,87 +41,122 @@ HANDOVER_KEY = 'handover'   # the bridge's setpoints status: the hand-over phase
 _namespaced = contract.matches
 
 
+WANTED = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK, ENGAGED)   # what a Flight is made of
+
+
 def load_flight(bag_dir, namespace: str = '') -> Flight:
     """Extract a Flight from a bag; raises ValueError naming what is missing. namespace: one fleet vehicle's
     flight (its topics under /NAMESPACE/, and /clock) from a fleet's bag."""
+    return load_flights(bag_dir, (namespace,))[namespace]
+
+
+def load_flights(bag_dir, namespaces) -> dict:
+    """{namespace: its Flight} (load_flight's) from one read of the bag: a fleet's N vehicles open, index and
+    deserialize it once, not N times (opening parses its metadata and every connection's QoS: ~1 s for a
+    16-vehicle bag)."""
     ts = typestore()
-    odom, cmds, latest, clock, engaged, handover = [], [], {}, [], [], []
-    errors, collision, published = [], None, None
+    parts = {ns: _FlightParts() for ns in namespaces}
     reader, repair = open_bag_reader(bag_dir)
     try:
-        wanted = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK, ENGAGED)
-        def match(topic, w):
-            if not namespace:
-                return _namespaced(topic, w)
-            return topic == w if w.startswith('/') else topic == f'/{namespace}/{w}'
-
-        connections = [c for c in reader.connections if any(match(c.topic, w) for w in wanted)]
+        routes = {}      # connection id -> [(its vehicle's parts, the contract topic it is)]
+        for conn in reader.connections:
+            routes[conn.id] = [(parts[ns], w) for ns in namespaces
+                               for w in [next((w for w in WANTED if _is(conn.topic, w, ns)), None)] if w]
+        connections = [c for c in reader.connections if routes[c.id]]
         for conn, record_ns, raw in reader.messages(connections=connections):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
-            topic = next(w for w in wanted if match(conn.topic, w))
-            if topic == ODOM:
-                odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg),
-                             _ns(msg.header.stamp), record_ns))
-            elif topic == CLOCK:
-                clock.append(_ns(msg.clock))
-            elif topic == COMMAND:
-                try:  # the contract's one decoder; a setpoint it refuses was refused by the vehicle too
-                    setpoint = conversions.imu_to_setpoint(msg)
-                except ValueError:
-                    continue
-                cmds.append((conversions.stamp_to_s(msg.header.stamp), setpoint.specific_force_mps2,
-                             setpoint.quaternion, record_ns))
-            elif topic == ENGAGED:
-                engaged.append((record_ns, bool(msg.data)))
-            elif topic == DIAGNOSTICS:
-                for st in msg.status:
-                    phase = next((kv.value for kv in st.values if kv.key == HANDOVER_KEY), None)
-                    if phase is not None:
-                        handover.append((record_ns, phase))
-                    if st.name == contract.SIM_PUBLISHED:
-                        steps = int({kv.key: kv.value for kv in st.values}.get('steps', -1))
-                        if published is None or _ns(msg.header.stamp) >= published[0]:
-                            published = (_ns(msg.header.stamp), steps)
-                    if level_of(st) == ERROR_LEVEL:
-                        t = conversions.stamp_to_s(msg.header.stamp)
-                        errors.append((t, st.name, st.message))
-                        if collision is None:  # an event is a key, not a name or a message
-                            collision = contract.event_time_s({kv.key: kv.value for kv in st.values},
-                                                              contract.COLLISION_TIME_S)
-            else:
-                latest[topic] = msg  # latched topics: the newest plan counts
+            for part, topic in routes[conn.id]:
+                part.add(topic, msg, record_ns)
     finally:
         reader.close()
-    if not odom:
-        raise ValueError(f'bag {bag_dir}: no odometry (topic {f"/{namespace}/" if namespace else ""}odom) recorded')
-    odom.sort(key=lambda x: x[0])
-    flight = Flight(
-        odom_t=np.array([o[0] for o in odom]),
-        position=np.array([o[1].position for o in odom]),
-        velocity=np.array([o[1].velocity for o in odom]),
-        euler=rotations.to_euler(np.array([o[1].quaternion for o in odom])),
-        collision_time_s=collision, errors=errors, odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
-        odom_record_ns=np.array([o[3] for o in odom], dtype=np.int64),
-        clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
-        collisions_known=bool(clock) or published is not None or collision is not None,   # a simulator's bag
-        truncated=None if repair is None else repair.as_dict(), engaged=sorted(engaged), handover=sorted(handover))
-    if TRAJECTORY in latest:
-        flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
-    if WAYPOINTS in latest:
-        flight.waypoints = np.array([conversions.vec3(p.pose.position) for p in latest[WAYPOINTS].poses])
-    if MARKERS in latest:
-        markers = latest[MARKERS].markers
-        flight.obstacles = [(conversions.vec3(m.pose.position), conversions.vec3(m.scale))
-                            for m in markers if m.ns == 'obstacles']
-        if not len(flight.waypoints):
-            flight.waypoints = np.array([conversions.vec3(m.pose.position) for m in markers if m.ns == 'waypoints'])
-    if cmds:
-        cmds.sort(key=lambda x: x[0])
-        flight.cmd_t = np.array([c[0] for c in cmds])
-        flight.cmd_specific_force = np.array([c[1] for c in cmds])
-        flight.cmd_euler = rotations.to_euler(np.array([c[2] for c in cmds]))
-        flight.cmd_record_ns = np.array([c[3] for c in cmds], dtype=np.int64)
-    return flight
+    return {ns: part.flight(bag_dir, ns, repair) for ns, part in parts.items()}
+
+
+def _is(topic: str, wanted: str, namespace: str) -> bool:
+    """Whether a recorded topic is the contract's `wanted` one (of a fleet vehicle's namespace when given:
+    /NAMESPACE/wanted, global topics such as /clock as they are)."""
+    if not namespace:
+        return _namespaced(topic, wanted)
+    return topic == wanted if wanted.startswith('/') else topic == f'/{namespace}/{wanted}'
+
+
+class _FlightParts:
+    """One flight's messages as the bag is read (load_flights), then its Flight."""
+
+    def __init__(self):
+        self.odom, self.cmds, self.latest, self.clock, self.engaged, self.handover = [], [], {}, [], [], []
+        self.errors, self.collision, self.published = [], None, None
+
+    def add(self, topic: str, msg, record_ns: int):
+        if topic == ODOM:
+            self.odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg),
+                              _ns(msg.header.stamp), record_ns))
+        elif topic == CLOCK:
+            self.clock.append(_ns(msg.clock))
+        elif topic == COMMAND:
+            try:  # the contract's one decoder; a setpoint it refuses was refused by the vehicle too
+                setpoint = conversions.imu_to_setpoint(msg)
+            except ValueError:
+                return
+            self.cmds.append((conversions.stamp_to_s(msg.header.stamp), setpoint.specific_force_mps2,
+                              setpoint.quaternion, record_ns))
+        elif topic == ENGAGED:
+            self.engaged.append((record_ns, bool(msg.data)))
+        elif topic == DIAGNOSTICS:
+            for st in msg.status:
+                phase = next((kv.value for kv in st.values if kv.key == HANDOVER_KEY), None)
+                if phase is not None:
+                    self.handover.append((record_ns, phase))
+                if st.name == contract.SIM_PUBLISHED:
+                    steps = int({kv.key: kv.value for kv in st.values}.get('steps', -1))
+                    if self.published is None or _ns(msg.header.stamp) >= self.published[0]:
+                        self.published = (_ns(msg.header.stamp), steps)
+                if level_of(st) == ERROR_LEVEL:
+                    t = conversions.stamp_to_s(msg.header.stamp)
+                    self.errors.append((t, st.name, st.message))
+                    if self.collision is None:  # an event is a key, not a name or a message
+                        self.collision = contract.event_time_s({kv.key: kv.value for kv in st.values},
+                                                               contract.COLLISION_TIME_S)
+        else:
+            self.latest[topic] = msg  # latched topics: the newest plan counts
+
+    def flight(self, bag_dir, namespace: str, repair) -> Flight:
+        odom, cmds, latest, clock = self.odom, self.cmds, self.latest, self.clock
+        if not odom:
+            raise ValueError(f'bag {bag_dir}: no odometry (topic {f"/{namespace}/" if namespace else ""}odom) '
+                             'recorded')
+        odom.sort(key=lambda x: x[0])
+        published, collision = self.published, self.collision
+        flight = Flight(
+            odom_t=np.array([o[0] for o in odom]),
+            position=np.array([o[1].position for o in odom]),
+            velocity=np.array([o[1].velocity for o in odom]),
+            euler=rotations.to_euler(np.array([o[1].quaternion for o in odom])),
+            collision_time_s=collision, errors=self.errors,
+            odom_stamps_ns=np.array([o[2] for o in odom], dtype=np.int64),
+            odom_record_ns=np.array([o[3] for o in odom], dtype=np.int64),
+            clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
+            collisions_known=bool(clock) or published is not None or collision is not None,   # a simulator's bag
+            truncated=None if repair is None else repair.as_dict(), engaged=sorted(self.engaged),
+            handover=sorted(self.handover))
+        if TRAJECTORY in latest:
+            flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
+        if WAYPOINTS in latest:
+            flight.waypoints = np.array([conversions.vec3(p.pose.position) for p in latest[WAYPOINTS].poses])
+        if MARKERS in latest:
+            markers = latest[MARKERS].markers
+            flight.obstacles = [(conversions.vec3(m.pose.position), conversions.vec3(m.scale))
+                                for m in markers if m.ns == 'obstacles']
+            if not len(flight.waypoints):
+                flight.waypoints = np.array([conversions.vec3(m.pose.position) for m in markers
+                                             if m.ns == 'waypoints'])
+        if cmds:
+            cmds.sort(key=lambda x: x[0])
+            flight.cmd_t = np.array([c[0] for c in cmds])
+            flight.cmd_specific_force = np.array([c[1] for c in cmds])
+            flight.cmd_euler = rotations.to_euler(np.array([c[2] for c in cmds]))
+            flight.cmd_record_ns = np.array([c[3] for c in cmds], dtype=np.int64)
+        return flight
 
 
 def _ns(stamp) -> int:
