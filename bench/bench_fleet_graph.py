@@ -13,17 +13,20 @@ from quad_bringup.fleet_loop import fly_fleet
 from quad_trajectory.fleet import plan_fleet
 
 NOTE = ('\n' +
-        'The lockstep is serial: each step sim_node publishes every odometry, the controllers answer, sim_node takes '
-        'every setpoint and advances, so the rate falls as 1/N. With the simulator in the vehicles\' process '
-        '(node_host, the default) odometry and setpoints go from writer to reader inside that process; what is left '
-        'per message is the copy to the recorder (~40 us per write on this machine, against ~26 us with no reader '
-        'in another process) and Python (rclpy take, the controller, cdr packing, ~0.1 ms per vehicle and step). '
-        'In interleaved runs on the loaded machine (load 2-7: other sessions\' builds), 4 vehicles flew 3.7-4.9x '
-        'median with sim_node in a process of its own and 5.7-5.9x with it hosted; 16 vehicles 0.97x and 1.13x. '
-        'Building /tf, imu and rotor_speeds and the controllers\' control/reference only while subscribed (a fleet '
-        'publishes them to nobody) took 4 vehicles from 3.4x to 5-7x before that. At 64 vehicles each wake-up of '
-        'the executor walks every entity (O(N) per message, O(N^2) per step). sim_node logs its longest wait for '
-        'setpoints and for the recorder (`lockstep: longest wait for ...`): a slow run shows where it lost its time.')
+        'The lockstep is serial: each step sim_node publishes every odometry, the controllers answer, '
+        'sim_node takes every setpoint and advances, so the rate falls as 1/N. With the simulator in the '
+        "vehicles' process (node_host, the default) odometry and setpoints go from writer to reader inside "
+        'that process; what is left per message is the copy to the recorder (~40 us per write on this '
+        'machine, against ~26 us with no reader in another process) and Python (rclpy take, the controller, '
+        'cdr packing, ~0.1 ms per vehicle and step). Before this (sim_node in a process of its own; the '
+        "executor's pass over every entity every 0.1 s however long it took) the quiet machine gave medians "
+        'of 4.6x at 4 vehicles (13 runs, 1.9-7.1x), 1.3x at 16 and 0.10x at 64. Hosting the simulator: 4 '
+        'vehicles 3.7-4.9x -> 5.7-5.9x median in interleaved runs on the loaded machine; the slow pass '
+        'bounded to a tenth of the loop: 16 vehicles 1.6x -> 2.9-4.0x, 32 vehicles 0.47x -> 1.08x (same '
+        "machine, loaded). Building /tf, imu and rotor_speeds and the controllers' control/reference only "
+        'while subscribed (a fleet publishes them to nobody) took 4 vehicles from 3.4x to 5-7x before that. '
+        'sim_node logs its longest wait for setpoints and for the recorder (`lockstep: longest wait for '
+        '...`): a slow run shows where it lost its time.')
 
 SIZES = (1, 4, 16, 64)
 PER_NODE_SIZES = (1, 4)      # one process per node (as launch_ros starts them) beside one process for the nodes
