@@ -7,11 +7,15 @@ SIH), as measured when the bridge was flown on them (docs/bridge.md; PX4 SIH's r
 The emulated PX4 also as PX4 SIH showed itself (`PX4 SIH-like`, two seeds of its estimate's wander each): its
 0.23 s attitude lag, SIH's linear air drag (SIH_KDV / SIH_MASS: 1.0 m/s^2 per m/s), an estimated position 0.15 s
 behind the truth wandering 0.6 m RMS horizontally and 0.8 m in height (60 s correlation, smoothed as EKF2's output
-predictor does over EKF2_TAU_POS 0.25 s; velocity and attitude current), its clock at 0.985 of ours. Load: the
+predictor does over EKF2_TAU_POS 0.25 s; velocity and attitude current), its clock at 0.985 of ours; and from
+PX4's source: SIH's airframe under PX4's default rate PID (12.7 rad/s behind SIH_T_TAU's 0.05 s motors), roll/pitch
+rates of an attitude setpoint dropped as mavlink_receiver does, the output predictor's velocity noise from SIH's
+accelerometer noise over EKF2_TAU_VEL (0.0125 / 0.0425 / 0.035 m/s on the body axes). Load: the
 1-minute load average when the flight ended (2 cores; other work on the machine counts in it: a loaded machine
 delays odometry and setpoints, which the stiff profiles feel first). Beside them the same PX4 SIH-like chain
 offline (`fly_chain_offline`: the emulator's pieces under position_controller's loop without processes, MAVLink
-or load; three seeds), once with the estimate's velocity also 0.15 s late (the first SIH-like estimate)."""
+or load; three seeds), once without the three from PX4's source (the SIH-like setting before them) and once with
+the estimate's velocity also 0.15 s late (the first SIH-like estimate)."""
 
 import os
 import re
@@ -37,7 +41,7 @@ from quad_trajectory import planner  # noqa: E402
 from quad_trajectory.mission import SAMPLE_RATE_HZ  # noqa: E402
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.drag import with_linear_drag  # noqa: E402
-from quad_vehicle_emu.estimator import Estimate  # noqa: E402
+from quad_vehicle_emu.estimator import SIH_VELOCITY_NOISE_MPS, Estimate  # noqa: E402
 
 SQUARE = [(0.0, 0.0, 2.0), (3.0, 0.0, 2.0), (3.0, 3.0, 2.0), (0.0, 3.0, 2.0), (0.0, 0.0, 2.0)]
 SPEED_MPS = 0.8
@@ -46,9 +50,15 @@ SE3_PROFILE = 'config/control_se3.yaml'
 # PX4 v1.16 SIH as issue 28 measured it: attitude lag 0.23 s (tau = 0.23 - 1 / 6.5, quad_vehicle_emu.attitude);
 # the estimate 0.4-0.8 m RMS off the truth (height 0.3-1.3 m), wandering 0.5 m a minute, 0.15 s behind; its clock
 # at 0.984-0.993 of wall time; and SIH's own airframe: SIH_KDV 1.0 N/(m/s) on SIH_MASS 1.0 kg (sih_params.yaml)
-PX4_SIH_LIKE = ('--attitude-tau-s', '0.076', '--estimator-lag-s', '0.15', '--estimator-wander-m', '0.6',
-                '--estimator-wander-z-m', '0.8', '--estimator-wander-tau-s', '60', '--clock-rate', '0.985',
-                '--drag-per-s', '1.0')
+# Beside them, from PX4's source (docs/emulator.md "PX4 SIH's attitude chain and velocity noise"): SIH's airframe
+# under PX4's default rate loop (12.7 rad/s behind SIH_T_TAU 0.05 s motors), roll/pitch rates dropped from a
+# SET_ATTITUDE_TARGET that sets the attitude (mavlink_receiver.cpp), the output predictor's velocity noise from
+# SIH's accelerometer noise over EKF2_TAU_VEL
+PX4_SIH_BEFORE = ('--attitude-tau-s', '0.076', '--estimator-lag-s', '0.15', '--estimator-wander-m', '0.6',
+                  '--estimator-wander-z-m', '0.8', '--estimator-wander-tau-s', '60', '--clock-rate', '0.985',
+                  '--drag-per-s', '1.0')
+PX4_SIH_LIKE = (*PX4_SIH_BEFORE, '--rate-loop', 'px4-sih', '--rp-rates-with-attitude', 'ignored',
+                '--estimator-velocity-noise-mps', ','.join(f'{v:.4f}' for v in SIH_VELOCITY_NOISE_MPS))
 SIH_SEEDS = (1, 2)
 SIH_PROFILES = {**PROFILES, 'control_se3.yaml (se3)': SE3_PROFILE}
 PX4_SIH_RMSE_M = {'seed pd (control.yaml)': (0.34, 0.55), 'control_real.yaml (pid)': (0.43, 0.53),
@@ -78,12 +88,13 @@ def _profile_values(profile):
     return profile_parameters(content)
 
 
-def fly_chain_offline(profile, seed, velocity_lag_s=0.0) -> float:
+def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE) -> float:
     """The PX4 SIH-like emulated chain without processes, MAVLink or a loaded machine: the emulator's own pieces
     (its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the estimate, the telemetry
     delay line at 20 ms and 50 Hz) under position_controller's ControlLoop at 100 Hz, the square planned as
     trajectory_node plans it; the RMSE of the estimate (what the bag's odometry is) against the plan, over the
-    plan plus settle_s. velocity_lag_s: the estimate's velocity that late too (the first SIH-like model)."""
+    plan plus settle_s. velocity_lag_s: the estimate's velocity that late too (the first SIH-like model).
+    options: the emulator's flags it stands for (PX4_SIH_LIKE, or PX4_SIH_BEFORE)."""
     values = _profile_values(profile)
     vehicle = load_vehicle(VEHICLE_FILE)
     loop = ControlLoop(PositionController(values.get('controller', 'pd'), gains_from(values), vehicle,
@@ -91,13 +102,17 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0) -> float:
     plan = planner.plan(np.array(SQUARE), 0.0, planner.PlanOptions(speed_mps=SPEED_MPS), vehicle=vehicle)
     traj = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
     loop.set_trajectory(int(OFFLINE_HOVER_S * 1e9), traj)
-    plant, drag = with_linear_drag(emulated_vehicle(VEHICLE_FILE), float(PX4_SIH_LIKE[-1]))
+    option = dict(zip(options[::2], options[1::2]))
+    plant, drag = with_linear_drag(emulated_vehicle(VEHICLE_FILE, rate_loop=option.get('--rate-loop', 'default')),
+                                   float(option['--drag-per-s']))
     sim = Simulator(plant, 500.0, initial_position=SQUARE[0], setpoint_timeout_s=1e6, disturbances=drag)
     sim.armed = True
-    option = dict(zip(PX4_SIH_LIKE[::2], PX4_SIH_LIKE[1::2]))
     shaper = AttitudeResponse(float(option['--attitude-tau-s']), sim.state.quaternion)
+    noise = [float(v) for v in option.get('--estimator-velocity-noise-mps', '0,0,0').split(',')]
     estimate = Estimate(float(option['--estimator-lag-s']), float(option['--estimator-wander-m']),
-                        float(option['--estimator-wander-z-m']), float(option['--estimator-wander-tau-s']), seed)
+                        float(option['--estimator-wander-z-m']), float(option['--estimator-wander-tau-s']), seed,
+                        noise)
+    rp_rates_fed = option.get('--rp-rates-with-attitude', 'fed') == 'fed'   # PX4: mavlink_receiver drops them
     telemetry, velocities = DelayLine(0.02), DelayLine(velocity_lag_s)
     seen, samples = None, []
     end_s = OFFLINE_HOVER_S + traj.duration_s + 3.0
@@ -118,7 +133,10 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0) -> float:
         else:
             loop.tick(int(t_s * 1e9))
             sp = loop.set_odometry(int(t_s * 1e9), seen).setpoint
-        q, w = shaper.step(sp.quaternion, 0.01, sp.body_rates)
+        rates = sp.body_rates
+        if rates is not None and not rp_rates_fed:
+            rates = np.array([0.0, 0.0, rates[2]])
+        q, w = shaper.step(sp.quaternion, 0.01, rates)
         sim.set_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=sp.specific_force_mps2, body_rates=w))
         sim.advance_steps(sim.steps_in(0.01))
     times = np.array([t for t, _ in samples])
@@ -135,6 +153,10 @@ def offline_rows() -> list[tuple]:
     for label, profile in SIH_PROFILES.items():
         got = [fly_chain_offline(profile, seed) for seed in OFFLINE_SEEDS]
         rows.append(('PX4 SIH-like chain offline (no MAVLink, no load)', label, '',
+                     ' / '.join(f'{r:.3f}' for r in got), '', '', ''))
+    for label, profile in SIH_PROFILES.items():
+        got = [fly_chain_offline(profile, seed, options=PX4_SIH_BEFORE) for seed in OFFLINE_SEEDS]
+        rows.append(('the same before the PX4 rate loop, rate handling and velocity noise', label, '',
                      ' / '.join(f'{r:.3f}' for r in got), '', '', ''))
     for label in ('seed pd (control.yaml)', 'control_se3.yaml (se3)'):
         got = [fly_chain_offline(SIH_PROFILES[label], seed, velocity_lag_s=0.15) for seed in OFFLINE_SEEDS]

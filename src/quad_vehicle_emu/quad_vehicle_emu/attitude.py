@@ -40,13 +40,44 @@ DEFAULT_LAG_S = 0.19     # total roll/pitch lag: ArduCopter SITL's 0.17-0.21 s (
 AUTOPILOT_LOOP = {'type': 'so3_pd', 'angle_p': [6.5, 6.5, 2.8], 'rate_p': [60.0, 60.0, 30.0],
                   'use_feedforward_rates': False}
 
+# PX4 v1.16 SIH's own roll/pitch rate loop (sihsim_quadx), from PX4's source defaults, no measured figure:
+# - mc_rate_control (RateControl.cpp): torque = MC_ROLLRATE_K (P e + I int(e) - D d(rate)/dt), the D term on
+#   the measured rate's derivative; mc_rate_control_params.c: P 0.15, I 0.2, D 0.003, K 1 (pitch the same).
+# - control allocation (ControlAllocationPseudoInverse::updateControlAllocationMatrixScale, normalize_rpy for
+#   multicopters): the mix's roll and pitch columns scaled to an RMS of 1 / sqrt(n / 2): +-1/sqrt(2) per motor
+#   of the quad X (10040_sihsim_quadx: CA_ROTOR_COUNT 4 at (+-1, +-1)).
+# - sih.cpp (generate_force_and_torques): roll torque = SIH_L_ROLL SIH_T_MAX (-u0 + u1 + u2 - u3), motors a
+#   first order of SIH_T_TAU (read_motors); sih_params.yaml: SIH_L_ROLL = SIH_L_PITCH 0.2 m, SIH_T_MAX 5 N,
+#   SIH_IXX = SIH_IYY 0.025 kg m^2, SIH_T_TAU 0.05 s.
+# So one unit of normalised torque is 0.2 * 5 * 4 / sqrt(2) = 2.83 N m, g = 113 rad/s^2 on 0.025 kg m^2, and
+# the rate loop w' = g (P e - D w') has the bandwidth g P / (1 + g D) = 12.7 rad/s (the emulated autopilot's
+# default: 60), behind SIH's 0.05 s motors (px4_quad.yaml: 0.03 s). Left out: the I term (0.2 against P 0.15: a
+# slow trim), the D term's IMU_DGYRO_CUTOFF filter, MC_ROLLRATE_MAX (220 deg/s, not reached on the square), SIH's
+# angular damper SIH_KDW (1 /s on 0.025 kg m^2, against 12.7); yaw keeps the default loop. The angle loop is
+# unchanged (MC_ROLL_P 6.5), so its mean delay stays 1 / 6.5 (the rate loop adds none) and --attitude-tau-s
+# keeps its meaning.
+SIH_TORQUE_PER_UNIT_NM = 0.2 * 5.0 * 4.0 / math.sqrt(2.0)   # SIH_L_ROLL SIH_T_MAX 4 / sqrt(2)
+SIH_RATE_GAIN_RADPS2 = SIH_TORQUE_PER_UNIT_NM / 0.025      # / SIH_IXX
+MC_ROLLRATE_P, MC_ROLLRATE_D = 0.15, 0.003
+PX4_SIH_RATE_BANDWIDTH_RADPS = SIH_RATE_GAIN_RADPS2 * MC_ROLLRATE_P / (1.0 + SIH_RATE_GAIN_RADPS2 * MC_ROLLRATE_D)
+SIH_T_TAU_S = 0.05
+RATE_LOOPS = {
+    'default': {'attitude_loop': AUTOPILOT_LOOP},
+    'px4-sih': {'attitude_loop': {**AUTOPILOT_LOOP, 'rate_p': [PX4_SIH_RATE_BANDWIDTH_RADPS,
+                                                               PX4_SIH_RATE_BANDWIDTH_RADPS, 30.0]},
+                'motor_time_constant_s': SIH_T_TAU_S},
+}
 
-def emulated_vehicle(vehicle_path, plant: dict | None = None):
+
+def emulated_vehicle(vehicle_path, plant: dict | None = None, rate_loop: str = 'default'):
     """The vehicle file as the emulator flies it: a file whose onboard loop is the seed's eq. 6 gets the
-    autopilot's quaternion loop (AUTOPILOT_LOOP); one that already names an autopilot-like loop (so3_pd, lag)
-    keeps it. `plant`: further plant-only fields (thrust_error, mass_error)."""
+    autopilot's quaternion loop (AUTOPILOT_LOOP; rate_loop 'px4-sih': PX4 SIH's rate loop and motors, above);
+    one that already names an autopilot-like loop (so3_pd, lag) keeps it. `plant`: further plant-only fields
+    (thrust_error, mass_error)."""
+    if rate_loop not in RATE_LOOPS:
+        raise ValueError(f'--rate-loop = {rate_loop!r} must be one of {", ".join(RATE_LOOPS)}')
     given = load_vehicle(vehicle_path)
-    swap = {'attitude_loop': AUTOPILOT_LOOP} if given.attitude_loop.type == 'eq6' else {}
+    swap = RATE_LOOPS[rate_loop] if given.attitude_loop.type == 'eq6' else {}
     overrides = {**swap, **(plant or {})}
     return load_vehicle(vehicle_path, plant=overrides) if overrides else given
 

@@ -160,8 +160,13 @@ class Px4(Autopilot):
     autopilot_id = p.MAV_AUTOPILOT_PX4
     name = 'px4'
 
-    def __init__(self, hover_throttle: float, params: dict | None = None):
+    def __init__(self, hover_throttle: float, params: dict | None = None, rp_rates_with_attitude: bool = True):
+        """rp_rates_with_attitude False: as PX4's mavlink_receiver.cpp (handle_message_set_attitude_target) does,
+        a SET_ATTITUDE_TARGET that carries an attitude keeps only its body yaw rate (as yaw_sp_move_rate, fed
+        forward by mc_att_control); its roll and pitch rates are dropped (they reach vehicle_rates_setpoint only
+        when the attitude is ignored). True (the default): all three are fed forward, as before."""
         super().__init__(ParameterStore(PX4_PARAMS, bytewise_ints=True), hover_throttle)
+        self.rp_rates_with_attitude = bool(rp_rates_with_attitude)
         self.params.set('MPC_THR_HOVER', hover_throttle)   # the hover thrust estimator has converged
         for k, v in (params or {}).items():
             self.params.set(k, v)
@@ -221,6 +226,8 @@ class Px4(Autopilot):
             if not (math.isfinite(norm) and norm > 1e-6):
                 raise ValueError(f'SET_ATTITUDE_TARGET q = {list(msg.q_wxyz)} is not a rotation')
             q = ned.attitude_from_ned_wxyz(msg.q_wxyz)
+            if rates is not None and not self.rp_rates_with_attitude:
+                rates = np.array([0.0, 0.0, rates[2]])   # mavlink_receiver: only yaw_sp_move_rate survives
         # THRUST_BODY_SET: thrust_body (FRD, -z is up) instead of thrust (mavlink_receiver.cpp)
         thrust = -float(msg.thrust_body[2]) if mask & p.TYPEMASK_THRUST_BODY_SET else float(msg.thrust)
         if not math.isfinite(thrust):
@@ -462,9 +469,11 @@ class ArduCopter(Autopilot):
         return Target(q, float(max(f, 0.0)), rates)
 
 
-def make_autopilot(flavour: str, hover_throttle: float, params: dict | None = None) -> Autopilot:
+def make_autopilot(flavour: str, hover_throttle: float, params: dict | None = None,
+                   rp_rates_with_attitude: bool = True) -> Autopilot:
+    """rp_rates_with_attitude: PX4 only (Px4)."""
     if flavour == 'px4':
-        return Px4(hover_throttle, params)
+        return Px4(hover_throttle, params, rp_rates_with_attitude)
     if flavour == 'ardupilot':
         return ArduCopter(hover_throttle, params)
     raise ValueError(f'autopilot = {flavour!r}: px4 or ardupilot')

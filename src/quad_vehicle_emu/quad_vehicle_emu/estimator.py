@@ -22,6 +22,17 @@ Gauss-Markov process alone moves by white increments (at 100 Hz, 1 cm per tick a
 jitter per 50 Hz odometry sample, which doubled the flown path's length and reached the position loop as noise);
 here it passes through that first-order filter (time constant OUTPUT_TAU_S), its input scaled by
 sqrt((tau + OUTPUT_TAU_S) / tau) so that the wander's RMS stays sigma.
+
+Velocity noise (`velocity_noise_mps`, off by default): EKF2's output predictor (output_predictor.cpp) integrates
+the IMU's delta velocities at the IMU rate and pulls the result toward the delayed filter's velocity with the
+time constant EKF2_TAU_VEL (0.25 s, ekf2_params). PX4 SIH's accelerometer carries white noise of 0.5, 1.7 and
+1.4 m/s^2 (body x, y, z, per sample, while thrusting: sih.cpp reconstruct_sensors_signals), sampled at 200 Hz in
+SITL's lockstep loop (sih.cpp lockstep_loop: min(IMU_GYRO_RATEMAX 400, IMU_INTEG_RATE 200)). Integrated and
+pulled back that way, the published velocity wanders off the delayed filter's as a first-order Gauss-Markov
+process of time constant EKF2_TAU_VEL and standard deviation sigma_a sqrt(dt tau / 2): 0.0125, 0.0425, 0.035 m/s
+(SIH_VELOCITY_NOISE_MPS; the delayed filter's own, slower velocity error comes on top and is not modelled). The
+noise is on the body axes (the accelerometer's), rotated into the world by the attitude now; the position is not
+touched (its wander is the measured one above).
 """
 
 import collections
@@ -29,20 +40,32 @@ import math
 
 import numpy as np
 
+from quad_common import rotations
 from quad_common.types import State
 
 OUTPUT_TAU_S = 0.25   # PX4 EKF2_TAU_POS: the output predictor's position correction time constant
+VELOCITY_TAU_S = 0.25   # PX4 EKF2_TAU_VEL: the output predictor's velocity correction time constant
+SIH_ACCEL_NOISE_MPS2 = (0.5, 1.7, 1.4)   # sih.cpp reconstruct_sensors_signals, body x y z, thrusting
+SIH_IMU_DT_S = 1.0 / 200.0               # sih.cpp lockstep_loop: min(IMU_GYRO_RATEMAX, IMU_INTEG_RATE) = 200 Hz
+SIH_VELOCITY_NOISE_MPS = tuple(a * math.sqrt(SIH_IMU_DT_S * VELOCITY_TAU_S / 2.0) for a in SIH_ACCEL_NOISE_MPS2)
 
 
 class Estimate:
     def __init__(self, lag_s: float = 0.0, wander_m: float = 0.0, wander_z_m: float = 0.0, tau_s: float = 60.0,
-                 seed: int = 0):
+                 seed: int = 0, velocity_noise_mps=(0.0, 0.0, 0.0)):
         for name, value in (('--estimator-lag-s', lag_s), ('--estimator-wander-m', wander_m),
                             ('--estimator-wander-z-m', wander_z_m)):
             if not (math.isfinite(value) and 0.0 <= value <= 10.0):
                 raise ValueError(f'{name} = {value!r} must be a number in [0, 10]')
         if not (math.isfinite(tau_s) and tau_s > 0.0):
             raise ValueError(f'--estimator-wander-tau-s = {tau_s!r} must be a number > 0')
+        noise = np.asarray(velocity_noise_mps, dtype=float).reshape(-1)
+        if noise.shape != (3,) or not np.all(np.isfinite(noise)) or np.any(noise < 0.0) or np.any(noise > 1.0):
+            raise ValueError(f'--estimator-velocity-noise-mps = {noise.tolist()} must be three numbers in [0, 1] '
+                             f'(body x, y, z; PX4 SIH: {", ".join(f"{v:.4f}" for v in SIH_VELOCITY_NOISE_MPS)})')
+        self.velocity_sigma = noise
+        self.velocity_noise_body = np.zeros(3)
+        self._velocity_rng = np.random.default_rng([seed, 1])   # its own stream: a seed's wander is unchanged
         self.lag_s, self.tau_s = float(lag_s), float(tau_s)
         self.sigma = np.array([wander_m, wander_m, wander_z_m], dtype=float)
         self.rng = np.random.default_rng(seed)
@@ -59,12 +82,19 @@ class Estimate:
             a = math.exp(-dt_s / self.tau_s)
             self._raw = a * self._raw + self._raw_sigma * math.sqrt(1.0 - a * a) * self.rng.standard_normal(3)
             self.wander += (self._raw - self.wander) * (1.0 - math.exp(-dt_s / OUTPUT_TAU_S))
+        if self.last_s is not None and self.velocity_sigma.any():
+            a = math.exp(-max(now_s - self.last_s, 0.0) / VELOCITY_TAU_S)
+            self.velocity_noise_body = (a * self.velocity_noise_body + self.velocity_sigma * math.sqrt(1.0 - a * a)
+                                        * self._velocity_rng.standard_normal(3))
         self.last_s = now_s
         self._history.append((now_s, truth.position.copy()))
         while len(self._history) > 1 and self._history[1][0] <= now_s - self.lag_s:
             self._history.popleft()
         _, position = self._history[0]
-        if not self.lag_s and not self.sigma.any():
+        if not self.lag_s and not self.sigma.any() and not self.velocity_sigma.any():
             return truth
-        return State(position=position + self.wander, velocity=truth.velocity, quaternion=truth.quaternion,
+        velocity = truth.velocity
+        if self.velocity_sigma.any():
+            velocity = velocity + rotations.to_matrix(truth.quaternion) @ self.velocity_noise_body
+        return State(position=position + self.wander, velocity=velocity, quaternion=truth.quaternion,
                      body_rates=truth.body_rates)

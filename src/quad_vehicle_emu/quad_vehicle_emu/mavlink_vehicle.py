@@ -93,9 +93,12 @@ class MavlinkVehicle:
     def __init__(self, args):
         self.args = args
         self.flavour = args.autopilot
-        self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param))  # bad parameters: first
-        check_drag(args.drag_per_s)
-        vehicle, drag = with_linear_drag(emulated_vehicle(args.vehicle), args.drag_per_s)
+        self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param),  # bad parameters: first
+                                 rp_rates_with_attitude=args.rp_rates_with_attitude == 'fed')
+        check_drag(args.drag_per_s)   # bad values before the vehicle file is read
+        self.estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
+                                 args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps)
+        vehicle, drag = with_linear_drag(emulated_vehicle(args.vehicle, rate_loop=args.rate_loop), args.drag_per_s)
         self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
                              setpoint_timeout_s=1e6, disturbances=drag)
@@ -107,8 +110,6 @@ class MavlinkVehicle:
         self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
-        self.estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
-                                 args.estimator_wander_tau_s, args.seed)
         self.estimated = self.sim.state   # what the autopilot believes (its hold and its telemetry fly this)
         self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
         self.rng = random.Random(args.seed)
@@ -439,6 +440,15 @@ def build_parser():
                     help="RMS of the estimate's height wander (PX4 SIH: 0.3-1.3 m)")
     ap.add_argument('--estimator-wander-tau-s', type=float, default=60.0,
                     help="the wander's correlation time (PX4 SIH: about 0.5 m a minute)")
+    ap.add_argument('--estimator-velocity-noise-mps', type=_triple, default=[0.0, 0.0, 0.0], metavar='X,Y,Z',
+                    help="RMS of the estimate's velocity noise on the body axes, correlated over EKF2_TAU_VEL "
+                         '(PX4 SIH: 0.0125,0.0425,0.035 from its accelerometer noise); default none')
+    ap.add_argument('--rate-loop', choices=('default', 'px4-sih'), default='default',
+                    help="the autopilot's roll/pitch rate loop: default 60 rad/s; px4-sih: PX4's defaults on SIH's "
+                         'airframe (12.7 rad/s behind 0.05 s motors; quad_vehicle_emu.attitude)')
+    ap.add_argument('--rp-rates-with-attitude', choices=('fed', 'ignored'), default='fed',
+                    help='PX4: roll/pitch rates of a SET_ATTITUDE_TARGET that sets the attitude: fed forward '
+                         "(default) or ignored as PX4's mavlink_receiver does (yaw rate kept)")
     ap.add_argument('--drag-per-s', type=float, default=0.0,
                     help='linear air drag, m/s^2 per m/s on every axis (PX4 SIH: SIH_KDV / SIH_MASS = 1.0); 0: none')
     ap.add_argument('--seed', type=int, default=0)

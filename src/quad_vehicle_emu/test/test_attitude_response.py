@@ -59,3 +59,20 @@ def test_bad_time_constants_are_refused_naming_the_value():
         AttitudeResponse(math.nan, np.array([0.0, 0.0, 0.0, 1.0]))
     with pytest.raises(ValueError, match='-1'):
         DelayLine(-1.0)
+
+
+def test_px4_sih_rate_loop_from_px4s_defaults_on_sihs_airframe():
+    """`--rate-loop px4-sih`: MC_ROLLRATE_P 0.15 / D 0.003 on SIH's airframe (0.2 m, 5 N, 0.025 kg m^2, the
+    allocation's 1/sqrt(2) per motor) is a 12.7 rad/s rate loop behind SIH_T_TAU's 0.05 s motors: the bare
+    loop's 10 deg roll step reaches 63 % in 0.18-0.22 s (the default 60 rad/s loop: 0.14 s), while its mean
+    delay, which --attitude-tau-s adds to, stays 1 / MC_ROLL_P."""
+    from quad_vehicle_emu.attitude import own_lag_s
+    sih = emulated_vehicle(VEHICLE, rate_loop='px4-sih')
+    assert sih.attitude_loop.rate_p[:2] == pytest.approx([12.67, 12.67], abs=0.01)
+    assert sih.motor_time_constant_s == pytest.approx(0.05)
+    assert own_lag_s(sih) == pytest.approx(1 / 6.5)
+    assert 0.18 <= _rise_time_s(0.0, sih) <= 0.22
+    default = emulated_vehicle(VEHICLE)
+    assert default.attitude_loop.rate_p[0] == 60.0 and _rise_time_s(0.0, default) < 0.16
+    with pytest.raises(ValueError, match='--rate-loop'):
+        emulated_vehicle(VEHICLE, rate_loop='sih')

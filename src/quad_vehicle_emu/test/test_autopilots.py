@@ -55,3 +55,15 @@ def test_px4_failsafe_waits_for_com_of_loss_t_not_for_the_stream_rate():
     assert px4.mode == 'OFFBOARD'
     px4.update(HOVERING, False, 3.7)
     assert px4.mode == 'POSCTL'               # COM_OBL_RC_ACT 0 (Position): POSCTL, also without RC
+
+
+def test_px4_drops_roll_and_pitch_rates_with_an_attitude_when_asked():
+    """mavlink_receiver.cpp handle_message_set_attitude_target: with the attitude set, only the body yaw rate
+    survives (yaw_sp_move_rate); roll and pitch rates reach nothing. The emulator's default feeds all three."""
+    msg = AttitudeTargetMsg(0, LEVEL, (0.3, -0.2, 0.1), 0.5)
+    fed = Px4(hover_throttle=0.5)
+    fed.on_attitude_target(msg, 0.0)
+    dropped = Px4(hover_throttle=0.5, rp_rates_with_attitude=False)
+    dropped.on_attitude_target(msg, 0.0)
+    assert np.allclose(fed.setpoint[2], [0.3, 0.2, -0.1])          # FRD -> FLU
+    assert np.allclose(dropped.setpoint[2], [0.0, 0.0, -0.1])

@@ -62,3 +62,27 @@ def test_bad_values_are_refused_naming_the_flag():
         Estimate(lag_s=-1.0)
     with pytest.raises(ValueError, match='--estimator-wander-tau-s'):
         Estimate(tau_s=0.0)
+
+
+def test_velocity_noise_from_sih_accelerometer_over_ekf2_tau_vel():
+    """`velocity_noise_mps`: per body axis a Gauss-Markov process of EKF2_TAU_VEL (0.25 s) with the RMS asked
+    (PX4 SIH's: 0.0125, 0.0425, 0.035 m/s from its accelerometer noise at 200 Hz), rotated by the attitude now;
+    the position and the seed's wander are untouched."""
+    from quad_vehicle_emu.estimator import SIH_VELOCITY_NOISE_MPS
+    assert SIH_VELOCITY_NOISE_MPS == pytest.approx((0.0125, 0.0425, 0.035), abs=1e-4)
+    yawed = np.array([0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)])   # 90 deg: body x is world y
+    truth = State(position=np.array([1.0, 2.0, 3.0]), velocity=np.zeros(3), quaternion=yawed)
+    noisy = Estimate(wander_m=0.5, seed=4, velocity_noise_mps=(0.01, 0.05, 0.03))
+    plain = Estimate(wander_m=0.5, seed=4)
+    samples, positions = [], []
+    for k in range(60000):
+        est = noisy.step(0.01 * k, truth)
+        samples.append(est.velocity)
+        positions.append(est.position - plain.step(0.01 * k, truth).position)
+    v = np.array(samples)
+    assert np.sqrt(np.mean(v ** 2, axis=0)) == pytest.approx([0.05, 0.01, 0.03], rel=0.15)
+    corr = np.mean(v[25:, 1] * v[:-25, 1]) / np.mean(v[:, 1] ** 2)      # 0.25 s apart: about 1 / e
+    assert 0.25 < corr < 0.5
+    assert np.all(np.array(positions) == 0.0)
+    with pytest.raises(ValueError, match='--estimator-velocity-noise-mps'):
+        Estimate(velocity_noise_mps=(0.1, -0.1, 0.0))
