@@ -10,9 +10,10 @@ import sys
 import time
 
 import pytest
-from bridge_graph import free_udp_port, python_env
+from bridge_graph import Observer, free_udp_port, python_env
 
 BRIDGE = [sys.executable, '-m', 'quad_bridge.mavlink_bridge_node', '--ros-args']
+NAMESPACE = f'/bridge_realtime_{os.getpid()}'
 
 
 def _policies(pid) -> dict:
@@ -29,7 +30,7 @@ def _policies(pid) -> dict:
 def _started(ros_env, priority, prefix=()):
     """A bridge (no vehicle on its port) until it says it started: (process, its log so far)."""
     args = [*prefix, *BRIDGE, '-p', f'fcu_url:=udpin:127.0.0.1:{free_udp_port()}', '-p',
-            f'realtime_priority:={priority}']
+            f'realtime_priority:={priority}', '-r', f'__ns:={NAMESPACE}']
     proc = subprocess.Popen(args, env=python_env(ros_env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     log, deadline = '', time.monotonic() + 60.0
     with selectors.DefaultSelector() as sel:
@@ -39,6 +40,18 @@ def _started(ros_env, priority, prefix=()):
                 log += proc.stdout.readline()
     time.sleep(1.0)  # its threads up and waiting
     return proc, log
+
+
+def _said_in_diagnostics(ros_env) -> str:
+    """`realtime` of the bridge's `mavlink_bridge: link` status (published once a second, vehicle or not)."""
+    observer = Observer(int(ros_env['ROS_DOMAIN_ID']), NAMESPACE)
+    try:
+        deadline = time.monotonic() + 30.0
+        while 'realtime' not in observer.link()[1] and time.monotonic() < deadline:
+            time.sleep(0.2)
+        return observer.link()[1].get('realtime', '')
+    finally:
+        observer.close()
 
 
 def _stop(proc):
@@ -60,6 +73,7 @@ def test_every_thread_of_the_bridge_runs_under_sched_fifo_at_the_priority(ros_en
         assert len(policies) >= 6, policies
         assert set(policies.values()) == {(os.SCHED_FIFO, 7)}, policies
         assert 'scheduling SCHED_FIFO 7' in log
+        assert _said_in_diagnostics(ros_env).startswith('SCHED_FIFO 7 (')
     finally:
         _stop(proc)
 
@@ -88,6 +102,7 @@ def test_a_refused_realtime_priority_is_an_error_naming_the_parameter_and_the_br
         for how in ('CAP_SYS_NICE', 'ulimit -r', 'rtprio', 'realtime_priority: 0'):
             assert how in log, (how, log)
         assert {policy for policy, _ in _policies(proc.pid).values()} == {os.SCHED_OTHER}
+        assert _said_in_diagnostics(ros_env).startswith('refused: realtime_priority = 20: SCHED_FIFO refused')
     finally:
         _stop(proc)
 
