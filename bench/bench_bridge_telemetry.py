@@ -174,10 +174,13 @@ def main():
     also += ''.join(f' Publisher `FIFO {p}`: the bench\'s own process (the publisher, the vehicle double) under '
                     f'SCHED_FIFO {p} during the window, as a real stack would run its controller; `ordinary`: '
                     'SCHED_OTHER, beside the busy loops.' for p in CALLER_RT[:1])
-    print(' '.join(head.split()) + also + '\n')
+    print(' '.join(head.split()) + '\n')
     print('\n'.join('- ' + ' '.join(v.split()) for v in vehicles) + '\n')
+    if also:
+        print(also.strip() + '\n')
     print('Latency: publishing `cmd/attitude_thrust` to its SET_ATTITUDE_TARGET datagram arriving at the vehicle '
-          'double (kernel receive time). CPU: the bridge process\'s user + system time over the window, % of one '
+          'double (kernel receive time); p99 range: the lowest and highest run\'s p99. CPU: the bridge process\'s '
+          'user + system time over the window, % of one '
           f'core. Load: the 1-minute load average at the end of the runs ({os.cpu_count()} cores; other work on '
           'the machine counts in it). Goal: p99 < 2 ms and CPU < 5 % at 50 Hz.\n')
     print('| vehicle | code | publisher | busy loops | load | p50 ms | p99 ms | p99 range ms | CPU % | lost | '
