@@ -29,9 +29,15 @@ from quad_common.domains import isolated_domain  # noqa: E402
 BASELINE = '5a87bc8'   # main's receive and setpoint paths before this change
 # More commits to run beside it, e.g. BENCH_ALSO=f68c54c (the receive path before its batches read past one datagram)
 ALSO = tuple(c for c in os.environ.get('BENCH_ALSO', '').split(',') if c)
+# Today's code also at these realtime_priority values (SCHED_FIFO, docs/bridge.md), e.g. BENCH_RT=20
+RT = tuple(int(p) for p in os.environ.get('BENCH_RT', '').split(',') if p)
 RATE_HZ = 50.0
 RUN_S = float(os.environ.get('BENCH_RUN_S', 10.0))
-BUSY = 4
+BUSY = int(os.environ.get('BENCH_BUSY', 4))
+# Also with the bench's own process (its publisher, the vehicle double) under SCHED_FIFO at this priority during
+# the window, as a real stack runs its controller: what p99 the bridge gives when the caller is not the one
+# waiting for the CPU (e.g. BENCH_CALLER_RT=20; the bridge and the busy loops it starts are not affected)
+CALLER_RT = tuple(int(p) for p in os.environ.get('BENCH_CALLER_RT', '').split(',') if p)
 REPEATS = int(os.environ.get('BENCH_REPEATS', 3))   # alternating runs per row: a shared machine's load drifts
 ROOT = Path(bb.ROOT)
 
@@ -111,16 +117,31 @@ def python_path(src: Path) -> str:
     return os.pathsep.join(str(src / p) for p in sorted(os.listdir(src)))
 
 
-def run_once(autopilot, src, env, domain, busy) -> dict:
+def caller_realtime(priority):
+    """Every thread of this process under SCHED_FIFO at priority (0: SCHED_OTHER), not passed on to children."""
+    policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK if priority else os.SCHED_OTHER
+    for tid in os.listdir('/proc/self/task'):
+        try:
+            os.sched_setscheduler(int(tid), policy, os.sched_param(priority))
+        except ProcessLookupError:
+            pass
+
+
+def run_once(autopilot, src, env, domain, busy, extra=(), caller_rt=0) -> dict:
     bridge = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', 'fcu_url:=udpout:127.0.0.1:{port}',
               '-p', f'hover_throttle:={HOVER_THROTTLE}', '-p', f'autopilot:={autopilot}',
-              '-p', 'setpoint_rate_hz:=50.0', '-p', 'setpoint_timeout_s:=1.0', '-p', 'setpoint_source:=bench_bridge']
+              '-p', 'setpoint_rate_hz:=50.0', '-p', 'setpoint_timeout_s:=1.0', '-p', 'setpoint_source:=bench_bridge',
+              *extra]
     env = dict(env, PYTHONPATH=python_path(src) + os.pathsep + env.get('PYTHONPATH', ''))
     loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(busy)]
     bench = bb.Bench(bridge, env, domain, VEHICLES[autopilot]())
     try:
         bench.warm_up(True)
-        result = bench.measure(RATE_HZ, RUN_S)
+        caller_realtime(caller_rt)
+        try:
+            result = bench.measure(RATE_HZ, RUN_S)
+        finally:
+            caller_realtime(0)
         result['load'] = os.getloadavg()[0]
         return result
     finally:
@@ -133,32 +154,45 @@ def run_once(autopilot, src, env, domain, busy) -> dict:
 def main():
     runs = {}
     with tempfile.TemporaryDirectory() as tmp, isolated_domain() as (domain, env):
-        codes = [(f'before ({BASELINE})', baseline_src(Path(tmp)))]
-        codes += [(f'at {c}', baseline_src(Path(tmp), c)) for c in ALSO] + [('today', ROOT / 'src')]
+        codes = [(f'before ({BASELINE})', baseline_src(Path(tmp)), ())]
+        codes += [(f'at {c}', baseline_src(Path(tmp), c), ()) for c in ALSO] + [('today', ROOT / 'src', ())]
+        codes += [(f'today, realtime_priority {p}', ROOT / 'src', ('-p', f'realtime_priority:={p}')) for p in RT]
         for busy in (0, BUSY):
             for _ in range(REPEATS):
                 for autopilot in VEHICLES:
-                    for label, src in codes:
-                        r = run_once(autopilot, src, env, domain, busy)
-                        print(f'{autopilot} {label} busy={busy}: {r}', file=sys.stderr)
-                        runs.setdefault((autopilot, label, busy), []).append(r)
+                    for caller in (0, *CALLER_RT):
+                        for label, src, extra in codes:
+                            r = run_once(autopilot, src, env, domain, busy, extra, caller)
+                            print(f'{autopilot} {label} busy={busy} caller={caller}: {r}', file=sys.stderr)
+                            runs.setdefault((autopilot, label, busy, caller), []).append(r)
     print('### MAVLink bridge with an autopilot\'s real telemetry\n')
     doc = __doc__.replace('BASELINE', BASELINE).replace('RUN_S', f'{RUN_S:.0f} s').replace('BUSY', str(BUSY))
     head, *vehicles = doc.replace('REPEATS', str(REPEATS)).split('\n- ')
     also = ''.join(f' Beside them `at {c}`: the code of commit {c}, from git, in the same alternation.' for c in ALSO)
-    print(' '.join(head.split()) + also + '\n')
+    also += ''.join(f' `today, realtime_priority {p}`: today\'s code with every thread under SCHED_FIFO {p}.'
+                    for p in RT)
+    also += ''.join(f' Publisher `FIFO {p}`: the bench\'s own process (the publisher, the vehicle double) under '
+                    f'SCHED_FIFO {p} during the window, as a real stack would run its controller; `ordinary`: '
+                    'SCHED_OTHER, beside the busy loops.' for p in CALLER_RT[:1])
+    print(' '.join(head.split()) + '\n')
     print('\n'.join('- ' + ' '.join(v.split()) for v in vehicles) + '\n')
+    if also:
+        print(also.strip() + '\n')
     print('Latency: publishing `cmd/attitude_thrust` to its SET_ATTITUDE_TARGET datagram arriving at the vehicle '
-          'double (kernel receive time). CPU: the bridge process\'s user + system time over the window, % of one '
+          'double (kernel receive time); p99 range: the lowest and highest run\'s p99. CPU: the bridge process\'s '
+          'user + system time over the window, % of one '
           f'core. Load: the 1-minute load average at the end of the runs ({os.cpu_count()} cores; other work on '
           'the machine counts in it). Goal: p99 < 2 ms and CPU < 5 % at 50 Hz.\n')
-    print('| vehicle | code | busy loops | load | p50 ms | p99 ms | CPU % | lost | odom gap ms |')
-    print('|---|---|---|---|---|---|---|---|---|')
-    for (autopilot, label, busy), rs in runs.items():
+    print('| vehicle | code | publisher | busy loops | load | p50 ms | p99 ms | p99 range ms | CPU % | lost | '
+          'odom gap ms |')
+    print('|---|---|---|---|---|---|---|---|---|---|---|')
+    for (autopilot, label, busy, caller), rs in runs.items():
         med = {k: float(np.median([r[k] for r in rs])) for k in ('load', 'p50', 'p99', 'cpu_pct', 'odom_gap_ms')}
         lost, n = sum(r['lost'] for r in rs), sum(r['n'] for r in rs)
-        print(f'| {autopilot} | {label} | {busy} | {med["load"]:.1f} | {med["p50"]:.2f} | {med["p99"]:.2f} | '
-              f'{med["cpu_pct"]:.1f} | {lost}/{n} | {med["odom_gap_ms"]:.0f} |')
+        p99 = [r['p99'] for r in rs]
+        print(f'| {autopilot} | {label} | {f"FIFO {caller}" if caller else "ordinary"} | {busy} | {med["load"]:.1f} '
+              f'| {med["p50"]:.2f} | {med["p99"]:.2f} | {min(p99):.1f}-{max(p99):.1f} | {med["cpu_pct"]:.1f} | '
+              f'{lost}/{n} | {med["odom_gap_ms"]:.0f} |')
 
 
 if __name__ == '__main__':

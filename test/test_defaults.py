@@ -55,8 +55,10 @@ def test_controller_parameters_default_to_the_dataclass():
 
 # what a bridge file sets unlike the node's defaults, on purpose (anything else it sets must be the default)
 BRIDGE_CHOICES = {
-    'config/bridge_px4.yaml': {'autopilot', 'geofence_enabled', 'geofence_min_m', 'geofence_max_m'},
-    'config/bridge_ardupilot.yaml': {'fcu_url', 'autopilot', 'geofence_enabled', 'geofence_min_m', 'geofence_max_m'},
+    'config/bridge_px4.yaml': {'autopilot', 'geofence_enabled', 'geofence_min_m', 'geofence_max_m',
+                               'realtime_priority'},
+    'config/bridge_ardupilot.yaml': {'fcu_url', 'autopilot', 'geofence_enabled', 'geofence_min_m', 'geofence_max_m',
+                                     'realtime_priority'},
 }
 # mavlink_bridge parameter -> the ThrustConfig field it sets
 THRUST_FIELDS = {'hover_throttle': 'hover_throttle', 'hover_throttle_tolerance': 'hover_tolerance',

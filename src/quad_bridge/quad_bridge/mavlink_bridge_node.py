@@ -30,6 +30,7 @@ from quad_bridge.handover import ACTIVE
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
 from quad_bridge.peers import LinkPeers
+from quad_bridge.realtime import apply_realtime_priority
 from quad_bridge.safety import Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
@@ -98,6 +99,9 @@ PARAMS = [
     Param('setpoint_source', 'position_controller',
           'the only node whose cmd/attitude_thrust is flown (relative: in the bridge\'s namespace); empty = any '
           'publisher of the domain', read_only=True),
+    Param('realtime_priority', 0,
+          'every thread of the bridge under SCHED_FIFO at this priority (1..99); 0 = off (the ordinary scheduler)',
+          min=0, max=99, read_only=True),
 ]
 OFFBOARD_MIN_STREAM_HZ = 5.0  # sent before asking PX4 for OFFBOARD (it needs > 2 Hz)
 PRESTREAM_WAIT_S = 2.0
@@ -153,11 +157,23 @@ class MavlinkBridge(Node):
         self.streamer = self.setpoints.streamer
         self.supervisor = threading.Thread(target=self._supervise, name='supervisor', daemon=True)
 
+        self.realtime, self.realtime_refused = self.apply_realtime(p['realtime_priority'])   # before our threads
         self.client.start()
         self.setpoints.start()
         self.supervisor.start()
         self.get_logger().info(f'{NAME}: {p["fcu_url"]}, autopilot {p["autopilot"]}, keep-alive '
-                               f'{p["setpoint_rate_hz"]} Hz')
+                               f'{p["setpoint_rate_hz"]} Hz, scheduling {self.realtime}')
+
+    def apply_realtime(self, priority) -> tuple[str, bool]:
+        """realtime_priority: every thread there is now (the executor's, Fast DDS's) under SCHED_FIFO; the
+        receive, setpoint and supervisor threads started after it, and Fast DDS's later ones, inherit it.
+        Refused by the system: an error naming the parameter and how to grant it, kept in the link's
+        diagnostics (`realtime`, level WARN), and the bridge runs on under the ordinary scheduler."""
+        try:
+            return apply_realtime_priority(priority), False
+        except PermissionError as exc:
+            self.get_logger().error(exc.strerror)
+            return f'refused: {exc.strerror}', True
 
     def now_s(self) -> float:
         return time.monotonic() - self.t0
@@ -510,7 +526,8 @@ class MavlinkBridge(Node):
         level = {LinkState.UP: diagnostics.OK, LinkState.WAITING: diagnostics.WARN}.get(self.link.state,
                                                                                         diagnostics.ERROR)
         others, refusal = self.peers.other_vehicles(s.system, now), self.link_refusal()
-        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others):
+        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others
+                                        or self.realtime_refused):
             level = diagnostics.WARN
         level = diagnostics.ERROR if refusal or self.client.signing_problem() else level
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
@@ -524,7 +541,7 @@ class MavlinkBridge(Node):
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
             'handler_errors': self.client.handler_errors, 'other_vehicles': ', '.join(map(str, others)),
             'link_refusal': refusal, 'signing': self.client.signing_problem() or
-            ('on' if self.client.signing else 'off')})
+            ('on' if self.client.signing else 'off'), 'realtime': self.realtime})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
         sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')

@@ -1,0 +1,116 @@
+"""realtime_priority (docs/bridge.md "Real-time scheduling"): the bridge process with every thread under SCHED_FIFO,
+Fast DDS's and those it starts later included; the system's refusal said loudly, naming the parameter and how to
+grant it, the bridge running on; a priority outside 0..99 refused at start-up naming the field and the value."""
+
+import os
+import selectors
+import shutil
+import subprocess
+import sys
+import time
+
+import pytest
+from bridge_graph import Observer, free_udp_port, python_env
+
+BRIDGE = [sys.executable, '-m', 'quad_bridge.mavlink_bridge_node', '--ros-args']
+NAMESPACE = f'/bridge_realtime_{os.getpid()}'
+
+
+def _policies(pid) -> dict:
+    """{tid: (policy, priority)} of every thread of the process."""
+    out = {}
+    for tid in os.listdir(f'/proc/{pid}/task'):
+        try:
+            out[int(tid)] = (os.sched_getscheduler(int(tid)), os.sched_getparam(int(tid)).sched_priority)
+        except ProcessLookupError:
+            pass
+    return out
+
+
+def _started(ros_env, priority, prefix=()):
+    """A bridge (no vehicle on its port) until it says it started: (process, its log so far)."""
+    args = [*prefix, *BRIDGE, '-p', f'fcu_url:=udpin:127.0.0.1:{free_udp_port()}', '-p',
+            f'realtime_priority:={priority}', '-r', f'__ns:={NAMESPACE}']
+    proc = subprocess.Popen(args, env=python_env(ros_env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    log, deadline = '', time.monotonic() + 60.0
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        while 'keep-alive' not in log and time.monotonic() < deadline and proc.poll() is None:
+            if sel.select(timeout=1.0):
+                log += proc.stdout.readline()
+    time.sleep(1.0)  # its threads up and waiting
+    return proc, log
+
+
+def _said_in_diagnostics(ros_env) -> str:
+    """`realtime` of the bridge's `mavlink_bridge: link` status (published once a second, vehicle or not)."""
+    observer = Observer(int(ros_env['ROS_DOMAIN_ID']), NAMESPACE)
+    try:
+        deadline = time.monotonic() + 30.0
+        while 'realtime' not in observer.link()[1] and time.monotonic() < deadline:
+            time.sleep(0.2)
+        return observer.link()[1].get('realtime', '')
+    finally:
+        observer.close()
+
+
+def _stop(proc):
+    proc.terminate()
+    try:
+        proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason='SCHED_FIFO needs root or CAP_SYS_NICE here')
+def test_every_thread_of_the_bridge_runs_under_sched_fifo_at_the_priority(ros_env):
+    proc, log = _started(ros_env, 7)
+    try:
+        assert proc.poll() is None, log
+        policies = _policies(proc.pid)
+        # the executor's, Fast DDS's (created before the node was), the receive, setpoint and supervisor threads
+        assert len(policies) >= 6, policies
+        assert set(policies.values()) == {(os.SCHED_FIFO, 7)}, policies
+        assert 'scheduling SCHED_FIFO 7' in log
+        assert _said_in_diagnostics(ros_env).startswith('SCHED_FIFO 7 (')
+    finally:
+        _stop(proc)
+
+
+def test_off_by_default_leaves_the_ordinary_scheduler(ros_env):
+    proc, log = _started(ros_env, 0)
+    try:
+        assert proc.poll() is None, log
+        assert {policy for policy, _ in _policies(proc.pid).values()} == {os.SCHED_OTHER}
+        assert 'scheduling off' in log
+    finally:
+        _stop(proc)
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not shutil.which('setpriv'), reason='needs root and setpriv to drop a '
+                    'capability')
+def test_a_refused_realtime_priority_is_an_error_naming_the_parameter_and_the_bridge_runs_on(ros_env):
+    """Without CAP_SYS_NICE and with RLIMIT_RTPRIO 0 the kernel refuses SCHED_FIFO (EPERM)."""
+    drop = ['setpriv', '--inh-caps=-sys_nice', '--bounding-set=-sys_nice', 'prlimit', '--rtprio=0', '--']
+    if not shutil.which('prlimit'):
+        drop = drop[:3]
+    proc, log = _started(ros_env, 20, drop)
+    try:
+        assert proc.poll() is None, log
+        assert '[ERROR]' in log and 'realtime_priority = 20: SCHED_FIFO refused' in log, log
+        for how in ('CAP_SYS_NICE', 'ulimit -r', 'rtprio', 'realtime_priority: 0'):
+            assert how in log, (how, log)
+        assert {policy for policy, _ in _policies(proc.pid).values()} == {os.SCHED_OTHER}
+        assert _said_in_diagnostics(ros_env).startswith('refused: realtime_priority = 20: SCHED_FIFO refused')
+    finally:
+        _stop(proc)
+
+
+@pytest.mark.parametrize('value', ['-1', '100'])
+def test_a_priority_outside_0_to_99_is_refused_at_start_up_naming_the_field_and_the_value(ros_env, value):
+    out = subprocess.run([*BRIDGE, '-p', f'realtime_priority:={value}'], env=python_env(ros_env),
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2, out.stderr
+    said = out.stderr + out.stdout
+    assert 'refused to start: parameter realtime_priority' in said and f'Min: 0, Max: 99, value: {value}' in said
