@@ -48,6 +48,16 @@ def python_env(env, src_root: Path | None = None):
     return dict(env, PYTHONPATH=os.pathsep.join(paths + [env.get('PYTHONPATH', '')]), PYTHONUNBUFFERED='1')
 
 
+def terminate(proc, timeout_s: float = 20.0):
+    """SIGTERM, then SIGKILL if the process has not exited within timeout_s; reaped."""
+    proc.terminate()
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
 class Processes:
     """Child processes with logs under log_dir; stop() ends each one it started. ROS nodes run in `namespace`,
     so even a stray process left in the same ROS domain by someone else cannot cross-talk with the graph."""
@@ -65,13 +75,7 @@ class Processes:
         return self.procs[name]
 
     def stop(self, name):
-        p = self.procs.pop(name)
-        p.terminate()
-        try:
-            p.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+        terminate(self.procs.pop(name))
 
     def stop_all(self):
         for name in list(self.procs):

@@ -10,7 +10,7 @@ import sys
 import time
 
 import pytest
-from bridge_graph import Observer, free_udp_port, python_env
+from bridge_graph import Observer, free_udp_port, python_env, terminate
 
 BRIDGE = [sys.executable, '-m', 'quad_bridge.mavlink_bridge_node', '--ros-args']
 NAMESPACE = f'/bridge_realtime_{os.getpid()}'
@@ -38,7 +38,6 @@ def _started(ros_env, priority, prefix=()):
         while 'keep-alive' not in log and time.monotonic() < deadline and proc.poll() is None:
             if sel.select(timeout=1.0):
                 log += proc.stdout.readline()
-    time.sleep(1.0)  # its threads up and waiting
     return proc, log
 
 
@@ -54,28 +53,20 @@ def _said_in_diagnostics(ros_env) -> str:
         observer.close()
 
 
-def _stop(proc):
-    proc.terminate()
-    try:
-        proc.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-
-
 @pytest.mark.skipif(os.geteuid() != 0, reason='SCHED_FIFO needs root or CAP_SYS_NICE here')
 def test_every_thread_of_the_bridge_runs_under_sched_fifo_at_the_priority(ros_env):
     proc, log = _started(ros_env, 7)
     try:
         assert proc.poll() is None, log
+        # its diagnostics come from the supervisor thread, the last one it starts: every thread is up by then
+        assert _said_in_diagnostics(ros_env).startswith('SCHED_FIFO 7 (')
         policies = _policies(proc.pid)
         # the executor's, Fast DDS's (created before the node was), the receive, setpoint and supervisor threads
         assert len(policies) >= 6, policies
         assert set(policies.values()) == {(os.SCHED_FIFO, 7)}, policies
         assert 'scheduling SCHED_FIFO 7' in log
-        assert _said_in_diagnostics(ros_env).startswith('SCHED_FIFO 7 (')
     finally:
-        _stop(proc)
+        terminate(proc)
 
 
 def test_off_by_default_leaves_the_ordinary_scheduler(ros_env):
@@ -85,7 +76,7 @@ def test_off_by_default_leaves_the_ordinary_scheduler(ros_env):
         assert {policy for policy, _ in _policies(proc.pid).values()} == {os.SCHED_OTHER}
         assert 'scheduling off' in log
     finally:
-        _stop(proc)
+        terminate(proc)
 
 
 @pytest.mark.skipif(os.geteuid() != 0 or not shutil.which('setpriv'), reason='needs root and setpriv to drop a '
@@ -104,7 +95,7 @@ def test_a_refused_realtime_priority_is_an_error_naming_the_parameter_and_the_br
         assert {policy for policy, _ in _policies(proc.pid).values()} == {os.SCHED_OTHER}
         assert _said_in_diagnostics(ros_env).startswith('refused: realtime_priority = 20: SCHED_FIFO refused')
     finally:
-        _stop(proc)
+        terminate(proc)
 
 
 @pytest.mark.parametrize('value', ['-1', '100'])
