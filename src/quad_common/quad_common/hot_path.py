@@ -4,7 +4,8 @@ Why: rclpy's executor rebuilds its wait set from every entity of every node (par
 handlers, all timers and subscriptions) and runs one callback per spin_once: ~0.2-0.4 ms of Python per callback on
 the 2-core machine, several callbacks per lockstep tick, most of the graph's wall time. Here the few entities of
 the tick (`hot`) wake the loop and all of them that are ready run in one pass; everything else (services,
-parameters, slow timers, other subscriptions) is served by the stock executor every `slow_period_s` of wall time.
+parameters, slow timers, other subscriptions) is served by the stock executor every `slow_period_s` of wall time,
+or every SLOW_SHARE_BOUND times as long as its last pass took when that is longer (a host of many nodes).
 """
 
 import time
