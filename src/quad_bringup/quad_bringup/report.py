@@ -63,6 +63,10 @@ def load_flights(bag_dir, namespaces) -> dict:
             routes[conn.id] = [(parts[ns], w) for ns in namespaces
                                for w in [next((w for w in WANTED if _is(conn.topic, w, ns)), None)] if w]
         connections = [c for c in reader.connections if routes[c.id]]
+        if not connections:   # (rosbags reads every connection when given none)
+            where = ', '.join(f'/{ns}/' for ns in namespaces if ns)
+            raise ValueError(f'bag {bag_dir}: none of the flight topics (odom, trajectory, cmd/attitude_thrust'
+                             f'{f" under {where}" if where else ""}) in it')
         for conn, record_ns, raw in reader.messages(connections=connections):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
             for part, topic in routes[conn.id]:
