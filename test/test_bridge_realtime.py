@@ -12,16 +12,18 @@ import time
 import pytest
 from bridge_graph import Observer, free_udp_port, python_env, terminate
 
+from quad_bridge.realtime import policy_of, thread_ids
+
 BRIDGE = [sys.executable, '-m', 'quad_bridge.mavlink_bridge_node', '--ros-args']
 NAMESPACE = f'/bridge_realtime_{os.getpid()}'
 
 
 def _policies(pid) -> dict:
-    """{tid: (policy, priority)} of every thread of the process."""
+    """{tid: (policy, priority)} of every thread of the process (one that ended meanwhile left out)."""
     out = {}
-    for tid in os.listdir(f'/proc/{pid}/task'):
+    for tid in thread_ids(pid):
         try:
-            out[int(tid)] = (os.sched_getscheduler(int(tid)), os.sched_getparam(int(tid)).sched_priority)
+            out[tid] = policy_of(tid)
         except ProcessLookupError:
             pass
     return out

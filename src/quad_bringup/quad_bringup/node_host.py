@@ -110,7 +110,7 @@ def main(argv=None):
             except ValueError as exc:
                 for node in nodes:
                     node.destroy_node()
-                raise ValueError(f'/{namespace}/{name}: {exc}'.replace('//', '/')) from None
+                raise ValueError(f'{f"/{namespace}" if namespace else ""}/{name}: {exc}') from None
         clock[:] = [share_clock(nodes)]
         return nodes
 
@@ -119,11 +119,11 @@ def main(argv=None):
             return executor.spin()
         from quad_sim import sim_node
 
-        sim_node.spin(next(n for n in nodes if n.get_name() == SIMULATOR and n.get_namespace() == '/'), executor)
+        sim_node.spin(nodes[entries.index((SIMULATOR, ''))], executor)
 
     run_node('node_host', make_nodes, refused=(ValueError, OSError),
              make_executor=lambda nodes: HotPathExecutor(lambda: hot_entities(nodes, clock[0])),
-             spin=spin, args=["node_host", *ros_args], own_signals=simulated)
+             spin=spin, args=['node_host', *ros_args], own_signals=simulated)
 
 
 if __name__ == '__main__':

@@ -60,8 +60,11 @@ def load_flights(bag_dir, namespaces) -> dict:
     try:
         routes = {}      # connection id -> [(its vehicle's parts, the contract topic it is)]
         for conn in reader.connections:
-            routes[conn.id] = [(parts[ns], w) for ns in namespaces
-                               for w in [next((w for w in WANTED if _is(conn.topic, w, ns)), None)] if w]
+            routes[conn.id] = []
+            for ns in namespaces:
+                topic = next((w for w in WANTED if _is(conn.topic, w, ns)), None)
+                if topic is not None:
+                    routes[conn.id].append((parts[ns], topic))
         connections = [c for c in reader.connections if routes[c.id]]
         if not connections:   # (rosbags reads every connection when given none)
             where = ', '.join(f'/{ns}/' for ns in namespaces if ns)

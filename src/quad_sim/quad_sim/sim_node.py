@@ -434,16 +434,15 @@ class SimNode(Node):
         while self.running():
             self.publish_step()
             t_k = self.sim.time_ns
-            waited = time.monotonic()
-            behind = self.followers_behind(max(t_k - lag_ns, 0))
-            self._await_followers(executor, max(t_k - lag_ns, 0))  # every follower has step 0 before step 1
+            follower_ns = max(t_k - lag_ns, 0)   # every follower has step 0 before step 1
+            waited, behind = time.monotonic(), self.followers_behind(follower_ns)
+            self._await_followers(executor, follower_ns)
             now = time.monotonic()
             self._longest_wait('followers', now - waited, t_k, behind)
             if self._ended():
                 break
-            waiting = [v.name for v in self.vehicles if v.setpoint_stamp_ns < t_k]
-            self._await_setpoints(executor, t_k)
-            self._longest_wait('setpoints', time.monotonic() - now, t_k, waiting)
+            waiting = self._await_setpoints(executor, t_k)
+            self._longest_wait('setpoints', time.monotonic() - now, t_k, [v.name for v in waiting])
             if self.sim.time_ns != t_k:  # reset while waiting
                 continue
             if not self.running():
@@ -468,10 +467,11 @@ class SimNode(Node):
         if self._first_advance is not None and wait_s > self._longest.get(what, (0.0,))[0]:
             self._longest[what] = (wait_s, t_ns, list(who))
 
-    def _await_setpoints(self, executor, t_k: int):
+    def _await_setpoints(self, executor, t_k: int) -> list:
         """Spin until every vehicle has a setpoint stamped >= t_k or its wait ran out: lockstep_timeout_s; before
         its first setpoint STARTUP_REPUBLISH_S at most (its odometry re-published each time, for controllers that
-        joined late or answered before they were matched); once one was missed, LOST_STEP_TIMEOUT_S at most."""
+        joined late or answered before they were matched); once one was missed, LOST_STEP_TIMEOUT_S at most.
+        Returns the vehicles it waited for (those without one at its start)."""
         now = time.monotonic()
         deadlines = {}
         for v in self.vehicles:
@@ -483,6 +483,7 @@ class SimNode(Node):
             deadlines[v] = now + timeout_s
         republish_at = now + STARTUP_REPUBLISH_S
         waiting = [v for v in self.vehicles if v.setpoint_stamp_ns < t_k]
+        waited_for = list(waiting)
         while waiting and self.running():
             now = time.monotonic()
             for v in [v for v in waiting if now >= deadlines[v]]:
@@ -501,6 +502,7 @@ class SimNode(Node):
                 republish_at = now + STARTUP_REPUBLISH_S
             executor.spin_once(timeout_sec=max(min(min(deadlines[v] for v in waiting), republish_at) - now, 0.0))
             waiting = [v for v in waiting if v.setpoint_stamp_ns < t_k]
+        return waited_for
 
     def _await_followers(self, executor, stamp_ns, timeout_s=None):
         """Spin until every follower has acknowledged odometry stamped >= stamp_ns (a warning every

@@ -27,7 +27,13 @@ from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
 from quad_vehicle_emu import ned  # noqa: E402
 from quad_vehicle_emu import protocol as p  # noqa: E402
-from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, default_tau_s, emulated_vehicle  # noqa: E402
+from quad_vehicle_emu.attitude import (  # noqa: E402
+    RATE_LOOPS,
+    AttitudeResponse,
+    DelayLine,
+    default_tau_s,
+    emulated_vehicle,
+)
 from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
 from quad_vehicle_emu.drag import check_drag, with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import Estimate  # noqa: E402
@@ -443,7 +449,7 @@ def build_parser():
     ap.add_argument('--estimator-velocity-noise-mps', type=_triple, default=[0.0, 0.0, 0.0], metavar='X,Y,Z',
                     help="RMS of the estimate's velocity noise on the body axes, correlated over EKF2_TAU_VEL "
                          '(PX4 SIH: 0.0125,0.0425,0.035 from its accelerometer noise); default none')
-    ap.add_argument('--rate-loop', choices=('default', 'px4-sih'), default='default',
+    ap.add_argument('--rate-loop', choices=tuple(RATE_LOOPS), default='default',
                     help="the autopilot's roll/pitch rate loop: default 60 rad/s; px4-sih: PX4's defaults on SIH's "
                          'airframe (12.7 rad/s behind 0.05 s motors; quad_vehicle_emu.attitude)')
     ap.add_argument('--rp-rates-with-attitude', choices=('fed', 'ignored'), default='fed',
