@@ -111,10 +111,16 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
     assert cf2['completed'] and cf2['rmse_m'] < 0.03, cf2
     assert not cf1['completed']
     assert result.positions['cf1'][-1, 2] < 0.1, result.positions['cf1'][-1]     # landed by its failsafe
-    assert abs(result.positions['cf1'][-1, 0]) < 0.6        # where it was at t = 2 s, not along the leg
-    assert result.collisions == []
     from quad_bringup.report import load_flight, load_flights
     alone = {n: load_flight(run.bag, namespace=n) for n in ('cf1', 'cf2')}
+    # where it was when its controller died (its last setpoint; the probe sees t = 2 s late on a busy machine,
+    # the kill lands later in sim time), not along the leg
+    died_s = alone['cf1'].cmd_t[-1]
+    at_death = np.array([np.interp(died_s, alone['cf1'].odom_t, alone['cf1'].position[:, a]) for a in (0, 1)])
+    # the probe saw t = 2 s before the kill: the controller had answered the step before it at least
+    assert died_s >= 1.99 - 1e-9 and at_death[0] < 1.2, (died_s, at_death)    # before the leg's end (1.5 m)
+    assert np.linalg.norm(result.positions['cf1'][-1, :2] - at_death) < 0.2, (result.positions['cf1'][-1], at_death)
+    assert result.collisions == []
     assert any(name == contract.SIM_FAILSAFE for _, name, _ in alone['cf1'].errors)
     assert not any(name == contract.SIM_FAILSAFE for _, name, _ in alone['cf2'].errors)
     for name, flight in load_flights(run.bag, ['cf1', 'cf2']).items():   # one read of the bag: the same flights
