@@ -14,6 +14,7 @@ import struct
 import numpy as np
 
 from quad_bridge.backend import Backend, ParamCheck, StreamGroup, ThrustConfig
+from quad_bridge.streamer import FIRST_RESEND_PERIODS
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
 MAV_AUTOPILOT_PX4 = 12
@@ -91,10 +92,11 @@ class Px4(Backend):
         problems, notes = [], []
         config = self._hover('MPC_THR_HOVER', values, config, adopt, problems, notes)
         loss_s = values['COM_OF_LOSS_T']
-        period_s = 1.0 / config.setpoint_rate_hz
-        if period_s >= loss_s:
-            problems.append(f'COM_OF_LOSS_T = {loss_s:.2f} s on the vehicle is not above the keep-alive period '
-                            f'{period_s:.2f} s (setpoint_rate_hz = {config.setpoint_rate_hz}): raise either')
+        gap_s = FIRST_RESEND_PERIODS / config.setpoint_rate_hz
+        if gap_s >= loss_s:
+            problems.append(f'COM_OF_LOSS_T = {loss_s:.2f} s on the vehicle is not above the keep-alive\'s longest '
+                            f'gap {gap_s:.2f} s ({FIRST_RESEND_PERIODS} / setpoint_rate_hz = '
+                            f'{config.setpoint_rate_hz}): raise either')
         if loss_s < config.setpoint_timeout_s:
             notes.append(f'COM_OF_LOSS_T = {loss_s:.2f} s < setpoint_timeout_s = {config.setpoint_timeout_s} s: '
                          'PX4\'s own offboard-loss failsafe (COM_OBL_RC_ACT) acts before the bridge\'s stale_action')

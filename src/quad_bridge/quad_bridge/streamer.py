@@ -3,7 +3,8 @@ only when none went out for a whole period (the stream autopilots need to stay i
 stale stream. No rclpy: the caller hands in what to send and whether it may.
 
     submit(sp) -> [may_send?] -> send(sp)                  (the subscriber's thread, no waiting)
-    keep-alive: every period without a send -> send(newest); nothing sent for timeout_s -> on_stale()
+    keep-alive: 1.5 periods without a new one, then every period -> send(newest); nothing sent for
+                timeout_s -> on_stale()
 
 The keep-alive runs in a thread of its own (start()), or, with `wake`, in the owner's thread: the owner calls
 tick() when the delay tick() last returned has passed (mavlink_bridge: the setpoint thread, whose wait for the
@@ -17,6 +18,12 @@ import time
 from quad_bridge.link import RateMeter
 
 MIN_WAIT_S = 0.0005   # the keep-alive's shortest wait
+# After a new setpoint the keep-alive waits this many periods before its first re-send, then one period each: a
+# controller publishing at the keep-alive's own rate arrives up to this late without a re-send. At 1.0 the jitter
+# of a 50 Hz controller against a 50 Hz keep-alive put a re-send just before the next setpoint on 0-22 % of the
+# setpoints (bench_bridge_telemetry: a second datagram and a second wake-up each). The wire's longest gap while
+# the input is fresh is therefore FIRST_RESEND_PERIODS / rate (what the autopilot's loss timeout must exceed).
+FIRST_RESEND_PERIODS = 1.5
 
 
 class SetpointStreamer:
@@ -36,6 +43,7 @@ class SetpointStreamer:
         self.sent = RateMeter()
         self.received = self.sent_total = self.superseded = self.keepalives = 0
         self._unsent = False          # the newest setpoint has not been on the wire
+        self._resent = False          # the last send was the keep-alive's (the next one is due a period after it)
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._owner_wake = wake
@@ -76,9 +84,13 @@ class SetpointStreamer:
         else:
             self._wake.set()
 
-    def _emit(self, now):
+    def max_wire_gap_s(self) -> float:
+        """The longest the wire stays quiet while the input is fresh: the first re-send's wait."""
+        return FIRST_RESEND_PERIODS * self.period_s
+
+    def _emit(self, now, resend=False):
         self._send(self.setpoint)
-        self.sent_s, self._unsent = now, False
+        self.sent_s, self._unsent, self._resent = now, False, resend
         self.sent_total += 1
         self.sent.tick(now)
 
@@ -103,23 +115,26 @@ class SetpointStreamer:
         return max(delay_s, MIN_WAIT_S)
 
     def _tick(self) -> float:
-        """Re-send when a period passed without a send; report once when the setpoints stopped for timeout_s, or
-        the wire went quiet for timeout_s (the vehicle keeps flying the last setpoint meanwhile). The setpoints'
-        own age decides, not the wire's: the keep-alive re-sends the last one until it is timeout_s old, and
-        waiting for the wire to go quiet after that took 2 x timeout_s (issue 28). Returns the next wait."""
+        """Re-send when FIRST_RESEND_PERIODS passed after a new setpoint's send, then every period; report once
+        when the setpoints stopped for timeout_s, or the wire went quiet for timeout_s (the vehicle keeps flying
+        the last setpoint meanwhile). The setpoints' own age decides, not the wire's: the keep-alive re-sends the
+        last one until it is timeout_s old, and waiting for the wire to go quiet after that took 2 x timeout_s
+        (issue 28). Returns the next wait."""
         report = None
         with self.lock:
             now = self.clock()
             input_age = now - self.received_s
-            if input_age <= self.timeout_s and now - self.sent_s >= self.period_s and self._may_send():
-                self._emit(now)
+            due_s = self.sent_s + (self.period_s if self._resent else self.max_wire_gap_s())
+            if input_age <= self.timeout_s and now >= due_s and self._may_send():
+                self._emit(now, resend=True)
                 self.keepalives += 1
+                due_s = now + self.period_s
             wire_age = now - self.sent_s
             if (wire_age > self.timeout_s or input_age > self.timeout_s) and self.sent_s > self.reported_sent_s:
                 self.reported_sent_s, report = self.sent_s, (wire_age, input_age)
-            next_send = self.sent_s + self.period_s - now
+            next_send = due_s - now
             next_quiet = (min(self.sent_s, self.received_s) + self.timeout_s - now
                           if self.sent_s > self.reported_sent_s else self.period_s)
         if report is not None:
             self._on_stale(*report)
-        return min(next_send if next_send > 0 else self.period_s, next_quiet + 1e-4, self.period_s)
+        return min(next_send if next_send > 0 else self.period_s, next_quiet + 1e-4, self.max_wire_gap_s())

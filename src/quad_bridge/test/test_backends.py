@@ -135,6 +135,10 @@ def test_px4_offboard_loss_time_against_the_keep_alive():
     cfg = ThrustConfig(hover_throttle=0.5, setpoint_rate_hz=2.0, setpoint_timeout_s=0.5)
     assert 'COM_OF_LOSS_T = 0.40' in PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.4}, cfg,
                                                       'check').problems[0]
+    # the wire's longest gap is 1.5 periods (the keep-alive's first re-send): 0.75 s at 2 Hz
+    assert 'longest gap 0.75 s' in PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.7}, cfg,
+                                                    'check').problems[0]
+    assert PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.8}, cfg, 'check').problems == ()
     ok = PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.3}, ThrustConfig(setpoint_timeout_s=0.5), 'check')
     assert ok.problems == () and 'acts before' in ok.notes[0]
 

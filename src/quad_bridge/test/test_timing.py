@@ -4,6 +4,7 @@ vertical acceleration."""
 import math
 import threading
 
+import numpy as np
 import pytest
 
 from quad_bridge.backend import StreamGroup
@@ -83,13 +84,53 @@ def test_a_new_setpoint_goes_out_at_once_and_the_keep_alive_only_fills_gaps():
         s.submit(k)
         assert s._tick() > 0
     assert sent == [0, 1, 2, 3, 4] and s.superseded == 1 and s.keepalives == 0
-    clock.t = 0.02 + 0.021                         # a period without a new one: the keep-alive re-sends
+    clock.t = 0.02 + 0.029                         # not yet: a late setpoint at the keep-alive's rate is no gap
+    s._tick()
+    assert s.keepalives == 0
+    clock.t = 0.02 + 0.031                         # 1.5 periods without a new one: the keep-alive re-sends
     s._tick()
     assert sent[-1] == 4 and s.keepalives == 1
+    clock.t = 0.051 + 0.021                        # then every period
+    s._tick()
+    assert s.keepalives == 2
     clock.t = 0.8                                  # input stale: no re-send of an old setpoint, reported once
     s._tick()
     s._tick()
-    assert s.keepalives == 1 and len(quiet) == 1 and quiet[0][1] > 0.5
+    assert s.keepalives == 2 and len(quiet) == 1 and quiet[0][1] > 0.5
+
+
+def _stream(streamer, clock, arrivals_s, until_s):
+    """The setpoint thread's loop on a fake clock: wakes at the next setpoint or at the keep-alive's deadline,
+    whichever comes first. Returns the wake-ups."""
+    arrivals, wakes, deadline = sorted(arrivals_s), 0, 0.0
+    while clock.t < until_s:
+        clock.t = min(arrivals[0], deadline) if arrivals else deadline
+        wakes += 1
+        if arrivals and arrivals[0] <= clock.t:
+            streamer.submit(arrivals.pop(0))
+        deadline = clock.t + streamer.tick()
+    return wakes
+
+
+def test_a_controller_at_the_keep_alive_rate_puts_each_setpoint_on_the_wire_once():
+    """A 50 Hz controller whose setpoints arrive up to 0.4 of a period late (a busy machine's jitter) against the
+    50 Hz keep-alive: no re-sends in between, one send and one wake-up per setpoint (issue 26: a keep-alive due
+    after one period re-sent just before the next setpoint, doubling datagrams and wake-ups)."""
+    rng = np.random.default_rng(7)
+    clock, sent = FakeClock(), []
+    s = SetpointStreamer(sent.append, lambda: True, 50.0, 0.5, lambda *a: None, clock=clock)
+    arrivals = [0.02 * k + 0.008 * rng.random() for k in range(500)]
+    wakes = _stream(s, clock, arrivals, until_s=arrivals[-1])
+    assert s.keepalives == 0 and len(sent) == 500 and wakes <= 500 + 1
+
+
+def test_a_stream_that_stops_is_kept_alive_with_gaps_no_longer_than_one_and_a_half_periods():
+    clock, sent_at = FakeClock(), []
+    s = SetpointStreamer(lambda sp: sent_at.append(clock.t), lambda: True, 50.0, 0.5, lambda *a: None, clock=clock)
+    _stream(s, clock, [0.02 * k for k in range(10)], until_s=0.45)
+    gaps = np.diff(sent_at)
+    assert s.keepalives >= 10 and gaps.max() <= s.max_wire_gap_s() + 1e-9 and s.max_wire_gap_s() == pytest.approx(0.03)
+    assert gaps[9] == pytest.approx(0.03) and np.allclose(gaps[10:], 0.02)   # the first re-send, then each period
 
 
 def test_setpoints_that_stop_are_stale_setpoint_timeout_s_after_the_last_one():
@@ -224,7 +265,6 @@ def test_timesync_answered_late_on_a_loaded_machine_does_not_invent_a_drift():
 def test_the_clock_line_on_python_numbers_is_numpys_least_squares():
     """clock._line (Python numbers since issue 26) against numpy's least squares on the same points: offset,
     drift, residuals and standard error; too few points or too short a span give drift 0 as before."""
-    import numpy as np
 
     from quad_bridge import clock as clk
 
@@ -264,6 +304,6 @@ def test_after_a_stall_every_queued_setpoint_is_taken_oldest_first_and_the_newes
 
     SetpointPath._take_all(Path(), sub=None)
     assert sent == [1, 2, 3] and not queue
-    clock.t += 0.021
+    clock.t += 0.031
     streamer.tick()
     assert sent[-1] == 3 and streamer.keepalives == 1
