@@ -27,6 +27,10 @@ from bench_bridge import HOVER_THROTTLE, mavlink  # noqa: E402
 from quad_common.domains import isolated_domain  # noqa: E402
 
 BASELINE = '5a87bc8'   # main's receive and setpoint paths before this change
+# The floor in the same alternation (bench/bridge_floor.py: the least a Python rclpy bridge with this telemetry can
+# do); BENCH_FLOOR=0 leaves it out
+FLOOR = os.environ.get('BENCH_FLOOR', '1') != '0'
+FLOOR_LABEL = 'floor: bench/bridge_floor.py'
 # More commits to run beside it, e.g. BENCH_ALSO=f68c54c (the receive path before its batches read past one datagram)
 ALSO = tuple(c for c in os.environ.get('BENCH_ALSO', '').split(',') if c)
 # Today's code also at these realtime_priority values (SCHED_FIFO, docs/bridge.md), e.g. BENCH_RT=20
@@ -127,16 +131,19 @@ def caller_realtime(priority):
             pass
 
 
-def run_once(autopilot, src, env, domain, busy, extra=(), caller_rt=0) -> dict:
+def run_once(autopilot, src, env, domain, busy, extra=(), caller_rt=0, floor=False) -> dict:
+    """One window of the bridge of `src` (floor: bench/bridge_floor.py instead, with today's quad_common)."""
     bridge = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', 'fcu_url:=udpout:127.0.0.1:{port}',
               '-p', f'hover_throttle:={HOVER_THROTTLE}', '-p', f'autopilot:={autopilot}',
               '-p', 'setpoint_rate_hz:=50.0', '-p', 'setpoint_timeout_s:=1.0', '-p', 'setpoint_source:=bench_bridge',
               *extra]
+    if floor:
+        bridge = [str(ROOT / 'bench' / 'bridge_floor.py'), '{port}', str(HOVER_THROTTLE), '--ros-args']
     env = dict(env, PYTHONPATH=python_path(src) + os.pathsep + env.get('PYTHONPATH', ''))
     loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(busy)]
     bench = bb.Bench(bridge, env, domain, VEHICLES[autopilot]())
     try:
-        bench.warm_up(True)
+        bench.warm_up(not floor)
         caller_realtime(caller_rt)
         try:
             result = bench.measure(RATE_HZ, RUN_S)
@@ -157,12 +164,14 @@ def main():
         codes = [(f'before ({BASELINE})', baseline_src(Path(tmp)), ())]
         codes += [(f'at {c}', baseline_src(Path(tmp), c), ()) for c in ALSO] + [('today', ROOT / 'src', ())]
         codes += [(f'today, realtime_priority {p}', ROOT / 'src', ('-p', f'realtime_priority:={p}')) for p in RT]
+        codes += [(FLOOR_LABEL, ROOT / 'src', ())] if FLOOR else []
         for busy in (0, BUSY):
             for _ in range(REPEATS):
                 for autopilot in VEHICLES:
                     for caller in (0, *CALLER_RT):
                         for label, src, extra in codes:
-                            r = run_once(autopilot, src, env, domain, busy, extra, caller)
+                            r = run_once(autopilot, src, env, domain, busy, extra, caller,
+                                         floor=label == FLOOR_LABEL)
                             print(f'{autopilot} {label} busy={busy} caller={caller}: {r}', file=sys.stderr)
                             runs.setdefault((autopilot, label, busy, caller), []).append(r)
     print('### MAVLink bridge with an autopilot\'s real telemetry\n')
@@ -176,6 +185,10 @@ def main():
                     'SCHED_OTHER, beside the busy loops.' for p in CALLER_RT[:1])
     print(' '.join(head.split()) + '\n')
     print('\n'.join('- ' + ' '.join(v.split()) for v in vehicles) + '\n')
+    if FLOOR:
+        also += (f' `{FLOOR_LABEL}`: the least a Python rclpy bridge can do with this telemetry (the setpoint echo of '
+                 'bench/bridge_echo.py, and a thread that publishes a serialized `odom` / `imu` for each position '
+                 '/ IMU datagram, nothing decoded, checked or stamped): what the goal is measured against.')
     if also:
         print(also.strip() + '\n')
     print('Latency: publishing `cmd/attitude_thrust` to its SET_ATTITUDE_TARGET datagram arriving at the vehicle '
