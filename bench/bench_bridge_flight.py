@@ -17,6 +17,7 @@ offline (`fly_chain_offline`: the emulator's pieces under position_controller's 
 or load; three seeds), once without the three from PX4's source (the SIH-like setting before them) and once with
 the estimate's velocity also 0.15 s late (the first SIH-like estimate)."""
 
+import math
 import os
 import re
 import sys
@@ -76,6 +77,7 @@ REFERENCE = [
 START_REFUSED = re.compile(r'trajectory refused at its start .*?it begins ([0-9.]+) m')
 OFFLINE_SEEDS = (0, 1, 2)
 OFFLINE_HOVER_S = 15.0   # hovering before the plan, as the graph does while the bridge connects
+ODOM_EARLY_MAX_S = 1.0   # stamps at most this early (the old filter: drift x 10 s window; 0.93 under load: 0.75 s)
 
 
 def _profile_values(profile):
@@ -88,17 +90,44 @@ def _profile_values(profile):
     return profile_parameters(content)
 
 
-def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE) -> float:
+def odom_early_s_checked(early_s) -> float:
+    """The odometry stamps' bias (s early) of fly_chain_offline: finite, 0..ODOM_EARLY_MAX_S."""
+    early_s = float(early_s)
+    if not (math.isfinite(early_s) and 0.0 <= early_s <= ODOM_EARLY_MAX_S):
+        raise ValueError(f'odometry stamps {early_s!r} s early: must be within 0..{ODOM_EARLY_MAX_S} s '
+                         '(0: stamped when measured, as the bridge stamps now)')
+    return early_s
+
+
+def score(stamps_s, positions, traj) -> float:
+    """The RMSE as `quadflight report` scores it (quad_bringup.metrics.compute_metrics): each odometry's position
+    against the plan at its own header stamp (plan start OFFLINE_HOVER_S), over the stamps in the plan plus 3 s."""
+    stamps_s, positions = np.asarray(stamps_s), np.asarray(positions)
+    scored = (stamps_s >= OFFLINE_HOVER_S) & (stamps_s <= OFFLINE_HOVER_S + traj.duration_s + 3.0)
+    plan_t = np.arange(traj.position.shape[0]) / SAMPLE_RATE_HZ
+    at = np.clip(stamps_s[scored] - OFFLINE_HOVER_S, 0.0, plan_t[-1])
+    ref = np.column_stack([np.interp(at, plan_t, traj.position[:, i]) for i in range(3)])
+    return float(np.sqrt(np.mean(np.sum((positions[scored] - ref) ** 2, axis=1))))
+
+
+def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_early_s=None) -> float:
     """The PX4 SIH-like emulated chain without processes, MAVLink or a loaded machine: the emulator's own pieces
     (its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the estimate, the telemetry
     delay line at 20 ms and 50 Hz) under position_controller's ControlLoop at 100 Hz, the square planned as
     trajectory_node plans it; the RMSE of the estimate (what the bag's odometry is) against the plan, over the
     plan plus settle_s. velocity_lag_s: the estimate's velocity that late too (the first SIH-like model).
-    options: the emulator's flags it stands for (PX4_SIH_LIKE, or PX4_SIH_BEFORE)."""
+    options: the emulator's flags it stands for (PX4_SIH_LIKE, or PX4_SIH_BEFORE).
+    odom_early_s: None scores each odometry at its arrival (20 ms after it was measured; the rows in
+    docs/emulator.md); a number stamps it as the bridge does, when it was measured on the vehicle's clock, that many
+    seconds early (0..ODOM_EARLY_MAX_S; the bridge's clock fallback on PX4 SIH in issue 28: 0.07-0.15 s). Either
+    stamp reaches the controller as position_controller's odometry stamp (the loop runs as the node does under the
+    bridge, lockstep false: a tick controls from the newest odometry, whatever its stamp) and the scoring (score:
+    the plan at the stamp, as `quadflight report` does)."""
+    early_s = None if odom_early_s is None else odom_early_s_checked(odom_early_s)
     values = _profile_values(profile)
     vehicle = load_vehicle(VEHICLE_FILE)
     loop = ControlLoop(PositionController(values.get('controller', 'pd'), gains_from(values), vehicle,
-                                          Limits.of(vehicle)), 100.0, lockstep=True)
+                                          Limits.of(vehicle)), 100.0, lockstep=False)
     plan = planner.plan(np.array(SQUARE), 0.0, planner.PlanOptions(speed_mps=SPEED_MPS), vehicle=vehicle)
     traj = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
     loop.set_trajectory(int(OFFLINE_HOVER_S * 1e9), traj)
@@ -126,26 +155,21 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE) -
                         quaternion=est.quaternion, body_rates=est.body_rates)
         telemetry.push(t_s, est)
         if k % 2 == 0 and telemetry.read(t_s) is not None:    # odometry at 50 Hz
-            seen = telemetry.read(t_s)[1]
-            samples.append((t_s, seen.position.copy()))
+            measured_s, seen = telemetry.read(t_s)
+            stamp_s = t_s if early_s is None else measured_s - early_s
+            loop.set_odometry(round(stamp_s * 1e9), seen)
+            samples.append((stamp_s, seen.position.copy()))
         if seen is None:
             sp = AttitudeSetpoint(quaternion=sim.state.quaternion, specific_force_mps2=9.81, body_rates=None)
         else:
-            loop.tick(int(t_s * 1e9))
-            sp = loop.set_odometry(int(t_s * 1e9), seen).setpoint
+            sp = loop.tick(int(t_s * 1e9)).setpoint
         rates = sp.body_rates
         if rates is not None and not rp_rates_fed:
             rates = np.array([0.0, 0.0, rates[2]])
         q, w = shaper.step(sp.quaternion, 0.01, rates)
         sim.set_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=sp.specific_force_mps2, body_rates=w))
         sim.advance_steps(sim.steps_in(0.01))
-    times = np.array([t for t, _ in samples])
-    positions = np.array([p for _, p in samples])
-    scored = (times >= OFFLINE_HOVER_S) & (times <= end_s)
-    plan_t = np.arange(traj.position.shape[0]) / SAMPLE_RATE_HZ
-    at = np.clip(times[scored] - OFFLINE_HOVER_S, 0.0, plan_t[-1])
-    ref = np.column_stack([np.interp(at, plan_t, traj.position[:, i]) for i in range(3)])
-    return float(np.sqrt(np.mean(np.sum((positions[scored] - ref) ** 2, axis=1))))
+    return score([t for t, _ in samples], [p for _, p in samples], traj)
 
 
 def offline_rows() -> list[tuple]:
