@@ -30,7 +30,6 @@ from quad_bridge.handover import ACTIVE
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
 from quad_bridge.peers import LinkPeers
-from quad_bridge.realtime import apply_realtime_priority
 from quad_bridge.safety import Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
@@ -38,6 +37,7 @@ from quad_bridge.vehicle import Vehicle
 from quad_common import contract, diagnostics
 from quad_common.node_main import run_node
 from quad_common.params import Param
+from quad_common.realtime import apply_or_report
 from quad_common.ros_params import ParameterSet
 
 NAME = 'mavlink_bridge'
@@ -169,11 +169,7 @@ class MavlinkBridge(Node):
         receive, setpoint and supervisor threads started after it, and Fast DDS's later ones, inherit it.
         Refused by the system: an error naming the parameter and how to grant it, kept in the link's
         diagnostics (`realtime`, level WARN), and the bridge runs on under the ordinary scheduler."""
-        try:
-            return apply_realtime_priority(priority), False
-        except PermissionError as exc:
-            self.get_logger().error(exc.strerror)
-            return f'refused: {exc.strerror}', True
+        return apply_or_report(priority, self.get_logger().error)
 
     def now_s(self) -> float:
         return time.monotonic() - self.t0

@@ -48,6 +48,9 @@ SPECS = [
           'identify); the thrust command is divided by it; 1 = the seed', min=0.5, max=2.0),
     Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '
           'external acceleration (drag, wind) subtracted from a_des; 0 = off (the seed)', min=0.0, max=10.0),
+    Param('realtime_priority', 0, 'the tick\'s threads (the executor\'s, Fast DDS\'s) under SCHED_FIFO at this '
+          'priority (1..99), the trajectory decoder left ordinary; 0 = off (the ordinary scheduler)', min=0, max=99,
+          read_only=True),
 ]
 
 

@@ -27,6 +27,7 @@ from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.paths import resolve_config
+from quad_common.realtime import apply_or_report, thread_ids
 from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_control.loop import ControlLoop, Tick
@@ -52,6 +53,11 @@ class TrajectoryDecoder:
         self._queue, self._results, self._closed = deque(), deque(), False
         self._thread = threading.Thread(target=self._run, name='trajectory-decoder', daemon=True)
         self._thread.start()
+
+    @property
+    def native_id(self) -> int:
+        """The worker's thread id (the kernel's)."""
+        return self._thread.native_id
 
     def submit(self, raw: bytes):
         with self._lock:
@@ -132,8 +138,15 @@ class PositionControllerNode(Node):
         self._clock_subs = (-1, [])   # (the node's subscription count, its /clock subscription): hot_entities
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=self.steady)
+        # the last: every thread the tick needs exists now (the decoder's bulk work stays ordinary: a 10,000-point
+        # plan decoded under SCHED_FIFO would hold a core from everything else on the machine, the bridge included)
+        decoder = self.trajectory_decoder.native_id
+        self.realtime, self.realtime_refused = apply_or_report(
+            self.params['realtime_priority'], self.get_logger().error,
+            tids=lambda: [t for t in thread_ids() if t != decoder])
         self.get_logger().info(f"{self.params['controller']} at {self.params['rate_hz']} Hz, "
-                               f"lockstep={self.params['lockstep']}, vehicle {self.vehicle.name}")
+                               f"lockstep={self.params['lockstep']}, vehicle {self.vehicle.name}, "
+                               f"scheduling {self.realtime}")
 
     def hot_entities(self):
         """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
@@ -320,7 +333,9 @@ class PositionControllerNode(Node):
                   'integral_m_s': np.round(self.controller.integral_m_s, 4).tolist(), 'last_error': self.last_error,
                   'hold_position_m': None if self.loop.hold is None else self.loop.hold.position.tolist(),
                   'start_step_m': self.loop.last_start_step_m, 'max_start_step_m': self.loop.max_start_step_m,
-                  'last_future_odom': self.last_future_odom}
+                  'last_future_odom': self.last_future_odom, 'realtime': self.realtime}
+        if level == diagnostics.OK and self.realtime_refused:
+            level, message = diagnostics.WARN, f'realtime {self.realtime}'
         self.diag_pub.publish(diagnostics.array(_stamp(now_ns), [
             diagnostics.status(contract.CONTROLLER_STATUS, level, message, values)]))
 

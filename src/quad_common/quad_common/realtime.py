@@ -1,7 +1,8 @@
-"""The bridge process under real-time scheduling (`realtime_priority`, docs/bridge.md): every thread of the
-process, Fast DDS's included, under SCHED_FIFO at one priority, as PX4 and companion stacks run their flight
-paths. One thread alone would not do: the setpoint thread needs the interpreter lock, which another Python
-thread preempted by an ordinary process would hold, and its wake-up comes from a Fast DDS thread.
+"""A node's process under real-time scheduling (`realtime_priority` of mavlink_bridge and position_controller,
+docs/bridge.md "Real-time scheduling"): every thread of the process, Fast DDS's included, under SCHED_FIFO at one
+priority, as PX4 and companion stacks run their flight paths. One thread alone would not do: the thread on the
+flight path needs the interpreter lock, which another Python thread preempted by an ordinary process would hold,
+and its wake-up comes from a Fast DDS thread.
 
 Threads started later inherit the policy from the thread that starts them (pthread's default), so applying it
 once, after the node built its threads, covers the process. No rclpy here."""
@@ -47,6 +48,17 @@ def apply_realtime_priority(priority: int, tids=thread_ids, setter=None) -> str:
                                       f'({exc.strerror or exc}); {REFUSED_HOW}') from exc
             done.add(tid)
     return f'SCHED_FIFO {priority} ({len(done)} threads)'
+
+
+def apply_or_report(priority: int, log_error, tids=thread_ids, setter=None) -> tuple[str, bool]:
+    """apply_realtime_priority for a node: (what it did, False), or, when the system refuses, the refusal as an
+    error in the log and ('refused: ...', True) for the diagnostics: the node runs on under the ordinary scheduler
+    (a refusal is said loudly, never silent, and never stops a node that may be flying)."""
+    try:
+        return apply_realtime_priority(priority, tids, setter), False
+    except PermissionError as exc:
+        log_error(exc.strerror)
+        return f'refused: {exc.strerror}', True
 
 
 def policy_of(tid) -> tuple[int, int]:

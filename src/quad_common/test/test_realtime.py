@@ -1,4 +1,4 @@
-"""quad_bridge.realtime: every thread of the process set, those appearing meanwhile too; the system's refusal
+"""quad_common.realtime: every thread of the process set, those appearing meanwhile too; the system's refusal
 names the parameter, the value and how to grant it; 0 touches nothing."""
 
 import errno
@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from quad_bridge.realtime import apply_realtime_priority
+from quad_common.realtime import apply_or_report, apply_realtime_priority
 
 
 class Threads:
@@ -63,3 +63,14 @@ def test_the_systems_refusal_names_the_parameter_the_value_and_how_to_grant_it()
 def test_a_priority_outside_0_to_99_is_refused(priority):
     with pytest.raises(ValueError, match=f'realtime_priority = {priority} refused'):
         apply_realtime_priority(priority, Threads([1]).tids, Threads([1]).setter)
+
+
+def test_a_node_told_no_says_so_as_an_error_and_runs_on():
+    def setter(tid, policy, param):
+        raise PermissionError(errno.EPERM, 'Operation not permitted')
+
+    errors = []
+    said, refused = apply_or_report(20, errors.append, Threads([1]).tids, setter)
+    assert refused and said.startswith('refused: realtime_priority = 20: SCHED_FIFO refused')
+    assert errors == [said.removeprefix('refused: ')]
+    assert apply_or_report(0, errors.append) == ('off (SCHED_OTHER)', False) and len(errors) == 1
