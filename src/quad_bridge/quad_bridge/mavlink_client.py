@@ -9,11 +9,18 @@ recv_match bookkeeping of every message were most of the bridge's CPU with an au
 (issue 26: PX4's 200 messages/s, ArduPilot's bursts). A signing link decodes everything (pymavlink checks
 the signatures).
 
+Each message is handled with the time its bytes arrived (`arrival_ns`, CLOCK_REALTIME ns): on a UDP link the
+kernel's receive timestamp of its datagram (SO_TIMESTAMPNS), so a receive thread that waited for a CPU on a busy
+machine does not make the vehicle's messages look late to the clock filter and TIMESYNC (issue 26); on a stream
+link the time its chunk was read.
+
 MAVLink 2 is forced: MAVLINK20 must be set before pymavlink's dialect is first imported.
 """
 
+import errno
 import math
 import os
+import socket
 import struct
 import threading
 import time
@@ -35,6 +42,9 @@ MAVLINK2_FRAME_BYTES = 12     # header 10 + CRC 2
 MAVLINK2_HEADER = struct.Struct('<BBBBBBBHB')   # magic, length, incompat, compat, seq, system, component, id
 CRC = struct.Struct('<H')
 EXTRA = tuple(bytes((i,)) for i in range(256))   # a CRC_EXTRA byte
+SO_TIMESTAMPNS = getattr(socket, 'SO_TIMESTAMPNS', 35)   # Linux
+TIMESTAMP_SPACE = socket.CMSG_SPACE(16)                   # struct timespec
+UDP_MAX_BYTES = 65535
 
 
 def frame_crc(header_and_payload, crc_extra: int) -> int:
@@ -48,6 +58,15 @@ def frame_crc(header_and_payload, crc_extra: int) -> int:
 
 
 _MCRF4XX = getattr(mavlink, 'mcrf4xx', None)   # pymavlink's own (fastcrc.crc16.mcrf4xx), None without fastcrc
+
+
+def _timestamps_on(sock) -> bool:
+    """Asks the kernel to timestamp every datagram of sock on arrival (False where it cannot)."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        return True
+    except OSError:
+        return False
 
 
 def check_fcu_url(url: str) -> str | None:
@@ -173,6 +192,8 @@ class MavlinkClient:
             i: Layout(mavlink.mavlink_map[i]) for i in self._decoded_ids if Layout.usable(mavlink.mavlink_map[i])}
         self._full_decode = self.conn.mav.decode
         self._datagrams = isinstance(self.conn, mavutil.mavudp)   # whole frames per read (_split)
+        self._kernel_stamps = self._datagrams and _timestamps_on(self.conn.port)
+        self.arrival_ns = 0       # when the bytes of the message being handled arrived (receive thread)
         self._clock = time.monotonic
         self.conn.mav.decode = self._decode     # pymavlink's parser calls it for every complete frame
 
@@ -304,40 +325,65 @@ class MavlinkClient:
             i = end
         return data[i:]
 
-    def _read_batch(self) -> tuple[list, float | None]:
+    def _recv(self) -> tuple[bytes, int]:
+        """One read of the link and when its bytes arrived: on UDP the kernel's timestamp of the datagram, with
+        pymavlink's mavudp.recv bookkeeping (the peers a udpin link answers, a broadcast link's sender)."""
+        conn = self.conn
+        if not self._kernel_stamps:
+            return conn.recv(), time.time_ns()
+        try:
+            data, ancillary, _, address = conn.port.recvmsg(UDP_MAX_BYTES, TIMESTAMP_SPACE)
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                return b'', 0
+            raise
+        if conn.udp_server:
+            conn.clients.add(address)
+            conn.clients_last_alive[address] = time.time()
+        elif conn.broadcast:
+            conn.last_address = address
+        for level, kind, stamp in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(stamp) >= 16:
+                sec, nsec = struct.unpack_from('qq', stamp)
+                return data, sec * 1_000_000_000 + nsec
+        return data, time.time_ns()
+
+    def _read_batch(self) -> tuple[list, list, float | None]:
         """The messages the link has delivered (waiting up to 0.1 s for the first; at most MAX_READS_PER_BATCH
-        reads or MAX_BATCH_S of reading), and the monotonic time at which a read found nothing more and the
-        parser held no partial frame (None: not drained)."""
+        reads or MAX_BATCH_S of reading), when each one's bytes arrived (ns, CLOCK_REALTIME), and the monotonic
+        time at which a read found nothing more and the parser held no partial frame (None: not drained)."""
         conn = self.conn
         if not conn.select(0.1):
-            return [], time.monotonic() if conn.mav.buf_len() == 0 else None
-        batch = []
+            return [], [], time.monotonic() if conn.mav.buf_len() == 0 else None
+        batch, arrivals = [], []
         until = self._clock() + MAX_BATCH_S
         for _ in range(MAX_READS_PER_BATCH):
             if batch and self._clock() >= until:
-                return batch, None
-            data = received = conn.recv()
+                return batch, arrivals, None
+            data, arrival_ns = self._recv()
+            received = data
             if self._datagrams and data and conn.mav.buf_len() == 0:
                 data = self._split(data, batch)   # what is left for the parser: b'' after whole frames
                 if data:
                     batch += conn.mav.parse_buffer(data) or []
             else:
                 batch += conn.mav.parse_buffer(data) or []   # a parse of nothing still yields what the parser held
+            arrivals += [arrival_ns or time.time_ns()] * (len(batch) - len(arrivals))
             if not received:   # the read, not what _split left (that ended every batch after one datagram)
-                return batch, time.monotonic() if conn.mav.buf_len() == 0 else None
+                return batch, arrivals, time.monotonic() if conn.mav.buf_len() == 0 else None
             if getattr(conn, 'fd', None) is None:   # nothing to poll (select only slept): one read per wake-up
-                return batch, None
-        return batch, None
+                return batch, arrivals, None
+        return batch, arrivals, None
 
     def _receive_loop(self):
         while self._running:
             try:
-                batch, drained_s = self._read_batch()
+                batch, arrivals, drained_s = self._read_batch()
             except Exception:  # a malformed packet or a socket hiccup must not end the loop
                 self.handler_errors += 1
                 time.sleep(0.01)
                 continue
-            for msg in batch:
+            for msg, self.arrival_ns in zip(batch, arrivals):
                 self._handle(msg)
             if drained_s is not None:   # read at drained_s: everything delivered up to then is handled now
                 self.drained_s = drained_s

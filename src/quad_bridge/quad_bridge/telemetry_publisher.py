@@ -79,12 +79,13 @@ class TelemetryPublisher:
         self.client.send('timesync', 0, self.timesync_ts1)
 
     def handle(self, msg, now_s: float):
-        """One message of our vehicle (receive thread)."""
+        """One message of our vehicle (receive thread), with when its bytes arrived (the client's arrival_ns: on
+        UDP the kernel's receive time, whatever the thread waited since)."""
         kind = msg.get_type()
         handler = self.handlers.get(kind)
         if handler is None or self.streams is None:
             return
-        arrival_ns = time.time_ns()
+        arrival_ns = self.client.arrival_ns or time.time_ns()
         t_us = time_us(msg) if kind in TIMESTAMPED else None
         if t_us:
             self.clock.observe(t_us, arrival_ns)

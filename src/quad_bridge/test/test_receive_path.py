@@ -94,7 +94,8 @@ def test_a_backlog_is_read_in_batches_bounded_by_time_and_every_message_still_ar
             mav.seq += 1
         batches, seqs, drained = [], [], []
         while len(seqs) < 10 and len(batches) < 1000:   # hang guard: select() waits up to 0.1 s per read
-            batch, drained_s = client._read_batch()
+            batch, arrivals, drained_s = client._read_batch()
+            assert len(arrivals) == len(batch)
             batches.append(len(batch))
             drained.append(drained_s is not None)
             seqs += [m.get_seq() for m in batch]
@@ -104,6 +105,48 @@ def test_a_backlog_is_read_in_batches_bounded_by_time_and_every_message_still_ar
     finally:
         sender.close()
         client.close()
+
+
+STALL_S = 0.05   # the receive thread held this long: a busy machine's wait for a CPU
+
+
+def test_a_message_is_handled_with_when_its_datagram_arrived_not_when_the_thread_got_to_it():
+    """The receive thread is held in the first message's handler while the second datagram arrives: the second is
+    handled STALL_S later, with the kernel's receive time of its datagram (issue 26: a starved thread's reading
+    time made the vehicle's messages look late to the clock filter and TIMESYNC)."""
+    port = _free_port()
+    release, first_in, seen = threading.Event(), threading.Event(), []
+
+    def on_message(msg):
+        seen.append((client.arrival_ns, time.time_ns()))
+        if len(seen) == 1:
+            first_in.set()
+            release.wait(HANG_GUARD_S)
+
+    client = MavlinkClient(f'udpin:127.0.0.1:{port}', 1, 191, on_message, decode=())
+    client.start()
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        mav = mavlink.MAVLink(None, srcSystem=7, srcComponent=1)
+        before_first = time.time_ns()
+        sender.sendto(mavlink.MAVLink_heartbeat_message(2, 12, 129, 0, 4, 3).pack(mav), ('127.0.0.1', port))
+        assert first_in.wait(HANG_GUARD_S)
+        before = time.time_ns()
+        sender.sendto(mavlink.MAVLink_attitude_message(10, 0.1, 0.2, 0.3, 0, 0, 0).pack(mav), ('127.0.0.1', port))
+        after = time.time_ns()
+        time.sleep(STALL_S)      # the stall itself (what is tested), not a wait for an event
+        release.set()
+        deadline = time.monotonic() + HANG_GUARD_S
+        while len(seen) < 2 and time.monotonic() < deadline:
+            time.sleep(0.001)
+    finally:
+        release.set()
+        sender.close()
+        client.close()
+    (arrival_1, _), (arrival_2, handled_2) = seen
+    assert before_first <= arrival_1 <= before
+    assert before <= arrival_2 <= after + 2_000_000, (arrival_2 - before, after - before)
+    assert handled_2 - arrival_2 >= STALL_S * 1e9 * 0.9
 
 
 def _value(kind, field, n, k):
