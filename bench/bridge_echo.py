@@ -28,6 +28,11 @@ def main():
                                           min(max(hover * msg.linear_acceleration.z / 9.81, 0.0), 1.0))
 
     node.create_subscription(Imu, 'cmd/attitude_thrust', on_setpoint, 10)
+    spin(node)
+
+
+def spin(node):
+    """rclpy's own executor until Ctrl-C or shutdown (also bench/bridge_floor.py's)."""
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):

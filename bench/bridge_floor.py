@@ -15,9 +15,9 @@ import threading
 
 os.environ['MAVLINK20'] = '1'
 import rclpy  # noqa: E402
+from bridge_echo import spin  # noqa: E402  (bench/, this script's folder)
 from nav_msgs.msg import Odometry  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
-from rclpy.executors import ExternalShutdownException  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 
@@ -61,12 +61,7 @@ def main():
 
     node.create_subscription(Imu, contract.SETPOINT, on_setpoint, 10, raw=True)
     threading.Thread(target=receive, daemon=True).start()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        rclpy.try_shutdown()
+    spin(node)
 
 
 if __name__ == '__main__':
