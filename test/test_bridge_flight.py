@@ -44,6 +44,8 @@ def test_mission_through_the_bridge_is_tracked(graph, flavour):
     observer.wait_for(lambda: observer.trajectory is not None, 'the trajectory')
     traj = observer.trajectory
     start_s = stamp_to_s(traj.header.stamp)
+    # The plan starts start_delay_s after it was made: its second of hover is flown after it arrives.
+    observer.wait_for(lambda: observer.odom[-1][0] >= start_s, 'odometry up to the start')
     with observer.lock:
         hold = [p for t, p in observer.odom if start_s - 1.0 <= t < start_s]
     assert hold and max(np.linalg.norm(np.array(hold) - WAYPOINTS[0], axis=1)) < HOLD_BOUND_M
