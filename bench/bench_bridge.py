@@ -11,6 +11,7 @@ import socket
 import struct
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
@@ -158,9 +159,10 @@ class Bench:
 
     def __init__(self, args, env, domain, vehicle=None):
         self.listener = Listener(vehicle)
+        self.log = tempfile.TemporaryFile()   # the process's output, for a start that fails
         self.proc = subprocess.Popen([sys.executable, *[a.format(port=self.listener.port) for a in args],
-                                      '-r', f'__ns:={NAMESPACE}'], env=env, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.DEVNULL, cwd=ROOT)
+                                      '-r', f'__ns:={NAMESPACE}'], env=env, stdout=self.log,
+                                     stderr=subprocess.STDOUT, cwd=ROOT)
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.node = rclpy.create_node('bench_bridge', namespace=NAMESPACE, context=self.context)
@@ -197,7 +199,10 @@ class Bench:
             self.pub.publish(_setpoint(self.k))
             time.sleep(0.02)
         if not self.listener.since(0.0):
-            raise RuntimeError('bench_bridge: nothing ever reached the listener')
+            self.log.seek(0)
+            tail = self.log.read().decode(errors='replace').splitlines()[-12:]
+            raise RuntimeError('bench_bridge: nothing ever reached the listener; the process said:\n'
+                               + '\n'.join(tail))
 
     def measure(self, rate_hz, run_s=RUN_S):
         published = {}
@@ -243,6 +248,7 @@ class Bench:
         self.node.destroy_node()
         self.context.try_shutdown()
         self.listener.close()
+        self.log.close()
 
 
 def run(args, offboard, env, domain):
