@@ -4,6 +4,7 @@
 import json
 import signal
 import subprocess
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -15,13 +16,14 @@ from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 
 from quad_bringup import fleet_graph
-from quad_common import contract
+from quad_common import contract, lockstep
 from quad_common.domains import isolated_domain
 from quad_trajectory.fleet import load_fleet, plan_fleet
 
 ROOT = Path(__file__).resolve().parents[1]
 QUADFLIGHT = str(ROOT / 'quadflight')
 TIMEOUT_S = 540     # a hang guard, far above a loaded run
+HOLD_PROBE = 'probe'
 
 
 def two_abreast(tmp_path) -> Path:
@@ -35,17 +37,27 @@ def two_abreast(tmp_path) -> Path:
 
 
 @contextmanager
-def flying_until(run, sim_time_s: float):
+def flying_until(run, sim_time_s: float, hold: bool = False):
     """Starts the run's processes in an isolated domain and returns from __enter__ once its /clock reached
-    sim_time_s (a probe node, removed before the body runs), giving {'deadline': the hang guard's}; stops every
-    process at the end (their exit codes in its 'codes')."""
+    sim_time_s (a probe node), giving {'deadline': the hang guard's}; stops every process at the end (their exit
+    codes in its 'codes'). hold: the probe is the run's lockstep follower HOLD_PROBE (prepare(followers=...)) and
+    acknowledges no step after sim_time_s until the body calls flight['release'](), so the simulator waits there (at
+    most lockstep.FOLLOWER_LAG_STEPS odometry periods later) whatever the load: the body acts at that sim time."""
     sim_times, flight = [], {}
+    released = threading.Event()
     with isolated_domain() as (domain, env):
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=domain)
-        probe = rclpy.create_node('probe', context=ctx)
-        probe.create_subscription(Clock, contract.CLOCK,
-                                  lambda m: sim_times.append(m.clock.sec + m.clock.nanosec * 1e-9), 10)
+        probe = rclpy.create_node(HOLD_PROBE, context=ctx)
+        acks = probe.create_publisher(Clock, lockstep.ack_topic(HOLD_PROBE), lockstep.ACK) if hold else None
+
+        def on_clock(msg):
+            t_s = msg.clock.sec + msg.clock.nanosec * 1e-9
+            sim_times.append(t_s)
+            if acks is not None and (t_s <= sim_time_s or released.is_set()):
+                acks.publish(msg)   # taken: the stamp acknowledged
+
+        probe.create_subscription(Clock, contract.CLOCK, on_clock, lockstep.PACED if hold else 10)
         executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
         executor.add_node(probe)
         try:
@@ -55,14 +67,33 @@ def flying_until(run, sim_time_s: float):
                 assert time.monotonic() < deadline, f'the fleet never reached t = {sim_time_s} s'
                 assert run.nodes[0].exit_code() is None, run.nodes[0].log_tail()
                 executor.spin_once(timeout_sec=0.1)
-            executor.remove_node(probe)
-            probe.destroy_node()
             flight['deadline'] = deadline
-            yield flight
+            if hold:
+                def release():   # the probe acknowledges every step from now on, until the run has stopped
+                    released.set()
+                    acks.publish(Clock(clock=rclpy.time.Time(nanoseconds=int(sim_times[-1] * 1e9)).to_msg()))
+
+                flight['release'] = release
+                threading.Thread(target=_spin_until_shutdown, args=(executor,), daemon=True).start()
+                try:
+                    yield flight
+                finally:
+                    release()
+            else:
+                executor.remove_node(probe)
+                probe.destroy_node()
+                yield flight
         finally:
             flight['codes'] = run.stop(log=lambda *_: None)
             executor.shutdown()
             rclpy.shutdown(context=ctx)
+
+
+def _spin_until_shutdown(executor):
+    try:
+        executor.spin()
+    except Exception:   # the context shut down under it
+        pass
 
 
 def test_a_formation_of_four_flies_through_the_graph_and_each_vehicle_completes(tmp_path, ros_env):
@@ -101,10 +132,11 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
     """One process per node, as launch_ros starts them; cf1's controller is killed at t = 2 s: its simulator's
     failsafe lands it, cf2 flies its plan to the end at full speed."""
     plan = plan_fleet(load_fleet(two_abreast(tmp_path)))
-    run = fleet_graph.prepare(plan, tmp_path / 'run', hosted=False)
+    run = fleet_graph.prepare(plan, tmp_path / 'run', hosted=False, followers=(HOLD_PROBE,))
     victim = next(p for p in run.nodes if 'cf1_position_controller' in p.log_path.name)
-    with flying_until(run, 2.0) as flight:
+    with flying_until(run, 2.0, hold=True) as flight:   # the simulator waits at ~2 s until the kill is done
         victim.signal_group(signal.SIGKILL)
+        flight['release']()
         run.await_end(flight['deadline'], expected_dead=[victim])
     result = fleet_graph.fleet_run(run.bag, plan)
     cf1, cf2 = result.metrics['cf1'], result.metrics['cf2']
@@ -113,12 +145,13 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
     assert result.positions['cf1'][-1, 2] < 0.1, result.positions['cf1'][-1]     # landed by its failsafe
     from quad_bringup.report import load_flight, load_flights
     alone = {n: load_flight(run.bag, namespace=n) for n in ('cf1', 'cf2')}
-    # where it was when its controller died (its last setpoint; the probe sees t = 2 s late on a busy machine,
-    # the kill lands later in sim time), not along the leg
+    # where it was when its controller died (its last setpoint): the simulator waited for the probe at most
+    # FOLLOWER_LAG_STEPS odometry periods after t = 2 s, whatever the load, so mid-leg
     died_s = alone['cf1'].cmd_t[-1]
     at_death = np.array([np.interp(died_s, alone['cf1'].odom_t, alone['cf1'].position[:, a]) for a in (0, 1)])
-    # the probe saw t = 2 s before the kill: the controller had answered the step before it at least
-    assert died_s >= 1.99 - 1e-9 and at_death[0] < 1.2, (died_s, at_death)    # before the leg's end (1.5 m)
+    period_s = float(np.median(np.diff(alone['cf1'].odom_t)))
+    assert 1.99 <= died_s <= 2.0 + (lockstep.FOLLOWER_LAG_STEPS + 2) * period_s, (died_s, period_s)
+    assert at_death[0] < 1.2, at_death    # before the leg's end (1.5 m)
     assert np.linalg.norm(result.positions['cf1'][-1, :2] - at_death) < 0.2, (result.positions['cf1'][-1], at_death)
     assert result.collisions == []
     assert any(name == contract.SIM_FAILSAFE for _, name, _ in alone['cf1'].errors)

@@ -110,16 +110,19 @@ class GraphRun:
         return codes
 
 
-def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True) -> GraphRun:
+def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True,
+            followers: tuple[str, ...] = ()) -> GraphRun:
     """Writes out_dir/fleet.yaml (the fleet as flown: quad_trajectory.fleet.resolved_fleet) and params.yaml (every
-    node's parameters, fully qualified) and makes the processes."""
+    node's parameters, fully qualified) and makes the processes. followers: lockstep followers beside the recorder
+    (quad_common.lockstep), e.g. a probe that holds the simulator at a sim time."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fleet_file = out_dir / 'fleet.yaml'
     fleet_file.write_text(yaml.safe_dump(resolved_fleet(plan), sort_keys=False))
     end_s = duration_s(plan)
     specs = graph.fleet_sim_graph(fleet_file, speed_mps=speed_mps, sim={
-        'lockstep_followers': graph.RECORDER, 'lockstep_timeout_s': LOCKSTEP_TIMEOUT_S, 'duration_s': end_s})
+        'lockstep_followers': ','.join((graph.RECORDER, *followers)), 'lockstep_timeout_s': LOCKSTEP_TIMEOUT_S,
+        'duration_s': end_s})
     params_file = out_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(graph.params_file_content(specs), sort_keys=False))
     names = plan.fleet.names
