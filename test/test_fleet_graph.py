@@ -43,7 +43,7 @@ def flying_until(run, sim_time_s: float, hold: bool = False):
     codes in its 'codes'). hold: the probe is the run's lockstep follower HOLD_PROBE (prepare(followers=...)) and
     acknowledges no step after sim_time_s until the body calls flight['release'](), so the simulator waits there (at
     most lockstep.FOLLOWER_LAG_STEPS odometry periods later) whatever the load: the body acts at that sim time."""
-    sim_times, flight = [], {}
+    sim_times, newest, flight = [], [], {}
     released = threading.Event()
     with isolated_domain() as (domain, env):
         ctx = rclpy.Context()
@@ -54,6 +54,7 @@ def flying_until(run, sim_time_s: float, hold: bool = False):
         def on_clock(msg):
             t_s = msg.clock.sec + msg.clock.nanosec * 1e-9
             sim_times.append(t_s)
+            newest[:] = [msg]
             if acks is not None and (t_s <= sim_time_s or released.is_set()):
                 acks.publish(msg)   # taken: the stamp acknowledged
 
@@ -71,7 +72,7 @@ def flying_until(run, sim_time_s: float, hold: bool = False):
             if hold:
                 def release():   # the probe acknowledges every step from now on, until the run has stopped
                     released.set()
-                    acks.publish(Clock(clock=rclpy.time.Time(nanoseconds=int(sim_times[-1] * 1e9)).to_msg()))
+                    acks.publish(newest[0])   # the step the simulator waits at: taken
 
                 flight['release'] = release
                 threading.Thread(target=_spin_until_shutdown, args=(executor,), daemon=True).start()
