@@ -64,3 +64,11 @@ def test_isolated_domain_gives_children_the_fast_announcing_discovery_profile(mo
         assert env['ROS_DOMAIN_ID'] == str(domain) and env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
         assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == env['FASTDDS_DEFAULT_PROFILES_FILE'] == FASTDDS_PROFILE
         assert os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] == FASTDDS_PROFILE  # for this process's participants
+
+
+def test_range_bounds_are_inclusive():
+    """min and max are allowed values (a range check that refused them would refuse rate_hz = 1 and 1000)."""
+    assert check_value(SPECS[1], 1.0) is None and check_value(SPECS[1], 1000.0) is None
+    assert check_value(SPECS[0], [0.0, 0.0, 0.0]) is None
+    assert 'must be >= 1.0' in check_value(SPECS[1], 0.999)
+    assert 'must be <= 1000.0' in check_value(SPECS[1], 1000.001)

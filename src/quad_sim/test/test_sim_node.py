@@ -184,11 +184,13 @@ def test_lockstep_with_the_real_position_controller_is_deterministic():
     assert first[-1, 1] == pytest.approx(0.5, abs=0.1) and first[-1, 2] == pytest.approx(-0.3, abs=0.1)
 
 
-def test_future_stamped_setpoint_is_refused_and_later_ones_applied():
-    """One setpoint stamped 100 s ahead (a node on wall-clock time) must not lock the correctly stamped ones out:
-    the flight is the same as without it, and the refusal is counted on diagnostics."""
+@pytest.mark.parametrize('stamp_s', [100.0, 0.35])
+def test_future_stamped_setpoint_is_refused_and_later_ones_applied(stamp_s):
+    """One setpoint stamped ahead of sim time by more than one period (100 s: a node on wall-clock time; 0.35 s
+    at t = 0.3 s: five periods) must not lock the correctly stamped ones out: the flight is the same as without
+    it, and the refusal is counted on diagnostics."""
     reference, _, _ = _fly_once()
-    flown, _, diagnostics = _fly_once(inject=(0.3, 100.0))
+    flown, _, diagnostics = _fly_once(inject=(0.3, stamp_s))
     assert np.array_equal(flown, reference)
     refused = [int(kv.value) for a in diagnostics for st in a.status if st.name == 'sim_node: published'
                for kv in st.values if kv.key == 'future_setpoints_refused']
