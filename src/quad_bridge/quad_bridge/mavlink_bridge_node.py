@@ -477,6 +477,7 @@ class MavlinkBridge(Node):
                 s.system = msg.get_srcSystem()
             if msg.get_srcSystem() != s.system or msg.get_srcComponent() != self.params['target_component']:
                 return
+            self.client.answer_only(s.system, msg.get_srcComponent())   # a udpin link answers only its address
             if s.backend is None:
                 try:
                     s.backend = resolve(self.params['autopilot'], msg.autopilot)
@@ -522,8 +523,9 @@ class MavlinkBridge(Node):
         level = {LinkState.UP: diagnostics.OK, LinkState.WAITING: diagnostics.WARN}.get(self.link.state,
                                                                                         diagnostics.ERROR)
         others, refusal = self.peers.other_vehicles(s.system, now), self.link_refusal()
+        udp = self.client.udp_report()   # udpin: the vehicle's address, other senders, send errors
         if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others
-                                        or self.realtime_refused):
+                                        or self.realtime_refused or udp.get('other_senders')):
             level = diagnostics.WARN
         level = diagnostics.ERROR if refusal or self.client.signing_problem() else level
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
@@ -537,7 +539,7 @@ class MavlinkBridge(Node):
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
             'handler_errors': self.client.handler_errors, 'other_vehicles': ', '.join(map(str, others)),
             'link_refusal': refusal, 'signing': self.client.signing_problem() or
-            ('on' if self.client.signing else 'off'), 'realtime': self.realtime})
+            ('on' if self.client.signing else 'off'), 'realtime': self.realtime, **udp})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
         sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')
