@@ -57,7 +57,7 @@ def test_bad_setpoints_are_counted_and_the_geofence_lands(graph):
                  geofence_max_m='[5.0, 5.0, 0.5]')  # the vehicle hovers at 1 m: outside
     observer.wait_for(lambda: observer.link()[1].get('mode') == 'AUTO.LAND', 'the geofence to command AUTO.LAND')
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle to land and disarm')
-    assert 'geofence left' in procs.log('bridge')
+    assert 'geofence: left the box' in procs.log('bridge')
 
 
 @pytest.mark.parametrize('param, value', [('fcu_url', 'bogus:1'), ('autopilot', 'betaflight'),
