@@ -171,6 +171,9 @@ def test_a_second_local_sender_gets_nothing_and_never_stops_the_setpoints(tmp_pa
             observer.wait_for(lambda: len(tap.setpoints(closed)) >= 150, '150 setpoints after the sender closed')
             assert _rate_hz(tap, closed, 150) >= FULL_RATE * SETPOINT_RATE_HZ
             assert observer.link()[1]['mode'] == 'OFFBOARD' and observer.link()[1]['send_errors'] == '0'
+            print(f'setpoints at the vehicle: {_rate_hz(tap, flooded, 150):.1f} Hz after the flood, '
+                  f'{_rate_hz(tap, closed, 150):.1f} Hz after the sender closed; '
+                  f'{observer.link()[1]["other_sender_datagrams"]} datagrams of the other sender read')
         finally:
             publisher.stop()
         observer.wait_for(lambda: observer.link()[1].get('mode') == 'AUTO.LAND', 'the stale action at the vehicle')

@@ -507,6 +507,8 @@ class MavlinkBridge(Node):
 
     def on_state(self, state):
         """Every odometry state: the geofence (quad_bridge.safety: braking setpoints before the wall, then land)."""
+        if not self.geofence.enabled:
+            return
         action = self.geofence.update(state.position, state.velocity, self.vehicle.status.armed, bool(self.engaged),
                                       math.radians(self.params['max_tilt_deg']))
         if action == BRAKE:
