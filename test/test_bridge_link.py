@@ -1,12 +1,14 @@
-"""The bridge's link: a cut link is reported and recovered; garbage and foreign traffic never crash it."""
+"""The bridge's link: a cut link is reported and recovered; garbage and foreign traffic never crash it; a udpin
+link answers only its vehicle (a second local sender gets nothing and never stops the setpoints)."""
 
 import math
 import os
 import random
 import socket
+import time
 
 import pytest
-from bridge_graph import Tap, free_udp_port, running_graph
+from bridge_graph import SetpointPublisher, Tap, free_udp_port, running_graph, tapped_graph
 from std_srvs.srv import SetBool, Trigger
 
 os.environ['MAVLINK20'] = '1'
@@ -119,3 +121,59 @@ def test_ardupilot_over_tcp(graph):
     result = observer.call('land', Trigger.Request())
     assert result.success and result.message == 'mode LAND: MAV_RESULT_ACCEPTED'
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle to land and disarm')
+
+
+SETPOINT_RATE_HZ = 50.0
+FULL_RATE = 0.8   # of SETPOINT_RATE_HZ, measured at the vehicle over 150 setpoints (a busy machine's jitter)
+
+
+def _rate_hz(tap, after_s, n):
+    """Setpoints per second at the vehicle over the first n sent after after_s."""
+    times = [t for t, _ in tap.setpoints(after_s)][:n]
+    return (len(times) - 1) / (times[-1] - times[0])
+
+
+def test_a_second_local_sender_gets_nothing_and_never_stops_the_setpoints(tmp_path):
+    """Another process floods the bridge's udpin port (3,000 random datagrams and a ground station's heartbeat),
+    then closes its socket: it receives nothing the bridge sends (pymavlink's udpin answered every sender, and one
+    failed send ended the write to all), is reported in diagnostics, and the vehicle keeps receiving setpoints at
+    the full rate; the stale action then reaches the vehicle too."""
+    with tapped_graph(tmp_path) as (procs, observer, start):
+        tap = start('px4')
+        bridge = tap.bridge_addr
+        publisher = SetpointPublisher(observer, rate_hz=SETPOINT_RATE_HZ)
+        try:
+            observer.wait_for(lambda: int(observer.setpoints()[1].get('received', 0)) > 20, 'setpoints at the bridge')
+            answer = observer.call('offboard', SetBool.Request(data=True))
+            assert answer.success, answer.message
+            observer.wait_for(lambda: observer.link()[1].get('mode') == 'OFFBOARD', 'mode OFFBOARD')
+
+            sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sender.bind(('127.0.0.1', 0))
+            rng, gcs = random.Random(11), mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+            for _ in range(3000):
+                sender.sendto(bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 300))), bridge)
+            sender.sendto(mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3).pack(gcs), bridge)
+            flooded = time.monotonic()
+            observer.wait_for(lambda: len(tap.setpoints(flooded)) >= 150, '150 setpoints at the vehicle after it')
+            sender.setblocking(False)
+            with pytest.raises(BlockingIOError):
+                data = sender.recv(65536)
+                pytest.fail(f'the second sender received {len(data)} bytes from the bridge')
+            address = f'127.0.0.1:{sender.getsockname()[1]}'
+            observer.wait_for(lambda: observer.link()[1].get('other_senders_recent') == address,
+                              'the second sender reported')
+            assert int(observer.link()[1]['other_sender_datagrams']) >= 1   # those the socket's buffer held
+            assert _rate_hz(tap, flooded, 150) >= FULL_RATE * SETPOINT_RATE_HZ
+
+            sender.close()   # sends to it would be refused
+            closed = time.monotonic()
+            observer.wait_for(lambda: len(tap.setpoints(closed)) >= 150, '150 setpoints after the sender closed')
+            assert _rate_hz(tap, closed, 150) >= FULL_RATE * SETPOINT_RATE_HZ
+            assert observer.link()[1]['mode'] == 'OFFBOARD' and observer.link()[1]['send_errors'] == '0'
+            print(f'setpoints at the vehicle: {_rate_hz(tap, flooded, 150):.1f} Hz after the flood, '
+                  f'{_rate_hz(tap, closed, 150):.1f} Hz after the sender closed; '
+                  f'{observer.link()[1]["other_sender_datagrams"]} datagrams of the other sender read')
+        finally:
+            publisher.stop()
+        observer.wait_for(lambda: observer.link()[1].get('mode') == 'AUTO.LAND', 'the stale action at the vehicle')

@@ -8,6 +8,7 @@ ardupilot); a supervisor thread for the link, heartbeats, stream fall-backs and 
 the node's own single-threaded executor.
 """
 
+import math
 import sys
 import threading
 import time
@@ -30,7 +31,7 @@ from quad_bridge.handover import ACTIVE
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
 from quad_bridge.peers import LinkPeers
-from quad_bridge.safety import Geofence
+from quad_bridge.safety import BRAKE, BREACH, Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
 from quad_bridge.vehicle import Vehicle
@@ -91,9 +92,11 @@ PARAMS = [
     Param('stream_grace_s', 3.0, 'a requested telemetry message not seen for this long: fall back, then warn',
           min=0.5, max=30.0, read_only=True),
     Param('command_timeout_s', 3.0, 'how long a service waits for COMMAND_ACK (and PARAM_VALUE)', min=0.1, max=30.0),
-    Param('geofence_enabled', False, 'land when the vehicle leaves the box geofence_min_m..geofence_max_m (ENU)'),
+    Param('geofence_enabled', False, 'brake before the box geofence_min_m..geofence_max_m (ENU) and land inside it'),
     Param('geofence_min_m', [-50.0, -50.0, -1.0], 'geofence box lower corner (map, ENU)', length=3),
     Param('geofence_max_m', [50.0, 50.0, 30.0], 'geofence box upper corner (map, ENU)', length=3),
+    Param('geofence_reaction_s', 0.3, 'geofence: odometry to braking attitude (stopping distance |v| t + |v|^2 / 2a, '
+          'a = g tan(max_tilt_deg))', min=0.0, max=2.0, read_only=True),
     Param('signing_key_file', '', 'MAVLink 2 signing key file (64 hex chars or a passphrase); empty = unsigned',
           read_only=True),
     Param('setpoint_source', 'position_controller',
@@ -136,7 +139,8 @@ class MavlinkBridge(Node):
             self.vehicle.status.system = p['target_system']
         self.link = LinkState(p['link_timeout_s'])
         self.peers = LinkPeers()
-        self.geofence = Geofence(p['geofence_enabled'], p['geofence_min_m'], p['geofence_max_m'])
+        self.geofence = Geofence(p['geofence_enabled'], p['geofence_min_m'], p['geofence_max_m'],
+                                 reaction_s=p['geofence_reaction_s'])
         self.t0 = time.monotonic()
         self.stale_events = 0
         self.lost_while_handed_over = False   # a link loss ended a hand-over (after_link_loss)
@@ -477,6 +481,7 @@ class MavlinkBridge(Node):
                 s.system = msg.get_srcSystem()
             if msg.get_srcSystem() != s.system or msg.get_srcComponent() != self.params['target_component']:
                 return
+            self.client.answer_only(s.system, msg.get_srcComponent())   # a udpin link answers only its address
             if s.backend is None:
                 try:
                     s.backend = resolve(self.params['autopilot'], msg.autopilot)
@@ -501,13 +506,21 @@ class MavlinkBridge(Node):
             threading.Thread(target=self.on_connect, name='on-connect', daemon=True).start()
 
     def on_state(self, state):
-        """Every odometry state: the geofence."""
-        if self.geofence.check(state.position, self.vehicle.status.armed):
+        """Every odometry state: the geofence (quad_bridge.safety: braking setpoints before the wall, then land)."""
+        if not self.geofence.enabled:
+            return
+        action = self.geofence.update(state.position, state.velocity, self.vehicle.status.armed, bool(self.engaged),
+                                      math.radians(self.params['max_tilt_deg']))
+        if action == BRAKE:
+            self.get_logger().error(f'geofence ahead: braking at {np.round(state.position, 2).tolist()}, '
+                                    f'{np.linalg.norm(state.velocity):.2f} m/s')
+            self.streamer.kick()   # the braking setpoint (quad_bridge.setpoint_path) on the wire now
+        elif action == BREACH:
             with self.vehicle.lock:
-                self.vehicle.handover.end('geofence left')
+                self.vehicle.handover.end(f'geofence: {self.geofence.breach_reason}')
             self.update_engaged()
-            self.get_logger().error(f'geofence left at {np.round(state.position, 2).tolist()}: streaming stopped, '
-                                    'landing')
+            where = np.round(state.position, 2).tolist()
+            self.get_logger().error(f'geofence: {self.geofence.breach_reason} at {where}: streaming stopped, landing')
             self.set_mode(self.vehicle.status.backend.land_mode, wait=False)
 
     # --- diagnostics -------------------------------------------------------------------------------
@@ -522,8 +535,9 @@ class MavlinkBridge(Node):
         level = {LinkState.UP: diagnostics.OK, LinkState.WAITING: diagnostics.WARN}.get(self.link.state,
                                                                                         diagnostics.ERROR)
         others, refusal = self.peers.other_vehicles(s.system, now), self.link_refusal()
+        udp = self.client.udp_report()   # udpin: the vehicle's address, other senders, send errors
         if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others
-                                        or self.realtime_refused):
+                                        or self.realtime_refused or udp.get('other_senders')):
             level = diagnostics.WARN
         level = diagnostics.ERROR if refusal or self.client.signing_problem() else level
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
@@ -537,7 +551,7 @@ class MavlinkBridge(Node):
             'reconnects': self.link.reconnects, 'bad_data': self.client.bad_data,
             'handler_errors': self.client.handler_errors, 'other_vehicles': ', '.join(map(str, others)),
             'link_refusal': refusal, 'signing': self.client.signing_problem() or
-            ('on' if self.client.signing else 'off'), 'realtime': self.realtime})
+            ('on' if self.client.signing else 'off'), 'realtime': self.realtime, **udp})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
         sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')
@@ -547,7 +561,7 @@ class MavlinkBridge(Node):
             'streaming': phase != 'idle' and self.may_stream(), 'rate_hz': f'{st.rate_hz():.1f}',
             'received': st.received, 'sent': st.sent_total, 'keepalives': st.keepalives,
             'superseded': st.superseded, **counts,
-            'geofence_breached': self.geofence.breached})
+            'geofence_breached': self.geofence.breached, 'geofence_braking': self.geofence.braking})
         self.diag_pub.publish(diagnostics.array(stamp(time.time_ns()), [link, setpoints]))
 
     def destroy_node(self):

@@ -14,6 +14,11 @@ kernel's receive timestamp of its datagram (SO_TIMESTAMPNS), so a receive thread
 machine does not make the vehicle's messages look late to the clock filter and TIMESYNC (issue 26); on a stream
 link the time its chunk was read.
 
+A UDP server link (udpin) answers only its vehicle's address (quad_bridge.link.VehicleAddress, named by the owner
+with answer_only()), not pymavlink's set of every address that ever sent a datagram; other senders are counted
+(udp_report()). Each datagram is parsed on its own: a partial frame another sender left in the parser is dropped
+(BAD_DATA) before the next sender's datagram, so junk can never swallow the vehicle's frames.
+
 MAVLink 2 is forced: MAVLINK20 must be set before pymavlink's dialect is first imported.
 """
 
@@ -27,6 +32,8 @@ import time
 
 os.environ['MAVLINK20'] = '1'
 from pymavlink import mavutil  # noqa: E402
+
+from quad_bridge.link import VehicleAddress  # noqa: E402
 
 mavlink = mavutil.mavlink
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
@@ -42,6 +49,7 @@ MAVLINK2_FRAME_BYTES = 12     # header 10 + CRC 2
 MAVLINK2_HEADER = struct.Struct('<BBBBBBBHB')   # magic, length, incompat, compat, seq, system, component, id
 CRC = struct.Struct('<H')
 EXTRA = tuple(bytes((i,)) for i in range(256))   # a CRC_EXTRA byte
+UNKNOWN = mavlink.MAVLink_unknown   # a frame of an id the dialect lacks (pymavlink cannot check its CRC)
 SO_TIMESTAMPNS = getattr(socket, 'SO_TIMESTAMPNS', 35)   # Linux
 TIMESTAMP_SPACE = socket.CMSG_SPACE(16)                   # struct timespec
 UDP_MAX_BYTES = 65535
@@ -194,6 +202,12 @@ class MavlinkClient:
         self._datagrams = isinstance(self.conn, mavutil.mavudp)   # whole frames per read (_split)
         self._kernel_stamps = self._datagrams and _timestamps_on(self.conn.port)
         self.arrival_ns = 0       # when the bytes of the message being handled arrived (receive thread)
+        self.arrival_address = None   # and from where (UDP; None on other links)
+        self._partial_from = None     # the sender whose bytes pymavlink's parser holds (UDP)
+        # udpin: only the vehicle's address is answered (pymavlink's write answers every sender)
+        self.vehicle_address = VehicleAddress() if self._datagrams and self.conn.udp_server else None
+        if self.vehicle_address is not None:
+            self.conn.write = self._write_to_vehicle
         self._clock = time.monotonic
         self.conn.mav.decode = self._decode     # pymavlink's parser calls it for every complete frame
 
@@ -208,6 +222,29 @@ class MavlinkClient:
             self._thread.join(timeout=2.0)
         with self._send_lock:
             self.conn.close()
+
+    def answer_only(self, system: int, component: int):
+        """The vehicle this link answers (UDP server links): the address its frames come from."""
+        if self.vehicle_address is not None:
+            self.vehicle_address.name_vehicle(system, component)
+
+    def udp_report(self, now_s: float | None = None) -> dict:
+        """quad_bridge.link.VehicleAddress.report (seconds of CLOCK_REALTIME, the datagrams' clock); {} on links
+        that are not UDP servers."""
+        if self.vehicle_address is None:
+            return {}
+        return self.vehicle_address.report(time.time() if now_s is None else now_s)
+
+    def _write_to_vehicle(self, buf):
+        """pymavlink's mavudp.write for a UDP server link: to the vehicle's address only (nothing before one is
+        known); a failed send is counted (VehicleAddress.send_failed), never raised."""
+        address = self.vehicle_address.address
+        if address is None:
+            return
+        try:
+            self.conn.port.sendto(buf, address)
+        except OSError as exc:
+            self.vehicle_address.send_failed(address, exc)
 
     def send(self, name: str, *args):
         """mav.<name>_send(*args) under the send lock (pymavlink's encoder is not thread-safe)."""
@@ -325,32 +362,46 @@ class MavlinkClient:
             i = end
         return data[i:]
 
-    def _recv(self) -> tuple[bytes, int]:
-        """One read of the link and when its bytes arrived: on UDP the kernel's timestamp of the datagram, with
-        pymavlink's mavudp.recv bookkeeping (the peers a udpin link answers, a broadcast link's sender)."""
+    def _recv(self) -> tuple[bytes, int, tuple | None]:
+        """One read of the link, when its bytes arrived and from where: on UDP the kernel's timestamp of the
+        datagram and its sender (a broadcast link's sender kept as pymavlink's mavudp.recv does); on other links
+        the time of the read and None."""
         conn = self.conn
-        if not self._kernel_stamps:
-            return conn.recv(), time.time_ns()
+        if not self._datagrams:
+            return conn.recv(), time.time_ns(), None
         try:
-            data, ancillary, _, address = conn.port.recvmsg(UDP_MAX_BYTES, TIMESTAMP_SPACE)
+            data, ancillary, _, address = conn.port.recvmsg(UDP_MAX_BYTES,
+                                                            TIMESTAMP_SPACE if self._kernel_stamps else 0)
         except OSError as exc:
             if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
-                return b'', 0
+                return b'', 0, None
             raise
-        if conn.udp_server:
-            conn.clients.add(address)
-            conn.clients_last_alive[address] = time.time()
-        elif conn.broadcast:
+        if conn.broadcast:
             conn.last_address = address
+        arrival_ns = None
         for level, kind, stamp in ancillary:
             if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(stamp) >= 16:
                 sec, nsec = struct.unpack_from('qq', stamp)
-                return data, sec * 1_000_000_000 + nsec
-        return data, time.time_ns()
+                arrival_ns = sec * 1_000_000_000 + nsec
+        arrival_ns = arrival_ns or time.time_ns()
+        if self.vehicle_address is not None:
+            self.vehicle_address.datagram(address, arrival_ns * 1e-9)
+        return data, arrival_ns, address
+
+    def _drop_partial(self, address, batch):
+        """A datagram from another sender than the one whose partial frame pymavlink's parser holds: that
+        partial is dropped as BAD_DATA (MAVLink over UDP sends whole frames; another sender's bytes would only be
+        read as its continuation, and a junk header claiming 255 bytes swallowed the vehicle's next datagrams)."""
+        mav = self.conn.mav
+        if mav.buf_len() and address != self._partial_from:
+            batch.append(mavlink.MAVLink_bad_data(bytes(mav.buf[mav.buf_index:]), 'frame cut at the end of a '
+                                                                                  'datagram'))
+            mav.buf, mav.buf_index, mav.expected_length = bytearray(), 0, mavlink.HEADER_LEN_V1 + 2
 
     def _read_batch(self) -> tuple[list, list, float | None]:
         """The messages the link has delivered (waiting up to 0.1 s for the first; at most MAX_READS_PER_BATCH
-        reads or MAX_BATCH_S of reading), when each one's bytes arrived (ns, CLOCK_REALTIME), and the monotonic
+        reads or MAX_BATCH_S of reading), when each one's bytes arrived (ns, CLOCK_REALTIME) and from where (UDP's
+        sender address, else None) as pairs, and the monotonic
         time at which a read found nothing more and the parser held no partial frame (None: not drained)."""
         conn = self.conn
         if not conn.select(0.1):
@@ -360,15 +411,19 @@ class MavlinkClient:
         for _ in range(MAX_READS_PER_BATCH):
             if batch and self._clock() >= until:
                 return batch, arrivals, None
-            data, arrival_ns = self._recv()
+            data, arrival_ns, address = self._recv()
             received = data
+            if self._datagrams and data:
+                self._drop_partial(address, batch)
             if self._datagrams and data and conn.mav.buf_len() == 0:
                 data = self._split(data, batch)   # what is left for the parser: b'' after whole frames
                 if data:
                     batch += conn.mav.parse_buffer(data) or []
             else:
                 batch += conn.mav.parse_buffer(data) or []   # a parse of nothing still yields what the parser held
-            arrivals += [arrival_ns or time.time_ns()] * (len(batch) - len(arrivals))
+            if self._datagrams and data:
+                self._partial_from = address
+            arrivals += [(arrival_ns or time.time_ns(), address)] * (len(batch) - len(arrivals))
             if not received:   # the read, not what _split left (that ended every batch after one datagram)
                 return batch, arrivals, time.monotonic() if conn.mav.buf_len() == 0 else None
             if getattr(conn, 'fd', None) is None:   # nothing to poll (select only slept): one read per wake-up
@@ -383,7 +438,7 @@ class MavlinkClient:
                 self.handler_errors += 1
                 time.sleep(0.01)
                 continue
-            for msg, self.arrival_ns in zip(batch, arrivals):
+            for msg, (self.arrival_ns, self.arrival_address) in zip(batch, arrivals):
                 self._handle(msg)
             if drained_s is not None:   # read at drained_s: everything delivered up to then is handled now
                 self.drained_s = drained_s
@@ -398,6 +453,11 @@ class MavlinkClient:
             return
         if msg.__class__ is not Counted and msg.get_signed():
             self.conn.post_message(msg)    # of pymavlink's bookkeeping the bridge needs only the signing link id
+        if self.vehicle_address is not None and msg.__class__ is not UNKNOWN:
+            # before the handler: what answers this message must reach its sender (an unknown id's CRC cannot be
+            # checked: junk parses as one)
+            self.vehicle_address.frame(self.arrival_address, msg.get_srcSystem(), msg.get_srcComponent(),
+                                       self.arrival_ns * 1e-9)
         if kind == 'COMMAND_ACK':
             with self._acks_lock:
                 waiter = self._acks.get((msg.get_srcSystem(), msg.command))

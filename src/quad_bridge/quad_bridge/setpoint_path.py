@@ -134,10 +134,13 @@ class SetpointPath:
         self.streamer.submit(sp)
 
     def send(self, sp):
-        """One SET_ATTITUDE_TARGET (NED/FRD, the backend's thrust semantics)."""
-        vehicle = self.bridge.vehicle
+        """One SET_ATTITUDE_TARGET (NED/FRD, the backend's thrust semantics); while the geofence brakes, its
+        braking setpoint for the newest state instead (quad_bridge.safety)."""
+        vehicle, geofence = self.bridge.vehicle, self.bridge.geofence
         with vehicle.lock:
             s = vehicle.status
+            if geofence.braking and s.state is not None:
+                sp = geofence.braking_setpoint(s.state)
             vz = s.state.velocity[2] if s.state is not None else 0.0
             system, thrust = s.system, s.backend.thrust(sp, self.bridge.flying_config, vz)
         if sp.body_rates is None:
