@@ -293,7 +293,8 @@ def fleet_bridge_graph(fleet_path, *, control_profile=None, hover_throttle: floa
 # --- launch arguments: (name, default, description); '' = the graph's own default ----------------------------
 SIM_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/maze.yaml', 'mission YAML: a path, or one under config/'),
-    ('controller', '', 'pd | pid | se3; empty: the control profile\'s, else pd'),
+    ('controller', '', 'pd | pid | se3 | package.module:Class (docs/plugins.md); empty: the control profile\'s, '
+                       'else pd'),
     ('control_profile', '', 'params file over control.yaml; empty: se3 flies control_se3.yaml, pd and pid the '
                             'seed\'s gains'),
     ('vehicle', '', 'vehicle YAML of the planner\'s limits, the controller and the simulator; empty: the mission\'s'),
