@@ -38,6 +38,7 @@ from quad_control.position import PositionController, Saturation
 RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's default
 ENGAGE_DELAY_S = 1.0       # position_controller engage_delay_s
 MAX_START_STEP_M = 0.5     # position_controller max_start_step_m and the offline loop's default
+CONTROLLER_FAILED = 'controller failed'   # how the fault of a dead controller begins (fly's monitor ends on it)
 COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'controller_failures',
           'refused_start_steps', 'saturation_thrust', 'saturation_tilt', 'saturation_integral')
 
@@ -196,7 +197,7 @@ class ControlLoop:
 
     def _die(self, t_ns: int, exc: ControllerFailed):
         self.counts['controller_failures'] += 1
-        self.dead = f'controller failed at t = {t_ns * 1e-9:.3f} s, no setpoints from now on: {exc}'
+        self.dead = f'{CONTROLLER_FAILED} at t = {t_ns * 1e-9:.3f} s, no setpoints from now on: {exc}'
         self.on_fault(self.dead)
 
     @staticmethod

@@ -152,7 +152,8 @@ class PositionControllerNode(Node):
     def _make_controller(self, values: dict):
         """The controller `values` name (quad_control.plugins.make_controller; a user class is refused there)."""
         return make_controller(values['controller'], gains_from(values), self.vehicle,
-                               Limits.of(self.vehicle, values['max_tilt_deg']), rate_hz=values['rate_hz'])
+                               Limits.of(self.vehicle, values['max_tilt_deg']), rate_hz=values['rate_hz'],
+                               wall_clock=not values['lockstep'])
 
     def hot_entities(self):
         """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
@@ -260,6 +261,8 @@ class PositionControllerNode(Node):
             self.tick_times_ns.clear()
         if 'lockstep' in changed:
             self.loop.lockstep = values['lockstep']
+            if hasattr(self.controller, 'wall_clock'):
+                self.controller.wall_clock = not values['lockstep']
             self.loop.clear_pending()
         self.get_logger().info(f'parameters changed: {changed}')
 

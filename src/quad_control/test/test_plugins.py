@@ -33,9 +33,11 @@ def _hover_state(z=1.0):
     return State(position=np.array([0.0, 0.0, z]))
 
 
-def _loop(name):
+def _loop(name, wall_clock=False, rate_hz=100.0):
+    """wall_clock: a real-time loop (a real vehicle's), on a busy machine only with a long tick (rate_hz)."""
     faults = []
-    loop = ControlLoop(make_controller(name, None, VEHICLE, Limits.of(VEHICLE)), 100.0, on_fault=faults.append)
+    loop = ControlLoop(make_controller(name, None, VEHICLE, Limits.of(VEHICLE), rate_hz, wall_clock=wall_clock),
+                       rate_hz, on_fault=faults.append)
     return loop, faults
 
 
@@ -144,13 +146,14 @@ def test_user_setpoints_are_clamped_to_the_vehicle_like_ours():
 @pytest.mark.parametrize('cls, says', [
     ('Raises', "user_controllers.Raises.update raised ZeroDivisionError: division by zero in my controller ("),
     ('ReturnsNaN', 'returned a non-finite or zero setpoint: thrust/mass nan'),
-    ('Slow', 'update took'),
+    ('Slow', 'update took 30'),
     ('WrongKeys', "returned a dict without cmd_thrust and cmd_q (keys: ['q', 'thrust'])"),
     ('WrongShape', 'not a quaternion (x, y, z, w)'),
 ])
 def test_a_failing_user_controller_is_dead_from_then_on(cls, says, monkeypatch):
     monkeypatch.syspath_prepend(str(HERE))
-    loop, faults = _loop(f'user_controllers:{cls}')
+    # Slow sleeps 0.3 s: a tick of 0.2 s in real time (a busy machine's preemption must not count as slow)
+    loop, faults = _loop(f'user_controllers:{cls}', wall_clock=cls == 'Slow', rate_hz=5.0 if cls == 'Slow' else 100.0)
     given = _fly_until_dead(loop)
     assert 45 <= given <= 52                       # it flew until t = 0.5 s, then nothing (never a bad setpoint)
     assert len(faults) == 1 and says in faults[0] and 'no setpoints from now on' in faults[0], faults
@@ -158,6 +161,17 @@ def test_a_failing_user_controller_is_dead_from_then_on(cls, says, monkeypatch):
     assert loop.counts['controller_failures'] == 1 and loop.mode(0) == 'controller dead (no setpoints)'
     assert all(loop.control(k * 10_000_000, _hover_state()) is None for k in range(60, 70))
     assert len(faults) == 1                        # reported once
+
+
+def test_in_lockstep_only_cpu_time_counts_as_slow(monkeypatch):
+    """A lockstep or offline flight waits for the controller: an update that waited (preempted on a busy machine,
+    here a sleep) is no failure there; one that computes longer than the tick is (it cannot keep up)."""
+    monkeypatch.syspath_prepend(str(HERE))
+    loop, faults = _loop('user_controllers:Slow', wall_clock=False)
+    assert _fly_until_dead(loop, ticks=55) == 55 and not faults
+    loop, faults = _loop('user_controllers:Busy', wall_clock=False)
+    assert 45 <= _fly_until_dead(loop) <= 52
+    assert 'user_controllers.Busy.update took' in faults[0] and 'ms of CPU > the tick 10.0 ms' in faults[0]
 
 
 def test_a_motor_level_controller_or_a_broken_constructor_is_refused_before_anything_starts(monkeypatch):

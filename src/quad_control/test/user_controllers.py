@@ -23,7 +23,12 @@ class FailsAfter(SE3Control):
         if self.mode == 'nan':
             return dict(out, cmd_thrust=math.nan)
         if self.mode == 'slow':
-            time.sleep(0.05)
+            time.sleep(0.3)
+            return out
+        if self.mode == 'busy':
+            until = time.thread_time() + 0.02
+            while time.thread_time() < until:
+                pass
             return out
         if self.mode == 'keys':
             return {'thrust': out['cmd_thrust'], 'q': out['cmd_q']}
@@ -42,6 +47,10 @@ class ReturnsNaN(FailsAfter):
 
 class Slow(FailsAfter):
     mode = 'slow'
+
+
+class Busy(FailsAfter):
+    mode = 'busy'
 
 
 class WrongKeys(FailsAfter):
