@@ -226,7 +226,7 @@ def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
         loop.tick(t_ns)                           # the tick at t_k waits for its odometry ...
         tick = loop.set_odometry(t_ns, seen)      # ... stamped t_k, and runs with it
         if tick is None:
-            stopped = f'no setpoint at t = {t_s:.3f} s'
+            stopped = loop.dead or f'no setpoint at t = {t_s:.3f} s'
             break
         ticks.append(tick)
         saturated_ticks += tick.saturation.thrust or tick.saturation.tilt

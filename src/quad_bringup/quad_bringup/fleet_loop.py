@@ -107,7 +107,7 @@ class _Vehicle:
         self.loop.tick(t_ns)
         tick = self.loop.set_odometry(t_ns, seen)
         if tick is None:
-            self.stopped = f'no setpoint at t = {t_ns * 1e-9:.3f} s'
+            self.stopped = self.loop.dead or f'no setpoint at t = {t_ns * 1e-9:.3f} s'
             return
         self.saturated_ticks += tick.saturation.thrust or tick.saturation.tilt
         self.sim.set_setpoint(tick.setpoint)
