@@ -71,3 +71,21 @@ def test_fly_refuses_an_unusable_user_class_before_anything_starts(tmp_path, ros
         done, run_dir = _fly(tmp_path, ros_env, controller)
         assert done.returncode == 2 and says in done.stderr + done.stdout, done.stdout + done.stderr
         assert 'Traceback' not in done.stderr and not (run_dir / 'bag').exists()
+
+
+def test_fly_flies_a_mission_whose_plan_is_a_user_trajectory_class(tmp_path, ros_env):
+    """trajectory.generator: trajectory_node samples the class into `trajectory`, fly checks it against the vehicle
+    first and the controller tracks it; the recorded plan is the class's circle."""
+    path = tmp_path / 'circle.yaml'
+    path.write_text(f'name: circle\nvehicle: {ROOT / "config/vehicles/crazyflie.yaml"}\n'
+                    'waypoints: [[0, 0, 1], [1, 0, 1]]\n'     # the class starts at the first
+                    'trajectory:\n  generator: quad_trajectory.templates.circle:Circle\n'
+                    '  generator_args: {radius_m: 0.5, period_s: 6.0}\n')
+    run_dir = tmp_path / 'run'
+    done = subprocess.run([QUADFLIGHT, 'fly', str(path), '--out', str(run_dir)], env=ros_env, capture_output=True,
+                          text=True, timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert 'feasible on crazyflie' in done.stdout                  # the feasibility check ran on it
+    metrics = json.loads((run_dir / 'metrics.json').read_text())
+    assert metrics['completed'] and metrics['time_planned_s'] == 6.0 and metrics['rmse_m'] < 0.05   # the seed's pd
+    assert abs(metrics['length_planned_m'] - 2 * math.pi * 0.5) < 0.01   # one lap of the class's circle
