@@ -2,6 +2,7 @@
 folder on the path)."""
 
 import math
+import os
 import time
 
 import numpy as np
@@ -59,6 +60,15 @@ class WrongKeys(FailsAfter):
 
 class WrongShape(FailsAfter):
     mode = 'shape'
+
+
+class FailsOnFile(SE3Control):
+    """Flies well until the file named by QUADFLIGHT_TEST_FAIL_FILE exists, then raises (a test's trigger)."""
+
+    def update(self, t, state, flat_output):
+        if os.path.exists(os.environ.get('QUADFLIGHT_TEST_FAIL_FILE', '/nonexistent')):
+            raise RuntimeError('my controller gave up')
+        return super().update(t, state, flat_output)
 
 
 class MotorOnly:

@@ -89,10 +89,9 @@ def to_polynomial(times, p, v, a) -> PiecewisePolynomial:
     return PiecewisePolynomial(h[:, 0], coefficients)
 
 
-def generated_plan(waypoints, yaw, options, world=None):
-    """The PlanResult of options.generator from the mission's waypoints (see the module docstring)."""
-    from quad_trajectory.planner import PlanResult
-
+def generate(waypoints, options, world=None) -> tuple[PiecewisePolynomial, np.ndarray]:
+    """(the plan, its samples (K, 4)) of options.generator from the mission's waypoints (module docstring);
+    quad_trajectory.planner.plan makes its PlanResult."""
     name = options.generator
     cls = resolve(name)
     try:
@@ -111,8 +110,4 @@ def generated_plan(waypoints, yaw, options, world=None):
         if segments.size:
             raise ValueError(f'trajectory.generator {name!r} collides with {world.name} at t = {hit[0]:.3f} s '
                              f'(robot_radius_m = {options.robot_radius_m})')
-    # its own start and end are the plan's waypoints (the class need not pass through the mission's)
-    is_end = np.zeros(times.size, dtype=bool)
-    is_end[[0, -1]] = True
-    return PlanResult(trajectory=trajectory, waypoints=p[is_end, :3], yaw=p[is_end, 3], points=p, is_waypoint=is_end,
-                      options=options, world=world)
+    return trajectory, p

@@ -363,8 +363,12 @@ def plan(waypoints, yaw=None, options: PlanOptions | None = None, world: World |
     o = validate_options(options or PlanOptions(), vehicle)
     w = validate_waypoints(waypoints)
     y = validate_yaw(yaw, len(w))
-    if o.generator:   # a user's class makes the plan (generated.py)
-        return generated.generated_plan(w, y, o, world)
+    if o.generator:   # a user's class makes the plan (generated.py); its own start and end are the plan's waypoints
+        traj, samples = generated.generate(w, o, world)
+        ends = np.zeros(len(samples), dtype=bool)
+        ends[[0, -1]] = True
+        return PlanResult(trajectory=traj, waypoints=samples[ends, :3], yaw=samples[ends, 3], points=samples,
+                          is_waypoint=ends, options=o, world=world)
     w, y, merged = merge_close_waypoints(w, y)
     points, is_waypoint = add_control_points(np.column_stack([w, y]), o.control_points or ())
     if world is not None:
