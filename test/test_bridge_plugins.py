@@ -8,6 +8,7 @@ import sys
 import pytest
 from bridge_graph import free_udp_port, hover_in_offboard, python_env, running_graph
 
+from quad_common import contract
 from quad_common.paths import REPO_ROOT
 from quad_common.testing import isolated_domain
 
@@ -40,6 +41,11 @@ def test_a_user_class_that_fails_in_offboard_lets_the_bridge_land_the_vehicle(gr
     assert 'user_controllers.FailsOnFile.update raised RuntimeError: my controller gave up' in log
     assert f'{USER_CONTROLLERS / "user_controllers.py"}:' in log
     assert procs.procs['controller'].poll() is None          # the node lives on, silent
+    # and says so on every status after, not only on the fault's own: the periodic one is ERROR too
+    seen = len(observer.diagnostics[contract.CONTROLLER_STATUS])
+    observer.wait_for(lambda: len(observer.diagnostics[contract.CONTROLLER_STATUS]) > seen + 1, 'two more statuses')
+    message, values = observer.controller()
+    assert message.startswith('controller failed at t = ') and values['controller_failures'] == '1', message
 
 
 def test_a_motor_level_class_is_refused_by_the_bridge_graph_s_controller():

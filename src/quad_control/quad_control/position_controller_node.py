@@ -333,6 +333,8 @@ class PositionControllerNode(Node):
         level, message = diagnostics.OK, self.loop.mode(now_ns)
         if fault is not None:
             level, message = diagnostics.ERROR, fault
+        elif self.loop.dead is not None:   # a user controller failed: no setpoints (quad_control.loop)
+            level, message = diagnostics.ERROR, self.loop.dead
         elif self.odom_fault is not None:
             level, message = diagnostics.ERROR, self.odom_fault
         elif self.stale:
