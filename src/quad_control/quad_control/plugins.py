@@ -269,7 +269,12 @@ class PluginController:
                     f'{1e3 * took_s:.1f} ms ({LATE_TICKS} updates in a row over the tick)'
                 raise ControllerFailed(f'{self._where}.update took {what} > the tick {1e3 * self.period_s:.1f} ms '
                                        f'({_where(instance.update)})')
-        return self._setpoint(result, instance)
+        try:
+            return self._setpoint(result, instance)
+        except ControllerFailed:
+            raise
+        except Exception as exc:  # noqa: BLE001  (a result of a shape no check foresaw: refused, never raised on)
+            raise self._bad(instance, f'an unusable result {result!r} ({type(exc).__name__}: {exc})') from None
 
     def _bad(self, instance, what: str):
         return ControllerFailed(f'{self._where}.update returned {what} ({_where(instance.update)})')

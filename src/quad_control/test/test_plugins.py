@@ -146,7 +146,7 @@ def test_user_setpoints_are_clamped_to_the_vehicle_like_ours():
 @pytest.mark.parametrize('cls, says', [
     ('Raises', "user_controllers.Raises.update raised ZeroDivisionError: division by zero in my controller ("),
     ('ReturnsNaN', 'returned a non-finite or zero setpoint: thrust/mass nan'),
-    ('Slow', 'update took 30'),
+    ('Slow', 'ms (3 updates in a row over the tick) > the tick 200.0 ms'),
     ('WrongKeys', "returned a dict without cmd_thrust and cmd_q (keys: ['q', 'thrust'])"),
     ('WrongShape', 'not a quaternion (x, y, z, w)'),
 ])
@@ -185,14 +185,19 @@ def test_a_motor_level_controller_or_a_broken_constructor_is_refused_before_anyt
         make_controller('user_controllers:BrokenInit', None, VEHICLE)
 
 
-def test_our_interface_is_checked_alike():
-    class NotASetpoint(plugins.ControllerPlugin):
+@pytest.mark.parametrize('bad, says', [
+    ((0.0, 0.0), 'tuple, not an AttitudeSetpoint'),
+    (AttitudeSetpoint(specific_force_mps2='9.81'), "an unusable result"),            # no check foresaw a string
+    (AttitudeSetpoint(body_rates=np.zeros(2)), 'not three finite numbers'),
+])
+def test_our_interface_is_checked_alike(bad, says):
+    class Bad(plugins.ControllerPlugin):
         def update(self, state, reference, dt_s):
-            return AttitudeSetpoint(specific_force_mps2=GRAVITY_MPS2) if dt_s == 0.0 else (0.0, 0.0)
+            return AttitudeSetpoint(specific_force_mps2=GRAVITY_MPS2) if dt_s == 0.0 else bad
 
-    loop = ControlLoop(plugins.PluginController('x', NotASetpoint, VEHICLE), 100.0)
+    loop = ControlLoop(plugins.PluginController('x', Bad, VEHICLE, wall_clock=False), 100.0)
     assert loop.control(0, _hover_state()) is not None
-    assert loop.control(10_000_000, _hover_state()) is None and 'tuple, not an AttitudeSetpoint' in loop.dead
+    assert loop.control(10_000_000, _hover_state()) is None and says in loop.dead, loop.dead
 
 
 def test_the_node_refuses_an_unusable_controller_with_one_line_and_exit_2():
