@@ -19,12 +19,12 @@ A class is flown one of two ways:
 
 Whatever the class returns is checked every tick (keys, shapes, finite, a non-zero quaternion) and clamped to the
 vehicle's thrust range and tilt like ours. An exception, a bad result or an update slower than the tick raises
-ControllerFailed naming the class and the line. Slower than the tick: its thread's CPU time above the period (it
-cannot keep up on this machine), or, in real time (`wall_clock`: a real vehicle, a realtime simulator), its wall
-time above the period on LATE_TICKS updates in a row (a blocking call; one preemption of a busy machine is not);
-a lockstep or offline flight waits for it, so there only CPU time counts. quad_control.loop then treats the
-controller as dead (no setpoint is published again: the simulator's and the bridge's setpoint-timeout failsafes
-take the vehicle).
+ControllerFailed naming the class and the line. Slower than the tick: over the period on LATE_TICKS updates in a
+row (a one-off, a garbage collection or a preemption of a busy machine, is not), in its thread's CPU time (it
+cannot keep up on this machine) or, in real time (`wall_clock`: a real vehicle, a realtime simulator), in wall time
+(a blocking call); a lockstep or offline flight waits for it, so there only CPU time counts.
+quad_control.loop then treats the controller as dead (no setpoint is published again: the simulator's and the
+bridge's setpoint-timeout failsafes take the vehicle).
 """
 
 import importlib
@@ -43,7 +43,7 @@ from quad_control.position import CONTROLLERS, Limits, PositionController, Posit
 
 ENTRY_POINT_GROUP = 'quadflight.controllers'
 MOTOR_LEVEL_KEYS = ('cmd_motor_speeds', 'cmd_motor_thrusts', 'cmd_moment')
-LATE_TICKS = 3   # real time: wall time above the period on this many updates in a row is too slow
+LATE_TICKS = 3   # over the period on this many updates in a row is too slow
 
 
 class ControllerRefused(ValueError):
@@ -56,11 +56,14 @@ class ControllerFailed(ValueError):
 
 class ControllerPlugin:
     """Base class of a controller in our types. Built with the vehicle and its rotorpy-style parameters; keep any
-    state on self and clear it in reset() (called when a plan starts and at a hand-over's engagement)."""
+    state on self and clear it in reset() (called when a plan starts and at a hand-over's engagement).
+    self.gains: position_controller's gains (PositionGains: kp, kd, ki per axis, ... of the control profile, a sweep
+    entry or tune's search), kept current before every update, for a class that wants them."""
 
     def __init__(self, vehicle: Vehicle, params: dict):
         self.vehicle = vehicle
         self.params = params
+        self.gains = PositionGains()
 
     def reset(self):
         pass
@@ -208,11 +211,11 @@ class PluginController:
     def __init__(self, name: str, cls, vehicle: Vehicle, limits: Limits | None = None, rate_hz: float = 100.0,
                  gains: PositionGains | None = None, wall_clock: bool = True):
         self.name, self.cls, self.vehicle = name, cls, vehicle
-        self.gains = gains or PositionGains()    # unused by the class; kept so parameter changes apply alike
+        self.gains = gains or PositionGains()    # handed to a ControllerPlugin before each update
         self.limits = limits or Limits.of(vehicle)
         self.period_s = 1.0 / float(rate_hz)
         self.wall_clock = wall_clock              # the tick is due in wall time (module docstring)
-        self.late_ticks = 0                       # consecutive updates over the period in wall time
+        self.late_ticks = 0                       # consecutive updates over the period
         self.ours = issubclass(cls, ControllerPlugin)
         self.params = vehicle_params(vehicle)
         self.integral_m_s = np.zeros(3)           # diagnostics' field of ours: a user class has none
@@ -257,16 +260,18 @@ class PluginController:
               timed: bool = True) -> AttitudeSetpoint:
         started, started_cpu = time.perf_counter(), time.thread_time()
         if self.ours:
+            instance.gains = self.gains
             result = self._guard(instance.update, 'update', state, ref, dt_s)
         else:
             result = self._guard(instance.update, 'update', t_s, state_dict(state, self._hover_radps),
                                  flat_output(ref))
         took_s, cpu_s = time.perf_counter() - started, time.thread_time() - started_cpu
         if timed:
-            self.late_ticks = self.late_ticks + 1 if self.wall_clock and took_s > self.period_s else 0
-            if cpu_s > self.period_s or self.late_ticks >= LATE_TICKS:
-                what = f'{1e3 * cpu_s:.1f} ms of CPU' if cpu_s > self.period_s else \
-                    f'{1e3 * took_s:.1f} ms ({LATE_TICKS} updates in a row over the tick)'
+            late = cpu_s > self.period_s or (self.wall_clock and took_s > self.period_s)
+            self.late_ticks = self.late_ticks + 1 if late else 0
+            if self.late_ticks >= LATE_TICKS:
+                what = f'{1e3 * cpu_s:.1f} ms of CPU' if cpu_s > self.period_s else f'{1e3 * took_s:.1f} ms'
+                what += f' ({LATE_TICKS} updates in a row over the tick)'
                 raise ControllerFailed(f'{self._where}.update took {what} > the tick {1e3 * self.period_s:.1f} ms '
                                        f'({_where(instance.update)})')
         try:

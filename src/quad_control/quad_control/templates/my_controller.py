@@ -18,20 +18,20 @@ from quad_control.plugins import ControllerPlugin
 
 
 class MyController(ControllerPlugin):
-    """PD on position, then the attitude whose thrust axis points along the desired force (with the plan's yaw)."""
+    """PD on position, then the attitude whose thrust axis points along the desired force (with the plan's yaw).
+    Its gains are position_controller's kp_x.. kd_z (self.gains: a control profile's, a sweep's, tune's search)."""
 
     def __init__(self, vehicle, params):
         super().__init__(vehicle, params)
         self.mass_kg = params['mass']          # also vehicle.mass_kg
-        self.kp = np.array([6.0, 6.0, 15.0])   # 1/s^2
-        self.kd = np.array([4.0, 4.0, 8.0])    # 1/s
 
     def reset(self):
         """A plan starts (or a hand-over engages): clear integrators and filters here."""
 
     def update(self, state, reference, dt_s):
-        acc = (self.kp * (reference.position - state.position) + self.kd * (reference.velocity - state.velocity)
-               + reference.acceleration)
+        kp, kd = self.gains.kp, self.gains.kd   # 1/s^2, 1/s per axis
+        acc = kp * (reference.position - state.position) + kd * (reference.velocity - state.velocity) \
+            + reference.acceleration
         force = self.mass_kg * (acc + np.array([0.0, 0.0, GRAVITY_MPS2]))
         b3 = force / np.linalg.norm(force)
         heading = np.array([np.cos(reference.yaw), np.sin(reference.yaw), 0.0])
