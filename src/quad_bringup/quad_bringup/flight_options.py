@@ -51,6 +51,7 @@ def validate(options: FlightOptions):
 
     Returns the quad_trajectory Mission. Raises MissionRefused naming the problem.
     """
+    from quad_control.plugins import refusal as controller_refusal
     from quad_trajectory import mission as mission_module
 
     if options.time_allocation is not None and options.time_allocation not in TIME_ALLOCATIONS:
@@ -89,12 +90,6 @@ def validate(options: FlightOptions):
     return mission
 
 
-def controller_refusal(name) -> str | None:
-    from quad_control.plugins import refusal
-
-    return refusal(name)
-
-
 def check_controller(options: FlightOptions, mission):
     """A user class is built (and probed on a hover) with the flight's vehicle here, so a class that cannot be built
     or gives no attitude / thrust setpoint is refused before anything starts (quad_control.plugins)."""
@@ -106,7 +101,8 @@ def check_controller(options: FlightOptions, mission):
     try:
         make_controller(options.controller, None, flight_vehicle(options, mission))
     except ControllerRefused as exc:
-        raise MissionRefused(f'--controller {options.controller!r}: {exc}') from None
+        name = options.controller
+        raise MissionRefused(str(exc).replace(f'controller {name!r}', f'--controller {name!r}', 1)) from None
 
 
 def flight_vehicle(options: FlightOptions, mission):
