@@ -20,7 +20,8 @@ from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 from quad_control.loop import MAX_START_STEP_M, RATE_HZ, ControlLoop
 from quad_control.parameters import gains_from, profile_parameters
-from quad_control.position import Limits, PositionController, PositionGains
+from quad_control.plugins import make_controller
+from quad_control.position import Limits, PositionGains
 from quad_sim.disturbances import load_profile, profile_from_dict
 from quad_sim.simulator import PHYSICS_RATE_HZ, SimulationStopped, Simulator
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SAMPLE_RATE_HZ, load_mission, plan_mission
@@ -195,8 +196,8 @@ def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
     mission, plan, trajectory = plan_offline(mission_path, options)
     sim = make_simulator(mission, trajectory, options)
     vehicle = controller_vehicle(mission, options)
-    controller = PositionController(options.controller, options.gains or PositionGains(), vehicle,
-                                    Limits.of(vehicle))
+    controller = make_controller(options.controller, options.gains or PositionGains(), vehicle, Limits.of(vehicle),
+                                 options.rate_hz)
     loop = ControlLoop(controller, options.rate_hz, lockstep=True, max_start_step_m=options.max_start_step_m)
     period_ns = round(1e9 / options.rate_hz)
     loop.set_trajectory(round(options.start_delay_s * 1e9), trajectory)
@@ -225,7 +226,7 @@ def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
         loop.tick(t_ns)                           # the tick at t_k waits for its odometry ...
         tick = loop.set_odometry(t_ns, seen)      # ... stamped t_k, and runs with it
         if tick is None:
-            stopped = f'no setpoint at t = {t_s:.3f} s'
+            stopped = loop.dead or f'no setpoint at t = {t_s:.3f} s'
             break
         ticks.append(tick)
         saturated_ticks += tick.saturation.thrust or tick.saturation.tilt

@@ -29,7 +29,8 @@ from quad_bringup.closed_loop import (
 from quad_bringup.metrics import Flight, compute_metrics
 from quad_common import rotations
 from quad_control.loop import ControlLoop
-from quad_control.position import Limits, PositionController, PositionGains
+from quad_control.plugins import make_controller
+from quad_control.position import Limits, PositionGains
 from quad_sim.simulator import SimulationStopped
 from quad_sim.vehicle_contact import VEHICLE_COLLISION, VehicleContacts
 from quad_trajectory.fleet import Fleet, FleetPlan, load_fleet, plan_fleet
@@ -79,8 +80,8 @@ class _Vehicle:
         self.trajectory = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
         self.sim = make_simulator(fv.mission, self.trajectory, self.options)
         vehicle = controller_vehicle(fv.mission, self.options)
-        self.loop = ControlLoop(PositionController(controller, gains, vehicle, Limits.of(vehicle)), options.rate_hz,
-                                lockstep=True, max_start_step_m=options.max_start_step_m)
+        self.loop = ControlLoop(make_controller(controller, gains, vehicle, Limits.of(vehicle), options.rate_hz),
+                                options.rate_hz, lockstep=True, max_start_step_m=options.max_start_step_m)
         self.loop.set_trajectory(round(delay_s * 1e9), self.trajectory)
         self.arrival_s = options.rule.plan_arrival_s(self.trajectory)
         self.delayed = _Delay(options.odom_latency_s, 1.0 / options.rate_hz)
@@ -106,7 +107,7 @@ class _Vehicle:
         self.loop.tick(t_ns)
         tick = self.loop.set_odometry(t_ns, seen)
         if tick is None:
-            self.stopped = f'no setpoint at t = {t_ns * 1e-9:.3f} s'
+            self.stopped = self.loop.dead or f'no setpoint at t = {t_ns * 1e-9:.3f} s'
             return
         self.saturated_ticks += tick.saturation.thrust or tick.saturation.tilt
         self.sim.set_setpoint(tick.setpoint)

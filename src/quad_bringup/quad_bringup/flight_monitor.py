@@ -18,6 +18,7 @@ from quad_bringup.metrics import Completion
 from quad_common import cdr, contract, conversions, lockstep
 from quad_common.diagnostics import ERROR, level_of
 from quad_common.hot_path import HotPathExecutor
+from quad_control.loop import CONTROLLER_FAILED
 
 
 @dataclass
@@ -55,6 +56,11 @@ class FlightJudge:
         """t_s: the collision's own time (the contract's collision_time_s), message: the status's message."""
         if self.verdict is None:
             self.verdict = Verdict(False, f'collision at t = {self._since_start(t_s):.2f} s: {message}')
+
+    def on_controller_failed(self, message):
+        """A user controller died (quad_control.loop): the vehicle gets no setpoint from it again."""
+        if self.verdict is None:
+            self.verdict = Verdict(False, message)
 
     def on_odometry(self, t_s, position, velocity):
         self.t_s = t_s
@@ -131,6 +137,9 @@ class FlightMonitor:
                 self.sim_events[st.name] = (level_of(st), st.message, values)
                 if st.name == contract.SIM_PUBLISHED:
                     self.published = {k: int(v) for k, v in values.items()}
+            if st.name == contract.CONTROLLER_STATUS and level_of(st) == ERROR[0] and \
+                    st.message.startswith(CONTROLLER_FAILED):
+                self.judge.on_controller_failed(st.message)
             if level_of(st) == ERROR[0]:  # an event is a key of an ERROR status, not its name or message
                 t_s = contract.event_time_s({kv.key: kv.value for kv in st.values}, contract.COLLISION_TIME_S)
                 if t_s is not None:

@@ -16,7 +16,6 @@ from quad_bringup.limits import refusal
 from quad_bringup.report import Completion
 from quad_common.paths import REPO_ROOT
 from quad_common.yaml_io import load_yaml
-from quad_control.position import CONTROLLERS
 from quad_trajectory.timing import ALLOCATIONS as TIME_ALLOCATIONS
 
 
@@ -52,13 +51,15 @@ def validate(options: FlightOptions):
 
     Returns the quad_trajectory Mission. Raises MissionRefused naming the problem.
     """
+    from quad_control.plugins import refusal as controller_refusal
     from quad_trajectory import mission as mission_module
 
     if options.time_allocation is not None and options.time_allocation not in TIME_ALLOCATIONS:
         raise MissionRefused(f'--time-allocation {options.time_allocation!r} refused: must be one of '
                              f'{", ".join(TIME_ALLOCATIONS)}')
-    if options.controller not in CONTROLLERS:
-        raise MissionRefused(f'--controller {options.controller!r} refused: must be one of {", ".join(CONTROLLERS)}')
+    if (reason := controller_refusal(options.controller)) is not None:
+        name = options.controller
+        raise MissionRefused(reason.replace(f'controller = {name!r}', f'--controller {name!r}', 1))
     for key, value in OPTION_VALUES(options):
         if reason := refusal(key, value):
             raise MissionRefused(reason)
@@ -85,7 +86,23 @@ def validate(options: FlightOptions):
         mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
     except (ValueError, KeyError, TypeError, OSError) as exc:
         raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
+    check_controller(options, mission)
     return mission
+
+
+def check_controller(options: FlightOptions, mission):
+    """A user class is built (and probed on a hover) with the flight's vehicle here, so a class that cannot be built
+    or gives no attitude / thrust setpoint is refused before anything starts (quad_control.plugins)."""
+    from quad_control.plugins import ControllerRefused, make_controller
+    from quad_control.position import CONTROLLERS
+
+    if options.controller in CONTROLLERS:
+        return
+    try:
+        make_controller(options.controller, None, flight_vehicle(options, mission))
+    except ControllerRefused as exc:
+        name = options.controller
+        raise MissionRefused(str(exc).replace(f'controller {name!r}', f'--controller {name!r}', 1)) from None
 
 
 def flight_vehicle(options: FlightOptions, mission):
@@ -176,6 +193,7 @@ def node_parameters(options: FlightOptions) -> dict:
 
 
 def default_run_dir(mission_name: str, controller: str) -> Path:
+    controller = controller.rpartition(':')[2] or controller   # a user class: its name
     stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S-%f')[:-3]   # milliseconds
     return REPO_ROOT / 'runs' / f'{mission_name}-{controller}-{stamp}'
 

@@ -224,14 +224,15 @@ def params_file_content(nodes: list[NodeSpec]) -> dict:
 
 
 def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=None, fcu_url: str = '',
-                 hover_throttle: float | None = None, vehicle_params: str = '') -> list[NodeSpec]:
+                 hover_throttle: float | None = None, vehicle_params: str = '',
+                 controller: str | None = None) -> list[NodeSpec]:
     """A real (or emulated) vehicle: trajectory_node and position_controller on wall-clock time and
     mavlink_bridge from config/bridge_<autopilot>.yaml. The plan runs only while the bridge's hand-over is
     active (vehicle/engaged), so the nodes may start in any order and `offboard` may come at any time.
 
     vehicle: the vehicle file of the planner's limits and the controller (default px4_quad.yaml);
-    control_profile: over control.yaml (default control_real.yaml); fcu_url, hover_throttle, vehicle_params:
-    the bridge's parameters when given."""
+    control_profile: over control.yaml (default control_real.yaml); controller: over the profile's (a user class:
+    docs/plugins.md); fcu_url, hover_throttle, vehicle_params: the bridge's parameters when given."""
     if autopilot not in AUTOPILOTS:
         raise ValueError(f'autopilot {autopilot!r} refused: must be one of {", ".join(AUTOPILOTS)}')
     vehicle = str(Path(vehicle).resolve()) if vehicle else config(REAL_VEHICLE)
@@ -247,7 +248,7 @@ def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=
                                       'vehicle_file': vehicle})),
         NodeSpec('position_controller', (config(CONFIG_FILES['position_controller']), profile,
                                          {**wall, 'lockstep': False, 'wait_for_engagement': True,
-                                          'vehicle': vehicle})),
+                                          'vehicle': vehicle, **({'controller': controller} if controller else {})})),
         NodeSpec('mavlink_bridge', (config(CONFIG_FILES['mavlink_bridge'].format(autopilot=autopilot)), bridge)),
     ]
 
@@ -293,7 +294,8 @@ def fleet_bridge_graph(fleet_path, *, control_profile=None, hover_throttle: floa
 # --- launch arguments: (name, default, description); '' = the graph's own default ----------------------------
 SIM_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/maze.yaml', 'mission YAML: a path, or one under config/'),
-    ('controller', '', 'pd | pid | se3; empty: the control profile\'s, else pd'),
+    ('controller', '', 'pd | pid | se3 | package.module:Class (docs/plugins.md); empty: the control profile\'s, '
+                       'else pd'),
     ('control_profile', '', 'params file over control.yaml; empty: se3 flies control_se3.yaml, pd and pid the '
                             'seed\'s gains'),
     ('vehicle', '', 'vehicle YAML of the planner\'s limits, the controller and the simulator; empty: the mission\'s'),
@@ -304,6 +306,8 @@ BRIDGE_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/maze.yaml', 'mission YAML: a path, or one under config/'),
     ('vehicle', REAL_VEHICLE, 'vehicle YAML of the planner\'s limits and the controller'),
     ('control_profile', REAL_VEHICLE_PROFILE, 'position_controller profile over control.yaml'),
+    ('controller', '', 'pd | pid | se3 | package.module:Class (docs/plugins.md) over the profile\'s; empty: the '
+                       'profile\'s'),
     ('fcu_url', '', 'the autopilot\'s MAVLink address; empty: the bridge config\'s'),
     ('hover_throttle', '', 'the vehicle\'s hover thrust (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER); empty: '
                            'the bridge config\'s'),
@@ -358,4 +362,5 @@ def graph_from_arguments(kind: str, args: dict) -> list[NodeSpec]:
                                   or None, hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'])
     return bridge_graph(kind, config_path(args['mission']), vehicle=config_path(args['vehicle']),
                         control_profile=config_path(args['control_profile']), fcu_url=args['fcu_url'],
-                        hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'])
+                        hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'],
+                        controller=args['controller'] or None)

@@ -25,7 +25,8 @@ from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, State
 from quad_common.vehicle import load_vehicle
 from quad_control.loop import RATE_HZ
-from quad_control.position import Limits, PositionController, PositionGains
+from quad_control.plugins import make_controller
+from quad_control.position import Limits, PositionGains
 from quad_sim.disturbances import profile_from_dict
 from quad_sim.simulator import SimulationStopped, Simulator
 
@@ -100,7 +101,7 @@ def replay(flight, vehicle_path, controller: str, gains: PositionGains, telemetr
     end_s = min(t0_s + traj.duration_s, float(flight.odom_t[-1]))
     i0 = int(np.searchsorted(flight.odom_t, t0_s))
     start_p, start_yaw = flight.position[i0], float(flight.euler[i0, 2])
-    control = PositionController(controller, gains, nominal, Limits.of(nominal))
+    control = make_controller(controller, gains, nominal, Limits.of(nominal), RATE_HZ)
     period_s = 1.0 / RATE_HZ
     age_s, odom_period_s = telemetry if telemetry is not None else telemetry_of(flight)
     delay_s = age_s + 0.5 * odom_period_s   # a sample arrives age_s late and is flown until the next: its mean age

@@ -29,7 +29,8 @@ from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, Reference
 from quad_common.vehicle import load_vehicle
 from quad_control.loop import RATE_HZ
-from quad_control.position import Limits, PositionController, PositionGains
+from quad_control.plugins import make_controller
+from quad_control.position import Limits, PositionGains
 from quad_sim.simulator import SimulationStopped, Simulator
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle, own_lag_s, tau_for_lag_s
 from quad_vehicle_emu.mavlink_vehicle import DEFAULT_BURST_S
@@ -147,7 +148,7 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
     if response is None:
         shaper = AttitudeResponse(tau_for_lag_s(plant, lag_s), sim.state.quaternion)
     telemetry = DelayLine(latency_s)
-    control = PositionController(controller, gains, nominal, Limits.of(nominal))
+    control = make_controller(controller, gains, nominal, Limits.of(nominal), rate_hz)
     ref = Reference(position=target, velocity=np.zeros(3), acceleration=np.zeros(3), jerk=np.zeros(3), yaw=0.0,
                     yaw_rate=0.0)
     period_s = 1.0 / rate_hz

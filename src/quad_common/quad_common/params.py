@@ -6,6 +6,7 @@ parameter, the value and the rule. quad_common.ros_params declares a table on a 
 """
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,6 +21,7 @@ class Param:
     choices: tuple | None = None
     read_only: bool = False
     length: int | None = None  # required length of an array value
+    check: Callable[[Any], str | None] | None = None  # a rule of its own: the reason a value is refused, or None
 
 
 def check_value(spec: Param, value) -> str | None:
@@ -38,6 +40,8 @@ def check_value(spec: Param, value) -> str | None:
             return f'{spec.name} = {value!r} refused: must be <= {spec.max}'
     if spec.choices is not None and value not in spec.choices:
         return f'{spec.name} = {value!r} refused: must be one of {", ".join(map(str, spec.choices))}'
+    if spec.check is not None:
+        return spec.check(value)
     return None
 
 

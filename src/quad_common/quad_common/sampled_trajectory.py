@@ -26,6 +26,11 @@ def _quintic_coefficients(h, p0, v0, a0, p1, v1, a1):
     ], axis=-1)
 
 
+def hermite_segment_coefficients(h, p0, v0, a0, p1, v1, a1):
+    """The same quintic in seconds: coefficients of (t - t0)^0..5 (h broadcast against the values)."""
+    return _quintic_coefficients(h, p0, v0, a0, p1, v1, a1) / np.asarray(h)[..., None] ** np.arange(6)
+
+
 # d-th derivative of sum_m c_m s^m is sum_{m >= d} c_m m! / (m - d)! s^(m - d): factors and powers per (d, m)
 _ORDERS, _TERMS = np.arange(4)[:, None], np.arange(6)[None, :]
 _FACTORS = np.array([[float(np.prod(np.arange(m - d + 1, m + 1))) if m >= d else 0.0 for m in range(6)]

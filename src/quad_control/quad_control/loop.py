@@ -18,6 +18,10 @@ position_controller_node and the offline flight loop (quad_bringup.closed_loop) 
 - Start step: a plan whose reference at that first tick is farther than max_start_step_m from the vehicle is
   refused (the loop keeps what it tracked before; a fault names the distance), never flown as a step.
 - dt = clamp(t - t_previous, 0, 2 / rate_hz), 0 at the first tick.
+- A dead controller: a user controller that failed (quad_control.plugins.ControllerFailed: it raised, returned a
+  bad or non-finite result, or took longer than the tick) is never called again and no tick produces a setpoint
+  (one fault naming it): the vehicle is handled as with a dead controller process (the simulator's and the
+  bridge's setpoint-timeout failsafes).
 - Lockstep: the tick at t runs with the odometry stamped >= t, deferred until that arrives (a newer tick
   supersedes a pending one), and until the vehicle is engaged (the simulator engages at once, so a lockstep run
   never depends on when that message arrives); wait_for_trajectory also defers it until a plan is here.
@@ -28,13 +32,15 @@ from dataclasses import dataclass, replace
 
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, Reference, State
+from quad_control.plugins import ControllerFailed
 from quad_control.position import PositionController, Saturation
 
 RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's default
 ENGAGE_DELAY_S = 1.0       # position_controller engage_delay_s
 MAX_START_STEP_M = 0.5     # position_controller max_start_step_m and the offline loop's default
-COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'refused_start_steps',
-          'saturation_thrust', 'saturation_tilt', 'saturation_integral')
+CONTROLLER_FAILED = 'controller failed'   # how the fault of a dead controller begins (fly's monitor ends on it)
+COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'controller_failures',
+          'refused_start_steps', 'saturation_thrust', 'saturation_tilt', 'saturation_integral')
 
 
 @dataclass(frozen=True)
@@ -84,6 +90,7 @@ class ControlLoop:
         self.pending_tick_ns = None  # lockstep: the tick waiting for its odometry
         self.last_control_ns = None
         self.last_start_step_m = None  # distance vehicle -> plan at the last plan start (taken or refused)
+        self.dead = None             # why the controller failed (module docstring); None while it lives
         self.counts = dict.fromkeys(COUNTS, 0)
 
     # --- inputs -------------------------------------------------------------------------------------
@@ -118,7 +125,7 @@ class ControlLoop:
             self.trajectory = None
             return None
         self.hold = None if self.odom is None else self._here(self.odom[1])   # where the vehicle is now
-        self.controller.reset()
+        self._reset_controller(t_ns)
         plan, line = self.next_plan, 'holding where the vehicle is'
         if plan is not None and (plan.tau0_s > 0.0 or plan.start_ns < t_ns):
             start_ns = t_ns + max(plan.lead_ns, round(self.engage_delay_s * 1e9))
@@ -160,13 +167,18 @@ class ControlLoop:
         return self.control(t_ns, self.odom[1])
 
     def control(self, t_ns: int, state: State) -> Tick | None:
-        """One controller step at t_ns from `state`; None (and on_fault) if the controller refuses."""
+        """One controller step at t_ns from `state`; None (and on_fault) if the controller refuses or is dead."""
+        if self.dead is not None:
+            return None
         ref = self.reference(t_ns, state)
         period_s = 1.0 / self.rate_hz
         dt_s = 0.0 if self.last_control_ns is None else min(max((t_ns - self.last_control_ns) * 1e-9, 0.0),
                                                             2 * period_s)
         try:
             setpoint, sat = self.controller.update(state, ref, dt_s)
+        except ControllerFailed as exc:
+            self._die(t_ns, exc)
+            return None
         except ValueError as exc:
             self.counts['control_errors'] += 1
             self.on_fault(f'no setpoint at t = {t_ns * 1e-9:.3f} s: {exc}')
@@ -176,6 +188,17 @@ class ControlLoop:
         for name in ('thrust', 'tilt', 'integral'):
             self.counts[f'saturation_{name}'] += int(getattr(sat, name))
         return Tick(t_ns, setpoint, ref, sat)
+
+    def _reset_controller(self, t_ns: int):
+        try:
+            self.controller.reset()
+        except ControllerFailed as exc:
+            self._die(t_ns, exc)
+
+    def _die(self, t_ns: int, exc: ControllerFailed):
+        self.counts['controller_failures'] += 1
+        self.dead = f'{CONTROLLER_FAILED} at t = {t_ns * 1e-9:.3f} s, no setpoints from now on: {exc}'
+        self.on_fault(self.dead)
 
     @staticmethod
     def _here(state: State) -> Reference:
@@ -203,11 +226,13 @@ class ControlLoop:
                           f'{"holding" if self.trajectory is None else "keeping the previous plan"}')
             return
         self.trajectory = plan
-        self.controller.reset()
+        self._reset_controller(t_ns)
 
     # --- status -------------------------------------------------------------------------------------
 
     def mode(self, t_ns: int) -> str:
+        if self.dead is not None:
+            return 'controller dead (no setpoints)'
         if not self.engaged:
             return 'not engaged (following the vehicle)' + (', plan waiting' if self.next_plan is not None else '')
         if self.trajectory is None:

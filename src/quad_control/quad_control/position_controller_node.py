@@ -1,4 +1,5 @@
-"""position_controller: the fixed-rate position loop (pd | pid | se3) between `odom` and `cmd/attitude_thrust`.
+"""position_controller: the fixed-rate position loop (pd | pid | se3 | a user class: quad_control.plugins) between
+`odom` and `cmd/attitude_thrust`.
 
 Each tick at node-clock time t samples the latched `trajectory`, runs the controller on the newest
 odometry and publishes `cmd/attitude_thrust` and `control/reference`, both stamped t.
@@ -32,7 +33,8 @@ from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_control.loop import ControlLoop, Tick
 from quad_control.parameters import NODE_NAME, SPECS, gains_from
-from quad_control.position import Limits, PositionController
+from quad_control.plugins import ControllerRefused, make_controller
+from quad_control.position import Limits
 
 DIAGNOSTICS_PERIOD_S = 1.0
 
@@ -102,8 +104,7 @@ class PositionControllerNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         self.params = ParameterSet(self, SPECS, on_change=self._on_change)
         self.vehicle = load_vehicle(resolve_config(self.params['vehicle']))
-        self.controller = PositionController(self.params['controller'], gains_from(self.params.values), self.vehicle,
-                                             Limits.of(self.vehicle, self.params['max_tilt_deg']))
+        self.controller = self._make_controller(self.params.values)
         self.loop = ControlLoop(self.controller, self.params['rate_hz'], lockstep=self.params['lockstep'],
                                 wait_for_trajectory=self.params['wait_for_trajectory'],
                                 max_start_step_m=self.params['max_start_step_m'],
@@ -147,6 +148,12 @@ class PositionControllerNode(Node):
         self.get_logger().info(f"{self.params['controller']} at {self.params['rate_hz']} Hz, "
                                f"lockstep={self.params['lockstep']}, vehicle {self.vehicle.name}, "
                                f"scheduling {self.realtime}")
+
+    def _make_controller(self, values: dict):
+        """The controller `values` name (quad_control.plugins.make_controller; a user class is refused there)."""
+        return make_controller(values['controller'], gains_from(values), self.vehicle,
+                               Limits.of(self.vehicle, values['max_tilt_deg']), rate_hz=values['rate_hz'],
+                               wall_clock=not values['lockstep'])
 
     def hot_entities(self):
         """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
@@ -240,15 +247,22 @@ class PositionControllerNode(Node):
         self.loop.engage_delay_s = values['engage_delay_s']
         self.loop.wait_for_trajectory = values['wait_for_trajectory']
         if 'controller' in changed:
-            self.controller.name = values['controller']
-            self.controller.reset()
+            try:   # a new controller from the next tick on; the loop's rules (hold point, plan) are kept
+                self.controller = self.loop.controller = self._make_controller(values)
+                self.loop.dead = None
+            except ControllerRefused as exc:
+                self._fault(f'{exc}; keeping {self.controller.name}')
         if 'rate_hz' in changed:
             self.loop.rate_hz = values['rate_hz']
+            if hasattr(self.controller, 'period_s'):   # a user class must finish within the tick
+                self.controller.period_s = 1.0 / values['rate_hz']
             self.destroy_timer(self.timer)
             self.timer = self.create_timer(1.0 / values['rate_hz'], self._on_tick)
             self.tick_times_ns.clear()
         if 'lockstep' in changed:
             self.loop.lockstep = values['lockstep']
+            if hasattr(self.controller, 'wall_clock'):
+                self.controller.wall_clock = not values['lockstep']
             self.loop.clear_pending()
         self.get_logger().info(f'parameters changed: {changed}')
 
@@ -319,6 +333,8 @@ class PositionControllerNode(Node):
         level, message = diagnostics.OK, self.loop.mode(now_ns)
         if fault is not None:
             level, message = diagnostics.ERROR, fault
+        elif self.loop.dead is not None:   # a user controller failed: no setpoints (quad_control.loop)
+            level, message = diagnostics.ERROR, self.loop.dead
         elif self.odom_fault is not None:
             level, message = diagnostics.ERROR, self.odom_fault
         elif self.stale:

@@ -209,7 +209,8 @@ def _vehicle(entry, index, data, path, seen) -> FleetVehicle:
         delay = _number('start_delay_s', entry.get('start_delay_s', 0.0))
         controller = entry.get('controller')
         if controller is not None and not isinstance(controller, str):
-            raise ValueError(f'controller = {controller!r} must be a controller name (pd, pid, se3)')
+            raise ValueError(f'controller = {controller!r} must be a controller name (pd, pid, se3, '
+                             'package.module:Class)')
         profile = entry.get('profile')
         if profile is not None and (not isinstance(profile, str) or not profile):
             raise ValueError(f'profile = {profile!r} must be a control profile file (relative to the fleet file)')

@@ -11,7 +11,7 @@ import numpy as np
 
 from quad_common.vehicle import Vehicle
 from quad_common.world import World
-from quad_trajectory import collision, fastest, feasibility, solver, timing
+from quad_trajectory import collision, fastest, feasibility, generated, solver, timing
 from quad_trajectory.polynomial import PiecewisePolynomial
 
 MERGE_DISTANCE_M = 1e-3
@@ -37,6 +37,9 @@ class PlanOptions:
     margin: float = fastest.DEFAULT_MARGIN     # fastest: the fraction of each vehicle limit left unused
     robot_radius_m: float = 0.0
     avoid_collisions: bool = True              # insert points and replan until collision-free
+    generator: str = ''                        # a user's trajectory class, package.module:Class (generated.py)
+    generator_args: dict | None = None         # its keyword arguments after the waypoints
+    duration_s: float | None = None            # how long it is sampled; None: the instance's duration_s
 
 
 @dataclass
@@ -162,6 +165,12 @@ def validate_options(o: PlanOptions, vehicle: Vehicle | None = None) -> PlanOpti
         raise ValueError(f'margin = {o.margin!r} must be a fraction in [0, 1) (0.1: 10 % of each limit unused)')
     if o.time_allocation == 'fastest' and vehicle is None:
         raise ValueError('time_allocation = fastest needs a vehicle (its limits are what it flies to)')
+    if o.generator:
+        generated.resolve(o.generator)
+        if o.generator_args is not None and not isinstance(o.generator_args, dict):
+            raise ValueError(f'generator_args = {o.generator_args!r} must be a mapping of keyword arguments')
+        if o.duration_s is not None:
+            _finite_number('duration_s', o.duration_s)
     return o
 
 
@@ -354,6 +363,12 @@ def plan(waypoints, yaw=None, options: PlanOptions | None = None, world: World |
     o = validate_options(options or PlanOptions(), vehicle)
     w = validate_waypoints(waypoints)
     y = validate_yaw(yaw, len(w))
+    if o.generator:   # a user's class makes the plan (generated.py); its own start and end are the plan's waypoints
+        traj, samples = generated.generate(w, o, world)
+        ends = np.zeros(len(samples), dtype=bool)
+        ends[[0, -1]] = True
+        return PlanResult(trajectory=traj, waypoints=samples[ends, :3], yaw=samples[ends, 3], points=samples,
+                          is_waypoint=ends, options=o, world=world)
     w, y, merged = merge_close_waypoints(w, y)
     points, is_waypoint = add_control_points(np.column_stack([w, y]), o.control_points or ())
     if world is not None:

@@ -10,13 +10,13 @@ from quad_bringup.commands.report import add_completion_arguments, completion_ov
 from quad_bringup.flight import fly
 from quad_bringup.flight_options import FlightOptions
 from quad_bringup.report import metrics_table
-from quad_control.position import CONTROLLERS
 
 
 def add_arguments(parser):
     parser.add_argument('mission', help='mission YAML (waypoints, trajectory, world), e.g. config/missions/maze.yaml')
-    parser.add_argument('--controller', choices=CONTROLLERS,
-                        help="position controller (default: the control profile's, else pd)")
+    parser.add_argument('--controller', metavar='NAME',
+                        help="pd | pid | se3, or a user class: package.module:Class or a quadflight.controllers "
+                             "entry point (docs/plugins.md); default: the control profile's, else pd")
     parser.add_argument('--speed', type=float, metavar='V',
                         help='average speed constant in m/s (overrides the mission)')
     add_time_allocation_argument(parser)
