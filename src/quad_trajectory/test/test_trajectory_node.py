@@ -6,6 +6,7 @@ Everything waits on messages or conditions, never on elapsed time.
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -120,14 +121,16 @@ def test_fleet_vehicle_plans_that_vehicle_of_a_fleet_deconflicted(graph, tmp_pat
     data['separation']['deconflict'] = 'delays'
     fleet = tmp_path / 'crossing.yaml'
     fleet.write_text(yaml.safe_dump(data))
+    before_ns = time.time_ns()   # the node's clock is the system clock: it plans after this, stamps before `after`
     node = graph.start(mission_file=str(fleet), fleet_vehicle='cf2')
     msg = graph.wait_for('trajectory')
+    after_ns = node.get_clock().now().nanoseconds
     _, sampled = msg_to_sampled(msg)
     np.testing.assert_allclose(sampled.position[0, :3], [-2.0, 0.0, 1.0], atol=1e-9)
     np.testing.assert_allclose(sampled.position[-1, :3], [2.0, 0.0, 1.0], atol=1e-9)
     assert node.fleet_delay_s == 0.5
-    lead_s = stamp_to_s(msg.header.stamp) - node.get_clock().now().nanoseconds * 1e-9
-    assert 1.0 < lead_s <= 1.5     # start_delay_s 1.0 + 0.5, less the time since it was stamped
+    stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    assert before_ns + 1_500_000_000 <= stamp_ns <= after_ns + 1_500_000_000   # planned + start_delay_s 1.0 + 0.5
 
 
 def test_replans_on_a_path_and_refuses_a_bad_one_keeping_the_previous(graph):
