@@ -81,13 +81,35 @@ def _drop_rclpy_destructor_noise():
 
 def _finish(node, executor):
     try:
-        if executor is not None:
-            executor.shutdown()
-        for each in node if isinstance(node, list) else [] if node is None else [node]:
-            each.destroy_node()
+        close_nodes(executor, node if isinstance(node, list) else [] if node is None else [node])
     finally:
         rclpy.try_shutdown()
         ignore_stop_signals()
+
+
+JOIN_TIMEOUT_S = 30.0   # a hang guard only: a spinning thread is woken at once and returns after its callback
+
+
+def close_nodes(executor, nodes, threads=(), join_timeout_s=JOIN_TIMEOUT_S):
+    """Tears nodes down in the one order that cannot destroy an entity while something still uses it: every
+    thread that spins `executor` or otherwise uses the nodes (already told to stop) is woken and joined, then the
+    nodes leave the executor, the executor shuts down, and only then are the nodes destroyed. rcl frees a
+    subscription, timer or guard condition at once on destroy; a wait set or callback of another thread still
+    holding it reads freed memory (a segfault). A thread still alive after join_timeout_s: RuntimeError, and the
+    nodes are left as they are (a leak, never a crash)."""
+    if executor is not None:
+        executor.wake()
+    for thread in threads:
+        thread.join(timeout=join_timeout_s)
+        if thread.is_alive():
+            raise RuntimeError(f'thread {thread.name!r} still runs {join_timeout_s} s after it was told to stop: '
+                               'its nodes are not destroyed under it')
+    if executor is not None:
+        for node in nodes:
+            executor.remove_node(node)
+        executor.shutdown()
+    for node in nodes:
+        node.destroy_node()
 
 
 def ignore_stop_signals():
