@@ -10,6 +10,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.signals import SignalHandlerOptions
 
+from quad_common import node_start
 from quad_common.lifeline import bind_to_parent
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -23,8 +24,12 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
 
     own_signals: SIGINT/SIGTERM/SIGHUP do not shut rclpy down; they make `node.stop_requested()` true and `spin`
     returns when it has finished (e.g. the simulator's final diagnostics and drain)."""
+    stop = node_start.received   # a stop recorded since the console script's first line counts
+    node_start.record_stop_signals()
     bind_to_parent()
-    stop = []
+    if stop:   # Ctrl-C before anything was built
+        ignore_stop_signals()
+        return
     try:
         _init(args, own_signals, stop)
     except _rclpy.RCLError as exc:
@@ -32,6 +37,8 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
         sys.exit(2)
     node = executor = None
     try:
+        if _stopping(stop):   # Ctrl-C while rclpy was starting
+            return
         node = make_node()
         if own_signals:
             for each in node if isinstance(node, list) else [node]:
@@ -121,9 +128,9 @@ def ignore_stop_signals():
 
 def _init(args, own_signals, stop):
     if own_signals:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         for sig in STOP_SIGNALS:
             signal.signal(sig, lambda signum, frame: stop.append(signum))
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         return
     # rclpy's own SIGINT/SIGTERM handler shuts the context down (the executor returns), then calls the handler it
     # found: this one, which only records the signal. Python's default raises KeyboardInterrupt wherever the
