@@ -406,12 +406,18 @@ class SimNode(Node):
     def publish_step(self, vehicles=None):
         """Every vehicle's odom and then /clock at the current sim time (contract order); then its sensors and
         diagnostics when due (after /clock: the controller's tick does not wait for them). vehicles: only these
-        odometries (a re-publication for controllers that joined late)."""
+        odometries (a re-publication for controllers that joined late). Realtime: /clock first, as no tick waits
+        for odometry there, and an odom that arrives before its /clock is ahead of the controller's clock by a
+        tick's worth of sim time (more than one period at rtf > 1 or a late tick): refused."""
         time_ns = self.sim.time_ns
         stamp = stamp_of(time_ns)
+        clock_first = self.params['mode'] == 'realtime'
+        if clock_first:
+            self.clock_pub.publish(ClockMsg(clock=stamp))
         for v in self.vehicles if vehicles is None else vehicles:
             v.publish_odometry(time_ns)
-        self.clock_pub.publish(ClockMsg(clock=stamp))
+        if not clock_first:
+            self.clock_pub.publish(ClockMsg(clock=stamp))
         for v in self.vehicles:
             v.publish_after_clock(time_ns, stamp)
 
