@@ -24,7 +24,8 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import contract
 from quad_common.conversions import stamp_to_s
-from quad_common.testing import isolated_domain
+from quad_common.node_main import close_nodes
+from quad_common.testing import Spinner, isolated_domain
 
 os.environ['MAVLINK20'] = '1'
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
@@ -251,8 +252,7 @@ class SetpointPublisher:
 
     def stop(self):
         self.stop_event.set()
-        self.thread.join(timeout=2)
-        self.node.destroy_node()
+        close_nodes(None, [self.node], threads=[self.thread])
 
 
 class Observer:
@@ -273,16 +273,7 @@ class Observer:
         self.node.create_subscription(MultiDOFJointTrajectory, 'trajectory', self._on_traj, latched, raw=True)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        while self.context.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.1)
-            except Exception:
-                if self.context.ok():
-                    raise
+        self.spinner = Spinner(self.executor, [self.node], name='observer')
 
     def _on_odom(self, msg):
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -359,8 +350,10 @@ class Observer:
             self.node.destroy_client(client)
 
     def close(self):
-        self.context.try_shutdown()
-        self.thread.join(timeout=5)
+        try:
+            self.spinner.close()
+        finally:
+            self.context.try_shutdown()
 
 
 OFFBOARD_MODE = {'px4': 'OFFBOARD', 'ardupilot': 'GUIDED_NOGPS'}
@@ -411,25 +404,15 @@ def bridge_in_this_process(observer, namespace, url, **params):
         Parameter(k, value=v) for k, v in {'fcu_url': url, **params}.items()])
     executor = mavlink_bridge_node.make_executor(node)
     executor.add_node(node)
-
-    def spin():
-        while context.ok():
-            try:
-                executor.spin_once(timeout_sec=0.1)
-            except Exception:
-                if context.ok():
-                    raise
-
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
+    spinner = Spinner(executor, [node], name='bridge-executor')
     try:
         yield node
     finally:
-        node.destroy_node()
-        context.try_shutdown()
-        thread.join(timeout=5)
-        executor.shutdown()
-        sys.setswitchinterval(switch)
+        try:
+            spinner.close()   # the spinning thread joined before the node is destroyed
+        finally:
+            context.try_shutdown()
+            sys.setswitchinterval(switch)
 
 
 @contextmanager

@@ -251,8 +251,9 @@ def _launched(tmp_path):
         procs = Processes(env, tmp_path, namespace='/')
         observer = Observer(domain, '/')
 
-        def start(launch_file, reverse=False, **arguments):
-            nodes = evaluate(launch_file, **arguments)
+        def start(launch_file, reverse=False, names=None, **arguments):
+            """names: only these of its nodes (default all)."""
+            nodes = [n for n in evaluate(launch_file, **arguments) if names is None or n.name in names]
             for node in reversed(nodes) if reverse else nodes:
                 argv = node.command(tmp_path, Path(get_package_prefix(node.package)))
                 log = open(tmp_path / f'{node.name}.log', 'w')
@@ -281,6 +282,41 @@ def test_sim_launch_graph_flies_the_mission(tmp_path):
         names = _node_names(observer)
         for name in ('/trajectory_node', '/sim_node', '/position_controller'):
             assert names.count(name) == 1, names
+        for name in procs.procs:
+            assert procs.procs[name].poll() is None, procs.log(name)
+
+
+CONTROLLER_LATE_S = 3.0   # sim seconds past the plan's start before the controller is started
+FUTURE_ODOM_BOUND = 20    # odometry refused as ahead of the controller's clock (odom before /clock: ~175 at rtf 2)
+
+
+@pytest.mark.parametrize('rtf', [1.0, 2.0])
+def test_sim_launch_realtime_flies_the_mission_with_a_late_controller(tmp_path, rtf):
+    """mode:=realtime with position_controller started only once sim time is CONTROLLER_LATE_S past the plan's
+    start: the simulator holds the vehicle where it starts until the first setpoint (it used to sink and land by
+    the failsafe, and the plan was refused for good: 'begins 0.856 m from the vehicle'), and the plan begins
+    where the vehicle is at engagement, then flies to its end."""
+    waypoints = [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.5, 1.2]]
+    mission = str(_mission(tmp_path, waypoints, ROOT / 'config/vehicles/crazyflie.yaml'))
+    launch = LAUNCH / 'sim.launch.py'
+    with _launched(tmp_path) as (start, procs, observer):
+        start(launch, names={'trajectory_node', 'sim_node'}, mission=mission, mode='realtime', rtf=str(rtf))
+        observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
+        plan_start_s = stamp_to_s(observer.trajectory.header.stamp)
+        observer.wait_for(lambda: observer.odom and observer.odom[-1][0] > plan_start_s + CONTROLLER_LATE_S,
+                          'sim time past the plan\'s start')
+        with observer.lock:
+            waiting = np.array([p for _, p in observer.odom])
+        assert np.abs(waiting - waypoints[0]).max() < 1e-6, 'the vehicle moved before any setpoint'
+        start(launch, names={'position_controller'}, mission=mission, mode='realtime', rtf=str(rtf))
+        observer.wait_for(lambda: observer.controller()[1].get('mode') == 'hold (trajectory ended)',
+                          'the end of the plan', WAIT_S + 60.0)
+        _, values = observer.controller()
+        print(f'rtf {rtf}: odometry refused as ahead of the controller\'s clock: {values["future_odom"]}')
+        assert values['refused_start_steps'] == '0', values
+        assert int(values['future_odom']) < FUTURE_ODOM_BOUND, values
+        observer.wait_for(lambda: np.linalg.norm(np.array(observer.position()) - waypoints[-1]) < 0.05,
+                          'the vehicle at the last waypoint')
         for name in procs.procs:
             assert procs.procs[name].poll() is None, procs.log(name)
 

@@ -87,6 +87,34 @@ def test_ctrl_c_while_the_node_is_still_starting_ends_it_cleanly(tmp_path, packa
     assert code == 0 and 'Traceback' not in out, out
 
 
+# Extension modules the node's own imports load (after the console script's first line, quad_common.node_start):
+# mapped into the process means start-up is at or past that import
+IMPORTS = {'rclpy': '_rclpy_pybind11.', 'numpy': '_multiarray_umath.'}
+POLL_S = 0.002   # how often /proc/<pid>/maps is read while waiting for a module (a condition, not a delay)
+
+
+def _mapped(library):
+    """when_started for _ctrl_c_twice: returns once `library` is mapped into the process."""
+    def when_started(domain, proc):
+        deadline = time.monotonic() + WAIT_S   # a hang guard only
+        while library not in Path(f'/proc/{proc.pid}/maps').read_text():
+            assert proc.poll() is None, f'exited with {proc.returncode} before loading {library}'
+            assert time.monotonic() < deadline, f'{library} never loaded'
+            time.sleep(POLL_S)
+        return ''
+    return when_started
+
+
+@pytest.mark.parametrize('module', sorted(IMPORTS))
+@pytest.mark.parametrize('package,executable,needs', EXECUTABLES, ids=[e[1] for e in EXECUTABLES])
+def test_ctrl_c_while_the_node_imports_its_modules_ends_it_cleanly(tmp_path, package, executable, needs, module):
+    """`ros2 launch` stopped in its first second: SIGINT while the console script still imports rclpy, numpy and
+    the node's module (a KeyboardInterrupt traceback and exit -2 before quad_common.node_start)."""
+    code, out = _ctrl_c_twice(tmp_path, package, executable, needs, f'importing_{executable}',
+                              _mapped(IMPORTS[module]))
+    assert code == 0 and 'Traceback' not in out, out
+
+
 @pytest.mark.parametrize('package,executable,needs', EXECUTABLES, ids=[e[1] for e in EXECUTABLES])
 def test_a_missing_params_file_is_one_line_and_exit_2(tmp_path, package, executable, needs):
     missing = tmp_path / 'no_such_params.yaml'

@@ -19,7 +19,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'mavlink_bridge = quad_bridge.mavlink_bridge_node:main',
+            'mavlink_bridge = quad_bridge.start:mavlink_bridge',
         ],
     },
 )

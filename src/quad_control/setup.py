@@ -19,7 +19,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'position_controller = quad_control.position_controller_node:main',
+            'position_controller = quad_control.start:position_controller',
         ],
     },
 )

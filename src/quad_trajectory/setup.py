@@ -19,7 +19,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'trajectory_node = quad_trajectory.trajectory_node:main',
+            'trajectory_node = quad_trajectory.start:trajectory_node',
         ],
     },
 )

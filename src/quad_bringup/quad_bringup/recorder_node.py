@@ -30,10 +30,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, contract_spec, installed
-from quad_common import cdr, contract, diagnostics, lockstep
+from quad_common import cdr, contract, diagnostics, lockstep, node_start
 from quad_common.hot_path import HotPathExecutor
 from quad_common.lifeline import bind_to_parent
-from quad_common.node_main import STOP_SIGNALS, ignore_stop_signals, rcl_reason
+from quad_common.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, rcl_reason
 from quad_common.params import Param
 from quad_common.ros_params import ParameterSet
 
@@ -156,15 +156,18 @@ class RecorderNode(Node):
 def main(args=None):
     """Spins until SIGINT/SIGTERM/SIGHUP (or the parent's death), then takes what is already delivered and closes
     the bag."""
-    stop = []
+    stop = node_start.received   # a stop recorded since the console script's first line counts
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, lambda signum, frame: stop.append(signum))
     bind_to_parent()
+    if stop:   # Ctrl-C before anything was built
+        ignore_stop_signals()
+        return
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except _rclpy.RCLError as exc:   # a missing or malformed --params-file
         print(f'[ERROR] [recorder]: recorder refused to start: {rcl_reason(exc)}', file=sys.stderr)
         sys.exit(2)
-    for sig in STOP_SIGNALS:
-        signal.signal(sig, lambda signum, frame: stop.append(signum))
     try:
         node = RecorderNode()
     except Exception as exc:  # bad parameters, an existing bag directory, an unknown type
@@ -185,7 +188,7 @@ def main(args=None):
         pass
     finally:
         node.close_bag()
-        node.destroy_node()
+        close_nodes(executor, [node])
         rclpy.try_shutdown()
         ignore_stop_signals()
 

@@ -11,6 +11,7 @@ or every SLOW_SHARE_BOUND times as long as its last pass took when that is longe
 import time
 from collections.abc import Callable
 
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import (
     ConditionReachedException,
     ExternalShutdownException,
@@ -93,10 +94,31 @@ class HotPathExecutor(SingleThreadedExecutor):
         self._spin_hot(wait_s)
 
     def _spin_hot(self, wait_s: float) -> bool:
-        """One wait of up to wait_s for the hot entities, then every ready one's callback; whether any was."""
+        """One wait of up to wait_s for the hot entities, then every ready one's callback; whether any was.
+
+        Every handle in the wait set is held in use for the pass (as rclpy's own executor does): rcl would free an
+        entity destroyed from another thread under the wait (a segfault); held, its destruction waits for the
+        pass to end. An entity already destroyed (its node is going away) ends the pass with nothing served."""
         subscriptions, timers, *guards = self._hot()
         guards = guards[0] if guards else ()
-        wait_set = self._prepared_wait_set(subscriptions, timers, guards)
+        wakers = (self._guard, self._sigint_gc)
+        if None in wakers:   # shut down
+            return False
+        in_use = []
+        try:
+            try:
+                for entity in (*subscriptions, *timers, *guards, *wakers):
+                    entity.handle.__enter__()
+                    in_use.append(entity.handle)
+            except InvalidHandle:
+                return False
+            return self._serve_hot(wait_s, subscriptions, timers, guards, wakers)
+        finally:
+            for handle in reversed(in_use):
+                handle.__exit__(None, None, None)
+
+    def _serve_hot(self, wait_s, subscriptions, timers, guards, wakers) -> bool:
+        wait_set = self._prepared_wait_set(subscriptions, timers, guards, wakers)
         wait_set.wait(max(int(wait_s * 1e9), 0))
         if not self._context.ok():
             raise ExternalShutdownException()
@@ -120,7 +142,7 @@ class HotPathExecutor(SingleThreadedExecutor):
                 timer.callback()
         return served
 
-    def _prepared_wait_set(self, subscriptions, timers, guards=()):
+    def _prepared_wait_set(self, subscriptions, timers, guards, wakers):
         """The wait set, re-made only when the hot entities change (rcl_wait empties it, so they are re-added)."""
         key = (tuple(subscriptions), tuple(timers), tuple(guards))
         if key != self._wait_set_key:
@@ -133,8 +155,8 @@ class HotPathExecutor(SingleThreadedExecutor):
             wait_set.add_subscription(sub.handle)
         for timer in timers:
             wait_set.add_timer(timer.handle)
-        wait_set.add_guard_condition(self._guard.handle)  # add_node / shutdown wake-ups
-        wait_set.add_guard_condition(self._sigint_gc.handle)
+        for gc in wakers:   # add_node / shutdown wake-ups, SIGINT
+            wait_set.add_guard_condition(gc.handle)
         for gc in guards:
             wait_set.add_guard_condition(gc.handle)
         return wait_set

@@ -10,6 +10,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.signals import SignalHandlerOptions
 
+from quad_common import node_start
 from quad_common.lifeline import bind_to_parent
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -23,8 +24,12 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
 
     own_signals: SIGINT/SIGTERM/SIGHUP do not shut rclpy down; they make `node.stop_requested()` true and `spin`
     returns when it has finished (e.g. the simulator's final diagnostics and drain)."""
+    stop = node_start.received   # a stop recorded since the console script's first line counts
+    node_start.record_stop_signals()
     bind_to_parent()
-    stop = []
+    if stop:   # Ctrl-C before anything was built
+        ignore_stop_signals()
+        return
     try:
         _init(args, own_signals, stop)
     except _rclpy.RCLError as exc:
@@ -32,6 +37,8 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
         sys.exit(2)
     node = executor = None
     try:
+        if _stopping(stop):   # Ctrl-C while rclpy was starting
+            return
         node = make_node()
         if own_signals:
             for each in node if isinstance(node, list) else [node]:
@@ -81,13 +88,35 @@ def _drop_rclpy_destructor_noise():
 
 def _finish(node, executor):
     try:
-        if executor is not None:
-            executor.shutdown()
-        for each in node if isinstance(node, list) else [] if node is None else [node]:
-            each.destroy_node()
+        close_nodes(executor, node if isinstance(node, list) else [] if node is None else [node])
     finally:
         rclpy.try_shutdown()
         ignore_stop_signals()
+
+
+JOIN_TIMEOUT_S = 30.0   # a hang guard only: a spinning thread is woken at once and returns after its callback
+
+
+def close_nodes(executor, nodes, threads=(), join_timeout_s=JOIN_TIMEOUT_S):
+    """Tears nodes down in the one order that cannot destroy an entity while something still uses it: every
+    thread that spins `executor` or otherwise uses the nodes (already told to stop) is woken and joined, then the
+    nodes leave the executor, the executor shuts down, and only then are the nodes destroyed. rcl frees a
+    subscription, timer or guard condition at once on destroy; a wait set or callback of another thread still
+    holding it reads freed memory (a segfault). A thread still alive after join_timeout_s: RuntimeError, and the
+    nodes are left as they are (a leak, never a crash)."""
+    if executor is not None:
+        executor.wake()
+    for thread in threads:
+        thread.join(timeout=join_timeout_s)
+        if thread.is_alive():
+            raise RuntimeError(f'thread {thread.name!r} still runs {join_timeout_s} s after it was told to stop: '
+                               'its nodes are not destroyed under it')
+    if executor is not None:
+        for node in nodes:
+            executor.remove_node(node)
+        executor.shutdown()
+    for node in nodes:
+        node.destroy_node()
 
 
 def ignore_stop_signals():
@@ -99,9 +128,9 @@ def ignore_stop_signals():
 
 def _init(args, own_signals, stop):
     if own_signals:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         for sig in STOP_SIGNALS:
             signal.signal(sig, lambda signum, frame: stop.append(signum))
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         return
     # rclpy's own SIGINT/SIGTERM handler shuts the context down (the executor returns), then calls the handler it
     # found: this one, which only records the signal. Python's default raises KeyboardInterrupt wherever the

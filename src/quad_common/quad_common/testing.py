@@ -1,12 +1,14 @@
 """For tests: isolated ROS graphs (quad_common.domains, also what `quadflight fly` uses) and the probe harness the
 node tests drive a node under test with."""
 
+import threading
 from contextlib import contextmanager
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
 from quad_common.domains import FASTDDS_PROFILE, isolated_domain  # noqa: F401  (the tests' import path)
+from quad_common.node_main import close_nodes
 
 TIMEOUT_S = 60.0
 
@@ -32,11 +34,31 @@ class ProbeGraph:
             self.executor.spin_once(timeout_sec=0.02)
 
     def close(self):
-        for n in (self.node, self.probe):
-            if n is not None:
-                self.executor.remove_node(n)
-                n.destroy_node()
-        self.executor.shutdown()
+        close_nodes(self.executor, [n for n in (self.node, self.probe) if n is not None])
+
+
+class Spinner:
+    """Spins `executor` in a thread of its own until close(), which stops and joins that thread before it destroys
+    `nodes` (quad_common.node_main.close_nodes): a test's node is never destroyed under a wait or a callback."""
+
+    def __init__(self, executor, nodes, name='spinner'):
+        self.executor, self.nodes = executor, list(nodes)
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while not self._stop.is_set() and self.executor.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.05)
+            except Exception:
+                if self._stop.is_set() or not self.executor.context.ok():
+                    return   # the context shut down under it
+                raise
+
+    def close(self):
+        self._stop.set()
+        close_nodes(self.executor, self.nodes, threads=[self.thread])
 
 
 @contextmanager

@@ -7,7 +7,9 @@ position_controller_node and the offline flight loop (quad_bringup.closed_loop) 
   At engagement at t_e the hold point is anchored where the vehicle is and the controller is reset; a plan
   whose start has passed begins at t_e + its own start delay (its stamp minus its arrival time, at least
   engage_delay_s: the vehicle settles under our setpoints first), a plan paused by the end of a hand-over
-  resumes there from where it stopped; a plan still in the future keeps its stamp.
+  resumes there from where it stopped; a plan still in the future keeps its stamp. A plan whose start was
+  before t_e but which arrives after it, while the vehicle holds (none flown yet), starts as if it had come before
+  the engagement (at t_e + engage_delay_s, or at its arrival if that is later).
   The end of a hand-over stops the plan's clock (the plan is paused, the reference follows the vehicle again).
 - Hold before the plan: until a trajectory has started the reference is the hold point, anchored once at the
   first engaged odometry controlled from (its position and yaw) and never re-anchored while engaged (a
@@ -83,6 +85,7 @@ class ControlLoop:
         self.on_event = on_event or (lambda line: None)
         self.engaged = engaged       # the vehicle flies our setpoints (module docstring)
         self.engage_delay_s = float(engage_delay_s)
+        self.engaged_ns = None       # when the vehicle last engaged (None: engaged from the start, or not engaged)
         self.odom = None             # (stamp_ns, State) of the newest accepted odometry
         self.trajectory = None       # Plan being tracked (or ended)
         self.next_plan = None        # Plan received (or paused), not started yet
@@ -104,7 +107,15 @@ class ControlLoop:
         """A new plan, started at its first engaged tick at or after start_ns (see the module docstring);
         received_ns: its arrival on the loop's clock (its start delay is start_ns - received_ns)."""
         lead_ns = 0 if received_ns is None else max(start_ns - received_ns, 0)
-        self.next_plan = Plan(start_ns, trajectory, lead_ns=lead_ns)
+        plan = Plan(start_ns, trajectory, lead_ns=lead_ns)
+        if (self.engaged and self.trajectory is None and self.engaged_ns is not None and start_ns < self.engaged_ns
+                and received_ns is not None):
+            # its start had passed at the engagement, which came first (a realtime simulator engages at its first
+            # setpoint, maybe before the latched plan is here): it begins as it would have at the engagement
+            plan = replace(plan, start_ns=max(self.engaged_ns + round(self.engage_delay_s * 1e9), received_ns))
+            self.on_event(f'plan arrived at t = {received_ns * 1e-9:.3f} s, after its start '
+                          f'{start_ns * 1e-9:.3f} s: it starts at t = {plan.start_ns * 1e-9:.3f} s')
+        self.next_plan = plan
         return self.run_pending()
 
     def set_engaged(self, t_ns: int, engaged: bool) -> Tick | None:
@@ -112,6 +123,7 @@ class ControlLoop:
         if engaged == self.engaged:
             return None
         self.engaged = engaged
+        self.engaged_ns = t_ns if engaged else None
         if not engaged:
             self.hold = None
             plan = self.trajectory

@@ -387,6 +387,20 @@ def test_plan_runs_only_while_engaged_and_starts_from_the_vehicle(graph):
     assert graph.node.counts['refused_start_steps'] == 0
 
 
+def test_a_plan_arriving_after_an_engagement_it_predates_starts_as_at_that_engagement(graph):
+    """A realtime simulator engages at its first setpoint, which may come before the latched plan: a plan whose
+    start was before the engagement starts engage_delay_s after it, from the hold (it ran on its stamp: already
+    ended, its final point 0.5 m away flown as a step)."""
+    graph.start(engaged=False, use_sim_time=True, lockstep=False, odom_timeout_s=10.0)
+    graph.step(3.0, x=0.0, z=1.0)
+    graph.engage(True)                                                      # at 3.0, nothing to fly yet
+    graph.traj_pub.publish(_line_trajectory([0.0, 0.0, 1.0], 2.0))        # starts at 2.0, before the engagement
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    assert np.allclose(graph.step(3.5, x=0.0, z=1.0), [0.0, 0, 1.0])      # holding: the plan starts at 4.0
+    assert np.allclose(graph.step(4.5, x=0.0, z=1.0), [0.25, 0, 1.0])     # the plan's midpoint, 0.5 s in
+    assert graph.node.counts['refused_start_steps'] == 0
+
+
 def test_without_wait_for_engagement_a_plan_runs_on_its_stamp(graph):
     """A plant that publishes no engagement (wait_for_engagement false): the plan starts at its stamp."""
     graph.start(engaged=False, use_sim_time=True, lockstep=True, wait_for_engagement=False)

@@ -14,7 +14,10 @@ instead of losing samples; on SIGINT/SIGTERM the loop stops advancing, publishes
 and waits for the followers to acknowledge its last step (as long as they make progress: DRAIN_STALL_S).
 A setpoint stamped more than one period ahead of sim time is refused (counted, warned): taken as "the newest",
 it would make every later, correctly stamped one look old.
-realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * elapsed wall time.
+realtime: a wall-clock timer at odom_rate_hz advances the simulation to rtf * elapsed wall time; each vehicle is
+held where it starts (time runs, no physics) until its first setpoint, and its vehicle/engaged goes true only then:
+a controller that comes late (its /clock late) finds the vehicle where it started, and re-bases a plan whose start
+has passed to its engagement.
 fleet (vehicle_names set): one Simulator per named vehicle, each with its topics under its name (cf1/odom,
 cf1/cmd/attitude_thrust, ... and its frame cf1/base_link), stepped together under one /clock: step k waits for
 every vehicle's setpoint (each vehicle's controller by the rules above), vehicle-vehicle contacts (robot radii)
@@ -126,9 +129,13 @@ class SimulatedVehicle:
         self.imu_pub = node.create_publisher(Imu, prefix + c.IMU, pace(c.IMU))
         self.rotor_pub = node.create_publisher(JointState, prefix + c.ROTOR_SPEEDS, pace(c.ROTOR_SPEEDS))
         self.diag_pub = node.create_publisher(DiagnosticArray, prefix + c.DIAGNOSTICS, pace(c.DIAGNOSTICS))
-        # the simulated vehicle flies our setpoints from the start (a bridge says so only during a hand-over)
+        # lockstep: the simulated vehicle flies our setpoints from the start (a bridge says so only during a
+        # hand-over); realtime: from its first setpoint on (held until then), so a plan whose start passed while
+        # the controller was still starting begins where the vehicle is (quad_control.loop's engagement)
         self.engaged_pub = node.create_publisher(Bool, prefix + c.ENGAGED, c.qos(c.ENGAGED))
-        self.engaged_pub.publish(Bool(data=True))
+        self.held_until_setpoint = node.params['mode'] == 'realtime'
+        if not self.held_until_setpoint:
+            self.engaged_pub.publish(Bool(data=True))
         self.setpoint_sub = node.create_subscription(Imu, self.setpoint_topic, self._on_setpoint,
                                                      c.qos(c.SETPOINT), raw=True)
         self.reference_sub = None
@@ -174,6 +181,10 @@ class SimulatedVehicle:
         self.setpoint_stamp_ns = stamp_ns
         self.setpoints_received += 1
         self.controller_lost = False
+        if self.held_until_setpoint and self.setpoints_received == 1:
+            self._log().info(f'{self.prefix}first setpoint at t = {self.sim.time_s:.3f} s: the vehicle flies '
+                             '(held until now)')
+            self.engaged_pub.publish(Bool(data=True))
 
     def _on_reference(self, msg: MultiDOFJointTrajectory):
         if msg.points and msg.points[0].transforms and self.sim.stopped is None:
@@ -275,7 +286,10 @@ class SimulatedVehicle:
         if self.sim.stopped is not None:
             return
         try:
-            self.sim.advance_steps(steps)
+            if self.held_until_setpoint and self.setpoints_received == 0:
+                self.sim.hold_steps(steps)   # realtime: time runs (the controller needs /clock), the vehicle waits
+            else:
+                self.sim.advance_steps(steps)
         except SimulationStopped as exc:
             self.report_stop(exc)
 
@@ -392,12 +406,18 @@ class SimNode(Node):
     def publish_step(self, vehicles=None):
         """Every vehicle's odom and then /clock at the current sim time (contract order); then its sensors and
         diagnostics when due (after /clock: the controller's tick does not wait for them). vehicles: only these
-        odometries (a re-publication for controllers that joined late)."""
+        odometries (a re-publication for controllers that joined late). Realtime: /clock first, as no tick waits
+        for odometry there, and an odom that arrives before its /clock is ahead of the controller's clock by a
+        tick's worth of sim time (more than one period at rtf > 1 or a late tick): refused."""
         time_ns = self.sim.time_ns
         stamp = stamp_of(time_ns)
+        clock_first = self.params['mode'] == 'realtime'
+        if clock_first:
+            self.clock_pub.publish(ClockMsg(clock=stamp))
         for v in self.vehicles if vehicles is None else vehicles:
             v.publish_odometry(time_ns)
-        self.clock_pub.publish(ClockMsg(clock=stamp))
+        if not clock_first:
+            self.clock_pub.publish(ClockMsg(clock=stamp))
         for v in self.vehicles:
             v.publish_after_clock(time_ns, stamp)
 

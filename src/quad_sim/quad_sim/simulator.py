@@ -295,6 +295,19 @@ class Simulator:
             if steps > 0:
                 self._physics_step()
                 steps -= 1
+        self._record_history()
+
+    def hold_steps(self, steps: int):
+        """Time passes by `steps` physics steps with the vehicle held as it is, no physics (a realtime simulator's
+        vehicle before its controller's first setpoint: free, it would sink and land by the failsafe before the
+        controller runs). The setpoint timeout starts afresh at the end of the hold."""
+        if self.stopped is not None:
+            raise self.stopped
+        self.time_ns += steps * self.step_ns
+        self._setpoint_time_ns = self.time_ns
+        self._record_history()
+
+    def _record_history(self):
         if self.profile.odom_latency_s > 0:
             self._history.append((self.time_ns, self.state))
             oldest_needed_ns = self.time_ns - 2 * self.profile.odom_latency_s * 1e9

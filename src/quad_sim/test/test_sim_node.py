@@ -5,7 +5,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
@@ -23,8 +22,9 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import contract, conversions, lockstep, rotations
 from quad_common.diagnostics import ERROR, level_of
+from quad_common.node_main import close_nodes
 from quad_common.sampled_trajectory import SampledTrajectory
-from quad_common.testing import isolated_domain
+from quad_common.testing import Spinner, isolated_domain
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -108,8 +108,7 @@ class Graph:
         return future.result()
 
     def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
+        close_nodes(self.executor, [self.node])
         rclpy.shutdown(context=self.ctx)
 
 
@@ -212,8 +211,7 @@ class SlowFollower:
         self.node.create_timer(0.05, self.ack.flush)
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
+        self.spinner = Spinner(self.executor, [self.node], name=name)
 
     def _on_odom(self, msg):
         time.sleep(self.busy_s)  # the work of a slow reader (it models load; nothing waits on it)
@@ -222,9 +220,7 @@ class SlowFollower:
         self.ack.taken(stamp_ns)
 
     def close(self):
-        self.executor.shutdown()
-        self.thread.join(timeout=30)
-        self.node.destroy_node()
+        self.spinner.close()
         rclpy.shutdown(context=self.ctx)
 
 

@@ -39,6 +39,19 @@ def test_hover_speed_closed_form_and_stays_put(vehicle, request):
     assert np.allclose(sim.specific_force_body_mps2, [0, 0, GRAVITY_MPS2], atol=1e-9)
 
 
+def test_a_held_vehicle_waits_where_it_starts_and_then_flies_without_a_failsafe(crazyflie):
+    """hold_steps: time passes, the vehicle stays as it started (free, it sinks once the setpoint times out and
+    lands by the failsafe); the first setpoint after the hold is flown, not a timed-out one."""
+    sim = Simulator(crazyflie, initial_position=(0.0, 0.0, 1.0), setpoint_timeout_s=0.5)
+    sim.hold_steps(sim.steps_in(3.0))
+    assert sim.time_ns == 3_000_000_000 and np.array_equal(sim.state.position, [0.0, 0.0, 1.0])
+    _fly(sim, HOVER, 1.0)
+    assert sim.events == [] and abs(sim.state.position[2] - 1.0) < 1e-6
+    free = Simulator(crazyflie, initial_position=(0.0, 0.0, 1.0), setpoint_timeout_s=0.5)
+    free.advance(3.0)
+    assert 'failsafe' in _kinds(free) and free.state.position[2] < 0.5
+
+
 def test_shipped_vehicles_have_a_damped_attitude_loop(crazyflie, px4_quad):
     assert attitude_damping(crazyflie) >= 0.15 and attitude_damping(px4_quad) >= 0.15
     assert damping_ratio(attitude_loop_poles(3000, 300, 0.072)) < 0.05  # rotorpy's lag: barely damped
