@@ -7,6 +7,7 @@ ValueError, so a bad params file stops the node with its reason.
 from collections.abc import Callable
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.parameter import Parameter
 
 from quad_common.params import Param, check_value
 
@@ -26,6 +27,25 @@ def _descriptor(spec: Param) -> ParameterDescriptor:
     return d
 
 
+def _declare(node, spec: Param):
+    """Declares spec on node; its value. An array typed by its default (Parameter.Type.DOUBLE_ARRAY, ...) and not
+    given is set to an empty array of that type: rclpy's parameter service answers no get_parameters request that
+    names an unset parameter (`ros2 param dump` prints {}), and rclpy infers an empty list's type as bytes."""
+    if not isinstance(spec.default, Parameter.Type):
+        return node.declare_parameter(spec.name, spec.default, _descriptor(spec)).value
+    writable = _descriptor(spec)
+    writable.read_only = False
+    value = node.declare_parameter(spec.name, spec.default, writable).value
+    if value is None:
+        node.set_parameters([Parameter(spec.name, spec.default, [])])
+        value = []
+    if spec.read_only:
+        final = _descriptor(spec)
+        final.type = spec.default.value
+        node.set_descriptor(spec.name, final)
+    return value
+
+
 class ParameterSet:
     """Declares `specs` on `node`; `ps[name]` is the current value.
 
@@ -42,7 +62,7 @@ class ParameterSet:
         self.values = {}
         for s in specs:
             try:
-                value = node.declare_parameter(s.name, s.default, _descriptor(s)).value
+                value = _declare(node, s)
             except Exception as exc:  # rclpy's own range check on a params-file value
                 raise ValueError(f'parameter {s.name}: {exc}') from None
             reason = check_value(s, value)
