@@ -73,3 +73,26 @@ def test_namespace_argument_refuses_what_is_no_ros_name(tmp_path):
     from launch_standin import evaluate
     with pytest.raises(ValueError, match=r"namespace 'uav-2' refused: 'uav-2' is no ROS name component"):
         evaluate(LAUNCH / 'sim.launch.py', namespace='uav-2')
+
+
+def test_every_parameter_answers_a_get_parameters_call_also_the_unset_arrays(tmp_path):
+    """`ros2 param dump /trajectory_node` and `/sim_node` printed {}: rclpy answers no get_parameters request that
+    names a declared parameter without a value (waypoints; vehicle_names, vehicle_files, initial_positions,
+    robot_radii_m). They are empty arrays of their type now, and still take a value of that type."""
+    from launched_params import launched
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    with launched(tmp_path, LAUNCH / 'sim.launch.py') as (nodes, reader, alive):
+        trajectory = reader.parameters('/trajectory_node', alive('/trajectory_node'))
+        sim = reader.parameters('/sim_node', alive('/sim_node'))
+        assert trajectory['waypoints'] == []
+        assert {k: sim[k] for k in ('vehicle_names', 'vehicle_files', 'initial_positions', 'robot_radii_m')} == \
+            dict.fromkeys(('vehicle_names', 'vehicle_files', 'initial_positions', 'robot_radii_m'), [])
+        setter = reader.node.create_client(SetParameters, '/trajectory_node/set_parameters')
+        request = SetParameters.Request(parameters=[Parameter('waypoints', Parameter.Type.DOUBLE_ARRAY,
+                                                              [0.0, 0.0, 1.0, 1.0, 0.0, 1.0]).to_parameter_msg()])
+        result = reader._call(setter, request, 'set_parameters', alive('/trajectory_node')).results[0]
+        assert result.successful, result.reason
+        assert reader.parameters('/trajectory_node', alive('/trajectory_node'))['waypoints'] == [0.0, 0.0, 1.0, 1.0,
+                                                                                                   0.0, 1.0]
