@@ -51,3 +51,21 @@ def resolve_config(path) -> Path:
         if place.exists():
             return place
     raise FileNotFoundError(f'{path}: no such file (looked in {", ".join(map(str, places))})')
+
+
+def parameter_file(name: str, value) -> str:
+    """A node's file parameter `name` = value found by resolve_config (its absolute path); a ValueError naming the
+    parameter, the value and every place looked in when none has it."""
+    try:
+        return str(resolve_config(value))
+    except FileNotFoundError as exc:
+        raise ValueError(f'{name} = {os.fspath(value)!r}: {exc}') from None
+
+
+def input_path(value) -> Path:
+    """The argparse type of a command's input file (a mission, a vehicle, a profile, a spec): the file
+    resolve_config finds, else the path as given, which the command then refuses naming it."""
+    try:
+        return resolve_config(value)
+    except FileNotFoundError:
+        return Path(os.fspath(value))

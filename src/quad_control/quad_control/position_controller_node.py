@@ -26,7 +26,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
-from quad_common.paths import resolve_config
+from quad_common.paths import parameter_file
 from quad_common.realtime import apply_or_report, thread_ids
 from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
@@ -101,7 +101,7 @@ class PositionControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         self.params = ParameterSet(self, SPECS, on_change=self._on_change)
-        self.vehicle = load_vehicle(resolve_config(self.params['vehicle']))
+        self.vehicle = load_vehicle(parameter_file('vehicle', self.params['vehicle']))
         self.controller = PositionController(self.params['controller'], gains_from(self.params.values), self.vehicle,
                                              Limits.of(self.vehicle, self.params['max_tilt_deg']))
         self.loop = ControlLoop(self.controller, self.params['rate_hz'], lockstep=self.params['lockstep'],

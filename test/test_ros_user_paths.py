@@ -1,0 +1,106 @@
+"""What a ROS 2 user runs, from a directory that is not the checkout: `ros2 run` (the installed console scripts) with
+the file arguments docs and launch files use (`missions/maze.yaml`, `vehicles/px4_quad.yaml`: found by the one
+lookup rule of quad_common.paths), and the emulated vehicle's MAVLink system id set by the autopilot's own
+parameter (PX4 MAV_SYS_ID, ArduPilot SYSID_THISMAV), as a fleet file's bridges expect."""
+
+import os
+import subprocess
+
+import pytest
+from ament_index_python.packages import get_package_prefix
+from bridge_graph import WAIT_S, free_udp_port, terminate
+from launched_params import ParameterReader
+
+from quad_common.testing import isolated_domain
+
+os.environ['MAVLINK20'] = '1'
+from pymavlink import mavutil  # noqa: E402
+
+
+def ros2_run(package: str, executable: str, *args) -> list[str]:
+    """The argv `ros2 run PACKAGE EXECUTABLE ARGS` runs."""
+    return [os.path.join(get_package_prefix(package), 'lib', package, executable), *args]
+
+
+@pytest.mark.parametrize('autopilot, param, system_id', [('px4', 'MAV_SYS_ID', 2), ('ardupilot', 'SYSID_THISMAV', 3)])
+def test_emulated_vehicle_takes_its_system_id_from_the_autopilot_parameter(tmp_path, autopilot, param, system_id):
+    """`ros2 run quad_vehicle_emu mavlink_vehicle ...` as docs/bridge.md writes it, outside the checkout (its default
+    --vehicle is found in the installed config) with `--param MAV_SYS_ID=2`: its heartbeat comes from system 2,
+    its PARAM_VALUE says 2, and it obeys only what targets system 2 (or 0)."""
+    port = free_udp_port()
+    gcs = mavutil.mavlink_connection(f'udpin:127.0.0.1:{port}', source_system=255, source_component=190)
+    log = tmp_path / 'vehicle.log'
+    with open(log, 'w') as out:
+        proc = subprocess.Popen(ros2_run('quad_vehicle_emu', 'mavlink_vehicle', '--autopilot', autopilot, '--url',
+                                         f'udpout:127.0.0.1:{port}', '--param', f'{param}={system_id}'),
+                                cwd=tmp_path, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        heartbeat = None
+        while heartbeat is None:
+            assert proc.poll() is None, log.read_text()
+            heartbeat = gcs.recv_match(type='HEARTBEAT', blocking=True, timeout=1.0)
+        assert heartbeat.get_srcSystem() == system_id, log.read_text()
+        gcs.mav.param_request_read_send(system_id, 1, param.encode(), -1)
+        value = None
+        while value is None or value.param_id != param:
+            assert proc.poll() is None, log.read_text()
+            value = gcs.recv_match(type='PARAM_VALUE', blocking=True, timeout=WAIT_S)
+            assert value is not None, f'no PARAM_VALUE of {param}'
+            assert value.get_srcSystem() == system_id
+    finally:
+        terminate(proc)
+        gcs.close()
+
+
+def test_emulated_vehicle_refuses_a_system_id_option_that_disagrees_with_the_parameter(tmp_path):
+    out = subprocess.run(ros2_run('quad_vehicle_emu', 'mavlink_vehicle', '--param', 'MAV_SYS_ID=2', '--system-id',
+                                  '3', '--url', f'udpout:127.0.0.1:{free_udp_port()}'),
+                         cwd=tmp_path, capture_output=True, text=True, timeout=WAIT_S)
+    assert out.returncode == 2 and out.stderr.strip().splitlines() == [
+        'mavlink_vehicle: --param MAV_SYS_ID=2.0 and its option (3) disagree: give one']
+
+
+@pytest.mark.parametrize('node', ['trajectory_node', 'position_controller'])
+def test_nodes_find_launch_style_file_arguments_from_any_directory(tmp_path, node):
+    """-p mission_file:=missions/maze.yaml, vehicle_file / vehicle:=vehicles/px4_quad.yaml (what the launch
+    arguments take) from a directory without config/: the nodes start (they answer their parameter services only
+    once their start-up is done) with the files' absolute paths found in the config directory."""
+    package, args = {'trajectory_node': ('quad_trajectory', ['-p', 'mission_file:=missions/maze.yaml', '-p',
+                                                             'vehicle_file:=vehicles/px4_quad.yaml']),
+                     'position_controller': ('quad_control', ['-p', 'vehicle:=vehicles/px4_quad.yaml'])}[node]
+    log = tmp_path / f'{node}.log'
+    with isolated_domain() as (domain, env):
+        reader = ParameterReader(domain)
+        with open(log, 'w') as out:
+            proc = subprocess.Popen(ros2_run(package, node, '--ros-args', *args), env=env, cwd=tmp_path, stdout=out,
+                                    stderr=subprocess.STDOUT)
+
+        def alive():
+            assert proc.poll() is None, log.read_text()
+        try:
+            params = reader.parameters(f'/{node}', alive)
+        finally:
+            terminate(proc)
+            reader.close()
+    assert (params.get('mission_file') or params.get('vehicle')) in ('missions/maze.yaml', 'vehicles/px4_quad.yaml')
+    assert 'refused' not in log.read_text()
+
+
+def test_a_missing_file_is_refused_naming_the_parameter_and_where_it_looked(tmp_path):
+    with isolated_domain() as (_, env):
+        out = subprocess.run(ros2_run('quad_trajectory', 'trajectory_node', '--ros-args', '-p',
+                                      'mission_file:=missions/nowhere.yaml'),
+                             env=env, cwd=tmp_path, capture_output=True, text=True, timeout=WAIT_S)
+    assert out.returncode == 2
+    text = out.stdout + out.stderr
+    assert f"mission_file = 'missions/nowhere.yaml': missions/nowhere.yaml: no such file (looked in {tmp_path}/" \
+           f'missions/nowhere.yaml, ' in text
+    assert 'share/quad_bringup/config/missions/nowhere.yaml' in text and 'Traceback' not in text
+
+
+def test_quadflight_plan_from_another_directory(tmp_path):
+    """`ros2 run quad_bringup quadflight plan missions/maze.yaml`, as docs/missions.md names missions."""
+    out = subprocess.run(ros2_run('quad_bringup', 'quadflight', 'plan', 'missions/maze.yaml', '--out', 'maze.json'),
+                         cwd=tmp_path, capture_output=True, text=True, timeout=WAIT_S, env=dict(os.environ))
+    assert out.returncode == 0, out.stderr
+    assert (tmp_path / 'maze.json').is_file()
