@@ -4,17 +4,23 @@ lookup rule of quad_common.paths), and the emulated vehicle's MAVLink system id 
 parameter (PX4 MAV_SYS_ID, ArduPilot SYSID_THISMAV), as a fleet file's bridges expect."""
 
 import os
+import shlex
 import subprocess
+from pathlib import Path
 
 import pytest
 from ament_index_python.packages import get_package_prefix
 from bridge_graph import WAIT_S, free_udp_port, terminate
+from launch_standin import evaluate
 from launched_params import ParameterReader
 
 from quad_common.testing import isolated_domain
 
 os.environ['MAVLINK20'] = '1'
 from pymavlink import mavutil  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'
 
 
 def ros2_run(package: str, executable: str, *args) -> list[str]:
@@ -104,3 +110,91 @@ def test_quadflight_plan_from_another_directory(tmp_path):
                          cwd=tmp_path, capture_output=True, text=True, timeout=WAIT_S, env=dict(os.environ))
     assert out.returncode == 0, out.stderr
     assert (tmp_path / 'maze.json').is_file()
+
+
+def _walk_through(doc: str, marker: str) -> list[str]:
+    """The command lines of the code block after `marker` in docs/<doc>."""
+    text = (ROOT / 'docs' / doc).read_text()
+    block = text[text.index(marker):].split('```')[1]
+    return [line.rstrip(' &') for line in block.strip().splitlines()]
+
+
+def _copy_output(proc, log_path, words):
+    """A thread copying proc's output lines to log_path; the event set at the first line holding `words` (and at
+    the end of the output, so that a waiter never hangs on a dead process)."""
+    import threading
+    seen = threading.Event()
+
+    def copy():
+        with open(log_path, 'w') as log:
+            for line in proc.stdout:
+                log.write(line)
+                log.flush()
+                if words in line:
+                    seen.set()
+        seen.set()
+    threading.Thread(target=copy, daemon=True).start()
+    return seen
+
+
+def test_docs_fleet_walk_through_each_bridge_finds_its_vehicle(tmp_path):
+    """docs/bridge.md's fleet walk-through, line by line (ros2 run: the installed console script; ros2 launch: the
+    launch file's nodes as launch_ros starts them), from a directory outside the checkout: each namespace's
+    bridge hears its own vehicle (target_system = the fleet file's system_id = the emulator's MAV_SYS_ID /
+    SYSID_THISMAV) and publishes its odometry, at that emulator's start position."""
+    import time
+
+    import rclpy
+    from nav_msgs.msg import Odometry
+
+    from quad_common import contract
+
+    lines = _walk_through('bridge.md', '<!-- fleet walk-through')
+    runs = [shlex.split(line) for line in lines if line.startswith('ros2 run ')]
+    launches = [shlex.split(line) for line in lines if line.startswith('ros2 launch ')]
+    assert len(runs) == 3 and launches == [['ros2', 'launch', 'quad_bringup', 'fleet.launch.py']]
+    starts = {}
+    for argv in runs:
+        position = [float(v) for v in argv[argv.index('--initial-position') + 1].split(',')]
+        starts[{'px4': None, 'ardupilot': 'apm_3'}[argv[argv.index('--autopilot') + 1]] or
+               ('px4_1' if '14540' in argv[argv.index('--url') + 1] else 'px4_2')] = position
+    nodes = evaluate(LAUNCH / launches[0][3])
+    procs = []
+    with isolated_domain() as (domain, env):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        observer = rclpy.create_node('walk_through_observer', context=ctx)
+        odom = {}
+        for name in starts:
+            observer.create_subscription(Odometry, f'/{name}/odom', lambda msg, name=name: odom.__setitem__(name, msg),
+                                         contract.qos(contract.ODOM))
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(observer)
+        try:
+            listening = []
+            for i, argv in enumerate(runs):
+                procs.append(subprocess.Popen(ros2_run(*argv[2:4], *argv[4:]), cwd=tmp_path, env=env, text=True,
+                                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT))
+                listening.append(_copy_output(procs[-1], tmp_path / f'vehicle_{i}.log', ' system '))
+            for i, event in enumerate(listening):   # as the walk-through says: launch once each emulator listens
+                assert event.wait(WAIT_S), (tmp_path / f'vehicle_{i}.log').read_text()
+            for node in nodes:
+                argv = node.command(tmp_path, Path(get_package_prefix(node.package)))
+                with open(tmp_path / f'{node.namespace.strip("/")}_{node.name}.log', 'w') as log:
+                    procs.append(subprocess.Popen(argv, cwd=tmp_path, env=env, stdout=log, stderr=subprocess.STDOUT))
+            deadline = time.monotonic() + WAIT_S
+            while odom.keys() != starts.keys():
+                assert time.monotonic() < deadline, (f'odometry from {sorted(odom)} only; bridge logs:\n' + '\n'.join(
+                    (tmp_path / f'{n}_mavlink_bridge.log').read_text()[-1500:] for n in starts if n not in odom))
+                for proc in procs:
+                    assert proc.poll() is None, f'{proc.args} exited with {proc.returncode}'
+                executor.spin_once(timeout_sec=0.1)
+        finally:
+            for proc in procs:
+                terminate(proc)
+            executor.shutdown()
+            observer.destroy_node()
+            rclpy.shutdown(context=ctx)
+    for name, start in starts.items():
+        p = odom[name].pose.pose.position
+        assert abs(p.x - start[0]) < 0.1 and abs(p.y - start[1]) < 0.1 and abs(p.z - start[2]) < 0.3, (name, p)
