@@ -335,7 +335,7 @@ def test_bridge_launch_graph_does_not_dash_when_offboard_comes_late(tmp_path, au
 
 
 def test_launch_refuses_an_unknown_controller_before_any_node_starts():
-    with pytest.raises(ValueError, match="controller 'foo' refused: must be one of pd, pid, se3"):
+    with pytest.raises(ValueError, match="controller = 'foo' refused: must be one of pd, pid, se3"):
         evaluate(LAUNCH / 'sim.launch.py', controller='foo')
 
 
