@@ -198,3 +198,20 @@ def test_docs_fleet_walk_through_each_bridge_finds_its_vehicle(tmp_path):
     for name, start in starts.items():
         p = odom[name].pose.pose.position
         assert abs(p.x - start[0]) < 0.1 and abs(p.y - start[1]) < 0.1 and abs(p.z - start[2]) < 0.3, (name, p)
+
+
+@pytest.mark.parametrize('package, node, config', [('quad_control', 'position_controller', 'control_real.yaml'),
+                                                   ('quad_bridge', 'mavlink_bridge', 'bridge_px4.yaml')])
+def test_a_node_run_in_a_namespace_refuses_a_params_file_section_rcl_would_skip(tmp_path, package, node, config):
+    """`ros2 run PKG NODE --ros-args -r __ns:=/uav2 --params-file .../config/FILE`: rcl gives the file's plain
+    `NODE:` section to /NODE only, so the node ran on its defaults (a pd controller with the seed's gains; a bridge
+    without its geofence). It refuses to start now, naming the file and the keys that would reach it."""
+    from quad_common.paths import resolve_config
+    with isolated_domain() as (_, env):
+        out = subprocess.run(ros2_run(package, node, '--ros-args', '-r', '__ns:=/uav2', '--params-file',
+                                      str(resolve_config(config))),
+                             env=env, cwd=tmp_path, capture_output=True, text=True, timeout=WAIT_S)
+    text = out.stdout + out.stderr
+    assert out.returncode == 2, text
+    assert f'its `{node}:` section reaches /{node} only, not /uav2/{node} (rcl): key it `/**/{node}:`' in text
+    assert 'Traceback' not in text

@@ -46,6 +46,34 @@ def _declare(node, spec: Param):
     return value
 
 
+def params_files(argv) -> list[str]:
+    """The `--params-file` paths of a command line's ROS arguments."""
+    return [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == '--params-file']
+
+
+def check_sections_reach(node, argv=None):
+    """Raises ValueError when a params file of the command line has a plain `NAME:` section for this node while
+    it runs in a namespace: rcl gives such a section to /NAME only, so the node would run on its built-in defaults
+    without a word (e.g. `ros2 run ... -r __ns:=/uav2 --params-file control_real.yaml`)."""
+    import sys
+
+    from quad_common.yaml_io import load_yaml
+
+    namespace, name = node.get_namespace(), node.get_name()
+    if namespace == '/':
+        return
+    fqn = f'{namespace}/{name}'
+    for path in params_files(sys.argv if argv is None else argv):
+        try:
+            content = load_yaml(path) or {}
+        except (OSError, ValueError):
+            continue   # rcl itself refuses a file it cannot read
+        if isinstance(content, dict) and name in content:
+            raise ValueError(f'--params-file {path}: its `{name}:` section reaches /{name} only, not {fqn} (rcl): '
+                             f'key it `/**/{name}:` or `{fqn}:`, or start the node through a launch file (it hands '
+                             'a namespaced node its files merged)')
+
+
 class ParameterSet:
     """Declares `specs` on `node`; `ps[name]` is the current value.
 
@@ -60,6 +88,7 @@ class ParameterSet:
         self._validate = validate
         self._on_change = on_change
         self.values = {}
+        check_sections_reach(node)
         for s in specs:
             try:
                 value = _declare(node, s)
