@@ -342,10 +342,14 @@ def test_launch_refuses_an_unknown_controller_before_any_node_starts():
 @pytest.mark.parametrize('kind', sorted(graph.LAUNCH_FILES))
 def test_every_launched_node_ends_the_launch_when_it_exits(kind):
     """on_exit=Shutdown(): a node that refuses its parameters or its plan (exit 2) ends `ros2 launch` instead of
-    leaving the rest of the graph running without it."""
+    leaving the rest of the graph running without it; but in a fleet of real vehicles one vehicle's node exit
+    leaves the others flying (its bridge lands its vehicle alone: test_bridge_fleet)."""
     from launch_standin import Shutdown
     nodes = evaluate(LAUNCH / f'{kind}.launch.py')
-    assert all(isinstance(n.on_exit, Shutdown) for n in nodes), [(n.name, n.on_exit) for n in nodes]
+    if kind in graph.FAILSAFE_PER_VEHICLE:
+        assert all(n.on_exit is None for n in nodes), [(n.name, n.on_exit) for n in nodes]
+    else:
+        assert all(isinstance(n.on_exit, Shutdown) for n in nodes), [(n.name, n.on_exit) for n in nodes]
 
 
 def test_a_refused_plan_ends_its_node_with_exit_2(tmp_path, ros_env):

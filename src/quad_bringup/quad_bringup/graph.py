@@ -346,6 +346,8 @@ FLEET_SIM_LAUNCH_ARGUMENTS = (
 )
 NAMESPACE_ARGUMENT = ('namespace', '', 'every node under this namespace (relative: under an including file\'s '
                                        'PushRosNamespace); the parameter files apply there as at the root')
+# launch files whose nodes do not end the launch when they exit: each vehicle's bridge lands its vehicle alone
+FAILSAFE_PER_VEHICLE = ('fleet',)
 LAUNCH_FILES = {'sim': SIM_LAUNCH_ARGUMENTS, 'px4': BRIDGE_LAUNCH_ARGUMENTS, 'ardupilot': BRIDGE_LAUNCH_ARGUMENTS,
                 'fleet': FLEET_LAUNCH_ARGUMENTS, 'fleet_sim': FLEET_SIM_LAUNCH_ARGUMENTS}
 
