@@ -6,10 +6,18 @@ their semantics as launch 3.x and launch_ros 0.26 (ROS 2 Jazzy) define them:
   unless the command line (`name:=value`) already set it; no default and no value is an error.
 - LaunchConfiguration(name).perform(context): the configuration's value (an undeclared one is an error).
 - OpaqueFunction(function): function(context) returns more entities, visited in turn.
+- GroupAction(actions, scoped=True): the actions, with the launch configurations (and the pushed ROS namespace)
+  they set undone after them when scoped.
+- IncludeLaunchDescription(PythonLaunchDescriptionSource(path), launch_arguments=[(name, value)]): sets each
+  argument as a launch configuration, then visits the file's generate_launch_description().
+- launch_ros PushRosNamespace(namespace): the launch configuration `ros_namespace` becomes namespace if absolute,
+  else the previous ros_namespace joined with it (launch_ros.actions.PushRosNamespace).
 - launch_ros Node(package, executable, name, namespace, parameters, ...): runs `<prefix of package>/lib/<package>/
   <executable> --ros-args -r __node:=<name> [-r __ns:=/<namespace>] --params-file F ...`, one --params-file per
   parameters entry in order: a string is a file path, a dict is written to a temporary file as
-  {'/**': {'ros__parameters': dict}}; a relative namespace is made absolute (a leading '/').
+  {'/**': {'ros__parameters': dict}}; a relative namespace (or none) is prefixed with the pushed `ros_namespace`
+  and made absolute (a leading '/'). on_exit is recorded (LaunchedNode.on_exit), not modelled.
+- launch.actions.Shutdown(reason=...): recorded as an on_exit action.
 
 evaluate(launch_file, **arguments) -> [LaunchedNode]; LaunchedNode.command(tmp_dir) -> argv.
 """
@@ -30,11 +38,76 @@ class LaunchError(RuntimeError):
 class Context:
     def __init__(self, arguments: dict):
         self.launch_configurations = dict(arguments)
+        self.stack = []
 
 
 class LaunchDescription:
     def __init__(self, initial_entities=None):
         self.entities = list(initial_entities or [])
+
+    def visit(self, context):
+        return list(self.entities)
+
+
+class _PushLaunchConfigurations:
+    def visit(self, context):
+        context.stack.append(dict(context.launch_configurations))
+        return []
+
+
+class _PopLaunchConfigurations:
+    def visit(self, context):
+        context.launch_configurations = context.stack.pop()
+        return []
+
+
+class GroupAction:
+    def __init__(self, actions, *, scoped=True, forwarding=True, launch_configurations=None, **_):
+        if launch_configurations or not forwarding:
+            raise LaunchError('the stand-in models GroupAction(actions, scoped=...) only')
+        self.actions, self.scoped = list(actions), scoped
+
+    def visit(self, context):
+        if not self.scoped:
+            return list(self.actions)
+        return [_PushLaunchConfigurations(), *self.actions, _PopLaunchConfigurations()]
+
+
+class PythonLaunchDescriptionSource:
+    def __init__(self, launch_file_path):
+        if not isinstance(launch_file_path, (str, Path)):
+            raise LaunchError('the stand-in models a plain path')
+        self.path = Path(launch_file_path)
+
+
+class IncludeLaunchDescription:
+    def __init__(self, launch_description_source, *, launch_arguments=None):
+        self.source, self.arguments = launch_description_source, list(launch_arguments or [])
+
+    def visit(self, context):
+        for name, value in self.arguments:
+            context.launch_configurations[str(name)] = str(value)
+        return [_load(self.source.path)]
+
+
+class PushRosNamespace:
+    def __init__(self, namespace):
+        if not isinstance(namespace, str):
+            raise LaunchError('the stand-in models a plain string namespace')
+        self.namespace = namespace
+
+    def visit(self, context):
+        pushed = self.namespace.strip()
+        previous = context.launch_configurations.get('ros_namespace')
+        if not pushed.startswith('/') and previous:
+            pushed = previous.rstrip('/') + '/' + pushed
+        context.launch_configurations['ros_namespace'] = '/' + pushed.strip('/') if pushed.strip('/') else '/'
+        return []
+
+
+class Shutdown:
+    def __init__(self, *, reason='reason not given'):
+        self.reason = reason
 
 
 class DeclareLaunchArgument:
@@ -79,6 +152,7 @@ class LaunchedNode:
     name: str
     parameters: list
     namespace: str = ''    # '' or absolute (/cf1)
+    on_exit: object = None
 
     def command(self, tmp_dir: Path, prefix: Path) -> list[str]:
         """The argv launch_ros runs (prefix: the package's install prefix, as ament_index gives it)."""
@@ -98,15 +172,21 @@ class LaunchedNode:
 
 class Node:
     def __init__(self, *, package, executable, name=None, namespace=None, parameters=None, remappings=None,
-                 arguments=None, output='log', **_):
+                 arguments=None, output='log', on_exit=None, **_):
         if remappings or arguments:
             raise LaunchError('the stand-in does not model remappings or arguments')
         if namespace and not isinstance(namespace, str):
             raise LaunchError(f'namespace {namespace!r}: the stand-in models a plain string')
-        namespace = ('/' + namespace.lstrip('/')).rstrip('/') if namespace else ''
-        self.launched = LaunchedNode(package, executable, name, list(parameters or []), namespace)
+        self.namespace = namespace
+        self.launched = LaunchedNode(package, executable, name, list(parameters or []), '', on_exit)
 
     def visit(self, context):
+        namespace = self.namespace or ''
+        base = context.launch_configurations.get('ros_namespace') or ''
+        if not namespace.startswith('/'):
+            namespace = base.rstrip('/') + '/' + namespace
+        namespace = namespace.strip('/')
+        self.launched.namespace = '/' + namespace if namespace else ''
         return []
 
 
@@ -115,15 +195,26 @@ def _modules():
     launch.LaunchDescription = LaunchDescription
     actions = types.ModuleType('launch.actions')
     actions.DeclareLaunchArgument, actions.OpaqueFunction = DeclareLaunchArgument, OpaqueFunction
+    actions.GroupAction, actions.IncludeLaunchDescription, actions.Shutdown = (GroupAction, IncludeLaunchDescription,
+                                                                               Shutdown)
     substitutions = types.ModuleType('launch.substitutions')
     substitutions.LaunchConfiguration = LaunchConfiguration
-    launch.actions, launch.substitutions = actions, substitutions
+    sources = types.ModuleType('launch.launch_description_sources')
+    sources.PythonLaunchDescriptionSource = PythonLaunchDescriptionSource
+    launch.actions, launch.substitutions, launch.launch_description_sources = actions, substitutions, sources
     launch_ros = types.ModuleType('launch_ros')
     ros_actions = types.ModuleType('launch_ros.actions')
-    ros_actions.Node = Node
+    ros_actions.Node, ros_actions.PushRosNamespace = Node, PushRosNamespace
     launch_ros.actions = ros_actions
     return {'launch': launch, 'launch.actions': actions, 'launch.substitutions': substitutions,
-            'launch_ros': launch_ros, 'launch_ros.actions': ros_actions}
+            'launch.launch_description_sources': sources, 'launch_ros': launch_ros, 'launch_ros.actions': ros_actions}
+
+
+def _load(launch_file: Path) -> LaunchDescription:
+    spec = importlib.util.spec_from_file_location(f'launch_file_{Path(launch_file).stem}', launch_file)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.generate_launch_description()
 
 
 def evaluate(launch_file: Path, **arguments) -> list[LaunchedNode]:
@@ -132,17 +223,13 @@ def evaluate(launch_file: Path, **arguments) -> list[LaunchedNode]:
     sys.modules.update(_modules())
     sys.modules.pop('quad_bringup.launch_graph', None)   # imported afresh against the stand-in
     try:
-        spec = importlib.util.spec_from_file_location(f'launch_file_{Path(launch_file).stem}', launch_file)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        description = module.generate_launch_description()
         context, nodes = Context({k: str(v) for k, v in arguments.items()}), []
-        pending = list(description.entities)
+        pending = [_load(launch_file)]
         while pending:
             entity = pending.pop(0)
+            pending[:0] = entity.visit(context)
             if isinstance(entity, Node):
                 nodes.append(entity.launched)
-            pending[:0] = entity.visit(context)
         return nodes
     finally:
         for name, module in saved.items():

@@ -368,3 +368,32 @@ def test_bridge_launch_graph_does_not_dash_when_offboard_comes_late(tmp_path, au
                           WAIT_S + traj_s)
         assert np.linalg.norm(np.array(observer.position()) - waypoints[-1]) < 0.15
         assert math.isfinite(peak)
+
+
+def test_launch_refuses_an_unknown_controller_before_any_node_starts():
+    with pytest.raises(ValueError, match="controller = 'foo' refused: must be one of pd, pid, se3"):
+        evaluate(LAUNCH / 'sim.launch.py', controller='foo')
+
+
+@pytest.mark.parametrize('kind', sorted(graph.LAUNCH_FILES))
+def test_every_launched_node_ends_the_launch_when_it_exits(kind):
+    """on_exit=Shutdown(): a node that refuses its parameters or its plan (exit 2) ends `ros2 launch` instead of
+    leaving the rest of the graph running without it; but in a fleet of real vehicles one vehicle's node exit
+    leaves the others flying (its bridge lands its vehicle alone: test_bridge_fleet)."""
+    from launch_standin import Shutdown
+    nodes = evaluate(LAUNCH / f'{kind}.launch.py')
+    if kind in graph.FAILSAFE_PER_VEHICLE:
+        assert all(n.on_exit is None for n in nodes), [(n.name, n.on_exit) for n in nodes]
+    else:
+        assert all(isinstance(n.on_exit, Shutdown) for n in nodes), [(n.name, n.on_exit) for n in nodes]
+
+
+def test_a_refused_plan_ends_its_node_with_exit_2(tmp_path, ros_env):
+    """What on_exit acts on: trajectory_node started as sim.launch.py starts it, with a plan it refuses."""
+    mission = tmp_path / 'refused.yaml'
+    mission.write_text('name: refused\nwaypoints: [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]\n')
+    node = next(n for n in evaluate(LAUNCH / 'sim.launch.py', mission=str(mission)) if n.name == 'trajectory_node')
+    out = subprocess.run(node.command(tmp_path, Path(get_package_prefix(node.package))), env=ros_env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert 'needs at least two distinct waypoints' in out.stdout + out.stderr

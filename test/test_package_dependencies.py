@@ -14,7 +14,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = sorted(p.name for p in (ROOT / 'src').iterdir() if (p / 'package.xml').is_file())
-# Python top-level module -> rosdep key (ros/rosdistro rosdep/python.yaml; each resolves on Ubuntu noble)
+# Python top-level module -> rosdep key (ros/rosdistro rosdep/python.yaml; each resolves on Ubuntu noble and on
+# Debian bookworm, Jazzy's Tier 3 platform: python3-ruamel.yaml, say, has Debian entries up to buster only)
 SYSTEM_KEYS = {
     'numpy': 'python3-numpy',
     'scipy': 'python3-scipy',
@@ -24,7 +25,6 @@ SYSTEM_KEYS = {
     'rosbags': 'python3-rosbags-pip',
     'numba': 'python3-numba',
     'mpl_toolkits': 'python3-matplotlib',
-    'ruamel': 'python3-ruamel.yaml',
     'pytest': 'python3-pytest',
 }
 # imported only for an optional feature, with no rosdep key (the import's ImportError names what to install)
@@ -108,3 +108,14 @@ def test_no_import_cycle_between_modules():
 
     for module in sorted(arrows):
         visit(module)
+
+
+@pytest.mark.parametrize('package', PACKAGES)
+def test_optional_imports_without_a_key_are_named_in_package_xml(package):
+    """An import with no rosdep key (OPTIONAL_WITHOUT_KEY) is named in a comment of its package.xml, with how to
+    install it, so that a packager sees it."""
+    pkg = ROOT / 'src' / package
+    used = imports([*pkg.glob(f'{package}/**/*.py')]) & set(OPTIONAL_WITHOUT_KEY)
+    text = (pkg / 'package.xml').read_text()
+    for module in used:
+        assert f'optional, no rosdep key: {module}' in text, f'{package}/package.xml does not name {module}'

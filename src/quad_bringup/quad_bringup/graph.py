@@ -8,6 +8,7 @@ up with, `ros_arguments` the command line launch_ros gives its console script.
 """
 
 import dataclasses
+import re
 from pathlib import Path
 
 import yaml
@@ -87,7 +88,7 @@ class NodeSpec:
         files' `NAME:` sections there (test_launch_graph checks this against rcl)."""
         if not self.namespace:
             return list(self.parameters)
-        return [absolute_config_paths(self.merged_parameters())]
+        return [self.merged_parameters()]
 
     def ros_arguments(self, out_dir: Path) -> list[str]:
         """`--ros-args -r __node:=NAME [-r __ns:=/NS] --params-file ...` as launch_ros gives them (dicts written
@@ -103,6 +104,22 @@ class NodeSpec:
                 entry = str(path)
             args += ['--params-file', str(entry)]
         return args
+
+
+NAMESPACE_COMPONENT = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')
+
+
+def join_namespace(base: str, namespace: str) -> str:
+    """namespace under base as rcl resolves it ('' = the root; no leading '/'): an absolute namespace stands on its
+    own. Raises ValueError naming a namespace that is no ROS name."""
+    if namespace.startswith('/'):
+        base = ''
+    parts = [p for p in f'{base}/{namespace}'.split('/') if p]
+    for part in parts:
+        if not NAMESPACE_COMPONENT.fullmatch(part):
+            raise ValueError(f'namespace {namespace!r} refused: {part!r} is no ROS name component (a letter or _, then '
+                             'letters, digits, _)')
+    return '/'.join(parts)
 
 
 def absolute_config_paths(params: dict) -> dict:
@@ -128,7 +145,14 @@ def profile_controller(control_profile) -> str | None:
 
 def controller_and_profile(controller: str | None, control_profile) -> tuple[str, str | None]:
     """--controller if given, else the profile's `controller`, else pd; a controller named without a profile
-    flies its default profile (se3: the robust control_se3.yaml; pd and pid: the seed's gains)."""
+    flies its default profile (se3: the robust control_se3.yaml; pd and pid: the seed's gains). An unknown
+    controller is refused here, before any node starts."""
+    from quad_common.params import check_value
+    from quad_control.parameters import SPECS
+
+    reason = controller and check_value(next(s for s in SPECS if s.name == 'controller'), controller)
+    if reason:   # the node's own rule for its `controller` parameter
+        raise ValueError(reason)
     if control_profile:
         return controller or profile_controller(control_profile) or 'pd', str(control_profile)
     controller = controller or 'pd'
@@ -324,6 +348,10 @@ FLEET_LAUNCH_ARGUMENTS = (
 FLEET_SIM_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/fleets/formation4.yaml', 'fleet YAML: a path, or one under config/'),
 )
+NAMESPACE_ARGUMENT = ('namespace', '', 'every node under this namespace (relative: under an including file\'s '
+                                       'PushRosNamespace); the parameter files apply there as at the root')
+# launch files whose nodes do not end the launch when they exit: each vehicle's bridge lands its vehicle alone
+FAILSAFE_PER_VEHICLE = ('fleet',)
 LAUNCH_FILES = {'sim': SIM_LAUNCH_ARGUMENTS, 'px4': BRIDGE_LAUNCH_ARGUMENTS, 'ardupilot': BRIDGE_LAUNCH_ARGUMENTS,
                 'fleet': FLEET_LAUNCH_ARGUMENTS, 'fleet_sim': FLEET_SIM_LAUNCH_ARGUMENTS}
 

@@ -231,8 +231,8 @@ def repaired_copy(bag_dir) -> Repair:
 
 
 def _write_metadata(bag_dir: Path, mcap: Path):
+    import yaml
     from rosbags.rosbag2.metadata import dump_qos_v9
-    from ruamel.yaml import YAML
 
     storage = McapReader(mcap)
     storage.open()
@@ -260,10 +260,8 @@ def _write_metadata(bag_dir: Path, mcap: Path):
         'custom_data': {'repaired': 'recorder did not close the bag; recovered up to its last flushed chunk'},
         'ros_distro': 'rosbags',
     }
-    yaml = YAML(typ='safe')
-    yaml.default_flow_style = False
     with (bag_dir / 'metadata.yaml').open('w') as f:
-        yaml.dump({'rosbag2_bagfile_information': info}, f)
+        yaml.safe_dump({'rosbag2_bagfile_information': info}, f, default_flow_style=False, sort_keys=False)
 
 
 def open_bag_reader(bag_dir) -> tuple[Reader, Repair | None]:

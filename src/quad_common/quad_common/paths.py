@@ -1,6 +1,7 @@
-"""Where config files named in parameters are found: the path as given, else in the installed share directory
-(share/quad_bringup/config, installed by quad_bringup's setup.py, found through the ament index), else in the
-source tree of a checkout."""
+"""Where a file named by a parameter or a command's argument is found, one rule for every node and command: the
+path as given (absolute, or relative to the working directory), else in each config directory (the installed
+share/quad_bringup/config, found through the ament index, then the checkout's config/), with or without a leading
+`config/` (`vehicles/px4_quad.yaml` and `config/vehicles/px4_quad.yaml` name the same file)."""
 
 import os
 from pathlib import Path
@@ -22,26 +23,49 @@ def share_dir() -> Path | None:
 
 
 def config_roots() -> list[Path]:
-    """Where a relative config path (e.g. config/vehicles/crazyflie.yaml) is looked for, in order."""
-    roots = [d for d in (share_dir(),) if d is not None]
+    """The directories holding config/, in the order they are looked in."""
+    roots = [d for d in (share_dir(),) if d is not None and (d / 'config').is_dir()]
     if (REPO_ROOT / 'config').is_dir():
         roots.append(REPO_ROOT)
     return roots
 
 
+def candidates(path) -> list[Path]:
+    """Where `path` is looked for, in order."""
+    p = Path(os.fspath(path)).expanduser()
+    if p.is_absolute():
+        return [p]
+    inside = Path(*p.parts[1:]) if p.parts[0] == 'config' and len(p.parts) > 1 else p
+    return [Path.cwd() / p, *(root / 'config' / inside for root in config_roots())]
+
+
 def resolve_config(path) -> Path:
-    """An absolute path or one relative to the working directory if it exists, else under config_roots().
+    """The absolute path of the first of candidates(path) that exists.
 
     Raises FileNotFoundError naming the path and every place looked in when none has it.
     """
-    p = Path(os.fspath(path)).expanduser()
-    if p.is_absolute() or p.exists():
-        if not p.exists():
-            raise FileNotFoundError(f'{path}: no such file')
-        return p
-    roots = config_roots()
-    for root in roots:
-        if (root / p).exists():
-            return root / p
-    places = ', '.join(str(d) for d in [Path.cwd(), *roots])
-    raise FileNotFoundError(f'{path}: no such file (looked in {places})')
+    if not os.fspath(path):
+        raise FileNotFoundError("'': no file named")
+    places = candidates(path)
+    for place in places:
+        if place.exists():
+            return place
+    raise FileNotFoundError(f'{path}: no such file (looked in {", ".join(map(str, places))})')
+
+
+def parameter_file(name: str, value) -> str:
+    """A node's file parameter `name` = value found by resolve_config (its absolute path); a ValueError naming the
+    parameter, the value and every place looked in when none has it."""
+    try:
+        return str(resolve_config(value))
+    except FileNotFoundError as exc:
+        raise ValueError(f'{name} = {os.fspath(value)!r}: {exc}') from None
+
+
+def input_path(value) -> Path:
+    """The argparse type of a command's input file (a mission, a vehicle, a profile, a spec): the file
+    resolve_config finds, else the path as given, which the command then refuses naming it."""
+    try:
+        return resolve_config(value)
+    except FileNotFoundError:
+        return Path(os.fspath(value))

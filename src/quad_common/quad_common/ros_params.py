@@ -7,6 +7,7 @@ ValueError, so a bad params file stops the node with its reason.
 from collections.abc import Callable
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.parameter import Parameter
 
 from quad_common.params import Param, check_value
 
@@ -26,6 +27,53 @@ def _descriptor(spec: Param) -> ParameterDescriptor:
     return d
 
 
+def _declare(node, spec: Param):
+    """Declares spec on node; its value. An array typed by its default (Parameter.Type.DOUBLE_ARRAY, ...) and not
+    given is set to an empty array of that type: rclpy's parameter service answers no get_parameters request that
+    names an unset parameter (`ros2 param dump` prints {}), and rclpy infers an empty list's type as bytes."""
+    if not isinstance(spec.default, Parameter.Type):
+        return node.declare_parameter(spec.name, spec.default, _descriptor(spec)).value
+    writable = _descriptor(spec)
+    writable.read_only = False
+    value = node.declare_parameter(spec.name, spec.default, writable).value
+    if value is None:
+        node.set_parameters([Parameter(spec.name, spec.default, [])])
+        value = []
+    if spec.read_only:
+        final = _descriptor(spec)
+        final.type = spec.default.value
+        node.set_descriptor(spec.name, final)
+    return value
+
+
+def params_files(argv) -> list[str]:
+    """The `--params-file` paths of a command line's ROS arguments."""
+    return [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == '--params-file']
+
+
+def check_sections_reach(node, argv=None):
+    """Raises ValueError when a params file of the command line has a plain `NAME:` section for this node while
+    it runs in a namespace: rcl gives such a section to /NAME only, so the node would run on its built-in defaults
+    without a word (e.g. `ros2 run ... -r __ns:=/uav2 --params-file control_real.yaml`)."""
+    import sys
+
+    from quad_common.yaml_io import load_yaml
+
+    namespace, name = node.get_namespace(), node.get_name()
+    if namespace == '/':
+        return
+    fqn = f'{namespace}/{name}'
+    for path in params_files(sys.argv if argv is None else argv):
+        try:
+            content = load_yaml(path) or {}
+        except (OSError, ValueError):
+            continue   # rcl itself refuses a file it cannot read
+        if isinstance(content, dict) and name in content:
+            raise ValueError(f'--params-file {path}: its `{name}:` section reaches /{name} only, not {fqn} (rcl): '
+                             f'key it `/**/{name}:` or `{fqn}:`, or start the node through a launch file (it hands '
+                             'a namespaced node its files merged)')
+
+
 class ParameterSet:
     """Declares `specs` on `node`; `ps[name]` is the current value.
 
@@ -40,9 +88,10 @@ class ParameterSet:
         self._validate = validate
         self._on_change = on_change
         self.values = {}
+        check_sections_reach(node)
         for s in specs:
             try:
-                value = node.declare_parameter(s.name, s.default, _descriptor(s)).value
+                value = _declare(node, s)
             except Exception as exc:  # rclpy's own range check on a params-file value
                 raise ValueError(f'parameter {s.name}: {exc}') from None
             reason = check_value(s, value)

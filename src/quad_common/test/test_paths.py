@@ -41,3 +41,22 @@ def test_checkout_source_tree_after_the_share_directory(tmp_path, monkeypatch):
     monkeypatch.delenv('AMENT_PREFIX_PATH')          # ./quadflight without a sourced workspace
     assert paths.resolve_config('config/a.yaml').read_text() == 'checkout\n'
 
+
+
+def test_with_or_without_config_prefix_from_any_directory(tmp_path, monkeypatch):
+    prefix = _install(tmp_path / 'install', {'config/vehicles/x.yaml': 'name: x\n'})
+    monkeypatch.setenv('AMENT_PREFIX_PATH', str(prefix))
+    monkeypatch.setattr(paths, 'REPO_ROOT', tmp_path / 'no_checkout')
+    elsewhere = tmp_path / 'elsewhere'
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    installed = prefix / 'share/quad_bringup/config/vehicles/x.yaml'
+    assert paths.resolve_config('vehicles/x.yaml') == installed == paths.resolve_config('config/vehicles/x.yaml')
+    (elsewhere / 'vehicles').mkdir()
+    (elsewhere / 'vehicles/x.yaml').write_text('name: mine\n')
+    assert paths.resolve_config('vehicles/x.yaml') == elsewhere / 'vehicles/x.yaml'   # the working directory first
+    assert paths.resolve_config('vehicles/x.yaml').is_absolute()
+    with pytest.raises(FileNotFoundError) as refused:
+        paths.resolve_config('vehicles/y.yaml')
+    assert str(refused.value) == (f'vehicles/y.yaml: no such file (looked in {elsewhere}/vehicles/y.yaml, '
+                                  f'{prefix}/share/quad_bringup/config/vehicles/y.yaml)')

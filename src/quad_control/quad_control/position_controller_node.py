@@ -27,7 +27,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from quad_common import cdr, contract, diagnostics, lockstep
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
-from quad_common.paths import resolve_config
+from quad_common.paths import parameter_file
 from quad_common.realtime import apply_or_report, thread_ids
 from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
@@ -103,7 +103,7 @@ class PositionControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         self.params = ParameterSet(self, SPECS, on_change=self._on_change)
-        self.vehicle = load_vehicle(resolve_config(self.params['vehicle']))
+        self.vehicle = load_vehicle(parameter_file('vehicle', self.params['vehicle']))
         self.controller = self._make_controller(self.params.values)
         self.loop = ControlLoop(self.controller, self.params['rate_hz'], lockstep=self.params['lockstep'],
                                 wait_for_trajectory=self.params['wait_for_trajectory'],

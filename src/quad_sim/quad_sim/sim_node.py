@@ -97,12 +97,12 @@ SPECS = [
           min=0.0, max=1000.0, read_only=True),
     Param('seed', 0, 'random seed of gusts and odometry noise', min=0, max=2**31 - 1, read_only=True),
     Param('vehicle_names', Parameter.Type.STRING_ARRAY, 'fleet: the vehicles, each with its topics under its name '
-          '(cf1/odom, ...); unset: one vehicle, topics in the node\'s namespace', read_only=True),
-    Param('vehicle_files', Parameter.Type.STRING_ARRAY, 'fleet: each vehicle\'s vehicle file; unset: `vehicle` for '
+          '(cf1/odom, ...); empty: one vehicle, topics in the node\'s namespace', read_only=True),
+    Param('vehicle_files', Parameter.Type.STRING_ARRAY, 'fleet: each vehicle\'s vehicle file; empty: `vehicle` for '
           'all', read_only=True),
     Param('initial_positions', Parameter.Type.DOUBLE_ARRAY, 'fleet: [x, y, z] of each vehicle, flat (m)',
           read_only=True),
-    Param('robot_radii_m', Parameter.Type.DOUBLE_ARRAY, 'fleet: each vehicle\'s collision radius (m); unset: '
+    Param('robot_radii_m', Parameter.Type.DOUBLE_ARRAY, 'fleet: each vehicle\'s collision radius (m); empty: '
           'robot_radius_m for all', min=0.0, max=5.0, read_only=True),
     Param('duration_s', 0.0, 'lockstep: end the run (drained, exit 0) at this sim time; 0: run until stopped',
           min=0.0, max=1e6, read_only=True),
@@ -303,7 +303,7 @@ class SimNode(Node):
         profile = load_profile(self._config(p['disturbances_file'], 'disturbances_file'), p['disturbances'])
         fleet = _fleet_layout(p)
         sims = []
-        files_param = 'vehicle' if p['vehicle_files'] is None else 'vehicle_files'
+        files_param = 'vehicle_files' if p['vehicle_files'] else 'vehicle'
         for k, (_, vehicle_file, position, radius_m) in enumerate(fleet):
             vehicle = load_vehicle(self._config(vehicle_file, files_param), plant=p['plant'] or None)
             sims.append(Simulator(vehicle, physics_rate_hz=p['physics_rate_hz'], initial_position=position,
@@ -324,7 +324,7 @@ class SimNode(Node):
         if TFMessage is None:
             self.get_logger().warn('tf2_msgs is not installed here: /tf is not published (odom carries the pose)')
         self.sensor_period_ns = int(round(1e9 / p['sensor_rate_hz'])) if p['sensor_rate_hz'] > 0 else 0
-        named = p['vehicle_names'] is not None
+        named = bool(p['vehicle_names'])
         self.vehicles = [SimulatedVehicle(self, name, sim, f'{name}/' if named else '', pace)
                          for (name, *_), sim in zip(fleet, sims)]
         self.contacts = VehicleContacts([v.name for v in self.vehicles], sims, [r for *_, r in fleet])
@@ -589,23 +589,21 @@ def _fleet_layout(p) -> list[tuple]:
     and `robot_radius_m`, or the fleet's from vehicle_names and its per-vehicle arrays (each checked: its length,
     names a ROS name component can take, no name twice)."""
     names = p['vehicle_names']
-    if names is None:
+    if not names:
         return [('', p['vehicle'], list(p['initial_position']), p['robot_radius_m'])]
     n = len(names)
-    if n == 0:
-        raise ValueError('vehicle_names = [] refused: name at least one vehicle (or leave it unset for one)')
     for name in names:
         if not contract.is_vehicle_name(name):
             raise ValueError(f'vehicle_names: {name!r} refused: {contract.VEHICLE_NAME_RULE}')
         if names.count(name) > 1:
             raise ValueError(f'vehicle_names: {name!r} refused: named twice')
-    files = p['vehicle_files'] if p['vehicle_files'] is not None else [p['vehicle']] * n
+    files = p['vehicle_files'] or [p['vehicle']] * n
     positions = p['initial_positions']
-    radii = p['robot_radii_m'] if p['robot_radii_m'] is not None else [p['robot_radius_m']] * n
+    radii = p['robot_radii_m'] or [p['robot_radius_m']] * n
     for field, values, size in (('vehicle_files', files, n), ('initial_positions', positions, 3 * n),
                                 ('robot_radii_m', radii, n)):
-        if values is None or len(values) != size:
-            raise ValueError(f'{field} = {None if values is None else list(values)!r} refused: needs {size} values '
+        if len(values) != size:
+            raise ValueError(f'{field} = {list(values)!r} refused: needs {size} values '
                              f'for the {n} vehicles of vehicle_names')
     return [(name, files[k], [float(x) for x in positions[3 * k:3 * k + 3]], float(radii[k]))
             for k, name in enumerate(names)]

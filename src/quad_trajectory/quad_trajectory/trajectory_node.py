@@ -24,6 +24,7 @@ from quad_common import contract, diagnostics
 from quad_common.conversions import sampled_to_msg
 from quad_common.node_main import run_node
 from quad_common.params import Param
+from quad_common.paths import parameter_file
 from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
@@ -76,12 +77,13 @@ class TrajectoryNode(Node):
         self.fleet_delay_s = 0.0   # a fleet vehicle's own start delay (after deconfliction)
         self.mission = self._load_mission() if self.params['mission_file'] else None
         if self.mission:   # vehicle_file, when given, sets the limits over the mission's vehicle
-            self.vehicle = load_vehicle(self.params['vehicle_file']) if self.params['vehicle_file'] \
+            self.vehicle = load_vehicle(self._file('vehicle_file')) if self.params['vehicle_file'] \
                 else self.mission.vehicle
             self.world = self.mission.world
         else:
-            self.vehicle = load_vehicle(self.params['vehicle_file'] or DEFAULT_VEHICLE_PATH)
-            self.world = load_world(self.params['world_file']) if self.params['world_file'] else None
+            self.vehicle = load_vehicle(self._file('vehicle_file') if self.params['vehicle_file'] else
+                                        DEFAULT_VEHICLE_PATH)
+            self.world = load_world(self._file('world_file')) if self.params['world_file'] else None
         planner.validate_options(self._options(), self.vehicle)
         c = contract
         self.traj_pub = self.create_publisher(MultiDOFJointTrajectory, c.TRAJECTORY, c.qos(c.TRAJECTORY))
@@ -110,9 +112,14 @@ class TrajectoryNode(Node):
                                  f'(a multiple of 3 numbers, got {flat.size})')
             self._plan_and_publish(flat.reshape(-1, 3), self._yaw_param(), raise_errors=True)
 
+    def _file(self, name) -> str:
+        """The file parameter `name` found by the one lookup rule (quad_common.paths: the working directory, then
+        the config directories)."""
+        return parameter_file(name, self.params[name])
+
     def _load_mission(self):
         from quad_trajectory.fleet import is_fleet_file, load_fleet, vehicle_mission
-        path, name = self.params['mission_file'], self.params['fleet_vehicle']
+        path, name = self._file('mission_file'), self.params['fleet_vehicle']
         if not name and is_fleet_file(path):
             raise ValueError(f'mission_file = {path!r} is a fleet mission: set fleet_vehicle to the vehicle to plan '
                              f'({", ".join(load_fleet(path).names)})')

@@ -23,6 +23,7 @@ os.environ.setdefault('MAVLINK20', '1')
 from pymavlink import mavutil  # noqa: E402
 
 from quad_common import rotations  # noqa: E402
+from quad_common.paths import parameter_file  # noqa: E402
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
 from quad_vehicle_emu import ned  # noqa: E402
@@ -38,7 +39,9 @@ from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noq
 from quad_vehicle_emu.drag import check_drag, with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import Estimate  # noqa: E402
 
-DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'
+DEFAULT_VEHICLE = 'vehicles/px4_quad.yaml'   # found as every file argument is (quad_common.paths)
+# the autopilot's own MAVLink system id parameter (PX4 mavlink_params.c, ArduCopter Parameters.cpp): read at boot
+SYSTEM_ID_PARAMS = {'px4': 'MAV_SYS_ID', 'ardupilot': 'SYSID_THISMAV'}
 HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
 EARTH_RADIUS_M = 6378137.0
 # ArduCopter SITL's telemetry was ~50 ms old (issue 13): 35 ms here plus the wait for the next burst, uniform
@@ -101,10 +104,12 @@ class MavlinkVehicle:
         self.flavour = args.autopilot
         self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param),  # bad parameters: first
                                  rp_rates_with_attitude=args.rp_rates_with_attitude == 'fed')
+        self.system_id = int(self.ap.params[SYSTEM_ID_PARAMS[self.flavour]])
         check_drag(args.drag_per_s)   # bad values before the vehicle file is read
         self.estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
                                  args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps)
-        vehicle, drag = with_linear_drag(emulated_vehicle(args.vehicle, rate_loop=args.rate_loop), args.drag_per_s)
+        vehicle, drag = with_linear_drag(emulated_vehicle(parameter_file('--vehicle', args.vehicle),
+                                                          rate_loop=args.rate_loop), args.drag_per_s)
         self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
                              initial_position=args.initial_position, initial_yaw=args.initial_yaw,
                              setpoint_timeout_s=1e6, disturbances=drag)
@@ -125,7 +130,7 @@ class MavlinkVehicle:
             self.streams = Streams(p.PX4_ONBOARD_DEFAULT_RATES_HZ, p.PX4_STREAMABLE)
         else:
             self.streams = Streams(p.COPTER_DEFAULT_RATES_HZ, p.COPTER_STREAMABLE)
-        self.conn = mavutil.mavlink_connection(args.url, source_system=args.system_id, source_component=1,
+        self.conn = mavutil.mavlink_connection(args.url, source_system=self.system_id, source_component=1,
                                                autoreconnect=True, robust_parsing=True)
         if args.signing_key_file:  # signs what it sends and accepts only messages signed with the same key
             self.conn.setup_signing(load_signing_key(args.signing_key_file), sign_outgoing=True)
@@ -189,7 +194,7 @@ class MavlinkVehicle:
             if msg is None:
                 return
             kind = msg.get_type()
-            if kind == 'BAD_DATA' or getattr(msg, 'target_system', self.args.system_id) not in (0, self.args.system_id):
+            if kind == 'BAD_DATA' or getattr(msg, 'target_system', self.system_id) not in (0, self.system_id):
                 continue
             try:
                 self.handle(msg, kind)
@@ -416,8 +421,10 @@ def build_parser():
     ap.add_argument('--autopilot', choices=('px4', 'ardupilot'), default='px4')
     ap.add_argument('--url', default=None, help='pymavlink connection (default: px4 udpout:127.0.0.1:14540, '
                     'ardupilot tcpin:127.0.0.1:5760)')
-    ap.add_argument('--system-id', type=int, default=1)
-    ap.add_argument('--vehicle', default=DEFAULT_VEHICLE, help='vehicle YAML (quad_common.vehicle)')
+    ap.add_argument('--system-id', type=int, default=None,
+                    help='its MAVLink system id: = --param MAV_SYS_ID=N (px4) / SYSID_THISMAV=N (ardupilot); default 1')
+    ap.add_argument('--vehicle', default=DEFAULT_VEHICLE,
+                    help='vehicle YAML (quad_common.vehicle): a path, or one under config/ (installed or the checkout)')
     ap.add_argument('--initial-position', type=_triple, default=[0.0, 0.0, 0.0],
                     help='x,y,z in map (ENU), m; above the floor: starts armed, holding (AUTO.LOITER / LOITER)')
     ap.add_argument('--initial-yaw', type=float, default=0.0, help='rad, ENU')
@@ -471,13 +478,20 @@ def main(args=None):
         args.url = 'udpout:127.0.0.1:14540' if args.autopilot == 'px4' else 'tcpin:127.0.0.1:5760'
     legacy = ({'COM_OF_LOSS_T': args.offboard_loss_s} if args.autopilot == 'px4' else
               {'GUID_OPTIONS': args.guid_options, 'GUID_TIMEOUT': args.guided_timeout_s})
+    legacy[SYSTEM_ID_PARAMS[args.autopilot]] = args.system_id
+    for name, value in legacy.items():
+        given = [v for k, v in args.param if k == name]
+        if value is not None and given and float(given[-1]) != float(value):
+            print(f'mavlink_vehicle: --param {name}={given[-1]} and its option ({value}) disagree: give one',
+                  file=sys.stderr)
+            return 2
     args.param += [(k, v) for k, v in legacy.items() if v is not None]
     try:
         vehicle = MavlinkVehicle(args)
     except (ValueError, OSError) as exc:
         print(f'mavlink_vehicle: {exc}', file=sys.stderr)
         return 2
-    print(f'mavlink_vehicle: {args.autopilot} on {args.url}', flush=True)
+    print(f'mavlink_vehicle: {args.autopilot} system {vehicle.system_id} on {args.url}', flush=True)
     print(f'mavlink_vehicle: boot clock = {args.boot_offset_s} s + {args.clock_rate} x (wall clock - '
           f'{vehicle.wall0_ns} ns)', flush=True)
     try:

@@ -18,10 +18,12 @@ import numpy as np
 from quad_bringup.commands.fleet_plan import feasible, summary_lines
 from quad_bringup.commands.plan import add_time_allocation_argument
 from quad_bringup.flight import EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED
+from quad_common.paths import input_path
 
 
 def add_arguments(parser):
-    parser.add_argument('mission', type=Path, help='fleet mission YAML, e.g. config/missions/fleets/formation4.yaml')
+    parser.add_argument('mission', type=input_path,
+                        help='fleet mission YAML, e.g. config/missions/fleets/formation4.yaml')
     parser.add_argument('--out', type=Path, help='write fleet.json and fleet.png here')
     parser.add_argument('--speed', type=float, metavar='V', help='average speed in m/s (overrides the mission)')
     add_time_allocation_argument(parser)

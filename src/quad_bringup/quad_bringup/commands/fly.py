@@ -10,10 +10,12 @@ from quad_bringup.commands.report import add_completion_arguments, completion_ov
 from quad_bringup.flight import fly
 from quad_bringup.flight_options import FlightOptions
 from quad_bringup.report import metrics_table
+from quad_common.paths import input_path
 
 
 def add_arguments(parser):
-    parser.add_argument('mission', help='mission YAML (waypoints, trajectory, world), e.g. config/missions/maze.yaml')
+    parser.add_argument('mission', type=input_path,
+                        help='mission YAML (waypoints, trajectory, world), e.g. config/missions/maze.yaml')
     parser.add_argument('--controller', metavar='NAME',
                         help="pd | pid | se3, or a user class: package.module:Class or a quadflight.controllers "
                              "entry point (docs/plugins.md); default: the control profile's, else pd")
@@ -21,12 +23,12 @@ def add_arguments(parser):
                         help='average speed constant in m/s (overrides the mission)')
     add_time_allocation_argument(parser)
     parser.add_argument('--out', type=Path, help='run directory (default runs/<mission>-<controller>-<timestamp>)')
-    parser.add_argument('--vehicle', type=Path, help='vehicle YAML for controller and simulator')
+    parser.add_argument('--vehicle', type=input_path, help='vehicle YAML for controller and simulator')
     parser.add_argument('--plant', metavar='MEMBER',
                         help='simulate a plant family member (config/plant_family.yaml, e.g. autopilot_so3); '
                              'the controller still flies the vehicle file')
     parser.add_argument('--disturbances', metavar='PROFILE', help='simulator disturbance profile (e.g. drag_wind)')
-    parser.add_argument('--control-profile', type=Path, metavar='FILE',
+    parser.add_argument('--control-profile', type=input_path, metavar='FILE',
                         help='params file overriding config/control.yaml gains (e.g. config/control_fast.yaml)')
     parser.add_argument('--time-limit-factor', type=float, default=3.0, metavar='K',
                         help='give up after K x the planned duration + 10 s of simulated time (default 3)')

@@ -18,6 +18,7 @@ from quad_bringup.identify import (
     vehicle_model,
 )
 from quad_bringup.report import load_flight
+from quad_common.paths import input_path
 from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
 from quad_control.parameters import profile_parameters
@@ -50,7 +51,7 @@ def out_refusal(out: Path, inputs) -> str | None:
 def add_arguments(parser):
     from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LATENCY_S
     parser.add_argument('bag', help='rosbag2 bag directory with cmd/attitude_thrust and odom (e.g. runs/NAME/bag)')
-    parser.add_argument('--base', type=Path, default=None, metavar='PROFILE',
+    parser.add_argument('--base', type=input_path, default=None, metavar='PROFILE',
                         help=f'control profile the identified values go into (default {DEFAULT_BASE})')
     parser.add_argument('--out', type=Path, metavar='FILE',
                         help='profile to write (default: BAG_profile.yaml next to the bag)')
@@ -58,7 +59,7 @@ def add_arguments(parser):
                         help='the vehicle\'s telemetry latency (default: the bag\'s: 0 for a simulator\'s lockstep '
                         f'bag, a vehicle\'s record - stamp delay but at least {MEASURED_LATENCY_S}, ArduCopter\'s); '
                         f'the profile must settle at {MARGIN_LAG}x the identified response and {MARGIN_LATENCY}x this')
-    parser.add_argument('--vehicle', type=Path, default=None, metavar='FILE',
+    parser.add_argument('--vehicle', type=input_path, default=None, metavar='FILE',
                         help=f'vehicle file of the margin check and of the model (default {DEFAULT_VEHICLE})')
     parser.add_argument('--model-out', type=Path, metavar='FILE',
                         help='vehicle model to write beside the profile (default: BAG_vehicle.yaml next to the bag): '

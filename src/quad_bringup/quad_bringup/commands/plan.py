@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from quad_common.paths import input_path
 from quad_common.yaml_io import load_yaml
 from quad_trajectory.fleet import is_fleet
 from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
@@ -27,7 +28,7 @@ def add_time_allocation_argument(parser):
 
 
 def add_arguments(parser):
-    parser.add_argument('mission', type=Path, help='mission YAML, e.g. config/missions/maze.yaml')
+    parser.add_argument('mission', type=input_path, help='mission YAML, e.g. config/missions/maze.yaml')
     parser.add_argument('--out', type=Path, help='write the trajectory JSON here')
     parser.add_argument('--csv', type=float, metavar='RATE',
                         help='also write samples at RATE Hz next to --out (.csv): t, position, velocity, acceleration')

@@ -7,15 +7,17 @@ from pathlib import Path
 
 from rosbags.rosbag2 import ReaderError
 
+from quad_common.paths import input_path
+
 DEFAULT_PROFILE = 'config/control.yaml'
 
 
 def add_arguments(parser):
     parser.add_argument('bag', help='rosbag2 bag with trajectory, odom and cmd/attitude_thrust (e.g. runs/NAME/bag)')
-    parser.add_argument('--vehicle', type=Path, metavar='MODEL',
+    parser.add_argument('--vehicle', type=input_path, metavar='MODEL',
                         help='vehicle model to fly (e.g. the BAG_vehicle.yaml identify wrote; default: the one '
                         'identify wrote next to the bag)')
-    parser.add_argument('--control-profile', type=Path, metavar='FILE',
+    parser.add_argument('--control-profile', type=input_path, metavar='FILE',
                         help=f'the controller and gains the flight flew (default {DEFAULT_PROFILE})')
     parser.add_argument('--figure', type=Path, metavar='PNG', help='figure to write (default BAG_replay.png)')
 

@@ -9,6 +9,7 @@ from rosbags.rosbag2 import ReaderError
 
 from quad_bringup.recorder import needs_repair, repaired_copy
 from quad_bringup.report import Completion, metrics_table, truncation_summary, write_report
+from quad_common.paths import input_path
 
 
 def add_arguments(parser):
@@ -16,8 +17,9 @@ def add_arguments(parser):
                                     'repaired copy, BAG.repaired, never changed in place)')
     parser.add_argument('--out', help='output directory (default: the run directory for runs/NAME/bag, '
                                       'else BAG_report next to the bag)')
-    parser.add_argument('--vehicle', type=Path, help="vehicle YAML whose completion: gives the tolerances and settle "
-                                                     "time (e.g. config/vehicles/px4_quad.yaml for a real flight)")
+    parser.add_argument('--vehicle', type=input_path,
+                        help="vehicle YAML whose completion: gives the tolerances and settle time (e.g. "
+                             "config/vehicles/px4_quad.yaml for a real flight)")
     add_completion_arguments(parser)
 
 

@@ -3,9 +3,11 @@
 import sys
 from pathlib import Path
 
+from quad_common.paths import input_path
+
 
 def add_arguments(parser):
-    parser.add_argument('spec', type=Path, help='sweep spec YAML (missions, controllers, vehicles, disturbances, '
+    parser.add_argument('spec', type=input_path, help='sweep spec YAML (missions, controllers, vehicles, disturbances, '
                                                 'seeds; docs/quad_bringup.md "Many flights")')
     parser.add_argument('--out', type=Path, help='output directory (default runs/sweep-SPEC); rerunning with the '
                                                  'same one resumes: runs already in its table are skipped')

@@ -5,10 +5,11 @@ import sys
 from pathlib import Path
 
 from quad_bringup.commands.sweep import add_execution_arguments
+from quad_common.paths import input_path
 
 
 def add_arguments(parser):
-    parser.add_argument('spec', type=Path, help='tune spec YAML (controller, parameters with bounds, missions, '
+    parser.add_argument('spec', type=input_path, help='tune spec YAML (controller, parameters with bounds, missions, '
                                                 'vehicles, disturbances, cost, optimizer)')
     parser.add_argument('--out', type=Path, help='output directory (default runs/tune-SPEC); profile.yaml, '
                                                  'cost.json, evaluations.csv, runs.csv, verify.md')
