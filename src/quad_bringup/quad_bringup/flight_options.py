@@ -162,7 +162,11 @@ def plan_overrides(options: FlightOptions) -> dict:
 def with_profile_controller(options: FlightOptions) -> FlightOptions:
     """--controller if given, else the control profile's `controller`, else pd; a controller named without a
     profile flies its default profile (quad_bringup.graph.controller_and_profile)."""
-    controller, profile = graph.controller_and_profile(options.controller, options.control_profile)
+    name = options.controller
+    try:
+        controller, profile = graph.controller_and_profile(name, options.control_profile)
+    except ValueError as exc:   # the node's rule for `controller`, said as the option the user typed
+        raise MissionRefused(str(exc).replace(f'controller = {name!r}', f'--controller {name!r}', 1)) from None
     return dataclasses.replace(options, controller=controller, control_profile=Path(profile) if profile else None)
 
 
