@@ -58,11 +58,11 @@ def test_plan_takes_flys_limits_and_refuses_a_directory(capsys, mission, tmp_pat
 
 
 def test_ctrl_c_during_plan_is_one_line_and_exit_130(capsys, mission, monkeypatch):
-    import quad_bringup.commands.plan as plan
+    import quad_trajectory.mission as mission_module
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
-    monkeypatch.setattr(plan, 'plan_mission', interrupted)
+    monkeypatch.setattr(mission_module, 'plan_mission', interrupted)
     code, _, err = _main(capsys, 'plan', mission)
     assert code == 130 and err.strip() == 'quadflight plan: interrupted'
 

@@ -7,9 +7,6 @@ from pathlib import Path
 
 from quad_bringup.commands.plan import add_time_allocation_argument
 from quad_bringup.commands.report import add_completion_arguments, completion_overrides
-from quad_bringup.flight import fly
-from quad_bringup.flight_options import FlightOptions
-from quad_bringup.report import metrics_table
 from quad_control.position import CONTROLLERS
 
 
@@ -37,7 +34,9 @@ def add_arguments(parser):
     parser.add_argument('--quiet', action='store_true', help='no progress lines')
 
 
-def options_from(args) -> FlightOptions:
+def options_from(args):
+    from quad_bringup.flight_options import FlightOptions
+
     return FlightOptions(mission=Path(args.mission), controller=args.controller, speed_mps=args.speed, out=args.out,
                          time_allocation=args.time_allocation,
                          vehicle=args.vehicle, plant=args.plant, disturbances=args.disturbances,
@@ -65,6 +64,8 @@ def run_fleet(args) -> int:
 
 
 def run(args) -> int:
+    from quad_bringup.flight import fly
+    from quad_bringup.report import metrics_table
     from quad_trajectory.fleet import is_fleet_file
 
     if is_fleet_file(args.mission):

@@ -6,22 +6,6 @@ that profile has margin on the response it measured, with the bag's telemetry (q
 import sys
 from pathlib import Path
 
-from rosbags.rosbag2 import ReaderError
-
-from quad_bringup.identify import (
-    identify,
-    identify_drag,
-    model_text,
-    profile,
-    profile_text,
-    quality_refusal,
-    vehicle_model,
-)
-from quad_bringup.report import load_flight
-from quad_common.vehicle import load_vehicle
-from quad_common.yaml_io import load_yaml
-from quad_control.parameters import profile_parameters
-
 DEFAULT_BASE = 'config/control_real.yaml'            # what the bridge launch files fly
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'    # the bridge's and the emulator's vehicle
 
@@ -48,7 +32,7 @@ def out_refusal(out: Path, inputs) -> str | None:
 
 
 def add_arguments(parser):
-    from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LATENCY_S
+    from quad_bringup.limits import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LATENCY_S
     parser.add_argument('bag', help='rosbag2 bag directory with cmd/attitude_thrust and odom (e.g. runs/NAME/bag)')
     parser.add_argument('--base', type=Path, default=None, metavar='PROFILE',
                         help=f'control profile the identified values go into (default {DEFAULT_BASE})')
@@ -72,8 +56,13 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None)
     base_path / vehicle: None for DEFAULT_BASE / DEFAULT_VEHICLE. Raises ValueError / OSError / ReaderError for a
     bag that cannot be identified."""
     from quad_bringup.closed_loop import control_profile
+    from quad_bringup.identify import identify, identify_drag, profile, quality_refusal
+    from quad_bringup.report import load_flight
     from quad_bringup.stability import Telemetry, margin_hold_identified
     from quad_common.paths import resolve_config
+    from quad_common.vehicle import load_vehicle
+    from quad_common.yaml_io import load_yaml
+
     base = load_yaml(resolve_config(base_path or DEFAULT_BASE)) or {}   # a config/ name as --base does
     vehicle = vehicle if vehicle else resolve_config(DEFAULT_VEHICLE)
     flight = load_flight(bag)
@@ -97,8 +86,12 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None)
 
 
 def run(args) -> int:
-    from quad_bringup.limits import refusal
-    from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY
+    from rosbags.rosbag2 import ReaderError
+
+    from quad_bringup.identify import model_text, profile_text, quality_refusal, vehicle_model
+    from quad_bringup.limits import MARGIN_LAG, MARGIN_LATENCY, refusal
+    from quad_control.parameters import profile_parameters
+
     bag = Path(args.bag)
     out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
     model_out = args.model_out or bag.resolve().with_name(bag.resolve().name + '_vehicle.yaml')

@@ -9,12 +9,6 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from quad_common.yaml_io import load_yaml
-from quad_trajectory.fleet import is_fleet
-from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
-from quad_trajectory.planner import allocation_lines
 from quad_trajectory.timing import ALLOCATIONS
 
 
@@ -36,6 +30,8 @@ def add_arguments(parser):
 
 
 def write_csv(path: Path, trajectory, rate_hz: float):
+    import numpy as np
+
     t = trajectory.sample_times(rate_hz)
     columns = [t[:, None]] + [trajectory.evaluate(t, order) for order in range(3)]
     header = 't_s,' + ','.join(f'{q}_{a}' for q in ('pos', 'vel', 'acc') for a in ('x', 'y', 'z', 'yaw'))
@@ -64,6 +60,11 @@ def refuse_overwriting_inputs(outputs, inputs) -> str | None:
 
 def run(args) -> int:
     from quad_bringup.limits import csv_refusal, refusal
+    from quad_common.yaml_io import load_yaml
+    from quad_trajectory.fleet import is_fleet
+    from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
+    from quad_trajectory.planner import allocation_lines
+
     if args.csv is not None and args.out is None:
         print('quadflight plan: --csv needs --out (the CSV goes next to it)', file=sys.stderr)
         return 2

@@ -5,11 +5,6 @@ import shutil
 import sys
 from pathlib import Path
 
-from rosbags.rosbag2 import ReaderError
-
-from quad_bringup.recorder import needs_repair, repaired_copy
-from quad_bringup.report import Completion, metrics_table, truncation_summary, write_report
-
 
 def add_arguments(parser):
     parser.add_argument('bag', help='rosbag2 bag directory (MCAP or sqlite3; a killed recorder\'s bag is read from a '
@@ -23,6 +18,8 @@ def add_arguments(parser):
 
 def add_completion_arguments(parser):
     """The completion rule's options (report and fly): each overrides the vehicle's `completion:`."""
+    from quad_bringup.metrics import Completion
+
     d = Completion()
     parser.add_argument('--position-tolerance', type=float, metavar='M',
                         help=f"completion: distance to the final waypoint (default: the vehicle's, else "
@@ -45,6 +42,11 @@ def default_out(bag: Path) -> Path:
 
 
 def run(args) -> int:
+    from rosbags.rosbag2 import ReaderError
+
+    from quad_bringup.recorder import needs_repair, repaired_copy
+    from quad_bringup.report import Completion, metrics_table, truncation_summary, write_report
+
     bag = Path(args.bag)
     out = Path(args.out) if args.out else default_out(bag)
     try:
