@@ -1,6 +1,6 @@
-"""A sweep's or tune's output directory: checked before anything is made (a file, an unwritable place: one line,
-nothing left; issue 27.10, 27.11) and held by one writer at a time (issue 27.7): an exclusive flock on
-OUT/.quadflight.lock for the command's life, which the kernel drops when the process ends, SIGKILL included."""
+"""An output directory of sweep, tune or fly: checked before anything is made (a file, an unwritable place: one line,
+nothing left) and held by one writer at a time: an exclusive flock on OUT/.quadflight.lock for the command's life,
+which the kernel drops when the process ends, SIGKILL included."""
 
 import fcntl
 import os
@@ -22,6 +22,41 @@ def check_out_dir(out: Path):
         raise SpecError(f'--out {out}: cannot create or write it ({parent} is not a writable directory)')
 
 
+class DirectoryBusy(Exception):
+    """Another command holds the directory's lock; str() names it (e.g. 'fly pid 1234')."""
+
+
+def claim_dir(path: Path, what: str) -> int:
+    """Takes PATH/LOCK_NAME's exclusive lock without waiting and writes `what pid N` into it; returns the descriptor
+    that holds the lock (os.close releases it). Raises DirectoryBusy naming the holder, OSError when it cannot be
+    made."""
+    fd = os.open(Path(path) / LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 200, 0).decode(errors='replace').strip() or '?'
+        os.close(fd)
+        raise DirectoryBusy(holder) from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f'{what} pid {os.getpid()}\n'.encode(), 0)
+    return fd
+
+
+def holder_of(path: Path) -> str | None:
+    """Who holds PATH's lock now ('fly pid 1234'), or None; creates nothing."""
+    try:
+        fd = os.open(Path(path) / LOCK_NAME, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return None
+    except BlockingIOError:
+        return os.pread(fd, 200, 0).decode(errors='replace').strip() or '?'
+    finally:
+        os.close(fd)   # a shared lock taken goes with it
+
+
 class OutputDir:
     """Makes `out` and holds its lock until close(); SpecError when another command holds it."""
 
@@ -30,18 +65,12 @@ class OutputDir:
         check_out_dir(self.path)
         try:
             self.path.mkdir(parents=True, exist_ok=True)
-            self._fd = os.open(self.path / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+            self._fd = claim_dir(self.path, what)
+        except DirectoryBusy as busy:
+            raise SpecError(f'--out {self.path}: another sweep or tune writes there now ({busy}): wait for it '
+                            'or choose another --out') from None
         except OSError as exc:
             raise SpecError(f'--out {self.path}: cannot create or write it ({exc.strerror or exc})') from None
-        try:
-            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(self._fd, 200, 0).decode(errors='replace').strip() or '?'
-            os.close(self._fd)
-            raise SpecError(f'--out {self.path}: another sweep or tune writes there now ({holder}): wait for it '
-                            'or choose another --out') from None
-        os.ftruncate(self._fd, 0)
-        os.pwrite(self._fd, f'{what} pid {os.getpid()}\n'.encode(), 0)
 
     def close(self):
         if self._fd is not None:

@@ -208,3 +208,28 @@ def test_tune_out_a_file_and_a_closed_scheduler_leave_nothing(capsys, tmp_path):
     out = tmp_path / 'out'
     code, _, err = _main(capsys, 'sweep', sweep_spec, '--out', out, '--scheduler', 'tcp://127.0.0.1:9')
     assert code == 2 and 'cannot connect' in err and not out.exists()   # no empty runs.csv / runs.jsonl
+
+
+def test_fly_on_a_run_directory_another_fly_holds_is_refused_naming_it(capsys, tmp_path):
+    import os
+
+    from quad_bringup.flight_options import claim_run_dir
+    run_dir = tmp_path / 'run'
+    run_dir.mkdir()
+    lock = claim_run_dir(run_dir)   # what a fly in flight holds (flock: one open file description per claim)
+    try:
+        code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--out', run_dir)
+    finally:
+        os.close(lock)
+    assert code == 2 and f'--out {run_dir}: another command writes there now (fly pid {os.getpid()})' in err
+    assert len(err.strip().splitlines()) == 1 and sorted(p.name for p in run_dir.iterdir()) == ['.quadflight.lock']
+
+
+@pytest.mark.parametrize('mine', ['report.md', 'logs', 'metrics.json'])
+def test_fly_never_overwrites_what_its_out_holds(capsys, tmp_path, mine):
+    run_dir = tmp_path / 'notes'
+    run_dir.mkdir()
+    (run_dir / mine).write_text('my own\n')
+    code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--out', run_dir)
+    assert code == 2 and f'--out {run_dir}: already holds {mine}' in err and 'overwrites nothing' in err
+    assert [p.name for p in run_dir.iterdir()] == [mine] and (run_dir / mine).read_text() == 'my own\n'
