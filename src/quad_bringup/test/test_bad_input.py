@@ -233,3 +233,35 @@ def test_fly_never_overwrites_what_its_out_holds(capsys, tmp_path, mine):
     code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--out', run_dir)
     assert code == 2 and f'--out {run_dir}: already holds {mine}' in err and 'overwrites nothing' in err
     assert [p.name for p in run_dir.iterdir()] == [mine] and (run_dir / mine).read_text() == 'my own\n'
+
+
+def test_a_disturbance_a_sweep_spec_defines_is_checked_in_the_file_it_wrote(tmp_path):
+    """sweep --graph and tune's verification fly spec-defined profiles from their own disturbances_file."""
+    from quad_bringup.flight_options import FlightOptions
+    from quad_bringup.inputs import check_inputs
+
+    profiles = tmp_path / 'disturbances.yaml'
+    profiles.write_text('wind-1.0: {wind_mps: [1.0, 0.0, 0.0]}\n')   # as runs.py writes it: base resolved
+    mission = REPO_ROOT / 'config/missions/window.yaml'
+    check_inputs(FlightOptions(mission, disturbances='wind-1.0', sim_parameters={'disturbances_file': str(profiles)}))
+    with pytest.raises(ValueError, match="'wind-1.0': no such profile in .*config/disturbances.yaml"):
+        check_inputs(FlightOptions(mission, disturbances='wind-1.0'))
+
+
+def test_tune_fails_when_its_verification_could_not_fly(capsys, tmp_path, monkeypatch):
+    import quad_bringup.tune as tune
+
+    def tuned(spec, out, **kwargs):
+        out.mkdir()
+        (out / 'verify.md').write_text('| mission |\n')
+        return {'aggregate': 'p95', 'cost_before_m': 0.1, 'cost_after_m': 0.05, 'evaluations': 3, 'runs': 6,
+                'best_gains': {}, 'base_gains': {},
+                'verify': [{'mission': 'window', 'graph_completed': True, 'graph_failure': None},
+                           {'mission': 'maze', 'graph_completed': False,
+                            'graph_failure': "--disturbances: disturbances = 'wind-1.0': no such profile\nmore"}]}
+    monkeypatch.setattr(tune, 'run_tune', tuned)
+    code, out, err = _main(capsys, 'tune', tmp_path / 'spec.yaml', '--out', tmp_path / 'out')
+    assert code == 1 and 'profile:' in out
+    assert err.strip() == ("tune: the verification through the ROS graph failed on 1 of 2 missions (maze: "
+                           "--disturbances: disturbances = 'wind-1.0': no such profile); profile.yaml is written, "
+                           "unverified")
