@@ -265,3 +265,11 @@ def test_tune_fails_when_its_verification_could_not_fly(capsys, tmp_path, monkey
     assert err.strip() == ("tune: the verification through the ROS graph failed on 1 of 2 missions (maze: "
                            "--disturbances: disturbances = 'wind-1.0': no such profile); profile.yaml is written, "
                            "unverified")
+
+
+def test_replay_without_a_model_says_identify_writes_it(capsys, tmp_path):
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    code, _, err = _main(capsys, 'replay', bag)
+    assert code == 2 and err.strip() == (f'quadflight replay: {bag}: no vehicle model beside it (bag_vehicle.yaml): '
+                                         f'quadflight identify {bag} writes it, or give --vehicle MODEL.yaml')

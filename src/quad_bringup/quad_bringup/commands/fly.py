@@ -66,8 +66,13 @@ def run_fleet(args) -> int:
 def run(args) -> int:
     from quad_bringup.flight import fly
     from quad_bringup.report import metrics_table
+    from quad_common.paths import resolve_config
     from quad_trajectory.fleet import is_fleet_file
 
+    try:   # config/missions/... from any working directory, as the README writes it
+        args.mission = resolve_config(args.mission)
+    except FileNotFoundError:
+        pass   # validate names it
     if is_fleet_file(args.mission):
         return run_fleet(args)
     result = fly(options_from(args), log=lambda line: print(line, flush=True), defer_figures=True)

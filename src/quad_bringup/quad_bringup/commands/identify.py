@@ -49,12 +49,13 @@ def add_arguments(parser):
                         '--vehicle with the identified attitude response and thrust, for fly --vehicle and sweeps')
 
 
-def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None) -> dict:
+def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None, quality_first=False) -> dict:
     """What `quadflight identify` decides on a bag: {'result': identify's, 'written': the profile, 'controller',
     'telemetry': stability.Telemetry, 'margin': stability.Hold, 'refusal': one line or None}. The margin check
     flies the profile on the response identified (stability.margin_hold_identified) with the bag's telemetry.
     base_path / vehicle: None for DEFAULT_BASE / DEFAULT_VEHICLE. Raises ValueError / OSError / ReaderError for a
-    bag that cannot be identified."""
+    bag that cannot be identified. quality_first: fits that do not hold (identify.quality_refusal) end it there,
+    with 'margin' None (the margin check flies seconds of simulation)."""
     from quad_bringup.closed_loop import control_profile
     from quad_bringup.identify import identify, identify_drag, profile, quality_refusal
     from quad_bringup.report import load_flight
@@ -67,6 +68,8 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None)
     vehicle = vehicle if vehicle else resolve_config(DEFAULT_VEHICLE)
     flight = load_flight(bag)
     result = identify(flight)
+    if quality_first and (refusal := quality_refusal(result)) is not None:
+        return {'result': result, 'refusal': refusal, 'margin': None}
     result['drag'] = identify_drag(flight, result['thrust_scale'], load_vehicle(vehicle))
     written = profile(result, base)
     controller, gains = control_profile(written)
@@ -102,10 +105,13 @@ def run(args) -> int:
         print(f'quadflight identify: {reason}', file=sys.stderr)
         return 2
     try:
-        checked = check_bag(bag, args.base, args.vehicle, args.latency_s)
+        checked = check_bag(bag, args.base, args.vehicle, args.latency_s, quality_first=True)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:
         why = str(exc) or 'none of the topics identify needs (odom, cmd/attitude_thrust) in it'
         print(f'quadflight identify: {bag}: {why}', file=sys.stderr)
+        return 2
+    if checked['margin'] is None:   # the fits do not hold: one line, what the flight lacks
+        print(f'quadflight identify: refused to write {out}: {checked["refusal"]}', file=sys.stderr)
         return 2
     result, written, margin, telemetry = checked['result'], checked['written'], checked['margin'], \
         checked['telemetry']
