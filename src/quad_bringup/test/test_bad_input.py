@@ -273,3 +273,24 @@ def test_replay_without_a_model_says_identify_writes_it(capsys, tmp_path):
     code, _, err = _main(capsys, 'replay', bag)
     assert code == 2 and err.strip() == (f'quadflight replay: {bag}: no vehicle model beside it (bag_vehicle.yaml): '
                                          f'quadflight identify {bag} writes it, or give --vehicle MODEL.yaml')
+
+
+def test_inputs_are_bounded_and_errors_name_the_value_not_the_file(capsys, tmp_path):
+    bomb = tmp_path / 'bomb.yaml'   # nine anchors of nine aliases: 9^9 values once expanded
+    lines = ['name: b', 'a0: &a0 [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]']
+    lines += [f'a{i}: &a{i} [{", ".join([f"*a{i - 1}"] * 9)}]' for i in range(1, 10)]
+    bomb.write_text('\n'.join(lines + ['waypoints: *a9']) + '\n')
+    code, _, err = _main(capsys, 'plan', bomb)
+    assert code == 2 and err.strip() == (f'quadflight plan: {bomb}: its aliases (*name) expand it to more than '
+                                         '1,000,000 values: refused')
+    many = tmp_path / 'many.yaml'
+    points = [f'  - [{0.01 * i:.2f}, 0.0, 1.0]' for i in range(5000)]
+    points[2500] = '  - [1.0, x, 1.0]'
+    many.write_text('name: many\nwaypoints:\n' + '\n'.join(points) + '\n')
+    code, _, err = _main(capsys, 'plan', many)
+    assert code == 2 and err.strip() == (f"quadflight plan: {many}: waypoints[2500] = [1.0, 'x', 1.0] must be "
+                                         '[x, y, z] in metres (numbers)')
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text(MISSION.replace('speed: 0.5', 'sped: 0.5'))
+    code, _, err = _main(capsys, 'plan', typo)
+    assert code == 2 and "trajectory.sped is not a known key (did you mean 'speed'?)" in err
