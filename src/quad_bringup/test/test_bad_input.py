@@ -294,3 +294,28 @@ def test_inputs_are_bounded_and_errors_name_the_value_not_the_file(capsys, tmp_p
     typo.write_text(MISSION.replace('speed: 0.5', 'sped: 0.5'))
     code, _, err = _main(capsys, 'plan', typo)
     assert code == 2 and "trajectory.sped is not a known key (did you mean 'speed'?)" in err
+
+
+def test_ros_names_and_domain_are_refused_in_one_line_before_anything_starts(capsys, tmp_path, monkeypatch):
+    out = tmp_path / 'b'
+    code, _, err = _main(capsys, 'record', '--out', out, 'not a topic!')
+    assert code == 2 and err.startswith("quadflight record: topic 'not a topic!' refused: topic name must not")
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+    code, _, err = _main(capsys, 'arm', '--namespace', 'bad ns!', '--timeout-s', '1')
+    assert code == 2 and err.startswith("quadflight arm: --namespace 'bad ns!' refused: namespace must not")
+    assert len(err.strip().splitlines()) == 1
+    monkeypatch.setenv('ROS_DOMAIN_ID', '250')
+    for argv in (['land', '--timeout-s', '1'], ['record', '--out', out]):
+        code, _, err = _main(capsys, *argv)
+        assert code == 2 and err.strip() == (f'quadflight {argv[0]}: ROS_DOMAIN_ID=\'250\' refused: must be an '
+                                             "integer from 0 to 232 (Fast DDS's range)")
+    assert not out.exists()
+
+
+def test_report_into_a_directory_with_a_foreign_metrics_json_is_one_line(capsys, tmp_path):
+    out = tmp_path / 'out'
+    out.mkdir()
+    (out / 'metrics.json').write_text('{not json')
+    code, _, err = _main(capsys, 'report', _foreign_bag(tmp_path / 'bag'), '--out', out)
+    assert code == 2 and err.startswith(f'quadflight report: --out {out}: its metrics.json is not one report wrote')
+    assert len(err.strip().splitlines()) == 1 and (out / 'metrics.json').read_text() == '{not json'

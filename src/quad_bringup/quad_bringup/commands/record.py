@@ -18,6 +18,18 @@ def ros_arguments(out, topics, flush_period_s=1.0) -> list[str]:
 
 
 def run(args) -> int:
+    import os
+    import sys
+
+    from rclpy.validate_topic_name import validate_topic_name
+
+    from quad_bringup.limits import domain_refusal, ros_name_refusal
+
+    reason = domain_refusal(os.environ) or next(
+        (r for t in args.topics if (r := ros_name_refusal('topic', t, validate_topic_name))), None)
+    if reason:   # before the recorder makes --out
+        print(f'quadflight record: {reason}', file=sys.stderr)
+        return 2
     from quad_bringup import recorder_node
     from quad_bringup.recorder import DEFAULT_TOPICS
 
