@@ -319,3 +319,19 @@ def test_report_into_a_directory_with_a_foreign_metrics_json_is_one_line(capsys,
     code, _, err = _main(capsys, 'report', _foreign_bag(tmp_path / 'bag'), '--out', out)
     assert code == 2 and err.startswith(f'quadflight report: --out {out}: its metrics.json is not one report wrote')
     assert len(err.strip().splitlines()) == 1 and (out / 'metrics.json').read_text() == '{not json'
+
+
+def test_plan_on_a_full_disk_leaves_nothing_and_names_the_path(capsys, mission, tmp_path, monkeypatch):
+    import errno
+
+    import numpy as np
+
+    def full(path, *args, **kwargs):   # the CSV's write fails half way, as on a full filesystem
+        Path(path).write_text('t_s,pos_x\n0.0,')
+        raise OSError(errno.ENOSPC, 'No space left on device')
+    monkeypatch.setattr(np, 'savetxt', full)
+    out = tmp_path / 'out' / 't.json'
+    code, _, err = _main(capsys, 'plan', mission, '--out', out, '--csv', '10')
+    assert code == 2 and err.strip() == (f'quadflight plan: --csv {out.with_suffix(".csv")}: cannot write it (No '
+                                         'space left on device); nothing written')
+    assert list(out.parent.iterdir()) == []
