@@ -32,6 +32,7 @@ from quad_bringup.flight_options import (
     FlightOptions,
     MissionRefused,
     claim_run_dir,
+    controller_note,
     default_run_dir,
     make_run_dir,
     node_parameters,
@@ -136,8 +137,11 @@ def fly(options: FlightOptions, log=print, defer_figures=False) -> FlightResult:
 def _fly(options: FlightOptions, log) -> FlightResult:
     clock = _Clock()
     try:
+        note = controller_note(options)
         options = with_profile_controller(options)
         mission = validate(options)
+        if note:
+            log(note)
         options = preflight_options(options, mission, log)
         params = node_parameters(options)
         run_dir = make_run_dir(options.out, default_run_dir(mission.name, options.controller))

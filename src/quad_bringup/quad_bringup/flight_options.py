@@ -149,6 +149,18 @@ def with_profile_controller(options: FlightOptions) -> FlightOptions:
     return dataclasses.replace(options, controller=controller, control_profile=Path(profile) if profile else None)
 
 
+def controller_note(options: FlightOptions) -> str | None:
+    """A line when --controller differs from the control profile's own `controller` (pd flown with se3's gains):
+    --controller wins, and says so."""
+    if options.controller is None or options.control_profile is None:
+        return None
+    own = graph.profile_controller(options.control_profile)
+    if own and own != options.controller:
+        return (f'note: flying {options.controller} with the gains of {options.control_profile}, a profile for {own} '
+                f'(its controller:); --controller wins: drop it to fly {own}')
+    return None
+
+
 def write_flown_mission(options: FlightOptions, mission, path: Path) -> Path:
     """The mission file with this flight's trajectory overrides, its file paths made absolute (so the
     trajectory node plans exactly what was validated; kept in the run directory)."""

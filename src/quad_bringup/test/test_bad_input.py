@@ -335,3 +335,13 @@ def test_plan_on_a_full_disk_leaves_nothing_and_names_the_path(capsys, mission, 
     assert code == 2 and err.strip() == (f'quadflight plan: --csv {out.with_suffix(".csv")}: cannot write it (No '
                                          'space left on device); nothing written')
     assert list(out.parent.iterdir()) == []
+
+
+def test_fly_says_when_the_controller_is_not_the_profiles(capsys, tmp_path):
+    run_dir = tmp_path / 'run'
+    run_dir.mkdir()
+    (run_dir / 'report.md').write_text('mine\n')   # refused there: nothing flies
+    code, out, _ = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--controller', 'pd',
+                         '--control-profile', 'config/control_se3.yaml', '--out', run_dir)
+    assert code == 2 and ('note: flying pd with the gains of config/control_se3.yaml, a profile for se3 (its '
+                          'controller:); --controller wins: drop it to fly se3') in out
