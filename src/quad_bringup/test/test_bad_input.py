@@ -345,3 +345,13 @@ def test_fly_says_when_the_controller_is_not_the_profiles(capsys, tmp_path):
                          '--control-profile', 'config/control_se3.yaml', '--out', run_dir)
     assert code == 2 and ('note: flying pd with the gains of config/control_se3.yaml, a profile for se3 (its '
                           'controller:); --controller wins: drop it to fly se3') in out
+
+
+def test_a_vehicle_gain_that_is_text_names_the_field_and_the_file(capsys, tmp_path):
+    vehicle = tmp_path / 'v.yaml'
+    text = (REPO_ROOT / 'config/vehicles/crazyflie.yaml').read_text()
+    vehicle.write_text(text.replace('  kp: [3000.0, 3000.0, 3000.0]', '  kp: stiff'))
+    mission = tmp_path / 'm.yaml'
+    mission.write_text(MISSION + f'vehicle: {vehicle}\n')
+    code, _, err = _main(capsys, 'plan', mission)
+    assert code == 2 and f"{vehicle}: attitude_gains.kp = 'stiff' must be three finite numbers >= 0" in err
