@@ -206,7 +206,7 @@ def make_run_dir(requested: Path | None, default: Path) -> Path:
         run_dir = Path(requested)
         if run_dir.exists() and not run_dir.is_dir():
             raise MissionRefused(f'--out {run_dir}: a file, not a directory; choose a new run directory')
-        from quad_bringup.outputs import holder_of
+        from quad_bringup.dir_lock import holder_of
 
         if (holder := holder_of(run_dir)) is not None:
             raise MissionRefused(_busy(run_dir, holder))
@@ -236,11 +236,11 @@ def make_run_dir(requested: Path | None, default: Path) -> Path:
 
 
 def claim_run_dir(run_dir: Path) -> int:
-    """The run directory for this fly alone, before anything starts: its lock (quad_bringup.outputs.claim_dir; the
+    """The run directory for this fly alone, before anything starts: its lock (quad_bringup.dir_lock.claim_dir; the
     kernel drops it when fly ends, SIGKILL included), then none of RUN_OUTPUTS in it (so a second fly on one --out
     is refused, exit 2, naming the first, and nothing there is overwritten). Returns the lock's descriptor
     (os.close releases it); raises MissionRefused."""
-    from quad_bringup.outputs import DirectoryBusy, claim_dir
+    from quad_bringup.dir_lock import DirectoryBusy, claim_dir
 
     try:
         fd = claim_dir(run_dir, 'fly')

@@ -2,13 +2,11 @@
 nothing left) and held by one writer at a time: an exclusive flock on OUT/.quadflight.lock for the command's life,
 which the kernel drops when the process ends, SIGKILL included."""
 
-import fcntl
 import os
 from pathlib import Path
 
+from quad_bringup.dir_lock import DirectoryBusy, claim_dir
 from quad_bringup.runs import SpecError
-
-LOCK_NAME = '.quadflight.lock'
 
 
 def check_out_dir(out: Path):
@@ -20,41 +18,6 @@ def check_out_dir(out: Path):
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
         raise SpecError(f'--out {out}: cannot create or write it ({parent} is not a writable directory)')
-
-
-class DirectoryBusy(Exception):
-    """Another command holds the directory's lock; str() names it (e.g. 'fly pid 1234')."""
-
-
-def claim_dir(path: Path, what: str) -> int:
-    """Takes PATH/LOCK_NAME's exclusive lock without waiting and writes `what pid N` into it; returns the descriptor
-    that holds the lock (os.close releases it). Raises DirectoryBusy naming the holder, OSError when it cannot be
-    made."""
-    fd = os.open(Path(path) / LOCK_NAME, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.pread(fd, 200, 0).decode(errors='replace').strip() or '?'
-        os.close(fd)
-        raise DirectoryBusy(holder) from None
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f'{what} pid {os.getpid()}\n'.encode(), 0)
-    return fd
-
-
-def holder_of(path: Path) -> str | None:
-    """Who holds PATH's lock now ('fly pid 1234'), or None; creates nothing."""
-    try:
-        fd = os.open(Path(path) / LOCK_NAME, os.O_RDONLY | os.O_CLOEXEC)
-    except OSError:
-        return None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        return None
-    except BlockingIOError:
-        return os.pread(fd, 200, 0).decode(errors='replace').strip() or '?'
-    finally:
-        os.close(fd)   # a shared lock taken goes with it
 
 
 class OutputDir:

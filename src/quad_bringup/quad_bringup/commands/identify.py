@@ -88,6 +88,23 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None,
             'margin': margin, 'refusal': refusal, 'vehicle': vehicle}
 
 
+def print_fits(result: dict):
+    """The window, the roll and pitch fits and the thrust scale, as measured."""
+    w = result['window']
+    print(f'window: {w["duration_s"]:.1f} s in which the vehicle flew our setpoints ({w["source"]}), '
+          f'{w["start_s"]:.2f}-{w["end_s"]:.2f} s')
+    for axis in ('roll', 'pitch'):
+        a = result[axis]
+        print(f'{axis:5s}: lag {a["lag_s"]:.3f} s (95 % {a["lag_ci95_s"][0]:.3f}-{a["lag_ci95_s"][1]:.3f}, '
+              f'{a["blocks"]} parts) = tau {a["tau_s"]:.3f} s + dead time {a["delay_s"]:.3f} s; '
+              f'bandwidth {a["bandwidth_hz"]:.2f} Hz; gain {a["gain"]:.3f}; fit R^2 {a["fit_r2"]:.3f}')
+    t = result['thrust']
+    low, high = t['thrust_scale_ci95']
+    print(f'thrust: scale {t["thrust_scale"]:.4f} (95 % {low:.4f}-{high:.4f}); '
+          f'hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 commanded; equivalent mass error '
+          f'{100 * t["mass_error_equivalent"]:+.1f} %')
+
+
 def run(args) -> int:
     from rosbags.rosbag2 import ReaderError
 
@@ -110,24 +127,13 @@ def run(args) -> int:
         why = str(exc) or 'none of the topics identify needs (odom, cmd/attitude_thrust) in it'
         print(f'quadflight identify: {bag}: {why}', file=sys.stderr)
         return 2
-    if checked['margin'] is None:   # the fits do not hold: one line, what the flight lacks
+    if checked['margin'] is None:   # the fits do not hold: what it measured, and one line saying what is missing
+        print_fits(checked['result'])
         print(f'quadflight identify: refused to write {out}: {checked["refusal"]}', file=sys.stderr)
         return 2
     result, written, margin, telemetry = checked['result'], checked['written'], checked['margin'], \
         checked['telemetry']
-    w = result['window']
-    print(f'window: {w["duration_s"]:.1f} s in which the vehicle flew our setpoints ({w["source"]}), '
-          f'{w["start_s"]:.2f}-{w["end_s"]:.2f} s')
-    for axis in ('roll', 'pitch'):
-        a = result[axis]
-        print(f'{axis:5s}: lag {a["lag_s"]:.3f} s (95 % {a["lag_ci95_s"][0]:.3f}-{a["lag_ci95_s"][1]:.3f}, '
-              f'{a["blocks"]} parts) = tau {a["tau_s"]:.3f} s + dead time {a["delay_s"]:.3f} s; '
-              f'bandwidth {a["bandwidth_hz"]:.2f} Hz; gain {a["gain"]:.3f}; fit R^2 {a["fit_r2"]:.3f}')
-    t = result['thrust']
-    low, high = t['thrust_scale_ci95']
-    print(f'thrust: scale {t["thrust_scale"]:.4f} (95 % {low:.4f}-{high:.4f}); '
-          f'hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 commanded; equivalent mass error '
-          f'{100 * t["mass_error_equivalent"]:+.1f} %')
+    print_fits(result)
     d = result['drag']
     print(f'drag: rotor drag {d["rotor_drag_xy"]:.3g} N/(m/s)/(rad/s) (95 % {d["rotor_drag_xy_ci95"][0]:.3g}-'
           f'{d["rotor_drag_xy_ci95"][1]:.3g}): {d["deceleration_per_mps_at_hover"]:.3f} m/s^2 per m/s at hover')
