@@ -224,6 +224,30 @@ def test_unwritable_out_is_one_clear_line(tmp_path, ros_env, command, out):
     assert len(lines) == 1 and '--out' in lines[0] and out in lines[0], done.stderr
 
 
+def test_a_second_fly_on_a_flying_out_is_refused_and_the_first_flies_on(tmp_path, ros_env):
+    """Two flies on one --out: the second is refused before it starts anything (exit 2, naming the first's pid),
+    and the first's flight, bag and logs are its own."""
+    path = mission(tmp_path, [[0, 0, 1], [1.0, 0.3, 1.1], [1.5, 0, 1]])
+    run_dir = tmp_path / 'run'
+    first = subprocess.Popen([QUADFLIGHT, 'fly', str(path), '--out', str(run_dir)], env=ros_env,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in first.stdout:   # said once the run directory is fly's and before its nodes start
+            if line.startswith('flying '):
+                break
+        second = subprocess.run([QUADFLIGHT, 'fly', str(path), '--out', str(run_dir)], env=ros_env,
+                                capture_output=True, text=True, timeout=TIMEOUT_S)
+        out, err = first.communicate(timeout=TIMEOUT_S)
+    finally:
+        first.kill()
+        first.wait()
+    assert second.returncode == 2, second.stdout + second.stderr
+    assert f'--out {run_dir}: another command writes there now (fly pid {first.pid})' in second.stderr
+    assert first.returncode == 0, out + err
+    assert not (run_dir / 'bag.repaired').exists()
+    assert json.loads((run_dir / 'metrics.json').read_text())['completed'] is True
+
+
 def test_run_directories_are_unique_under_a_race(tmp_path):
     """Default run directories: many flies starting in the same millisecond each get their own."""
     from concurrent.futures import ThreadPoolExecutor

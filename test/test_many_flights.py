@@ -68,7 +68,9 @@ def test_tune_on_dask_writes_a_better_profile(tmp_path, scheduler):
 
 
 def test_graph_sweep_flies_fly_and_agrees_with_the_offline_loop(tmp_path):
-    spec = {'missions': [WINDOW], 'controllers': [FAST]}
+    """Through the graph with a disturbance the spec defines itself (not in config/disturbances.yaml)."""
+    spec = {'missions': [WINDOW], 'controllers': [FAST],
+            'disturbances': [{'name': 'wind-1.0', 'base': 'drag', 'wind_mps': [1.0, 0.0, 0.0]}]}   # steady: no gusts
     (tmp_path / 'spec.yaml').write_text(json.dumps(spec))
     out = quadflight('sweep', tmp_path / 'spec.yaml', '--out', tmp_path / 'graph', '--graph', '--no-figures',
                      timeout=400)
@@ -79,5 +81,6 @@ def test_graph_sweep_flies_fly_and_agrees_with_the_offline_loop(tmp_path):
     assert graph['mode'] == 'graph' and not graph['failed'], graph['failure']
     assert graph['key'] != offline[0]['key']
     assert (tmp_path / 'graph' / 'graph' / graph['key'] / 'flight' / 'bag').is_dir()
+    assert graph['disturbance_name'] == 'wind-1.0' and graph['wind_speed_mps'] == pytest.approx(1.0)
     assert graph['rmse_m'] == pytest.approx(offline[0]['rmse_m'], rel=0.1)
     assert graph['time_actual_s'] == pytest.approx(offline[0]['time_actual_s'], abs=0.05)

@@ -32,8 +32,9 @@ SUBCOMMANDS = {
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The parser; with `only` (a subcommand name) just that subcommand's module is imported: `quadflight plan`
-    must not pay for rclpy and the flight graph's imports (lazy: each command imports what it needs)."""
+    """The parser; only the module of `only` (a subcommand name) is imported, none for the top-level help: a help
+    page or a refusal must not pay for rclpy, scipy or the flight graph (each command's module imports only
+    argparse's needs at its top, the rest in run())."""
     parser = argparse.ArgumentParser(
         prog='quadflight',
         description='Plan smooth quadrotor trajectories through waypoints and fly them in the '
@@ -41,10 +42,10 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument('--version', action='version', version=f'quadflight {__version__}')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
     for name, (module_name, help_text) in SUBCOMMANDS.items():
-        if only is not None and name != only:
-            sub.add_parser(name, help=help_text, description=help_text)
-            continue
         if importlib.util.find_spec(module_name) is None:
+            continue
+        if name != only:
+            sub.add_parser(name, help=help_text, description=help_text)
             continue
         module = importlib.import_module(module_name)
         p = sub.add_parser(name, help=help_text, description=help_text)

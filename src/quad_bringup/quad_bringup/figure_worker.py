@@ -7,6 +7,7 @@ DIR]} or {"error": message}. FigureWorker is fly's side of it.
 """
 
 import json
+import os
 import pickle
 import subprocess
 import sys
@@ -32,7 +33,11 @@ class FigureWorker:
         with tempfile.NamedTemporaryFile(suffix='.pickle') as f:
             pickle.dump(flight, f, protocol=pickle.HIGHEST_PROTOCOL)
             f.flush()
-            out, _ = self.popen.communicate(json.dumps({'flight': f.name, 'out': str(out_dir)}) + '\n')
+            try:
+                out, _ = self.popen.communicate(json.dumps({'flight': f.name, 'out': str(out_dir)}) + '\n')
+            except BaseException:   # a signal to fly while drawing: the worker ends with it
+                self.cancel()
+                raise
         answer = json.loads(out.strip().splitlines()[-1]) if out.strip() else {'error': 'no answer'}
         if 'error' in answer:
             raise RuntimeError(answer['error'])
@@ -76,7 +81,11 @@ def main():
         answer = {'figures': figures}
     except Exception as exc:  # any failure is an answer, not a traceback on fly's terminal
         answer = {'error': f'{type(exc).__name__}: {exc}'}
-    print(json.dumps(answer), flush=True)
+    try:
+        print(json.dumps(answer), flush=True)
+    except BrokenPipeError:   # fly is gone (a signal while drawing): nobody to answer, nothing to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     return 0
 
 

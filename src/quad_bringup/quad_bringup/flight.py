@@ -31,6 +31,8 @@ from quad_bringup.figure_worker import FigureWorker, finish_figures
 from quad_bringup.flight_options import (
     FlightOptions,
     MissionRefused,
+    claim_run_dir,
+    controller_note,
     default_run_dir,
     make_run_dir,
     node_parameters,
@@ -64,6 +66,7 @@ class FlightResult:
     pids: list = field(default_factory=list)
     notes: list = field(default_factory=list)   # lines to print with the verdict (record shortfall, landing)
     finish: Callable | None = None              # draws the figures (after the verdict is printed)
+    release: Callable | None = None             # gives up the run directory's lock (after the figures)
 
 
 class _Interrupt:
@@ -108,26 +111,56 @@ def fly(options: FlightOptions, log=print, defer_figures=False) -> FlightResult:
     """Flies the mission (module docstring). The figures are drawn before this returns unless defer_figures:
     then the caller prints the verdict first and calls result.finish() (-> an error line or None)."""
     result = _fly(options, log)
-    if result.finish is not None and not defer_figures:
-        problem = result.finish()
+    release, result.release = result.release or (lambda: None), None
+    if result.finish is None:
+        release()
+    elif not defer_figures:
+        try:
+            problem = result.finish()
+        finally:
+            release()
         result.finish = None
         if problem:
             result.notes.append(problem)
+    else:
+        draw = result.finish
+
+        def finish():
+            try:
+                return draw()
+            finally:
+                release()
+        result.finish = finish
     return result
 
 
 def _fly(options: FlightOptions, log) -> FlightResult:
     clock = _Clock()
     try:
+        note = controller_note(options)
         options = with_profile_controller(options)
         mission = validate(options)
+        if note:
+            log(note)
         options = preflight_options(options, mission, log)
         params = node_parameters(options)
         run_dir = make_run_dir(options.out, default_run_dir(mission.name, options.controller))
+        lock = claim_run_dir(run_dir)
     except MissionRefused as exc:
         return FlightResult(EXIT_REFUSED, str(exc))
     except (ValueError, OSError) as exc:
         return FlightResult(EXIT_REFUSED, f'parameters: {exc}')
+    try:
+        result = _fly_in(run_dir, options, mission, params, clock, log)
+    except BaseException:
+        os.close(lock)
+        raise
+    result.release = lambda: os.close(lock)
+    return result
+
+
+def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock, log) -> FlightResult:
+    """_fly once the run directory is this fly's."""
     clock.mark('validated, run directory made')
     if plan_overrides(options):
         flown = write_flown_mission(options, mission, run_dir / 'mission.yaml')

@@ -170,6 +170,18 @@ def with_profile_controller(options: FlightOptions) -> FlightOptions:
     return dataclasses.replace(options, controller=controller, control_profile=Path(profile) if profile else None)
 
 
+def controller_note(options: FlightOptions) -> str | None:
+    """A line when --controller differs from the control profile's own `controller` (pd flown with se3's gains):
+    --controller wins, and says so."""
+    if options.controller is None or options.control_profile is None:
+        return None
+    own = graph.profile_controller(options.control_profile)
+    if own and own != options.controller:
+        return (f'note: flying {options.controller} with the gains of {options.control_profile}, a profile for {own} '
+                f'(its controller:); --controller wins: drop it to fly {own}')
+    return None
+
+
 def write_flown_mission(options: FlightOptions, mission, path: Path) -> Path:
     """The mission file with this flight's trajectory overrides, its file paths made absolute (so the
     trajectory node plans exactly what was validated; kept in the run directory)."""
@@ -202,21 +214,30 @@ def default_run_dir(mission_name: str, controller: str) -> Path:
     return REPO_ROOT / 'runs' / f'{mission_name}-{controller}-{stamp}'
 
 
+# what fly writes into its run directory: an explicit --out holding any of them is refused (never overwritten)
+RUN_OUTPUTS = ('bag', 'bag.repaired', 'metrics.json', 'report.md', 'figures', 'logs', 'params.yaml', 'pids.json',
+               'mission.yaml')
+
+
 def make_run_dir(requested: Path | None, default: Path) -> Path:
     """Creates the run directory. The default name is made unique atomically (mkdir without exist_ok, a -2, -3...
     suffix on collision: two flies in the same millisecond get two directories); an explicit --out may exist but
-    must not hold a bag. Raises MissionRefused (one line) for a path that cannot be created or written."""
+    must hold none of RUN_OUTPUTS (claim_run_dir checks again under the lock). Raises MissionRefused (one line) for
+    a path that cannot be created or written."""
     if requested is not None:
         run_dir = Path(requested)
-        if (run_dir / 'bag').exists():
-            raise MissionRefused(f'--out {run_dir}: already holds a bag; choose a new run directory')
+        if run_dir.exists() and not run_dir.is_dir():
+            raise MissionRefused(f'--out {run_dir}: a file, not a directory; choose a new run directory')
+        from quad_bringup.dir_lock import holder_of
+
+        if (holder := holder_of(run_dir)) is not None:
+            raise MissionRefused(_busy(run_dir, holder))
+        _refuse_outputs(run_dir)
         try:
             run_dir.mkdir(parents=True, exist_ok=True)
             _check_writable(run_dir)
         except OSError as exc:
             raise MissionRefused(f'--out {run_dir}: cannot create or write it ({exc.strerror or exc})') from None
-        if (run_dir / 'bag').exists():
-            raise MissionRefused(f'--out {run_dir}: already holds a bag; choose a new run directory')
         return run_dir
     try:
         default.parent.mkdir(parents=True, exist_ok=True)
@@ -234,6 +255,39 @@ def make_run_dir(requested: Path | None, default: Path) -> Path:
             raise MissionRefused(f'run directory {run_dir}: cannot create it ({exc.strerror or exc}); '
                                  'give --out') from None
     raise MissionRefused(f'run directory {default}: 999 runs of that name already exist')
+
+
+def claim_run_dir(run_dir: Path) -> int:
+    """The run directory for this fly alone, before anything starts: its lock (quad_bringup.dir_lock.claim_dir; the
+    kernel drops it when fly ends, SIGKILL included), then none of RUN_OUTPUTS in it (so a second fly on one --out
+    is refused, exit 2, naming the first, and nothing there is overwritten). Returns the lock's descriptor
+    (os.close releases it); raises MissionRefused."""
+    from quad_bringup.dir_lock import DirectoryBusy, claim_dir
+
+    try:
+        fd = claim_dir(run_dir, 'fly')
+    except DirectoryBusy as busy:
+        raise MissionRefused(_busy(run_dir, busy)) from None
+    except OSError as exc:
+        raise MissionRefused(f'--out {run_dir}: cannot create or write it ({exc.strerror or exc})') from None
+    try:
+        _refuse_outputs(run_dir)
+    except MissionRefused:
+        os.close(fd)
+        raise
+    return fd
+
+
+def _busy(run_dir: Path, holder) -> str:
+    return f'--out {run_dir}: another command writes there now ({holder}); wait for it or choose another --out'
+
+
+def _refuse_outputs(run_dir: Path):
+    held = [name for name in RUN_OUTPUTS if os.path.lexists(run_dir / name)]
+    if held:
+        also = f' (and {", ".join(held[1:])})' if held[1:] else ''
+        raise MissionRefused(f'--out {run_dir}: already holds {held[0]}{also}, which fly would write; it overwrites '
+                             'nothing: choose a new run directory')
 
 
 def _check_writable(path: Path):

@@ -43,6 +43,7 @@ DT_S = 0.01                  # resampling period (odometry comes at 100 Hz in th
 MAX_DELAY_S = 0.3
 TAU_RANGE_S = (0.005, 2.0)   # the first order's search range (fit_fopdt's bounds)
 BLOCKS = 6
+MIN_PART_S = 1.0             # a part of the lag's interval lasts this long at least
 MIN_EXCITATION_RAD = np.deg2rad(0.5)   # command standard deviation a block needs to be fitted
 MIN_BLOCK_EXCITATION_RAD = np.deg2rad(0.75)   # ... and each part of the interval: a part of hover before the
 #   plan or of legs along the other axis fits noise (an emulated PX4 square at 1 m/s: a pitch part of 0.53 deg fit
@@ -58,7 +59,8 @@ EDGE_REL = 0.1               # tau within 10 % of a bound of TAU_RANGE_S, or the
 MIN_LAG_CI_S = 0.1 * DT_S    # a narrower lag interval: every part hit the same bound (collapsed), not a measurement
 EXCITE_LAG = ('fly a manoeuvre that shows the attitude response: a 3 m square or a figure8 at 0.8-1 m/s with the pd '
               'controller (--controller pd: no body-rate feed-forward; the se3 controller\'s rates let an autopilot '
-              'follow the commanded attitude within a sample and hide its lag)')
+              'follow the commanded attitude within a sample and hide its lag), e.g. quadflight fly '
+              'config/missions/figure8.yaml --controller pd')
 EXCITE = ('fly a manoeuvre that tilts the vehicle while it flies our setpoints (offboard), e.g. a 3 m square or '
           'a figure8 at 0.8-1 m/s, and record all of it')
 WALL_CLOCK_NS = 10**18       # stamps past 2001: a wall clock, not a simulator's time from 0
@@ -209,7 +211,7 @@ def identify_attitude(flight, axis: int) -> AxisFit:
     tau, delay, gain, _, rss = fit_fopdt(u, y)
     parts = []
     for uu, yy in zip(np.array_split(u, BLOCKS), np.array_split(y, BLOCKS)):
-        if np.std(uu) >= MIN_BLOCK_EXCITATION_RAD and len(uu) * DT_S >= 1.0:
+        if np.std(uu) >= MIN_BLOCK_EXCITATION_RAD and len(uu) * DT_S >= MIN_PART_S:
             b_tau, b_delay, *_ = fit_fopdt(uu, yy)
             parts.append(b_tau + b_delay)
     lag = tau + delay
@@ -291,6 +293,14 @@ def quality_refusal(result: dict) -> str | None:
     interval too wide to trust, a thrust scale the controller cannot take), or None when they hold."""
     for axis in ('roll', 'pitch'):
         a = result[axis]
+        if a['blocks'] < 2:   # no interval: too short or too gentle a flight (a 4 s maze at 2 m/s: 0 parts)
+            flown_s = result.get('window', {}).get('duration_s')
+            if flown_s is not None and flown_s < BLOCKS * MIN_PART_S:
+                return (f'the flight is too short to measure the {axis} lag: {flown_s:.1f} s flown, its {BLOCKS} '
+                        f'parts need {MIN_PART_S:g} s each ({BLOCKS * MIN_PART_S:g} s): {EXCITE_LAG}')
+            return (f'the flight is too gentle to measure the {axis} lag: {a["blocks"]} of its {BLOCKS} parts '
+                    f'command {np.rad2deg(MIN_BLOCK_EXCITATION_RAD):.2f} deg or more of {axis} (std), 2 are needed: '
+                    f'{EXCITE_LAG}')
         low, high = a['lag_ci95_s']
         if a['tau_s'] <= TAU_RANGE_S[0] * (1 + EDGE_REL) or a['tau_s'] >= TAU_RANGE_S[1] * (1 - EDGE_REL) \
                 or a['delay_s'] >= MAX_DELAY_S - 0.5 * DT_S:

@@ -1,6 +1,7 @@
-"""fly's input files checked before anything starts (issue 27.8): the control profile (quad_bringup.profiles) and
-the disturbance profile name, which the graph's nodes would otherwise refuse only after the start (a run
-directory and an empty bag left, or the defaults flown with exit 0)."""
+"""fly's input files checked before anything starts: the control profile (quad_bringup.profiles) and the
+disturbance profile name in the file sim_node will read it from (config/disturbances.yaml, or the
+`disturbances_file` a sweep writes for its spec's profiles), which the graph's nodes would otherwise refuse only
+after the start (a run directory and an empty bag left, or the defaults flown with exit 0)."""
 
 
 def check_inputs(options):
@@ -16,8 +17,9 @@ def check_inputs(options):
     if options.disturbances is not None:
         from quad_sim.disturbances import load_profile
 
+        source = (options.sim_parameters or {}).get('disturbances_file') or 'config/disturbances.yaml'
         try:
-            load_profile(resolve_config('config/disturbances.yaml'), options.disturbances)
+            load_profile(resolve_config(source), options.disturbances)
         except ValueError as exc:
             raise ValueError(f'--disturbances: {exc}') from None
 

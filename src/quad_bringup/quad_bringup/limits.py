@@ -40,6 +40,36 @@ LIMITS = {
 # most, ~120 MB, so a mission of 1e9 m cannot fill the disk or the memory.
 CSV_MAX_SAMPLES = 1_000_000
 
+# identify writes a profile only with margin (quad_bringup.stability): it must settle at MARGIN_LAG x the identified
+# attitude response and MARGIN_LATENCY x the telemetry latency
+MEASURED_LAG_S = (0.17, 0.21)    # ArduCopter SITL roll/pitch under pd/pid
+MEASURED_LATENCY_S = 0.05        # its telemetry
+MARGIN_LAG = 1.5
+MARGIN_LATENCY = 2.0
+
+
+# ROS_DOMAIN_ID: Fast DDS (the wheels' RMW) derives its ports from it and takes 0-232 (port 7400 + 250 x id + 11
+# must stay below 65536); above it, it prints RTPS errors and the node cannot start
+MAX_ROS_DOMAIN_ID = 232
+
+
+def domain_refusal(environ) -> str | None:
+    """The refusal of the environment's ROS_DOMAIN_ID (a command that joins that domain), or None."""
+    text = environ.get('ROS_DOMAIN_ID', '').strip()
+    if not text or text.isdigit() and int(text) <= MAX_ROS_DOMAIN_ID:
+        return None
+    return f'ROS_DOMAIN_ID={text!r} refused: must be an integer from 0 to {MAX_ROS_DOMAIN_ID} (Fast DDS\'s range)'
+
+
+def ros_name_refusal(option: str, name: str, validate) -> str | None:
+    """One line when rclpy's `validate` (validate_namespace, validate_topic_name) refuses `name`, else None."""
+    try:
+        validate(name)
+    except Exception as exc:   # rclpy's InvalidNamespaceException / InvalidTopicNameException: a caret diagram
+        reason = str(exc).splitlines()[0].rstrip(':').partition(': ')[2] or str(exc).splitlines()[0]
+        return f'{option} {name!r} refused: {reason}'
+    return None
+
 
 def refusal(key: str, value) -> str | None:
     """LIMITS[key]'s refusal of value (None: accepted, or not given)."""

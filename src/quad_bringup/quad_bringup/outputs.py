@@ -1,14 +1,12 @@
-"""A sweep's or tune's output directory: checked before anything is made (a file, an unwritable place: one line,
-nothing left; issue 27.10, 27.11) and held by one writer at a time (issue 27.7): an exclusive flock on
-OUT/.quadflight.lock for the command's life, which the kernel drops when the process ends, SIGKILL included."""
+"""An output directory of sweep, tune or fly: checked before anything is made (a file, an unwritable place: one line,
+nothing left) and held by one writer at a time: an exclusive flock on OUT/.quadflight.lock for the command's life,
+which the kernel drops when the process ends, SIGKILL included."""
 
-import fcntl
 import os
 from pathlib import Path
 
+from quad_bringup.dir_lock import DirectoryBusy, claim_dir
 from quad_bringup.runs import SpecError
-
-LOCK_NAME = '.quadflight.lock'
 
 
 def check_out_dir(out: Path):
@@ -30,18 +28,12 @@ class OutputDir:
         check_out_dir(self.path)
         try:
             self.path.mkdir(parents=True, exist_ok=True)
-            self._fd = os.open(self.path / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+            self._fd = claim_dir(self.path, what)
+        except DirectoryBusy as busy:
+            raise SpecError(f'--out {self.path}: another sweep or tune writes there now ({busy}): wait for it '
+                            'or choose another --out') from None
         except OSError as exc:
             raise SpecError(f'--out {self.path}: cannot create or write it ({exc.strerror or exc})') from None
-        try:
-            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(self._fd, 200, 0).decode(errors='replace').strip() or '?'
-            os.close(self._fd)
-            raise SpecError(f'--out {self.path}: another sweep or tune writes there now ({holder}): wait for it '
-                            'or choose another --out') from None
-        os.ftruncate(self._fd, 0)
-        os.pwrite(self._fd, f'{what} pid {os.getpid()}\n'.encode(), 0)
 
     def close(self):
         if self._fd is not None:

@@ -25,6 +25,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from quad_bringup.limits import (  # noqa: F401  (the margin's numbers: in limits, which help pages read)
+    MARGIN_LAG,
+    MARGIN_LATENCY,
+    MEASURED_LAG_S,
+    MEASURED_LATENCY_S,
+)
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, Reference
 from quad_common.vehicle import load_vehicle
@@ -35,10 +41,6 @@ from quad_sim.simulator import SimulationStopped, Simulator
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle, own_lag_s, tau_for_lag_s
 from quad_vehicle_emu.mavlink_vehicle import DEFAULT_BURST_S
 
-MEASURED_LAG_S = (0.17, 0.21)    # ArduCopter SITL roll/pitch under pd/pid (issue 13)
-MEASURED_LATENCY_S = 0.05        # its telemetry
-MARGIN_LAG = 1.5
-MARGIN_LATENCY = 2.0
 SETTLED_TILT_DEG = 2.0           # largest tilt over the last quarter of a settled hold
 SETTLED_OSCILLATION_DEG = 0.5    # tilt standard deviation over the last quarter of a settled hold
 SETTLED_OSCILLATION_M = 0.005    # position standard deviation over the last quarter of a settled hold

@@ -58,11 +58,11 @@ def test_plan_takes_flys_limits_and_refuses_a_directory(capsys, mission, tmp_pat
 
 
 def test_ctrl_c_during_plan_is_one_line_and_exit_130(capsys, mission, monkeypatch):
-    import quad_bringup.commands.plan as plan
+    import quad_trajectory.mission as mission_module
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
-    monkeypatch.setattr(plan, 'plan_mission', interrupted)
+    monkeypatch.setattr(mission_module, 'plan_mission', interrupted)
     code, _, err = _main(capsys, 'plan', mission)
     assert code == 130 and err.strip() == 'quadflight plan: interrupted'
 
@@ -208,3 +208,150 @@ def test_tune_out_a_file_and_a_closed_scheduler_leave_nothing(capsys, tmp_path):
     out = tmp_path / 'out'
     code, _, err = _main(capsys, 'sweep', sweep_spec, '--out', out, '--scheduler', 'tcp://127.0.0.1:9')
     assert code == 2 and 'cannot connect' in err and not out.exists()   # no empty runs.csv / runs.jsonl
+
+
+def test_fly_on_a_run_directory_another_fly_holds_is_refused_naming_it(capsys, tmp_path):
+    import os
+
+    from quad_bringup.flight_options import claim_run_dir
+    run_dir = tmp_path / 'run'
+    run_dir.mkdir()
+    lock = claim_run_dir(run_dir)   # what a fly in flight holds (flock: one open file description per claim)
+    try:
+        code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--out', run_dir)
+    finally:
+        os.close(lock)
+    assert code == 2 and f'--out {run_dir}: another command writes there now (fly pid {os.getpid()})' in err
+    assert len(err.strip().splitlines()) == 1 and sorted(p.name for p in run_dir.iterdir()) == ['.quadflight.lock']
+
+
+@pytest.mark.parametrize('mine', ['report.md', 'logs', 'metrics.json'])
+def test_fly_never_overwrites_what_its_out_holds(capsys, tmp_path, mine):
+    run_dir = tmp_path / 'notes'
+    run_dir.mkdir()
+    (run_dir / mine).write_text('my own\n')
+    code, _, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--out', run_dir)
+    assert code == 2 and f'--out {run_dir}: already holds {mine}' in err and 'overwrites nothing' in err
+    assert [p.name for p in run_dir.iterdir()] == [mine] and (run_dir / mine).read_text() == 'my own\n'
+
+
+def test_a_disturbance_a_sweep_spec_defines_is_checked_in_the_file_it_wrote(tmp_path):
+    """sweep --graph and tune's verification fly spec-defined profiles from their own disturbances_file."""
+    from quad_bringup.flight_options import FlightOptions
+    from quad_bringup.inputs import check_inputs
+
+    profiles = tmp_path / 'disturbances.yaml'
+    profiles.write_text('wind-1.0: {wind_mps: [1.0, 0.0, 0.0]}\n')   # as runs.py writes it: base resolved
+    mission = REPO_ROOT / 'config/missions/window.yaml'
+    check_inputs(FlightOptions(mission, disturbances='wind-1.0', sim_parameters={'disturbances_file': str(profiles)}))
+    with pytest.raises(ValueError, match="'wind-1.0': no such profile in .*config/disturbances.yaml"):
+        check_inputs(FlightOptions(mission, disturbances='wind-1.0'))
+
+
+def test_tune_fails_when_its_verification_could_not_fly(capsys, tmp_path, monkeypatch):
+    import quad_bringup.tune as tune
+
+    def tuned(spec, out, **kwargs):
+        out.mkdir()
+        (out / 'verify.md').write_text('| mission |\n')
+        return {'aggregate': 'p95', 'cost_before_m': 0.1, 'cost_after_m': 0.05, 'evaluations': 3, 'runs': 6,
+                'best_gains': {}, 'base_gains': {},
+                'verify': [{'mission': 'window', 'graph_completed': True, 'graph_failure': None},
+                           {'mission': 'maze', 'graph_completed': False,
+                            'graph_failure': "--disturbances: disturbances = 'wind-1.0': no such profile\nmore"}]}
+    monkeypatch.setattr(tune, 'run_tune', tuned)
+    code, out, err = _main(capsys, 'tune', tmp_path / 'spec.yaml', '--out', tmp_path / 'out')
+    assert code == 1 and 'profile:' in out
+    assert err.strip() == ("tune: the verification through the ROS graph failed on 1 of 2 missions (maze: "
+                           "--disturbances: disturbances = 'wind-1.0': no such profile); profile.yaml is written, "
+                           "unverified")
+
+
+def test_replay_without_a_model_says_identify_writes_it(capsys, tmp_path):
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    code, _, err = _main(capsys, 'replay', bag)
+    assert code == 2 and err.strip() == (f'quadflight replay: {bag}: no vehicle model beside it (bag_vehicle.yaml): '
+                                         f'quadflight identify {bag} writes it, or give --vehicle MODEL.yaml')
+
+
+def test_inputs_are_bounded_and_errors_name_the_value_not_the_file(capsys, tmp_path):
+    bomb = tmp_path / 'bomb.yaml'   # nine anchors of nine aliases: 9^9 values once expanded
+    lines = ['name: b', 'a0: &a0 [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]']
+    lines += [f'a{i}: &a{i} [{", ".join([f"*a{i - 1}"] * 9)}]' for i in range(1, 10)]
+    bomb.write_text('\n'.join(lines + ['waypoints: *a9']) + '\n')
+    code, _, err = _main(capsys, 'plan', bomb)
+    assert code == 2 and err.strip() == (f'quadflight plan: {bomb}: its aliases (*name) expand it to more than '
+                                         '1,000,000 values: refused')
+    many = tmp_path / 'many.yaml'
+    points = [f'  - [{0.01 * i:.2f}, 0.0, 1.0]' for i in range(5000)]
+    points[2500] = '  - [1.0, x, 1.0]'
+    many.write_text('name: many\nwaypoints:\n' + '\n'.join(points) + '\n')
+    code, _, err = _main(capsys, 'plan', many)
+    assert code == 2 and err.strip() == (f"quadflight plan: {many}: waypoints[2500] = [1.0, 'x', 1.0] must be "
+                                         '[x, y, z] in metres (numbers)')
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text(MISSION.replace('speed: 0.5', 'sped: 0.5'))
+    code, _, err = _main(capsys, 'plan', typo)
+    assert code == 2 and "trajectory.sped is not a known key (did you mean 'speed'?)" in err
+
+
+def test_ros_names_and_domain_are_refused_in_one_line_before_anything_starts(capsys, tmp_path, monkeypatch):
+    out = tmp_path / 'b'
+    code, _, err = _main(capsys, 'record', '--out', out, 'not a topic!')
+    assert code == 2 and err.startswith("quadflight record: topic 'not a topic!' refused: topic name must not")
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+    code, _, err = _main(capsys, 'arm', '--namespace', 'bad ns!', '--timeout-s', '1')
+    assert code == 2 and err.startswith("quadflight arm: --namespace 'bad ns!' refused: namespace must not")
+    assert len(err.strip().splitlines()) == 1
+    monkeypatch.setenv('ROS_DOMAIN_ID', '250')
+    for argv in (['land', '--timeout-s', '1'], ['record', '--out', out]):
+        code, _, err = _main(capsys, *argv)
+        assert code == 2 and err.strip() == (f'quadflight {argv[0]}: ROS_DOMAIN_ID=\'250\' refused: must be an '
+                                             "integer from 0 to 232 (Fast DDS's range)")
+    assert not out.exists()
+
+
+def test_report_into_a_directory_with_a_foreign_metrics_json_is_one_line(capsys, tmp_path):
+    out = tmp_path / 'out'
+    out.mkdir()
+    (out / 'metrics.json').write_text('{not json')
+    code, _, err = _main(capsys, 'report', _foreign_bag(tmp_path / 'bag'), '--out', out)
+    assert code == 2 and err.startswith(f'quadflight report: --out {out}: its metrics.json is not one report wrote')
+    assert len(err.strip().splitlines()) == 1 and (out / 'metrics.json').read_text() == '{not json'
+
+
+def test_plan_on_a_full_disk_leaves_nothing_and_names_the_path(capsys, mission, tmp_path, monkeypatch):
+    import errno
+
+    import numpy as np
+
+    def full(path, *args, **kwargs):   # the CSV's write fails half way, as on a full filesystem
+        Path(path).write_text('t_s,pos_x\n0.0,')
+        raise OSError(errno.ENOSPC, 'No space left on device')
+    monkeypatch.setattr(np, 'savetxt', full)
+    out = tmp_path / 'out' / 't.json'
+    code, _, err = _main(capsys, 'plan', mission, '--out', out, '--csv', '10')
+    assert code == 2 and err.strip() == (f'quadflight plan: --csv {out.with_suffix(".csv")}: cannot write it (No '
+                                         'space left on device); nothing written')
+    assert list(out.parent.iterdir()) == []
+
+
+def test_fly_says_when_the_controller_is_not_the_profiles(capsys, tmp_path):
+    run_dir = tmp_path / 'run'
+    run_dir.mkdir()
+    (run_dir / 'report.md').write_text('mine\n')   # refused there: nothing flies
+    code, out, _ = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--controller', 'pd',
+                         '--control-profile', 'config/control_se3.yaml', '--out', run_dir)
+    assert code == 2 and ('note: flying pd with the gains of config/control_se3.yaml, a profile for se3 (its '
+                          'controller:); --controller wins: drop it to fly se3') in out
+
+
+def test_a_vehicle_gain_that_is_text_names_the_field_and_the_file(capsys, tmp_path):
+    vehicle = tmp_path / 'v.yaml'
+    text = (REPO_ROOT / 'config/vehicles/crazyflie.yaml').read_text()
+    vehicle.write_text(text.replace('  kp: [3000.0, 3000.0, 3000.0]', '  kp: stiff'))
+    mission = tmp_path / 'm.yaml'
+    mission.write_text(MISSION + f'vehicle: {vehicle}\n')
+    code, _, err = _main(capsys, 'plan', mission)
+    assert code == 2 and f"{vehicle}: attitude_gains.kp = 'stiff' must be three finite numbers >= 0" in err

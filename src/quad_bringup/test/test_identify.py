@@ -415,3 +415,14 @@ def test_the_margin_verdict_matches_a_cascade_1_5x_slower(tmp_path, stiff, settl
     assert check.settled == member.settled == settles, (check.describe(), member.describe())
     if not settles:
         assert check.oscillation_deg > 1.0 and member.oscillation_deg > 5.0
+
+
+def test_a_flight_too_short_for_the_lag_interval_is_refused_naming_the_flight_to_fly():
+    """The README's 4 s maze at 2 m/s: a good fit but no part for its interval (each needs 1 s)."""
+    axis = {'tau_s': 0.09, 'delay_s': 0.0, 'lag_s': 0.09, 'lag_ci95_s': [float('nan')] * 2, 'blocks': 0,
+            'fit_r2': 1.0}
+    result = {'roll': axis, 'pitch': axis, 'thrust': {'thrust_scale': 1.0, 'thrust_scale_ci95': [0.999, 1.001]},
+              'window': {'duration_s': 5.6}}
+    reason = quality_refusal(result)
+    assert reason.startswith('the flight is too short to measure the roll lag: 5.6 s flown, its 6 parts need 1 s')
+    assert reason.endswith('quadflight fly config/missions/figure8.yaml --controller pd') and 'nan' not in reason

@@ -313,3 +313,17 @@ def test_report_command_takes_the_vehicles_rule(tmp_path, capsys):
     rule = json.loads((tmp_path / 'out' / 'metrics.json').read_text())['completion_rule']
     assert rule == {'position_tolerance_m': 0.1, 'speed_tolerance_mps': 0.1, 'settle_s': 1.5,
                     'source': 'vehicle px4_quad + command line'}
+
+
+def test_the_figure_worker_whose_fly_is_gone_ends_without_a_traceback(tmp_path):
+    """A signal to fly while the figures are drawn: fly exits, the worker's answer meets a closed pipe."""
+    import json
+    import subprocess
+    import sys
+
+    worker = subprocess.Popen([sys.executable, '-m', 'quad_bringup.figure_worker'], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    worker.stdout.close()   # fly gone: nobody reads the answer
+    _, err = worker.communicate(json.dumps({'bag': str(tmp_path / 'nobag'), 'out': str(tmp_path)}) + '\n',
+                                timeout=120)
+    assert 'Traceback' not in err and 'BrokenPipeError' not in err, err

@@ -170,12 +170,20 @@ def vehicle_from_dict(data: dict, path='vehicle') -> Vehicle:
     if (not isinstance(inertia, (list, tuple)) or len(inertia) != 3
             or not all(isinstance(v, (int, float)) and np.isfinite(v) and v > 0 for v in inertia)):
         raise ValueError(f'{path}: inertia_kgm2 = {inertia!r} must be three finite numbers > 0 (Ixx, Iyy, Izz)')
-    gains = data.get('attitude_gains', {})
-    kp = np.asarray(gains.get('kp', [3000.0] * 3), dtype=float)
-    kd = np.asarray(gains.get('kd', [300.0] * 3), dtype=float)
-    for name, g in (('kp', kp), ('kd', kd)):
-        if g.shape != (3,) or not np.all(np.isfinite(g)) or np.any(g < 0):
-            raise ValueError(f'{path}: attitude_gains.{name} = {g.tolist()} must be three finite numbers >= 0')
+    gains = data.get('attitude_gains') or {}
+    if not isinstance(gains, dict):
+        raise ValueError(f'{path}: attitude_gains = {gains!r:.120} must be a mapping (kp, kd)')
+    converted = {}
+    for name, default in (('kp', 3000.0), ('kd', 300.0)):
+        value = gains.get(name, [default] * 3)
+        try:
+            g = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            g = None
+        if g is None or g.shape != (3,) or not np.all(np.isfinite(g)) or np.any(g < 0):
+            raise ValueError(f'{path}: attitude_gains.{name} = {value!r:.120} must be three finite numbers >= 0')
+        converted[name] = g
+    kp, kd = converted['kp'], converted['kd']
     layout = data.get('layout', 'x')
     if layout not in ('x', 'plus'):
         raise ValueError(f"{path}: layout = {layout!r} must be 'x' or 'plus'")

@@ -17,6 +17,12 @@ except AttributeError:  # PyYAML without libyaml
     SAFE_LOADER = yaml.SafeLoader
 _noted = []
 _FLOAT, _INT, _SEQ = 'tag:yaml.org,2002:float', 'tag:yaml.org,2002:int', 'tag:yaml.org,2002:seq'
+# Inputs are bounded: a file larger than this, or one whose aliases expand it to more values than MAX_VALUES
+# (a "billion laughs" of nine anchors of nine aliases each is 9^9), is refused before anything walks it. A
+# 50,000-waypoint mission is ~1.3 MB and 200,000 values.
+MAX_FILE_BYTES = 64 * 2**20
+MAX_VALUES = 1_000_000
+SHOWN_CHARS = 120   # an echoed value is cut to this many characters
 
 
 # A plain decimal that YAML 1.1's resolver (float tried before int) tags float when it has a dot, else int.
@@ -70,6 +76,19 @@ def refuse_number_text(data: dict, keys, where: str):
                              f'signed exponent, e.g. {float(mantissa):.1f}e{sign}{exponent}')
 
 
+def shown(value, limit: int = SHOWN_CHARS) -> str:
+    """repr(value) cut to `limit` characters (an error line names a value, never echoes a whole file)."""
+    text = repr(value)
+    return text if len(text) <= limit else f'{text[:limit]}... ({len(text):,} characters)'
+
+
+def suggestion(key, known) -> str:
+    """' (did you mean 'speed'?)' for a near miss of a known key, else ''."""
+    import difflib
+    close = difflib.get_close_matches(str(key), [str(k) for k in known], n=1, cutoff=0.6)
+    return f' (did you mean {close[0]!r}?)' if close else ''
+
+
 def refuse_typos(data: dict, known, where: str):
     """ValueError for a top-level key that is not known but nearly is (a typo: `robot_raduis_m`, `mass_kgg`);
     other unknown keys stay the file's own (issue 27.9)."""
@@ -86,6 +105,9 @@ def load_yaml(path) -> dict:
     path = os.fspath(path)
     try:
         with open(path) as f:
+            size = os.fstat(f.fileno()).st_size
+            if size > MAX_FILE_BYTES:
+                raise ValueError(f'{path}: {size:,} bytes, above the {MAX_FILE_BYTES:,} an input may have')
             _note_fallback()
             data = yaml.load(f, Loader=NumbersLoader)
     except FileNotFoundError:
@@ -99,4 +121,24 @@ def load_yaml(path) -> dict:
         raise ValueError(f'{path}: a directory, not a YAML file') from None
     if not isinstance(data, dict):
         raise ValueError(f'{path}: expected a mapping at the top level, got {type(data).__name__}')
+    if _values_above(data, MAX_VALUES):
+        raise ValueError(f'{path}: its aliases (*name) expand it to more than {MAX_VALUES:,} values: refused')
     return data
+
+
+def _values_above(data, limit: int) -> bool:
+    """Whether data, with every alias expanded, holds more than `limit` values: a walk that stops at the limit
+    (an alias is one shared object, visited again at each of its uses)."""
+    count, stack = 0, [data]
+    while stack:
+        item = stack.pop()
+        count += 1
+        if count > limit:
+            return True
+        if isinstance(item, dict):
+            stack.extend(item.values())
+            count += len(item)
+        elif isinstance(item, list):
+            stack.extend(v for v in item if isinstance(v, (dict, list)))
+            count += len(item)
+    return False

@@ -13,7 +13,7 @@ import numpy as np
 
 from quad_common.vehicle import Vehicle, load_vehicle
 from quad_common.world import World, load_world
-from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos
+from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos, suggestion
 from quad_trajectory import feasibility, planner
 
 SEED_CONTROL_POINTS = (0.1, 0.9)
@@ -81,8 +81,8 @@ def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
     refuse_number_text(traj.get('limits') or {}, ('v_max_mps', 'a_max_mps2'), f'{path}: trajectory.limits.')
     unknown = sorted(set(traj) - _TRAJECTORY_KEYS)
     if unknown:
-        raise ValueError(f'{path}: trajectory.{unknown[0]} is not a known key '
-                         f'(known: {", ".join(sorted(_TRAJECTORY_KEYS))})')
+        raise ValueError(f'{path}: trajectory.{unknown[0]} is not a known key'
+                         f'{suggestion(unknown[0], _TRAJECTORY_KEYS)} (known: {", ".join(sorted(_TRAJECTORY_KEYS))})')
     limits = traj.get('limits') or {}
     if not isinstance(limits, dict) or set(limits) - _LIMIT_KEYS:
         raise ValueError(f'{path}: trajectory.limits = {limits!r} may only hold {", ".join(sorted(_LIMIT_KEYS))}')

@@ -115,15 +115,30 @@ def validate_waypoints(waypoints) -> np.ndarray:
     try:
         w = np.asarray(waypoints, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f'waypoints = {waypoints!r} must be a list of [x, y, z] in metres') from None
-    if w.ndim != 2 or w.shape[1] != 3:
-        raise ValueError(f'waypoints = {np.asarray(waypoints).tolist()!r} must be a list of [x, y, z] in metres')
+        w = None
+    if w is None or w.ndim != 2 or w.shape[1] != 3:
+        _refuse_waypoints(waypoints)
     bad = np.nonzero(~np.all(np.isfinite(w), axis=1))[0]
     if bad.size:
         raise ValueError(f'waypoints[{bad[0]}] = {w[bad[0]].tolist()} must be finite')
     if len(w) < 2:
         raise ValueError(f'waypoints = {w.tolist()} needs at least two distinct waypoints')
     return w
+
+
+def _refuse_waypoints(waypoints):
+    """ValueError naming the first bad waypoint by its index (never the whole list: 50,000 of them are 1 MB)."""
+    from quad_common.yaml_io import shown
+
+    if isinstance(waypoints, (list, tuple)):
+        for i, point in enumerate(waypoints):
+            try:
+                ok = np.asarray(point, dtype=float).shape == (3,)
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ValueError(f'waypoints[{i}] = {shown(point)} must be [x, y, z] in metres (numbers)')
+    raise ValueError(f'waypoints = {shown(waypoints)} must be a list of [x, y, z] in metres')
 
 
 def validate_yaw(yaw, n: int) -> np.ndarray:

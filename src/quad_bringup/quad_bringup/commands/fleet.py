@@ -13,11 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from quad_bringup.commands.fleet_plan import feasible, summary_lines
 from quad_bringup.commands.plan import add_time_allocation_argument
-from quad_bringup.flight import EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED
 from quad_common.paths import input_path
 
 
@@ -60,6 +56,8 @@ def verdict_lines(run) -> list[str]:
 
 
 def write_figure(run, path):
+    import numpy as np
+
     """The flown paths from above (planned dashed, collisions marked) and the minimum separation over time."""
     import matplotlib
     matplotlib.use('Agg')
@@ -95,8 +93,12 @@ def write_figure(run, path):
 
 
 def run(args) -> int:
+    import numpy as np
+
     from quad_bringup.closed_loop import LoopOptions
+    from quad_bringup.commands.fleet_plan import feasible, summary_lines
     from quad_bringup.fleet_loop import fly_fleet
+    from quad_bringup.flight import EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED
     from quad_trajectory.fleet import load_fleet, plan_fleet
     try:
         fleet = load_fleet(args.mission)

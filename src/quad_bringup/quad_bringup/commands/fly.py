@@ -7,9 +7,6 @@ from pathlib import Path
 
 from quad_bringup.commands.plan import add_time_allocation_argument
 from quad_bringup.commands.report import add_completion_arguments, completion_overrides
-from quad_bringup.flight import fly
-from quad_bringup.flight_options import FlightOptions
-from quad_bringup.report import metrics_table
 from quad_common.paths import input_path
 
 
@@ -39,7 +36,9 @@ def add_arguments(parser):
     parser.add_argument('--quiet', action='store_true', help='no progress lines')
 
 
-def options_from(args) -> FlightOptions:
+def options_from(args):
+    from quad_bringup.flight_options import FlightOptions
+
     return FlightOptions(mission=Path(args.mission), controller=args.controller, speed_mps=args.speed, out=args.out,
                          time_allocation=args.time_allocation,
                          vehicle=args.vehicle, plant=args.plant, disturbances=args.disturbances,
@@ -67,8 +66,15 @@ def run_fleet(args) -> int:
 
 
 def run(args) -> int:
+    from quad_bringup.flight import fly
+    from quad_bringup.report import metrics_table
+    from quad_common.paths import resolve_config
     from quad_trajectory.fleet import is_fleet_file
 
+    try:   # config/missions/... from any working directory, as the README writes it
+        args.mission = resolve_config(args.mission)
+    except FileNotFoundError:
+        pass   # validate names it
     if is_fleet_file(args.mission):
         return run_fleet(args)
     result = fly(options_from(args), log=lambda line: print(line, flush=True), defer_figures=True)

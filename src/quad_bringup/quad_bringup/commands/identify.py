@@ -6,22 +6,7 @@ that profile has margin on the response it measured, with the bag's telemetry (q
 import sys
 from pathlib import Path
 
-from rosbags.rosbag2 import ReaderError
-
-from quad_bringup.identify import (
-    identify,
-    identify_drag,
-    model_text,
-    profile,
-    profile_text,
-    quality_refusal,
-    vehicle_model,
-)
-from quad_bringup.report import load_flight
 from quad_common.paths import input_path
-from quad_common.vehicle import load_vehicle
-from quad_common.yaml_io import load_yaml
-from quad_control.parameters import profile_parameters
 
 DEFAULT_BASE = 'config/control_real.yaml'            # what the bridge launch files fly
 DEFAULT_VEHICLE = 'config/vehicles/px4_quad.yaml'    # the bridge's and the emulator's vehicle
@@ -49,7 +34,7 @@ def out_refusal(out: Path, inputs) -> str | None:
 
 
 def add_arguments(parser):
-    from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LATENCY_S
+    from quad_bringup.limits import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LATENCY_S
     parser.add_argument('bag', help='rosbag2 bag directory with cmd/attitude_thrust and odom (e.g. runs/NAME/bag)')
     parser.add_argument('--base', type=input_path, default=None, metavar='PROFILE',
                         help=f'control profile the identified values go into (default {DEFAULT_BASE})')
@@ -66,19 +51,27 @@ def add_arguments(parser):
                         '--vehicle with the identified attitude response and thrust, for fly --vehicle and sweeps')
 
 
-def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None) -> dict:
+def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None, quality_first=False) -> dict:
     """What `quadflight identify` decides on a bag: {'result': identify's, 'written': the profile, 'controller',
     'telemetry': stability.Telemetry, 'margin': stability.Hold, 'refusal': one line or None}. The margin check
     flies the profile on the response identified (stability.margin_hold_identified) with the bag's telemetry.
     base_path / vehicle: None for DEFAULT_BASE / DEFAULT_VEHICLE. Raises ValueError / OSError / ReaderError for a
-    bag that cannot be identified."""
+    bag that cannot be identified. quality_first: fits that do not hold (identify.quality_refusal) end it there,
+    with 'margin' None (the margin check flies seconds of simulation)."""
     from quad_bringup.closed_loop import control_profile
+    from quad_bringup.identify import identify, identify_drag, profile, quality_refusal
+    from quad_bringup.report import load_flight
     from quad_bringup.stability import Telemetry, margin_hold_identified
     from quad_common.paths import resolve_config
+    from quad_common.vehicle import load_vehicle
+    from quad_common.yaml_io import load_yaml
+
     base = load_yaml(resolve_config(base_path or DEFAULT_BASE)) or {}   # a config/ name as --base does
     vehicle = vehicle if vehicle else resolve_config(DEFAULT_VEHICLE)
     flight = load_flight(bag)
     result = identify(flight)
+    if quality_first and (refusal := quality_refusal(result)) is not None:
+        return {'result': result, 'refusal': refusal, 'margin': None}
     result['drag'] = identify_drag(flight, result['thrust_scale'], load_vehicle(vehicle))
     written = profile(result, base)
     controller, gains = control_profile(written)
@@ -97,26 +90,8 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None)
             'margin': margin, 'refusal': refusal, 'vehicle': vehicle}
 
 
-def run(args) -> int:
-    from quad_bringup.limits import refusal
-    from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY
-    bag = Path(args.bag)
-    out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
-    model_out = args.model_out or bag.resolve().with_name(bag.resolve().name + '_vehicle.yaml')
-    inputs = [('bag', bag), ('--base', args.base), ('--vehicle', args.vehicle)]
-    reason = (refusal('latency_s', args.latency_s) if args.latency_s is not None else None) or out_refusal(
-        out, inputs) or out_refusal(model_out, inputs + [('--out', out)])
-    if reason:
-        print(f'quadflight identify: {reason}', file=sys.stderr)
-        return 2
-    try:
-        checked = check_bag(bag, args.base, args.vehicle, args.latency_s)
-    except (OSError, ValueError, ReaderError, StopIteration) as exc:
-        why = str(exc) or 'none of the topics identify needs (odom, cmd/attitude_thrust) in it'
-        print(f'quadflight identify: {bag}: {why}', file=sys.stderr)
-        return 2
-    result, written, margin, telemetry = checked['result'], checked['written'], checked['margin'], \
-        checked['telemetry']
+def print_fits(result: dict):
+    """The window, the roll and pitch fits and the thrust scale, as measured."""
     w = result['window']
     print(f'window: {w["duration_s"]:.1f} s in which the vehicle flew our setpoints ({w["source"]}), '
           f'{w["start_s"]:.2f}-{w["end_s"]:.2f} s')
@@ -130,6 +105,37 @@ def run(args) -> int:
     print(f'thrust: scale {t["thrust_scale"]:.4f} (95 % {low:.4f}-{high:.4f}); '
           f'hover at {t["hover_specific_force_mps2"]:.3f} m/s^2 commanded; equivalent mass error '
           f'{100 * t["mass_error_equivalent"]:+.1f} %')
+
+
+def run(args) -> int:
+    from rosbags.rosbag2 import ReaderError
+
+    from quad_bringup.identify import model_text, profile_text, quality_refusal, vehicle_model
+    from quad_bringup.limits import MARGIN_LAG, MARGIN_LATENCY, refusal
+    from quad_control.parameters import profile_parameters
+
+    bag = Path(args.bag)
+    out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
+    model_out = args.model_out or bag.resolve().with_name(bag.resolve().name + '_vehicle.yaml')
+    inputs = [('bag', bag), ('--base', args.base), ('--vehicle', args.vehicle)]
+    reason = (refusal('latency_s', args.latency_s) if args.latency_s is not None else None) or out_refusal(
+        out, inputs) or out_refusal(model_out, inputs + [('--out', out)])
+    if reason:
+        print(f'quadflight identify: {reason}', file=sys.stderr)
+        return 2
+    try:
+        checked = check_bag(bag, args.base, args.vehicle, args.latency_s, quality_first=True)
+    except (OSError, ValueError, ReaderError, StopIteration) as exc:
+        why = str(exc) or 'none of the topics identify needs (odom, cmd/attitude_thrust) in it'
+        print(f'quadflight identify: {bag}: {why}', file=sys.stderr)
+        return 2
+    if checked['margin'] is None:   # the fits do not hold: what it measured, and one line saying what is missing
+        print_fits(checked['result'])
+        print(f'quadflight identify: refused to write {out}: {checked["refusal"]}', file=sys.stderr)
+        return 2
+    result, written, margin, telemetry = checked['result'], checked['written'], checked['margin'], \
+        checked['telemetry']
+    print_fits(result)
     d = result['drag']
     print(f'drag: rotor drag {d["rotor_drag_xy"]:.3g} N/(m/s)/(rad/s) (95 % {d["rotor_drag_xy_ci95"][0]:.3g}-'
           f'{d["rotor_drag_xy_ci95"][1]:.3g}): {d["deceleration_per_mps_at_hover"]:.3f} m/s^2 per m/s at hover')

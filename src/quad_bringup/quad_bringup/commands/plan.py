@@ -9,13 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from quad_common.paths import input_path
-from quad_common.yaml_io import load_yaml
-from quad_trajectory.fleet import is_fleet
-from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
-from quad_trajectory.planner import allocation_lines
 from quad_trajectory.timing import ALLOCATIONS
 
 
@@ -37,6 +31,8 @@ def add_arguments(parser):
 
 
 def write_csv(path: Path, trajectory, rate_hz: float):
+    import numpy as np
+
     t = trajectory.sample_times(rate_hz)
     columns = [t[:, None]] + [trajectory.evaluate(t, order) for order in range(3)]
     header = 't_s,' + ','.join(f'{q}_{a}' for q in ('pos', 'vel', 'acc') for a in ('x', 'y', 'z', 'yaw'))
@@ -65,6 +61,11 @@ def refuse_overwriting_inputs(outputs, inputs) -> str | None:
 
 def run(args) -> int:
     from quad_bringup.limits import csv_refusal, refusal
+    from quad_common.yaml_io import load_yaml
+    from quad_trajectory.fleet import is_fleet
+    from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
+    from quad_trajectory.planner import allocation_lines
+
     if args.csv is not None and args.out is None:
         print('quadflight plan: --csv needs --out (the CSV goes next to it)', file=sys.stderr)
         return 2
@@ -107,14 +108,40 @@ def run(args) -> int:
     if mission.vehicle is not None:   # the plan is written either way; fly refuses what fails here
         print('\n'.join(preflight(mission, result, speed_mps=args.speed).lines()))
     if args.out is not None:
+        outputs = [('--out', args.out, lambda path: path.write_text(result.to_json(mission=str(args.mission))))]
+        if args.csv is not None:
+            outputs.append(('--csv', csv_path, lambda path: write_csv(path, result.trajectory, args.csv)))
         try:
             args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(result.to_json(mission=str(args.mission)))
         except OSError as exc:
             print(f'quadflight plan: --out {args.out}: cannot write it ({exc.strerror or exc})', file=sys.stderr)
             return 2
-        print(f'wrote {args.out}')
-        if args.csv is not None:
-            write_csv(csv_path, result.trajectory, args.csv)
-            print(f'wrote {csv_path}')
+        if (problem := write_all_or_nothing(outputs)) is not None:
+            print(f'quadflight plan: {problem}', file=sys.stderr)
+            return 2
+        for _, path, _ in outputs:
+            print(f'wrote {path}')
     return 0
+
+
+def write_all_or_nothing(outputs) -> str | None:
+    """Writes each (option, path, write(path)) to a temporary file beside its path, then renames them all into
+    place: a full disk or any OSError leaves no partial file and no half of the set (the temporary files are
+    removed). Returns the error line naming the option and the path, or None."""
+    import tempfile
+
+    written, current = [], outputs[0]
+    try:
+        for current in outputs:
+            fd, temporary = tempfile.mkstemp(prefix=f'.{current[1].name}.', dir=current[1].parent)
+            os.close(fd)
+            written.append(Path(temporary))
+            current[2](Path(temporary))
+        for current, temporary in zip(outputs, written):
+            os.replace(temporary, current[1])
+        return None
+    except OSError as exc:
+        return f'{current[0]} {current[1]}: cannot write it ({exc.strerror or exc}); nothing written'
+    finally:
+        for temporary in written:
+            temporary.unlink(missing_ok=True)

@@ -1,12 +1,10 @@
 """`quadflight record --out DIR [TOPIC ...]`: the recorder node in this process until Ctrl-C."""
 
-from quad_bringup import recorder_node
-from quad_bringup.recorder import DEFAULT_TOPICS
 
 
 def add_arguments(parser):
     parser.add_argument('--out', required=True, help='bag directory to create (rosbag2, MCAP storage)')
-    parser.add_argument('topics', nargs='*', default=list(DEFAULT_TOPICS),
+    parser.add_argument('topics', nargs='*', default=[],
                         help='topics to record (default: the topics quadflight fly records)')
     parser.add_argument('--flush-period', type=float, default=1.0, metavar='S',
                         help='seconds between pushes of the open chunk to disk (default 1.0)')
@@ -20,8 +18,23 @@ def ros_arguments(out, topics, flush_period_s=1.0) -> list[str]:
 
 
 def run(args) -> int:
+    import os
+    import sys
+
+    from rclpy.validate_topic_name import validate_topic_name
+
+    from quad_bringup.limits import domain_refusal, ros_name_refusal
+
+    reason = domain_refusal(os.environ) or next(
+        (r for t in args.topics if (r := ros_name_refusal('topic', t, validate_topic_name))), None)
+    if reason:   # before the recorder makes --out
+        print(f'quadflight record: {reason}', file=sys.stderr)
+        return 2
+    from quad_bringup import recorder_node
+    from quad_bringup.recorder import DEFAULT_TOPICS
+
     try:
-        recorder_node.main(ros_arguments(args.out, args.topics, args.flush_period))
+        recorder_node.main(ros_arguments(args.out, args.topics or list(DEFAULT_TOPICS), args.flush_period))
     except SystemExit as exc:
         return int(exc.code or 0)
     return 0

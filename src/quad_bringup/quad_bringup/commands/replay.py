@@ -31,8 +31,11 @@ def run(args) -> int:
     vehicle = args.vehicle or bag.with_name(bag.name + '_vehicle.yaml')
     figure = args.figure or bag.with_name(bag.name + '_replay.png')
     try:
+        if args.vehicle is None and not Path(vehicle).is_file():
+            raise ValueError(f'no vehicle model beside it ({vehicle.name}): quadflight identify {args.bag} writes '
+                             'it, or give --vehicle MODEL.yaml')
         if not Path(vehicle).is_file():
-            raise ValueError(f'--vehicle {vehicle}: no such file (quadflight identify {args.bag} writes it)')
+            raise ValueError(f'--vehicle {vehicle}: no such file')
         controller, gains = load_control_profile(args.control_profile or resolve_config(DEFAULT_PROFILE))
         result = replay(load_flight(bag), vehicle, controller, gains)
     except (OSError, ValueError, ReaderError) as exc:

@@ -5,10 +5,6 @@ import shutil
 import sys
 from pathlib import Path
 
-from rosbags.rosbag2 import ReaderError
-
-from quad_bringup.recorder import needs_repair, repaired_copy
-from quad_bringup.report import Completion, metrics_table, truncation_summary, write_report
 from quad_common.paths import input_path
 
 
@@ -25,6 +21,8 @@ def add_arguments(parser):
 
 def add_completion_arguments(parser):
     """The completion rule's options (report and fly): each overrides the vehicle's `completion:`."""
+    from quad_bringup.metrics import Completion
+
     d = Completion()
     parser.add_argument('--position-tolerance', type=float, metavar='M',
                         help=f"completion: distance to the final waypoint (default: the vehicle's, else "
@@ -47,6 +45,11 @@ def default_out(bag: Path) -> Path:
 
 
 def run(args) -> int:
+    from rosbags.rosbag2 import ReaderError
+
+    from quad_bringup.recorder import needs_repair, repaired_copy
+    from quad_bringup.report import Completion, metrics_table, truncation_summary, write_report
+
     bag = Path(args.bag)
     out = Path(args.out) if args.out else default_out(bag)
     try:
@@ -66,16 +69,24 @@ def run(args) -> int:
     if not bag.exists():
         print(f'quadflight report: {bag}: no such directory', file=sys.stderr)
         return 2
+    extra = {}
+    if (out / 'metrics.json').exists():  # keep what fly recorded about the run (mission, controller, outcome)
+        keep = ('mission', 'controller', 'speed_mps', 'outcome')
+        try:
+            recorded = json.loads((out / 'metrics.json').read_text())
+            if not isinstance(recorded, dict):
+                raise ValueError(f'a JSON {type(recorded).__name__}, not an object')
+        except (OSError, ValueError) as exc:   # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            print(f'quadflight report: --out {out}: its metrics.json is not one report wrote ({str(exc)[:120]}): '
+                  'move it or choose another --out', file=sys.stderr)
+            return 2
+        extra = {k: v for k, v in recorded.items() if k in keep}
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         print(f'quadflight report: --out {out}: cannot create it ({exc.strerror or exc})', file=sys.stderr)
         return 2
-    extra = {}
-    if (out / 'metrics.json').exists():  # keep what fly recorded about the run (mission, controller, outcome)
-        keep = ('mission', 'controller', 'speed_mps', 'outcome')
-        extra = {k: v for k, v in json.loads((out / 'metrics.json').read_text()).items() if k in keep}
     try:
         metrics = write_report(bag, out, extra, rule)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:

@@ -41,4 +41,15 @@ def run(args) -> int:
     if 'verify' in summary:
         print((out / 'verify.md').read_text())
     print(f'profile: {out}/profile.yaml (cost.json, evaluations.csv, runs.csv beside it)')
-    return 0
+    return verification_code(summary.get('verify', []))
+
+
+def verification_code(report: list[dict]) -> int:
+    """1 (said on stderr) when a graph flight of the verification failed or never flew, else 0."""
+    failed = [r for r in report if not r['graph_completed']]
+    if not failed:
+        return 0
+    why = str(failed[0]['graph_failure'] or 'no verdict').splitlines()[0][:300]
+    print(f'tune: the verification through the ROS graph failed on {len(failed)} of {len(report)} missions '
+          f'({failed[0]["mission"]}: {why}); profile.yaml is written, unverified', file=sys.stderr)
+    return 1

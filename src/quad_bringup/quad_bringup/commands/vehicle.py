@@ -20,11 +20,22 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    import rclpy
-    from std_srvs.srv import SetBool, Trigger
+    import os
+
+    from quad_bringup.limits import domain_refusal, ros_name_refusal
 
     command = args.command
     service, kind, _ = SERVICES[command]
+    from rclpy.validate_namespace import validate_namespace
+
+    reason = domain_refusal(os.environ) or ros_name_refusal(
+        '--namespace', args.namespace, lambda ns: validate_namespace('/' + ns.lstrip('/')))
+    if reason:
+        print(f'quadflight {command}: {reason}', file=sys.stderr)
+        return 2
+    import rclpy
+    from std_srvs.srv import SetBool, Trigger
+
     if not (0.0 < args.timeout_s <= 600.0):
         print(f'quadflight {command}: --timeout-s {args.timeout_s:g} refused: must be > 0 and <= 600 s',
               file=sys.stderr)
