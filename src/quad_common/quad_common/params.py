@@ -6,6 +6,7 @@ parameter, the value and the rule. quad_common.ros_params declares a table on a 
 """
 
 import math
+import numbers
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -24,8 +25,48 @@ class Param:
     check: Callable[[Any], str | None] | None = None  # a rule of its own: the reason a value is refused, or None
 
 
+def _kind(example) -> tuple[str, Callable[[Any], bool]] | None:
+    """(what a value must be, its test) for a default's type; None: no rule (e.g. a typed empty array)."""
+    if isinstance(example, bool):
+        return 'true or false', lambda v: isinstance(v, bool)
+    if isinstance(example, numbers.Integral):
+        return 'an integer', lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool)
+    if isinstance(example, numbers.Real):
+        return 'a number', lambda v: isinstance(v, numbers.Real) and not isinstance(v, bool)
+    if isinstance(example, str):
+        return 'text', lambda v: isinstance(v, str)
+    return None
+
+
+_PLURAL = {'true or false': 'true / false values', 'an integer': 'integers', 'a number': 'numbers', 'text': 'texts'}
+
+
+def type_refusal(spec: Param, value) -> str | None:
+    """The reason `value` is not of the type of spec's default (a number for a float, an integer for an int, ...;
+    a list of them for a list), or None."""
+    default = spec.default
+    if isinstance(default, (list, tuple)):
+        if isinstance(value, (str, bytes)) or not hasattr(value, '__iter__'):
+            return f'{spec.name} = {_short(value)} refused: must be a list'
+        kind = _kind(default[0]) if len(default) else None
+        if kind is not None and not all(kind[1](v) for v in value):
+            return f'{spec.name} = {_short(value)} refused: must be a list of {_PLURAL[kind[0]]}'
+        return None
+    kind = _kind(default)
+    if kind is not None and not kind[1](value):
+        return f'{spec.name} = {_short(value)} refused: must be {kind[0]}'
+    return None
+
+
+def _short(value, limit: int = 120) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + '...'
+
+
 def check_value(spec: Param, value) -> str | None:
     """The reason `value` is refused for `spec`, or None if it is acceptable."""
+    if (reason := type_refusal(spec, value)) is not None:
+        return reason
     values = list(value) if isinstance(value, (list, tuple)) else [value]
     if spec.length is not None and isinstance(value, (list, tuple)) and len(values) != spec.length:
         return f'{spec.name} = {value!r} refused: needs {spec.length} values'

@@ -13,7 +13,10 @@ from quad_common.params import Param, check_value
 
 
 def _descriptor(spec: Param) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=spec.description, read_only=spec.read_only)
+    """A scalar is declared with dynamic typing so that a value of the wrong type reaches ParameterSet's check, which
+    names the parameter (rclpy's own type check says only "Wrong parameter type"); arrays keep rclpy's static type."""
+    d = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
+                            dynamic_typing=isinstance(spec.default, (bool, int, float, str)))
     if spec.choices is not None:
         d.additional_constraints = 'one of: ' + ', '.join(map(str, spec.choices))
     scalar = not isinstance(spec.default, (list, tuple, str, bool))
@@ -43,6 +46,13 @@ def _declare(node, spec: Param):
         final = _descriptor(spec)
         final.type = spec.default.value
         node.set_descriptor(spec.name, final)
+    return value
+
+
+def _typed(spec: Param, value):
+    """An integer given for a float parameter (dynamic typing lets `kp_x: 2` through) as the float it means."""
+    if isinstance(spec.default, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
     return value
 
 
@@ -97,7 +107,7 @@ class ParameterSet:
             reason = check_value(s, value)
             if reason:
                 raise ValueError(reason)
-            self.values[s.name] = value
+            self.values[s.name] = _typed(s, value)
         if validate:
             validate(dict(self.values))
         node.add_on_set_parameters_callback(self._on_set)
@@ -128,7 +138,7 @@ class ParameterSet:
         return SetParametersResult(successful=False, reason=reason)
 
     def _post_set(self, params):
-        changed = {p.name: p.value for p in params if p.name in self._specs}
+        changed = {p.name: _typed(self._specs[p.name], p.value) for p in params if p.name in self._specs}
         self.values.update(changed)
         if changed and self._on_change:
             self._on_change(changed)

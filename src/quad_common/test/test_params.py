@@ -72,3 +72,24 @@ def test_range_bounds_are_inclusive():
     assert check_value(SPECS[0], [0.0, 0.0, 0.0]) is None
     assert 'must be >= 1.0' in check_value(SPECS[1], 0.999)
     assert 'must be <= 1000.0' in check_value(SPECS[1], 1000.001)
+
+
+def test_a_value_of_the_wrong_type_is_refused_naming_the_parameter(node):
+    """`ros2 param set /node rate_hz five`: the reason names rate_hz and the value (rclpy's own type check, before
+    any callback, says only "Wrong parameter type"); an integer for a float is the float it means."""
+    ps = ParameterSet(node, SPECS)
+    bad = node.set_parameters([Parameter('rate_hz', value='five')])[0]
+    assert not bad.successful and "rate_hz = 'five' refused: must be a number" in bad.reason
+    assert ps['rate_hz'] == 100.0
+    bad = node.set_parameters([Parameter('mode', value=3)])[0]
+    assert not bad.successful and 'mode = 3 refused: must be text' in bad.reason
+    assert node.set_parameters([Parameter('rate_hz', value=50)])[0].successful
+    assert ps['rate_hz'] == 50.0 and isinstance(ps['rate_hz'], float)
+
+
+def test_type_refusal_of_scalars_and_lists():
+    assert check_value(SPECS[1], True) == 'rate_hz = True refused: must be a number'
+    assert check_value(SPECS[0], [1.0, 'x', 2.0]) == "kp = [1.0, 'x', 2.0] refused: must be a list of numbers"
+    assert check_value(SPECS[0], 'stiff') == "kp = 'stiff' refused: must be a list"
+    assert check_value(Param('priority', 0, 'an int'), 2.5) == 'priority = 2.5 refused: must be an integer'
+    assert check_value(SPECS[1], 7) is None
