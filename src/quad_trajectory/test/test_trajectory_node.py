@@ -175,7 +175,7 @@ def test_parameter_change_replans_and_bad_value_is_refused(graph):
 @pytest.mark.parametrize('args,words', [
     (['-p', 'method:=minpop'], "method = 'minpop'"),
     (['-p', 'waypoints:=[0.0, 0.0, 1.0, 1.0]'], 'multiple of 3'),
-    (['-p', 'mission_file:=/nonexistent/m.yaml'], '/nonexistent/m.yaml: file not found'),
+    (['-p', 'mission_file:=/nonexistent/m.yaml'], "mission_file = '/nonexistent/m.yaml': /nonexistent/m.yaml: no such"),
     (['-p', 'waypoints:=[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]'], 'at least two distinct'),
     (['-p', f'mission_file:={FORMATION}'], 'is a fleet mission: set fleet_vehicle to the vehicle to plan (cf1, cf2'),
     (['-p', f'mission_file:={FORMATION}', '-p', 'fleet_vehicle:=cf9'], "fleet_vehicle = 'cf9' is not one of"),
