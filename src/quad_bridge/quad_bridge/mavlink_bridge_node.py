@@ -295,17 +295,17 @@ class MavlinkBridge(Node):
             self.telemetry.send_timesync()
         self.publish_diagnostics()
 
-    def set_mode(self, name, wait=True, timeout_s=None):
+    def set_mode(self, name, wait=True):
         """DO_SET_MODE `name`; the bridge takes the vehicle to be in it from now until a heartbeat shows it (or the
         vehicle refuses it): quad_bridge.vehicle.Vehicle.mode_now. wait: return the ACK's result (None: none
-        within timeout_s, default command_timeout_s)."""
+        within command_timeout_s)."""
         s = self.vehicle.status
         main, sub = s.backend.mode_params(name)
         with self.vehicle.lock:
             self.vehicle.command_sent(name, self.now_s())
         result = self.client.command_long(s.system, self.params['target_component'], mavlink.MAV_CMD_DO_SET_MODE,
                                           [MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub],
-                                          (timeout_s or self.params['command_timeout_s']) if wait else None)
+                                          self.params['command_timeout_s'] if wait else None)
         if wait:
             with self.vehicle.lock:
                 self.vehicle.command_answered(name, result == mavlink.MAV_RESULT_ACCEPTED)
