@@ -140,6 +140,7 @@ def test_engaged_only_once_the_heartbeat_shows_the_mode_after_a_one_second_prest
         publisher.stop()
     shown = [t for t, mode in tap.heartbeats_since(called_s) if mode == custom_mode]
     assert shown and engaged.first_true() >= shown[0], 'engaged before the heartbeat showed ' + name
+    print(f'{flavour}: engaged {engaged.first_true() - shown[0]:.3f} s after the first heartbeat showing {name}')
     switch = [t for t, m in _mode_commands(tap, called_s) if _is(m, flavour, custom_mode)]
     assert switch, f'no DO_SET_MODE {name} on the wire'
     if flavour == 'px4':
@@ -147,6 +148,7 @@ def test_engaged_only_once_the_heartbeat_shows_the_mode_after_a_one_second_prest
         assert streamed and switch[0] - streamed[0] >= 0.9, \
             f'pre-stream {switch[0] - streamed[0] if streamed else 0:.3f} s before OFFBOARD'
         assert len(streamed) >= 40, f'{len(streamed)} setpoints before OFFBOARD at 50 Hz'
+        print(f'pre-stream {switch[0] - streamed[0]:.3f} s, {len(streamed)} setpoints before DO_SET_MODE OFFBOARD')
     else:
         assert not [1 for t, _ in tap.setpoints(called_s) if t < switch[0]], 'ArduPilot streamed before its switch'
 
@@ -177,6 +179,7 @@ def test_ctrl_c_while_the_vehicle_flies_our_setpoints_lands_it_then_exits_0(tmp_
             stopped_s = time.monotonic()
             bridge.send_signal(signal.SIGINT)
             rc = bridge.wait(timeout=WAIT_S)
+            print(f'{flavour}: the bridge exited {time.monotonic() - stopped_s:.2f} s after SIGINT')
             procs.procs.pop('bridge')
             land_name, land_mode = LAND[flavour]
             deadline = time.monotonic() + WAIT_S
