@@ -152,6 +152,8 @@ class Tap:
         self._vehicle_parser = mavlink.MAVLink(None)
         self._vehicle_parser.robust_parsing = True
         self.from_vehicle = collections.Counter()   # message type -> count, of what the vehicle sent
+        self.heartbeats = []    # (monotonic time, custom_mode) of each vehicle HEARTBEAT passed on to the bridge
+        self.drop_kinds = set()  # the vehicle's datagrams holding a message of these kinds are dropped (not counted)
         self._held, self._released_s = [], time.monotonic()
         self.running = True
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -164,9 +166,8 @@ class Tap:
                 data, addr = sock.recvfrom(65536)
                 if sock is self.vehicle_side:
                     self.vehicle_addr = addr
-                    if self.cut.is_set():
+                    if self.cut.is_set() or not self._count(data):
                         continue
-                    self._count(data)
                     if self.burst_s > 0:
                         self._held.append(data)
                     else:
@@ -180,13 +181,25 @@ class Tap:
                 self._held.clear()
                 self._released_s = time.monotonic()
 
-    def _count(self, data):
+    def _count(self, data) -> bool:
+        """Counts the vehicle's datagram; False: drop it (drop_kinds)."""
         try:
             msgs = self._vehicle_parser.parse_buffer(data) or []
         except Exception:
-            return
+            return True
         with self.lock:
+            if any(m.get_type() in self.drop_kinds for m in msgs):
+                return False
             self.from_vehicle.update(m.get_type() for m in msgs)
+            now = time.monotonic()
+            self.heartbeats += [(now, m.custom_mode) for m in msgs if m.get_type() == 'HEARTBEAT'
+                                and m.get_srcComponent() == 1]
+        return True
+
+    def heartbeats_since(self, since_s=0.0):
+        """(time, custom_mode) of the vehicle heartbeats passed on since since_s."""
+        with self.lock:
+            return [(t, mode) for t, mode in self.heartbeats if t >= since_s]
 
     def _record(self, data):
         try:

@@ -15,8 +15,12 @@ fitted by least squares over the last window_s, from either of
 A single minimum over the window (what this was before) is the oldest sample when the autopilot's clock runs
 slow: stamps came out early by drift x window (70-150 ms on PX4 SIH), and TIMESYNC, which does not drift, was
 rejected against it. TIMESYNC is used while it agrees with the message times at the newest message (its stamps
-never after an arrival, nor more than max_disagreement_s before the earliest); otherwise the filter. jitter_ms
-is the standard deviation of the chosen estimate's samples about its line; drift_ppm its drift.
+never after an arrival, nor more than max_disagreement_s before the earliest); otherwise the filter. The choice
+has hysteresis: a switch needs the other source to be the better one for SWITCH_PERSIST_S without a break, and
+TIMESYNC is left only when its stamps fall HYSTERESIS_NS further after the arrivals than the bound that admits it
+(at once only for a gross disagreement, beyond max_disagreement_s either way): on PX4 SIH the plain rule flipped
+11-17 times a flight, each flip a step of a few ms in the stamps. jitter_ms is the standard deviation of the
+chosen estimate's samples about its line; drift_ppm its drift.
 
 Thread-safe: the receive thread feeds it while diagnostics (the supervisor, the services) read it; every method
 holds one lock (iterating a window while the receive thread appended to it raised "deque mutated during
@@ -40,6 +44,9 @@ MIN_FIT_POINTS = 4     # a drift is fitted from this many points ...
 MIN_FIT_SPAN_S = 2.0   # ... spanning this much autopilot time (else the offset is taken as constant)
 OUTLIER_NS = 2_000_000  # a bucket minimum this far above the line was a delayed bucket (a stall, a burst)
 MAX_DRIFT = 0.2        # a fitted drift beyond 20 % (PX4 SIH under load: 7.5 %) is noise, not a clock
+SWITCH_PERSIST_S = 2.0  # the other clock source must be the better one this long (our time) before a switch
+HYSTERESIS_NS = 1_000_000  # TIMESYNC is kept until its stamps are this much beyond the bound that admits it
+TIMESYNC, FILTER = 'timesync', 'arrival minimum filter'
 
 
 def _line(remote_ns, offset_ns):
@@ -76,6 +83,10 @@ class ClockMapper:
         self._sync = collections.deque()     # (local ns, rtt ns, remote ns, offset ns)
         self._fits = None                    # cached (floor line, sync line) until the next sample
         self.source = 'none'
+        self.switches = 0                    # changes between TIMESYNC and the filter (diagnostics)
+        self._other_since_ns = None          # since when the other source has been the better one, or None
+        self._compared = False               # the first choice with the filter's drift fitted is made
+        self._now_ns = 0                     # the newest local time seen (an arrival or a TIMESYNC reply)
         self._last = {}                      # stream -> (remote us, local ns) of its last mapping
         self._lock = threading.Lock()
 
@@ -89,10 +100,12 @@ class ClockMapper:
         sample = arrival_ns - remote_ns
         bucket = remote_ns // self.bucket_ns
         self._oneway.append((arrival_ns, remote_ns, sample))
+        self._now_ns = max(self._now_ns, arrival_ns)
         minima = self._minima
         if minima and remote_ns < minima[-1][1] - self.window_ns:   # the autopilot rebooted
             minima.clear()
             self._sync.clear()
+            self._compared = False
         if minima and minima[-1][0] == bucket:
             if sample < minima[-1][2]:
                 minima[-1][1:] = [remote_ns, sample]
@@ -109,6 +122,7 @@ class ClockMapper:
         with self._lock:
             offset = (ts1_local_ns + reply_local_ns) // 2 - tc1_remote_ns
             self._sync.append((reply_local_ns, rtt, tc1_remote_ns, offset))
+            self._now_ns = max(self._now_ns, reply_local_ns)
             self._fits = None
             self._trim(reply_local_ns)
 
@@ -163,17 +177,35 @@ class ClockMapper:
     def _chosen(self):
         """The line in use (r_ref, offset_ref, drift, residuals, drift standard error), or None; sets source."""
         floor, sync = self._lines()
-        if sync is not None:
-            if floor is None:
-                self.source = 'timesync'
-                return sync
-            at = max(floor[0], sync[0])
-            gap = _at(floor, at) - _at(sync, at)
-            if -ONE_MS_NS <= gap <= self.max_disagreement_ns:
-                self.source = 'timesync'
-                return sync
-        self.source = 'none' if floor is None else 'arrival minimum filter'
-        return floor
+        if sync is None or floor is None:
+            self.source, self._other_since_ns = (TIMESYNC if sync else 'none' if floor is None else FILTER), None
+            return sync or floor
+        at = max(floor[0], sync[0])
+        gap = _at(floor, at) - _at(sync, at)   # how far TIMESYNC's stamps lie before the earliest arrivals
+        better = self._better(gap)
+        if not self._compared or (better == FILTER and not (
+                -self.max_disagreement_ns <= gap <= self.max_disagreement_ns)):
+            # at once: before the filter's drift is fitted (the gap is not yet known), the first choice after it, or
+            # a gross disagreement
+            self._compared = math.isfinite(floor[4])
+            self._switch(better)
+        elif better == self.source:
+            self._other_since_ns = None
+        elif self._other_since_ns is None:
+            self._other_since_ns = self._now_ns
+        elif self._now_ns - self._other_since_ns >= SWITCH_PERSIST_S * 1e9:
+            self._switch(better)
+        return sync if self.source == TIMESYNC else floor
+
+    def _better(self, gap_ns) -> str:
+        """TIMESYNC while its stamps are never after an arrival (1 ms slack; HYSTERESIS_NS more to stay on it) nor
+        more than max_disagreement_s before the earliest; else the filter."""
+        after_ns = ONE_MS_NS + (HYSTERESIS_NS if self.source == TIMESYNC else 0)
+        return TIMESYNC if -after_ns <= gap_ns <= self.max_disagreement_ns else FILTER
+
+    def _switch(self, source):
+        self.switches += self.source in (TIMESYNC, FILTER) and source != self.source
+        self.source, self._other_since_ns = source, None
 
     # --- queries -------------------------------------------------------------------------------------
 

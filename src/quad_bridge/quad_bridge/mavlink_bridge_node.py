@@ -27,7 +27,7 @@ from quad_bridge.backend import (
     rate_interval_us,
 )
 from quad_bridge.backends import BACKENDS, resolve
-from quad_bridge.handover import ACTIVE
+from quad_bridge.handover import ACTIVE, PRESTREAM, PRESTREAM_S
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
 from quad_bridge.peers import LinkPeers
@@ -106,8 +106,7 @@ PARAMS = [
           'every thread of the bridge under SCHED_FIFO at this priority (1..99); 0 = off (the ordinary scheduler)',
           min=0, max=99, read_only=True),
 ]
-OFFBOARD_MIN_STREAM_HZ = 5.0  # sent before asking PX4 for OFFBOARD (it needs > 2 Hz)
-PRESTREAM_WAIT_S = 2.0
+OFFBOARD_MIN_STREAM_HZ = 5.0  # on the wire over the pre-stream before asking PX4 for OFFBOARD (it needs > 2 Hz)
 SUPERVISOR_PERIOD_S = 0.05
 
 def _validate(values):
@@ -201,13 +200,13 @@ class MavlinkBridge(Node):
 
     def update_engaged(self):
         """vehicle/engaged (latched): true while the vehicle flies our setpoints, i.e. the hand-over is ACTIVE (the
-        vehicle accepted the mode we asked for) and setpoints may go out; published on every change. The
-        controller runs a plan's clock only while it is true (quad_control.loop), so a plan never runs ahead
-        of a hand-over."""
+        vehicle accepted the mode we asked for and its heartbeat has shown it) and setpoints may go out; published
+        on every change. The controller runs a plan's clock only while it is true (quad_control.loop), so a plan
+        never runs ahead of a hand-over."""
         with self.engaged_lock:
             with self.vehicle.lock:
-                engaged = self.vehicle.handover.phase == ACTIVE and self.may_stream()
-            if engaged != self.engaged:
+                engaged = self.vehicle.handover.engaged and self.may_stream()
+            if engaged != self.engaged and self.context.ok():   # not once shut down (Ctrl-C)
                 self.engaged = engaged
                 self.engaged_pub.publish(Bool(data=engaged))
                 if engaged or self.vehicle.handover.ended:
@@ -218,11 +217,10 @@ class MavlinkBridge(Node):
         the last one (ArduPilot for GUID_TIMEOUT, in GUIDED as in GUIDED_NOGPS), so command stale_action."""
         stale = input_age_s > self.params['setpoint_timeout_s']
         with self.vehicle.lock:
-            s = self.vehicle.status
             if stale:
                 self.stale_events += 1
                 self.vehicle.handover.end(f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)')
-            mode, current = self._stale_action_mode(), s.mode
+            mode, current = self._stale_action_mode(), self.vehicle.mode_now(self.now_s())
         self.update_engaged()
         obeying = mode is not None
         action = f'nothing commanded (vehicle in {current or "?"}, not flying our setpoints)'
@@ -234,14 +232,18 @@ class MavlinkBridge(Node):
             action = f'commanding {mode} (the vehicle in {current} keeps flying the last setpoint)'
         what = (f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)' if stale
                 else 'setpoint stream stopped')
-        (self.get_logger().error if stale or obeying else self.get_logger().info)(f'{what}: {action}')
+        if stale or obeying:   # one severity per call site: rclpy refuses a site that changes it
+            self.get_logger().error(f'{what}: {action}')
+        else:
+            self.get_logger().info(f'{what}: {action}')
         self.publish_diagnostics()
 
     def _stale_action_mode(self) -> str | None:
         """The mode stale_action commands when the vehicle is armed in a mode that obeys SET_ATTITUDE_TARGET
-        (it keeps flying the last one), else None. Under the vehicle lock."""
+        (it keeps flying the last one), else None. The mode is the one we commanded while its heartbeat is pending
+        (after our own land, nothing but land). Under the vehicle lock."""
         s = self.vehicle.status
-        if s.backend is None or not s.armed or not s.backend.obeys_setpoints(s.mode):
+        if s.backend is None or not s.armed or not s.backend.obeys_setpoints(self.vehicle.mode_now(self.now_s())):
             return None
         return s.backend.hold_mode(self.params['stale_action'])
 
@@ -253,7 +255,7 @@ class MavlinkBridge(Node):
         with self.vehicle.lock:
             lost, self.lost_while_handed_over = self.lost_while_handed_over, False
             mode = self._stale_action_mode() if lost else None
-            current = self.vehicle.status.mode
+            current = self.vehicle.mode_now(self.now_s())
             self.stale_events += mode is not None
         if mode is not None:
             self.get_logger().error(f'link back after a loss that ended the hand-over, the vehicle still in {current} '
@@ -298,11 +300,20 @@ class MavlinkBridge(Node):
         self.publish_diagnostics()
 
     def set_mode(self, name, wait=True):
+        """DO_SET_MODE `name`; the bridge takes the vehicle to be in it from now until a heartbeat shows it (or the
+        vehicle refuses it): quad_bridge.vehicle.Vehicle.mode_now. wait: return the ACK's result (None: none
+        within command_timeout_s)."""
         s = self.vehicle.status
         main, sub = s.backend.mode_params(name)
-        return self.client.command_long(s.system, self.params['target_component'], mavlink.MAV_CMD_DO_SET_MODE,
-                                        [MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub],
-                                        self.params['command_timeout_s'] if wait else None)
+        with self.vehicle.lock:
+            self.vehicle.command_sent(name, self.now_s())
+        result = self.client.command_long(s.system, self.params['target_component'], mavlink.MAV_CMD_DO_SET_MODE,
+                                          [MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub],
+                                          self.params['command_timeout_s'] if wait else None)
+        if wait:
+            with self.vehicle.lock:
+                self.vehicle.command_answered(name, result == mavlink.MAV_RESULT_ACCEPTED)
+        return result
 
     # --- on connect (a worker thread: it waits for ACKs and PARAM_VALUEs the receive thread delivers) ------
 
@@ -412,7 +423,11 @@ class MavlinkBridge(Node):
         if not request.data:
             with self.vehicle.lock:
                 self.vehicle.handover.end('offboard false')
+                current = self.vehicle.mode_now(self.now_s())
             self.update_engaged()
+            if current == backend.land_mode:   # after land nothing but land
+                response.success, response.message = True, f'vehicle in {current}: nothing commanded'
+                return response
             mode = backend.hold_mode('hold')
             return self._answer(response, f'mode {mode}', self.set_mode(mode))
         check = self.param_check
@@ -431,22 +446,33 @@ class MavlinkBridge(Node):
         self.geofence.reset()
         self.streamer.kick()
         if backend.prestream:
-            deadline = time.monotonic() + PRESTREAM_WAIT_S
-            while self.streamer.rate_hz() < OFFBOARD_MIN_STREAM_HZ and time.monotonic() < deadline:
-                time.sleep(0.02)
-            if self.streamer.rate_hz() < OFFBOARD_MIN_STREAM_HZ:
-                with self.vehicle.lock:
-                    self.vehicle.handover.end('the pre-stream did not reach '
-                                              f'{OFFBOARD_MIN_STREAM_HZ} Hz')
-                return self._refuse(response, f'no live setpoint stream: {self.streamer.rate_hz():.1f} Hz sent')
+            refusal = self._prestream()
+            if refusal:
+                return self._refuse(response, refusal)
         result = self.set_mode(target)
         with self.vehicle.lock:
             self.vehicle.handover.acknowledged(result == mavlink.MAV_RESULT_ACCEPTED, result_name(result),
-                                               self.now_s())
+                                               self.now_s(), self.vehicle.status.mode)
         self.update_engaged()
         self.streamer.kick()
         self.publish_diagnostics()
         return self._answer(response, f'mode {target}', result)
+
+    def _prestream(self) -> str:
+        """Setpoints on the wire for PRESTREAM_S before the switch (quad_bridge.handover); the reason to refuse
+        offboard, or ''. Ends early when the hand-over ended meanwhile (link lost, setpoints stale)."""
+        deadline = time.monotonic() + PRESTREAM_S
+        while time.monotonic() < deadline and self.vehicle.handover.phase == PRESTREAM:
+            time.sleep(0.02)
+        with self.vehicle.lock:
+            handover = self.vehicle.handover
+            if handover.phase != PRESTREAM:
+                return f'offboard refused during the pre-stream: {handover.reason}'
+            rate_hz = self.streamer.rate_hz()
+            if rate_hz < OFFBOARD_MIN_STREAM_HZ:
+                handover.end(f'the pre-stream did not reach {OFFBOARD_MIN_STREAM_HZ} Hz')
+                return f'no live setpoint stream: {rate_hz:.1f} Hz sent'
+        return ''
 
     def srv_land(self, request, response):
         if not self._ready(response):
@@ -494,9 +520,9 @@ class MavlinkBridge(Node):
         event = self.link.heartbeat(self.now_s())
         if change:
             self.get_logger().info(f'vehicle mode {change}')
+        self.update_engaged()   # engaged once a heartbeat shows the mode we asked for
         if ended:
             self.get_logger().warn(ended)
-            self.update_engaged()
             self.publish_diagnostics()
         if event == 'reconnected':
             self.after_link_loss()
@@ -564,10 +590,36 @@ class MavlinkBridge(Node):
             'geofence_breached': self.geofence.breached, 'geofence_braking': self.geofence.braking})
         self.diag_pub.publish(diagnostics.array(stamp(time.time_ns()), [link, setpoints]))
 
+    def land_on_shutdown(self):
+        """Shut down (SIGINT, SIGTERM) while the vehicle flies our setpoints: command what `land` commands and wait
+        for its ACK (command_timeout_s at most) before the link closes. Left alone, PX4 falls to its offboard-loss
+        failsafe after COM_OF_LOSS_T, and ArduPilot flies the last attitude target for GUID_TIMEOUT, then level
+        with no climb, drifting. Returns the ACK's result, or None when nothing was commanded."""
+        with self.vehicle.lock:
+            s, handover = self.vehicle.status, self.vehicle.handover
+            flying = s.backend is not None and (handover.phase == ACTIVE or (
+                handover.active and s.backend.obeys_setpoints(self.vehicle.mode_now(self.now_s()))))
+            if not flying:
+                return None
+            handover.end('the bridge is shutting down')
+        if self.link.state != LinkState.UP:
+            self.get_logger().error(f'shutting down with the vehicle in {s.mode} flying our setpoints and the link '
+                                    f'{self.link.state}: nothing can be commanded (the vehicle\'s own failsafe acts)')
+            return None
+        mode = s.backend.land_mode
+        self.get_logger().warn(f'shutting down with the vehicle flying our setpoints: commanding {mode}')
+        result = self.set_mode(mode)
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            self.get_logger().info(f'{mode}: {result_name(result)}')
+        else:
+            self.get_logger().error(f'{mode}: {result_name(result)}')
+        return result
+
     def destroy_node(self):
         self.stopping.set()
-        self.setpoints.stop()
         self.supervisor.join(timeout=2.0)
+        self.land_on_shutdown()   # the receive thread still reads the ACK
+        self.setpoints.stop()
         self.client.close()
         super().destroy_node()
 

@@ -96,6 +96,10 @@ class SetpointPath:
                 wait_set.wait(int(delay_s * 1e9))
                 if wait_set.is_ready('subscription', 0):
                     self._take_all(sub)
+                elif self.source is not None:   # a publisher held until the graph names it
+                    raw = self.source.release()
+                    if raw is not None:
+                        self.on_setpoint(raw)
             except Exception:
                 if context.ok() and not self.stopping.is_set():
                     raise

@@ -96,7 +96,8 @@ class TelemetryPublisher:
     def info(self, now_s: float) -> dict:
         """Diagnostics values: which clock and messages are used, what never arrived."""
         st = self.streams
-        return {'clock': self.clock.source, 'clock_offset_jitter_ms': f'{self.clock.jitter_ms():.3f}',
+        return {'clock': self.clock.source, 'clock_switches': self.clock.switches,
+                'clock_offset_jitter_ms': f'{self.clock.jitter_ms():.3f}',
                 'clock_drift_ppm': f'{self.clock.drift_ppm():.0f}',
                 'odometry_source': '+'.join(st.current('odometry')) if st else '',
                 'imu_source': '+'.join(st.current('imu')) if st else '',

@@ -26,6 +26,27 @@ class Vehicle:
         self.lock = threading.RLock()
         self.status = VehicleStatus()
         self.handover = Handover(confirm_timeout_s)
+        self.confirm_timeout_s = confirm_timeout_s
+        self.commanded = None        # the mode we last commanded, until a heartbeat shows it
+        self.commanded_s = 0.0
+
+    def command_sent(self, mode: str, now_s: float):
+        """We sent DO_SET_MODE `mode`: until a heartbeat shows it (or confirm_timeout_s passed, or the vehicle
+        refused it) the vehicle is taken to be in it. The vehicle beats at 1 Hz: a heartbeat older than our command
+        must not decide what the vehicle flies (it made a stale check command AUTO.LOITER 0.5 s after our land)."""
+        self.commanded, self.commanded_s = mode, now_s
+
+    def command_answered(self, mode: str, accepted: bool):
+        """The ACK of our DO_SET_MODE `mode`: refused or unanswered, the heartbeat's mode holds again."""
+        if not accepted and self.commanded == mode:
+            self.commanded = None
+
+    def mode_now(self, now_s: float) -> str:
+        """The mode the vehicle is in as far as we know: the one we commanded (pending its heartbeat), else the
+        heartbeat's."""
+        if self.commanded is not None and now_s - self.commanded_s <= self.confirm_timeout_s:
+            return self.commanded
+        return self.status.mode
 
     def snapshot(self) -> VehicleStatus:
         """A copy to read outside the lock."""
@@ -41,6 +62,8 @@ class Vehicle:
             change = f'{s.mode} -> {mode}' if s.mode and mode != s.mode else None
             was_armed = s.armed
             s.custom_mode, s.mode, s.armed = custom_mode, mode, armed
+            if mode == self.commanded:
+                self.commanded = None
             return change, self.handover.heartbeat(mode, armed, was_armed, now_s)
 
     def may_stream(self) -> bool:

@@ -75,3 +75,34 @@ def test_vehicle_status_follows_heartbeats_under_its_lock():
     assert change == 'OFFBOARD -> AUTO.LOITER' and 'AUTO.LOITER' in ended and not v.may_stream()
     snap = v.snapshot()
     assert snap.mode == 'AUTO.LOITER' and snap is not v.status
+
+
+def test_engaged_only_once_a_heartbeat_shows_the_mode():
+    h = ho.Handover()
+    h.request('OFFBOARD', prestream=True, now_s=0.0)
+    h.acknowledged(True, 'MAV_RESULT_ACCEPTED', 1.0, mode='AUTO.LOITER')
+    assert h.phase == ho.ACTIVE and not h.engaged               # accepted, not yet shown
+    h.heartbeat('AUTO.LOITER', True, True, 1.2)
+    assert not h.engaged
+    h.heartbeat('OFFBOARD', True, True, 1.9)
+    assert h.engaged
+    early = ho.Handover()
+    early.request('OFFBOARD', prestream=True, now_s=0.0)
+    early.acknowledged(True, 'MAV_RESULT_ACCEPTED', 1.0, mode='OFFBOARD')   # its heartbeat came before the ACK was read
+    assert early.engaged
+
+
+def test_the_mode_we_commanded_counts_until_its_heartbeat_or_a_refusal():
+    v = Vehicle(confirm_timeout_s=3.0)
+    v.status.backend = Px4()
+    v.heartbeat(Px4().custom_mode('OFFBOARD'), True, 0.0)
+    v.command_sent('AUTO.LAND', 10.0)
+    v.heartbeat(Px4().custom_mode('OFFBOARD'), True, 10.2)     # sent before our command
+    assert v.status.mode == 'OFFBOARD' and v.mode_now(10.5) == 'AUTO.LAND'
+    v.heartbeat(Px4().custom_mode('AUTO.LAND'), True, 11.0)
+    assert v.commanded is None and v.mode_now(11.0) == 'AUTO.LAND'
+    v.command_sent('AUTO.LOITER', 20.0)
+    assert v.mode_now(22.9) == 'AUTO.LOITER' and v.mode_now(23.1) == 'AUTO.LAND'   # never shown: the heartbeat's
+    v.command_sent('AUTO.LOITER', 30.0)
+    v.command_answered('AUTO.LOITER', accepted=False)
+    assert v.mode_now(30.1) == 'AUTO.LAND'

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from quad_bridge.backend import StreamGroup
-from quad_bridge.clock import ClockMapper
+from quad_bridge.clock import SWITCH_PERSIST_S, ClockMapper
 from quad_bridge.setpoint import check_setpoint
 from quad_bridge.streamer import SetpointStreamer
 from quad_bridge.streams import StreamSelector
@@ -260,6 +260,57 @@ def test_timesync_answered_late_on_a_loaded_machine_does_not_invent_a_drift():
     for seed in (1, 2, 3):   # a line through TIMESYNC alone: -289, -2978, 9 ppm
         clock, _ = _drifting_link(1.0, 20.0, reply_ms=(100.0, 400.0), seed=seed)
         assert abs(clock.drift_ppm()) < 100.0, seed
+
+
+def _sources_over_a_link(seconds, asymmetry_ms, seed=1, rate=0.992):
+    """A 50 Hz stream 0.2 ms + an exponential 1 ms late and a TIMESYNC every second whose reply is asymmetry_ms(t_s)
+    +- 0.25 ms slower than its request (TIMESYNC's offset is half that off); returns (clock, the source after each
+    message, [(t_s, stamp error ms)])."""
+    import random
+    rng = random.Random(seed)
+    clock, sources, errors = ClockMapper(), [], []
+    origin = 10**18
+    for k in range(int(seconds * 50)):
+        t_ns = origin + k * 20 * MS
+        remote_us = int((3e9 + rate * (t_ns - origin)) / 1000)
+        arrival = t_ns + int(0.2 * MS + rng.expovariate(1.0) * MS)
+        clock.observe(remote_us, arrival)
+        errors.append((k / 50, (clock.to_local_ns(remote_us, arrival) - t_ns) / MS))
+        sources.append(clock.source)
+        if k % 50 == 25:
+            up = rng.uniform(0.2, 1.0) * MS
+            down = up + (asymmetry_ms(k / 50) + rng.uniform(-0.25, 0.25)) * MS
+            clock.timesync(t_ns, int(3e9 + rate * (t_ns + up - origin)), int(t_ns + up + down))
+    return clock, sources, errors
+
+
+def _flips(sources):
+    return sum(a != b for a, b in zip(sources, sources[1:]))
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_the_clock_source_does_not_flip_while_timesync_sits_at_its_bound(seed):
+    """TIMESYNC's stamps about 1 ms after the earliest arrivals, just at the bound that admits it (PX4 SIH: the
+    source alternated 11-17 times a flight; this link flipped 129-174 times in 2 minutes without hysteresis): one
+    switch, the first filter -> TIMESYNC, and the stamps within 2 ms of the truth."""
+    clock, sources, errors = _sources_over_a_link(120.0, lambda t_s: 2.8, seed)
+    assert _flips(sources) <= 1 and clock.switches <= 1, _flips(sources)
+    assert max(abs(e) for t_s, e in errors if t_s > 5.0) < 2.0
+
+
+def test_a_persistent_disagreement_still_switches_and_a_gross_one_at_once():
+    """TIMESYNC agrees for 30 s, then its stamps lie 2.8 ms after the arrivals for good: the filter takes over (once
+    the window's better answers aged out and SWITCH_PERSIST_S passed) and stays. A TIMESYNC seconds off (an
+    unrelated clock) is dropped at once."""
+    clock, sources, _ = _sources_over_a_link(60.0, lambda t_s: 1.0 if t_s < 30.0 else 6.0)
+    assert sources[1400] == 'timesync' and sources[-1] == 'arrival minimum filter'
+    assert _flips(sources[1400:]) == 1
+    switched_s = sources[1400:].index('arrival minimum filter') / 50 + 28.0
+    assert switched_s < 30.0 + 10.0 + SWITCH_PERSIST_S + 1.0, switched_s
+    clock, sources, _ = _sources_over_a_link(10.0, lambda t_s: 1.0)
+    assert clock.source == 'timesync'
+    clock.timesync(10**18 + 10 * 10**9, 10**6, 10**18 + 10 * 10**9 + MS)   # an unrelated clock: at once
+    assert clock.offset_ns() is not None and clock.source == 'arrival minimum filter'
 
 
 def test_the_clock_line_on_python_numbers_is_numpys_least_squares():
