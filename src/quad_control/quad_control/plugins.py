@@ -32,12 +32,12 @@ import importlib.metadata
 import inspect
 import math
 import time
-import traceback
 
 import numpy as np
 
 from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
+from quad_common.user_code import load_attribute, user_line
 from quad_common.vehicle import Vehicle
 from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains, Saturation
 
@@ -123,17 +123,7 @@ def resolve(name: str):
     if not isinstance(name, str) or not name:
         raise ControllerRefused(f'controller = {name!r} refused: a name is needed')
     if ':' in name:
-        module_name, _, attr = name.partition(':')
-        try:
-            module = importlib.import_module(module_name)
-        except Exception as exc:  # noqa: BLE001  (user code: any import error is a refusal)
-            raise ControllerRefused(f'controller = {name!r} refused: importing {module_name!r} failed: '
-                                    f'{type(exc).__name__}: {exc}{_user_line(exc)}') from None
-        cls = module
-        for part in attr.split('.'):
-            cls = getattr(cls, part, None)
-            if cls is None:
-                raise ControllerRefused(f'controller = {name!r} refused: module {module_name!r} has no {attr!r}')
+        cls = load_attribute(name, f'controller = {name!r} refused', ControllerRefused)
     else:
         points = _entry_points()
         if name not in points:
@@ -172,12 +162,6 @@ def make_controller(name: str, gains: PositionGains | None, vehicle: Vehicle, li
 
 
 # --- the guard ----------------------------------------------------------------------------------------------
-
-
-def _user_line(exc: BaseException) -> str:
-    """' (file:line)' of the innermost frame of a traceback ('' without one)."""
-    frames = traceback.extract_tb(exc.__traceback__)
-    return f' ({frames[-1].filename}:{frames[-1].lineno})' if frames else ''
 
 
 def _where(method) -> str:
@@ -230,7 +214,7 @@ class PluginController:
             return self.cls(self.vehicle, dict(self.params)) if self.ours else self.cls(dict(self.params))
         except Exception as exc:  # noqa: BLE001  (user code)
             raise ControllerRefused(f'controller {self.name!r}: building {self._where} failed: '
-                                    f'{type(exc).__name__}: {exc}{_user_line(exc)}') from None
+                                    f'{type(exc).__name__}: {exc}{user_line(exc)}') from None
 
     def _probe(self):
         """One update of a fresh instance hovering at the origin: a class that raises or whose result is unusable
@@ -253,7 +237,7 @@ class PluginController:
         except ControllerFailed:
             raise
         except Exception as exc:  # noqa: BLE001  (user code: anything it raises kills it, never the node)
-            raise ControllerFailed(f'{self._where}.{what} raised {type(exc).__name__}: {exc}{_user_line(exc)}') \
+            raise ControllerFailed(f'{self._where}.{what} raised {type(exc).__name__}: {exc}{user_line(exc)}') \
                 from None
 
     def _call(self, instance, state: State, ref: Reference, t_s: float, dt_s: float,

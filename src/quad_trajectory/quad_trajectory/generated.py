@@ -12,12 +12,12 @@ the field (ValueError: one line, exit 2 where a command or node starts). The pla
 path's start and end (the class need not pass through the mission's).
 """
 
-import importlib
 import math
 
 import numpy as np
 
 from quad_common.sampled_trajectory import hermite_segment_coefficients
+from quad_common.user_code import load_attribute
 from quad_trajectory import collision
 from quad_trajectory.polynomial import PiecewisePolynomial
 
@@ -29,17 +29,7 @@ def resolve(name: str):
     """The class `package.module:Class` names (ValueError naming why not)."""
     if not isinstance(name, str) or ':' not in name:
         raise ValueError(f'trajectory.generator = {name!r} must be package.module:Class')
-    module_name, _, attr = name.partition(':')
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as exc:  # noqa: BLE001  (user code: any import error is a refusal)
-        raise ValueError(f'trajectory.generator = {name!r}: importing {module_name!r} failed: '
-                         f'{type(exc).__name__}: {exc}') from None
-    cls = module
-    for part in attr.split('.'):
-        cls = getattr(cls, part, None)
-        if cls is None:
-            raise ValueError(f'trajectory.generator = {name!r}: module {module_name!r} has no {attr!r}')
+    cls = load_attribute(name, f'trajectory.generator = {name!r}')
     if not callable(getattr(cls, 'update', None)):
         raise ValueError(f'trajectory.generator = {name!r}: {cls!r} has no update(t) method')
     return cls
