@@ -92,10 +92,13 @@ class TrivialFlightsim:
 
 
 def rotorpy_dir(tmp: Path) -> Path:
-    """A directory with only the peers' installed rotorpy package in it, for PYTHONPATH."""
-    site = subprocess.run([peer_python(), '-c', 'import rotorpy, os; print(os.path.dirname(rotorpy.__path__[0]))'],
-                          capture_output=True, text=True, check=True).stdout.strip()
-    (tmp / 'rotorpy').symlink_to(Path(site) / 'rotorpy')
+    """A directory with only the peers' installed rotorpy package in it (and cvxopt, which its MinSnap imports), for
+    PYTHONPATH."""
+    site = Path(subprocess.run([peer_python(), '-c', 'import rotorpy, os; print(os.path.dirname(rotorpy.__path__[0]))'],
+                               capture_output=True, text=True, check=True).stdout.strip())
+    for name in ('rotorpy', 'cvxopt', 'cvxopt.libs'):
+        if (site / name).exists():
+            (tmp / name).symlink_to(site / name)
     return tmp
 
 

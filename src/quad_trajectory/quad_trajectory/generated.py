@@ -1,12 +1,13 @@
 """A user's trajectory class as a plan (docs/plugins.md): a mission's `trajectory.generator: package.module:Class`.
 
 The class has rotorpy's trajectory interface: built `Class(waypoints, **generator_args)` (waypoints: the mission's,
-an (N, 3) array, metres, world ENU), `update(t) -> flat_output` with `x`, `x_dot`, `x_ddot` (3 each) and `yaw`,
-`yaw_dot`, `yaw_ddot` (optional, 0 when absent). Its duration: the mission's `trajectory.duration_s`, else the
-instance's `duration_s` attribute. It is sampled at SAMPLE_RATE_HZ and made our plan: one quintic Hermite segment
-per sample interval (position, velocity and acceleration matched at both ends, as the `trajectory` topic is read:
-quad_common.sampled_trajectory), so trajectory_node publishes it, `plan` and `fly` check it against the vehicle
-(quad_trajectory.feasibility) and the world, and everything downstream treats it like our plans.
+an (N, 3) array, metres, world ENU; `Class(**generator_args)` with `generator_waypoints: false`; a list of numbers
+in generator_args is passed as a numpy array), `update(t) -> flat_output` with `x`, `x_dot`, `x_ddot` (3 each) and
+`yaw`, `yaw_dot`, `yaw_ddot` (optional, 0 when absent). Its duration: the mission's `trajectory.duration_s`, else
+the instance's `duration_s` attribute. It is sampled at SAMPLE_RATE_HZ and made our plan: one quintic Hermite
+segment per sample interval (position, velocity and acceleration matched at both ends, as the `trajectory` topic is
+read: quad_common.sampled_trajectory), so trajectory_node publishes it, `plan` and `fly` check it against the
+vehicle (quad_trajectory.feasibility) and the world, and everything downstream treats it like our plans.
 A class that cannot be built or gives a missing, mis-shaped or non-finite sample is refused naming the class, t and
 the field (ValueError: one line, exit 2 where a command or node starts). The plan's waypoints are the generated
 path's start and end (the class need not pass through the mission's).
@@ -79,13 +80,23 @@ def to_polynomial(times, p, v, a) -> PiecewisePolynomial:
     return PiecewisePolynomial(h[:, 0], coefficients)
 
 
+def _as_array(value):
+    """A YAML list as the numpy array such classes compute with (rotorpy's circle multiplies its `freq` by 2 pi)."""
+    return np.array(value, dtype=float) if isinstance(value, list) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value) else value
+
+
 def generate(waypoints, options, world=None) -> tuple[PiecewisePolynomial, np.ndarray]:
     """(the plan, its samples (K, 4)) of options.generator from the mission's waypoints (module docstring);
     quad_trajectory.planner.plan makes its PlanResult."""
     name = options.generator
     cls = resolve(name)
     try:
-        generator = cls(np.array(waypoints, dtype=float), **(options.generator_args or {}))
+        args = {key: _as_array(value) for key, value in (options.generator_args or {}).items()}
+        if options.generator_waypoints:
+            generator = cls(np.array(waypoints, dtype=float), **args)
+        else:
+            generator = cls(**args)
     except Exception as exc:  # noqa: BLE001  (user code)
         raise ValueError(f'trajectory.generator {name!r}: building it failed: {type(exc).__name__}: {exc}') from None
     duration_s = options.duration_s if options.duration_s is not None else getattr(generator, 'duration_s', None)

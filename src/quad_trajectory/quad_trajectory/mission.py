@@ -22,7 +22,8 @@ _REPO_CONFIG = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '
 DEFAULT_VEHICLE_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'vehicles', 'crazyflie.yaml'))
 DEFAULT_MISSION_PATH = os.path.normpath(os.path.join(_REPO_CONFIG, 'missions', 'maze.yaml'))
 _TRAJECTORY_KEYS = {'method', 'waypoint_constraint', 'speed', 'time_allocation', 'control_points', 'limits',
-                    'avoid_collisions', 'rho', 'margin', 'if_infeasible', 'generator', 'generator_args', 'duration_s'}
+                    'avoid_collisions', 'rho', 'margin', 'if_infeasible', 'generator', 'generator_args',
+                    'generator_waypoints', 'duration_s'}
 # what fly does with a plan the vehicle cannot fly (quad_trajectory.feasibility): refuse it, or fly that allocation
 IF_INFEASIBLE = ('refuse', 'fastest', 'limits')
 _LIMIT_KEYS = {'v_max_mps', 'a_max_mps2'}
@@ -104,6 +105,7 @@ def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
             robot_radius_m=data.get('robot_radius_m', defaults.robot_radius_m),
             avoid_collisions=bool(traj.get('avoid_collisions', defaults.avoid_collisions)),
             generator=traj.get('generator', defaults.generator), generator_args=traj.get('generator_args'),
+            generator_waypoints=traj.get('generator_waypoints', defaults.generator_waypoints),
             duration_s=traj.get('duration_s'))
         if 'vehicle' in data:
             vehicle_path = _relative(path, data['vehicle'], 'vehicle')

@@ -39,6 +39,7 @@ class PlanOptions:
     avoid_collisions: bool = True              # insert points and replan until collision-free
     generator: str = ''                        # a user's trajectory class, package.module:Class (generated.py)
     generator_args: dict | None = None         # its keyword arguments after the waypoints
+    generator_waypoints: bool = True           # False: built from generator_args alone (a circle, a Lissajous)
     duration_s: float | None = None            # how long it is sampled; None: the instance's duration_s
 
 
@@ -184,6 +185,8 @@ def validate_options(o: PlanOptions, vehicle: Vehicle | None = None) -> PlanOpti
         generated.resolve(o.generator)
         if o.generator_args is not None and not isinstance(o.generator_args, dict):
             raise ValueError(f'generator_args = {o.generator_args!r} must be a mapping of keyword arguments')
+        if not isinstance(o.generator_waypoints, bool):
+            raise ValueError(f'generator_waypoints = {o.generator_waypoints!r} must be true or false')
         if o.duration_s is not None:
             _finite_number('duration_s', o.duration_s)
     return o
