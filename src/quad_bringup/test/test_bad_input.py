@@ -343,9 +343,8 @@ def test_fly_says_when_the_controller_is_not_the_profiles(capsys, tmp_path):
     (run_dir / 'report.md').write_text('mine\n')   # refused there: nothing flies
     code, out, _ = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--controller', 'pd',
                          '--control-profile', 'config/control_se3.yaml', '--out', run_dir)
-    profile = REPO_ROOT / 'config/control_se3.yaml'   # file arguments are resolved to absolute paths
-    assert code == 2 and (f'note: flying pd with the gains of {profile}, a profile for se3 (its '
-                          'controller:); --controller wins: drop it to fly se3') in out
+    assert code == 2 and 'note: flying pd with the gains of /' in out   # file arguments are made absolute
+    assert ('control_se3.yaml, a profile for se3 (its controller:); --controller wins: drop it to fly se3') in out
 
 
 def test_a_vehicle_gain_that_is_text_names_the_field_and_the_file(capsys, tmp_path):
