@@ -464,11 +464,11 @@ class MavlinkBridge(Node):
         deadline = time.monotonic() + PRESTREAM_S
         while time.monotonic() < deadline and self.vehicle.handover.phase == PRESTREAM:
             time.sleep(0.02)
+        rate_hz = self.streamer.rate_hz()   # not under vehicle.lock: the streamer takes it under its own lock
         with self.vehicle.lock:
             handover = self.vehicle.handover
             if handover.phase != PRESTREAM:
                 return f'offboard refused during the pre-stream: {handover.reason}'
-            rate_hz = self.streamer.rate_hz()
             if rate_hz < OFFBOARD_MIN_STREAM_HZ:
                 handover.end(f'the pre-stream did not reach {OFFBOARD_MIN_STREAM_HZ} Hz')
                 return f'no live setpoint stream: {rate_hz:.1f} Hz sent'
