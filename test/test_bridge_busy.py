@@ -236,6 +236,8 @@ def test_start_step_refused_hold_kept_after_stale_odometry_and_a_start_at_the_ve
                           bridge_port=bridge_port, bridge={'setpoint_timeout_s': 2.0, 'link_timeout_s': 4.0},
                           controller={'odom_timeout_s': STALE_TIMEOUT_S})
         hold = _hold_point(observer)
+        with observer.lock:
+            anchored_s = observer.odom[-1][0]   # the controller reported its hold point by then: engaged
         max_step = float(_values(observer.controller())['max_start_step_m'])
 
         # a plan 1 m away: refused, named, and the vehicle keeps holding
@@ -253,7 +255,7 @@ def test_start_step_refused_hold_kept_after_stale_odometry_and_a_start_at_the_ve
         observer.wait_for(lambda: observer.odom[-1][0] > refused_s + 2.0, 'odometry after the refusal')
         with observer.lock:
             held = np.array([p for t, p in observer.odom if t >= refused_s - 1.0])
-            refs = np.array([p for t, p in observer.references if t >= refused_s - 1.0])
+            refs = np.array([p for t, p in observer.references if t >= max(refused_s - 1.0, anchored_s)])
         assert np.abs(refs - hold).max() == 0.0, 'the reference left the hold point'
         assert np.linalg.norm(held - hold, axis=1).max() < HOLD_BOUND_M
 
