@@ -111,7 +111,7 @@ def test_ardupilot_over_tcp(graph):
     procs, observer = graph
     port = free_udp_port()
     procs.vehicle('ardupilot', f'tcpin:127.0.0.1:{port}')
-    observer.wait_for(lambda: 'ardupilot on tcpin' in procs.log('vehicle'), 'the vehicle to listen')
+    observer.wait_for(lambda: f'on tcpin:127.0.0.1:{port}' in procs.log('vehicle'), 'the vehicle to listen')
     procs.bridge(f'tcp:127.0.0.1:{port}', autopilot='ardupilot')
     observer.wait_for(lambda: observer.link()[1].get('mode') == 'LOITER', 'ArduPilot telemetry over TCP')
     assert observer.link()[1]['autopilot'] == 'ArduPilot'
