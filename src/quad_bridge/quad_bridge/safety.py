@@ -57,11 +57,7 @@ def brake_setpoint(velocity, yaw_rad: float, max_tilt_rad: float) -> AttitudeSet
     speed = float(np.linalg.norm(v))
     accel = -v / speed * braking_decel_mps2(v, max_tilt_rad) if speed > 0 else np.zeros(3)
     force = accel + np.array([0.0, 0.0, GRAVITY_MPS2])
-    b3 = force / np.linalg.norm(force)
-    b2 = np.cross(b3, [math.cos(yaw_rad), math.sin(yaw_rad), 0.0])
-    b2 /= np.linalg.norm(b2)
-    b1 = np.cross(b2, b3)
-    return AttitudeSetpoint(quaternion=rotations.from_matrix(np.column_stack([b1, b2, b3])),
+    return AttitudeSetpoint(quaternion=rotations.from_body_z_and_yaw(force / np.linalg.norm(force), yaw_rad),
                             specific_force_mps2=float(np.linalg.norm(force)))
 
 

@@ -133,3 +133,12 @@ def vee(S):
 def wrap_angle(a):
     """Angle(s) wrapped to [-pi, pi)."""
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def from_body_z_and_yaw(b3, yaw):
+    """The attitude whose body z axis is the unit vector b3 and whose heading is yaw (rad): b2 = b3 x (cos yaw,
+    sin yaw, 0) normalised, b1 = b2 x b3 (b3 must not be horizontal along the heading)."""
+    b3 = np.asarray(b3, dtype=float)
+    b2 = np.cross(b3, [np.cos(yaw), np.sin(yaw), 0.0])
+    b2 /= np.linalg.norm(b2)
+    return from_matrix(np.column_stack([np.cross(b2, b3), b2, b3]))

@@ -36,10 +36,17 @@ import time
 import numpy as np
 
 from quad_common import rotations
-from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
+from quad_common.types import AttitudeSetpoint, Reference, State
 from quad_common.user_code import load_attribute, user_line
 from quad_common.vehicle import Vehicle
-from quad_control.position import CONTROLLERS, Limits, PositionController, PositionGains, Saturation
+from quad_control.position import (
+    CONTROLLERS,
+    Limits,
+    PositionController,
+    PositionGains,
+    Saturation,
+    clamp_thrust,
+)
 
 ENTRY_POINT_GROUP = 'quadflight.controllers'
 MOTOR_LEVEL_KEYS = ('cmd_motor_speeds', 'cmd_motor_thrusts', 'cmd_moment')
@@ -181,11 +188,7 @@ def limit_tilt(quaternion, max_tilt_rad: float) -> tuple[np.ndarray, bool]:
     s = math.sin(max_tilt_rad)
     b3 = np.array([b3[0] / horizontal * s, b3[1] / horizontal * s, math.cos(max_tilt_rad)]) if horizontal > 0 \
         else np.array([0.0, 0.0, 1.0])
-    yaw = math.atan2(rot[1, 0], rot[0, 0])
-    b2 = rotations.hat(b3) @ np.array([math.cos(yaw), math.sin(yaw), 0.0])
-    b2 /= np.linalg.norm(b2)
-    b1 = rotations.hat(b2) @ b3
-    return rotations.from_matrix(np.column_stack([b1, b2, b3])), True
+    return rotations.from_body_z_and_yaw(b3, math.atan2(rot[1, 0], rot[0, 0])), True
 
 
 class PluginController:
@@ -203,7 +206,7 @@ class PluginController:
         self.ours = issubclass(cls, ControllerPlugin)
         self.params = vehicle_params(vehicle)
         self.integral_m_s = np.zeros(3)           # diagnostics' field of ours: a user class has none
-        self._hover_radps = math.sqrt(vehicle.mass_kg * GRAVITY_MPS2 / (4 * vehicle.k_eta))
+        self._hover_radps = math.sqrt(vehicle.hover_thrust_n / (4 * vehicle.k_eta))
         self._where = f'{cls.__module__}.{cls.__qualname__}'
         self._probe()
         self.instance = self._build()
@@ -309,8 +312,7 @@ class PluginController:
         setpoint = self._call(self.instance, state, ref, self.t_s, dt_s)
         sat = Saturation()
         mass = self.vehicle.mass_kg
-        thrust_n = min(max(setpoint.specific_force_mps2 * mass, self.limits.thrust_min_n), self.limits.thrust_max_n)
-        sat.thrust = thrust_n != setpoint.specific_force_mps2 * mass
+        thrust_n = clamp_thrust(setpoint.specific_force_mps2 * mass, self.limits, sat)
         setpoint.specific_force_mps2 = thrust_n / mass / self.gains.thrust_scale
         setpoint.quaternion, sat.tilt = limit_tilt(setpoint.quaternion, self.limits.max_tilt_rad)
         return setpoint, sat

@@ -114,7 +114,7 @@ def attitude_acceleration(acc_des, ref: Reference, gains: PositionGains) -> np.n
     return acc_des + gains.attitude_lead_s * np.asarray(ref.jerk, dtype=float)
 
 
-def _clamp_thrust(thrust_n, limits: Limits, sat: Saturation) -> float:
+def clamp_thrust(thrust_n, limits: Limits, sat: Saturation) -> float:
     clamped = float(min(max(thrust_n, limits.thrust_min_n), limits.thrust_max_n))  # np.clip: 5 us on a scalar
     sat.thrust = clamped != thrust_n
     return clamped
@@ -133,7 +133,7 @@ def seed_setpoint(acc_des, yaw, yaw_rate, mass_kg: float, limits: Limits,
     if tilt > limits.max_tilt_rad:
         sat.tilt = True
         roll, pitch = roll * limits.max_tilt_rad / tilt, pitch * limits.max_tilt_rad / tilt
-    thrust_n = _clamp_thrust(mass_kg * GRAVITY_MPS2 + mass_kg * acc_des[2], limits, sat)
+    thrust_n = clamp_thrust(mass_kg * GRAVITY_MPS2 + mass_kg * acc_des[2], limits, sat)
     return AttitudeSetpoint(quaternion=rotations.from_euler(roll, pitch, yaw), specific_force_mps2=thrust_n / mass_kg,
                             body_rates=np.array([0.0, 0.0, float(yaw_rate)])), sat
 
@@ -161,7 +161,7 @@ def geometric_setpoint(acc_des, state: State, ref: Reference, mass_kg: float, li
     rot_des = np.column_stack([b1, b2, b3])
     x, y, z, w = state.quaternion  # third column of R(q)
     body_z = np.array([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)])
-    thrust_n = _clamp_thrust(float(thrust_force @ body_z), limits, sat)
+    thrust_n = clamp_thrust(float(thrust_force @ body_z), limits, sat)
     rates = np.zeros(3)
     if use_jerk:
         h = mass_kg / np.linalg.norm(force) * np.asarray(ref.jerk, dtype=float)
