@@ -24,6 +24,10 @@ TF = '/tf'
 DIAGNOSTICS = 'diagnostics'
 # std_msgs/Bool, latched: true while the vehicle flies our setpoints (bridge: hand-over active; simulator: always)
 ENGAGED = 'vehicle/engaged'
+# an external pose of the vehicle (motion capture, vision): what the bridge forwards to the autopilot's estimator
+# and the controller may fly from; ENU world, FLU body unless the consumer's frame parameter says otherwise
+EXTERNAL_POSE = 'external/pose'
+EXTERNAL_ODOM = 'external/odom'
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,8 @@ TOPICS = {t.name: t for t in (
     Topic(TF, 'tf2_msgs/msg/TFMessage', depth=100),
     Topic(DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray'),
     Topic(ENGAGED, 'std_msgs/msg/Bool', latched=True, depth=1),
+    Topic(EXTERNAL_POSE, 'geometry_msgs/msg/PoseStamped'),
+    Topic(EXTERNAL_ODOM, 'nav_msgs/msg/Odometry'),
 )}
 
 
