@@ -88,7 +88,7 @@ class Processes:
     def vehicle(self, flavour, url, position=(0.0, 0.0, 1.0), name='vehicle', extra=()):
         return self.start(name, ['-m', 'quad_vehicle_emu.mavlink_vehicle', '--autopilot', flavour, '--url', url,
                                  '--vehicle', VEHICLE_FILE, '--initial-position', ','.join(map(str, position)),
-                                 *extra])
+                                 *EMULATOR_SCHEDULING, *extra])
 
     def params_file(self, node, *files) -> str:
         """The `node` section of YAML params files (later ones win), written under the '/**' key so that it
@@ -373,6 +373,9 @@ OFFBOARD_MODE = {'px4': 'OFFBOARD', 'ardupilot': 'GUIDED_NOGPS'}
 # what each emulated autopilot is told at boot, as docs/bridge.md's checklist says for thrust mode: ArduPilot flies
 # the thrust field as thrust with GUID_OPTIONS bit 3 (its default 0 is a climb rate; the bridge's default
 # ardupilot_thrust_mode is thrust)
+# the emulator stands in for a flight controller, which has a processor of its own: above our nodes (the bridge and
+# the controller run at SCHED_FIFO 20), so that a busy test machine starves our code, never the vehicle's
+EMULATOR_SCHEDULING = ('--realtime-priority', '30')
 VEHICLE_PARAMS = {'px4': (), 'ardupilot': ('--param', 'GUID_OPTIONS=8')}
 
 

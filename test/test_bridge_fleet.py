@@ -2,7 +2,9 @@
 ArduPilot system 2 and PX4 system 3, each with its trajectory_node, position_controller and mavlink_bridge under its
 namespace, started as launch_ros starts them (the installed console scripts, --ros-args). All three share one
 MAVLink link: a hub on loopback gives every vehicle's datagrams to every bridge and every bridge's to every
-vehicle (a shared radio channel, a mavlink-router network), so only the system ids keep them apart.
+vehicle (a shared radio channel, a mavlink-router network), so only the system ids keep them apart. The hub and
+the emulators run as processes of their own above our nodes' priority, as a router and flight controllers run on
+hardware of their own: a busy machine starves our code, not the link.
 
 Each vehicle is handed over with its own `offboard` (/NAME/offboard); every message with a target a bridge sends
 (SET_ATTITUDE_TARGET, COMMAND_LONG, PARAM_REQUEST_READ, ...) is for its own vehicle's system id. Then vehicle 3's
@@ -10,9 +12,8 @@ controller is killed mid-flight: its bridge finds the stream stale and lands it 
 vehicles 1 and 2 keep their setpoint streams, stay in their offboard modes and fly their plans to the end."""
 
 import math
-import select
-import socket
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -30,8 +31,10 @@ from bridge_graph import (
     enter_offboard,
     free_udp_port,
     mavlink,
+    terminate,
 )
 from launch_standin import evaluate
+from mavlink_hub import read_record
 
 from quad_bringup import graph
 from quad_common.testing import isolated_domain
@@ -57,65 +60,42 @@ WAIT_S = 120.0
 
 
 class Hub:
-    """One shared MAVLink link on loopback: a socket per vehicle (the emulator sends to it) and per bridge (it
-    sends to that bridge's udpin port); what any vehicle sends goes to every bridge, what any bridge sends to
-    every vehicle. Records what each bridge sends (monotonic time, message)."""
+    """The shared link (mavlink_hub.py, a process of its own) and what each bridge sent on it, read back from its
+    record once the flight is over: of() gives (monotonic time, message) per bridge."""
 
-    def __init__(self, bridge_ports):
-        def bound():
-            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind(('127.0.0.1', 0))
-            return s
-        self.vehicle_socks = [bound() for _ in bridge_ports]
-        self.bridge_socks = [bound() for _ in bridge_ports]
-        self.vehicle_ports = [s.getsockname()[1] for s in self.vehicle_socks]
-        self.bridge_addrs = [('127.0.0.1', p) for p in bridge_ports]
-        self.vehicle_addrs = [None] * len(bridge_ports)
-        self.parsers = [mavlink.MAVLink(None) for _ in bridge_ports]
-        for p in self.parsers:
-            p.robust_parsing = True
+    def __init__(self, bridge_ports, env, record_path):
+        self.record_path = record_path
+        self.proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name('mavlink_hub.py')),
+                                      str(record_path), *map(str, bridge_ports)], env=env, stdout=subprocess.PIPE,
+                                     text=True)
+        self.vehicle_ports = [int(p) for p in self.proc.stdout.readline().split()]
+        if len(self.vehicle_ports) != len(bridge_ports):
+            terminate(self.proc)
+            raise RuntimeError('mavlink_hub did not start')
         self.lock = threading.Lock()
         self.sent = [[] for _ in bridge_ports]
-        self.running = True
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
 
-    def _run(self):
-        socks = self.vehicle_socks + self.bridge_socks
-        n = len(self.vehicle_socks)
-        while self.running:
-            ready, _, _ = select.select(socks, [], [], 0.05)
-            for sock in ready:
-                data, addr = sock.recvfrom(65536)
-                k = socks.index(sock)
-                if k < n:                                  # a vehicle: to every bridge
-                    self.vehicle_addrs[k] = addr
-                    for out, to in zip(self.bridge_socks, self.bridge_addrs):
-                        out.sendto(data, to)
-                else:                                      # bridge k - n: to every vehicle heard
-                    self._record(k - n, data)
-                    for out, to in zip(self.vehicle_socks, self.vehicle_addrs):
-                        if to is not None:
-                            out.sendto(data, to)
-
-    def _record(self, j, data):
-        try:
-            msgs = self.parsers[j].parse_buffer(data) or []
-        except Exception:
-            return
-        now = time.monotonic()
+    def load(self):
+        """Parses the record so far into self.sent."""
+        parsers = [mavlink.MAVLink(None) for _ in self.sent]
+        sent = [[] for _ in self.sent]
+        for p in parsers:
+            p.robust_parsing = True
+        for t, j, data in read_record(self.record_path):
+            try:
+                msgs = parsers[j].parse_buffer(data) or []
+            except Exception:
+                continue
+            sent[j] += [(t, m) for m in msgs if m.get_type() != 'BAD_DATA']
         with self.lock:
-            self.sent[j] += [(now, m) for m in msgs if m.get_type() != 'BAD_DATA']
+            self.sent = sent
 
     def of(self, j, kind, since_s=0.0):
         with self.lock:
             return [(t, m) for t, m in self.sent[j] if m.get_type() == kind and t >= since_s]
 
     def close(self):
-        self.running = False
-        self.thread.join(timeout=2)
-        for s in self.vehicle_socks + self.bridge_socks:
-            s.close()
+        terminate(self.proc)
 
 
 def _fleet_file(tmp_path, bridge_ports):
@@ -144,13 +124,13 @@ def _start(procs, tmp_path, fleet_file, profile):
 def fleet(tmp_path):
     """(procs, observers by name, hub): three emulated vehicles on one hub and the fleet launch file's graph."""
     bridge_ports = [free_udp_port() for _ in FLEET]
-    hub = Hub(bridge_ports)
     fleet_file = _fleet_file(tmp_path, bridge_ports)
     profile = tmp_path / 'control_test.yaml'   # the launch file's default profile, with the test's timeouts
     real = graph.NodeSpec('position_controller', (str(ROOT / 'config' / 'control_real.yaml'),)).merged_parameters()
     profile.write_text(yaml.safe_dump({'position_controller': {'ros__parameters': {**real, **CONTROL_TEST}}}))
     with isolated_domain() as (domain, env):
         procs = Processes(env, tmp_path, namespace='/')
+        hub = Hub(bridge_ports, procs.env, tmp_path / 'hub.record')
         observers = {}
         try:
             for (name, autopilot, system_id, dy), port in zip(FLEET, hub.vehicle_ports):
@@ -161,6 +141,7 @@ def fleet(tmp_path):
             _start(procs, tmp_path, fleet_file, profile)
             yield procs, observers, hub
         finally:
+
             procs.stop_all()
             for observer in observers.values():
                 observer.close()
@@ -238,6 +219,7 @@ def test_each_bridge_flies_only_its_vehicle_and_one_failsafe_moves_no_other(flee
           'controller was killed')
 
     # on the wire: every bridge commanded only its own vehicle; the others streamed on while one failed
+    hub.load()
     for j, (name, _, system_id, _) in enumerate(FLEET):
         setpoints, commands = hub.of(j, 'SET_ATTITUDE_TARGET'), hub.of(j, 'COMMAND_LONG')
         assert len(setpoints) > 20 and commands   # the failing one: from its pre-stream to its kill

@@ -10,7 +10,7 @@ import threading
 import time
 
 os.environ['MAVLINK20'] = '1'
-from bridge_graph import ROOT, VEHICLE_FILE, free_udp_port, python_env  # noqa: E402
+from bridge_graph import EMULATOR_SCHEDULING, ROOT, VEHICLE_FILE, free_udp_port, python_env  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
 WAIT_S = 60.0
@@ -42,7 +42,8 @@ class EmulatedVehicle:
         self.log_path = log_dir / f'vehicle_{flavour}.log'
         self.proc = subprocess.Popen(
             [sys.executable, '-m', 'quad_vehicle_emu.mavlink_vehicle', '--autopilot', flavour, '--url', url,
-             '--vehicle', VEHICLE_FILE, '--initial-position', ','.join(map(str, position)), *extra],
+             '--vehicle', VEHICLE_FILE, '--initial-position', ','.join(map(str, position)),
+             *EMULATOR_SCHEDULING, *extra],
             env=python_env(dict(os.environ)), stdout=open(self.log_path, 'w'), stderr=subprocess.STDOUT,
             cwd=str(ROOT))
         self.lock = threading.Lock()

@@ -24,6 +24,7 @@ from pymavlink import mavutil  # noqa: E402
 
 from quad_common import rotations  # noqa: E402
 from quad_common.paths import parameter_file  # noqa: E402
+from quad_common.realtime import apply_or_report  # noqa: E402
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
 from quad_vehicle_emu import ned  # noqa: E402
@@ -468,6 +469,9 @@ def build_parser():
     ap.add_argument('--physics-rate-hz', type=float, default=500.0)
     ap.add_argument('--loop-rate-hz', type=float, default=100.0)
     ap.add_argument('--signing-key-file', default='', help='MAVLink 2 signing key; empty: unsigned')
+    ap.add_argument('--realtime-priority', type=int, default=0,
+                    help='SCHED_FIFO priority 1..99 for the emulator (a flight controller has a processor of its '
+                         "own: under load the stand-in must not stall where the real one would not); 0: off")
     ap.add_argument('--duration-s', type=float, default=0.0, help='stop after this long (0: run until killed)')
     return ap
 
@@ -486,12 +490,19 @@ def main(args=None):
                   file=sys.stderr)
             return 2
     args.param += [(k, v) for k, v in legacy.items() if v is not None]
+    if args.realtime_priority != 0 and not 1 <= args.realtime_priority <= 99:
+        print(f'mavlink_vehicle: --realtime-priority = {args.realtime_priority} refused: must be 0 (off) or 1..99',
+              file=sys.stderr)
+        return 2
     try:
         vehicle = MavlinkVehicle(args)
     except (ValueError, OSError) as exc:
         print(f'mavlink_vehicle: {exc}', file=sys.stderr)
         return 2
     print(f'mavlink_vehicle: {args.autopilot} system {vehicle.system_id} on {args.url}', flush=True)
+    scheduling, _ = apply_or_report(args.realtime_priority,
+                                    lambda error: print(f'mavlink_vehicle: {error}', file=sys.stderr, flush=True))
+    print(f'mavlink_vehicle: scheduling {scheduling}', flush=True)
     print(f'mavlink_vehicle: boot clock = {args.boot_offset_s} s + {args.clock_rate} x (wall clock - '
           f'{vehicle.wall0_ns} ns)', flush=True)
     try:
