@@ -12,6 +12,7 @@ from quad_vehicle_emu.mavlink_vehicle import main
     (['--hover-throttle', '1.5'], 'hover_throttle = 1.5'),
     (['--drag-per-s', '-1'], '--drag-per-s = -1.0'),
     (['--estimator-velocity-noise-mps', '0,2,0'], '--estimator-velocity-noise-mps = [0.0, 2.0, 0.0]'),
+    (['--realtime-priority', '100'], '--realtime-priority = 100'),
 ])
 def test_bad_values_exit_2_naming_them(capsys, args, named):
     assert main([*args, '--url', 'udpout:127.0.0.1:9']) == 2
