@@ -59,8 +59,7 @@ def contract_spec(topic: str) -> TopicSpec | None:
     ('/cf1/odom', '/cf1/cmd/attitude_thrust': a fleet vehicle's); None for any other topic."""
     if topic in DEFAULT_TOPICS:
         return DEFAULT_TOPICS[topic]
-    names = [name for name in DEFAULT_TOPICS if not name.startswith('/') and contract.matches(topic, name)]
-    return DEFAULT_TOPICS[max(names, key=len)] if names else None
+    return DEFAULT_TOPICS.get(contract.contract_name(topic))
 
 
 def installed(spec: TopicSpec) -> bool:

@@ -82,7 +82,8 @@ class RecorderNode(Node):
         # the lockstep steps it acknowledges: the newest odom and /clock stamps all taken (a step's /clock follows
         # its odom on the wire; acknowledging odom alone let the simulator exit with its last /clock unsent); a
         # fleet's: every vehicle's odom (/cf1/odom, ...) and /clock
-        self._paced_newest_ns = {t: -1 for t in self.params['topics'] if t == CLOCK or contract.matches(t, ODOM)}
+        self._paced_newest_ns = {t: -1 for t in self.params['topics']
+                                 if t == CLOCK or contract.contract_name(t) == ODOM}
         for topic in self.params['topics']:
             spec = contract_spec(topic)
             if spec is None:

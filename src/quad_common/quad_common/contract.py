@@ -27,7 +27,7 @@ ENGAGED = 'vehicle/engaged'
 # an external pose of the vehicle (motion capture, vision): what the bridge forwards to the autopilot's estimator
 # and the controller may fly from; ENU world, FLU body unless the consumer's frame parameter says otherwise
 EXTERNAL_POSE = 'external/pose'
-EXTERNAL_ODOM = 'external/odom'
+EXTERNAL_ODOM = 'external/odometry'
 
 
 @dataclass(frozen=True)
@@ -81,6 +81,13 @@ def qos(topic: str, depth: int | None = None):
 def matches(topic: str, wanted: str) -> bool:
     """'odom' matches 'odom', '/odom' and '/uav1/odom' (a namespaced graph)."""
     return topic.lstrip('/') == wanted.lstrip('/') or topic.endswith('/' + wanted.lstrip('/'))
+
+
+def contract_name(topic: str) -> str | None:
+    """The contract topic `topic` is: the longest contract name it matches ('/cf1/odom' -> 'odom',
+    'trajectory/waypoints' -> itself, not 'waypoints'); None for a topic outside the contract."""
+    names = [name for name in TOPICS if matches(topic, name)]
+    return max(names, key=len) if names else None
 
 
 # --- frames and the setpoint encoding (cmd/attitude_thrust: sensor_msgs/Imu used as a setpoint) -----------
