@@ -196,8 +196,11 @@ def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_
             metrics[name] = compute_metrics(flight, rules[name])
         else:
             extra = {'mission': f'{plan.fleet.name}/{name}', 'controller': controllers[name]}
-            metrics[name] = write_report(bag_dir, Path(reports_dir) / name, extra, rules[name], figures=figures,
+            metrics[name] = write_report(bag_dir, Path(reports_dir) / name, extra, rules[name], figures=False,
                                          flight=flight)
+    if reports_dir is not None and figures:
+        draw_reports_figures({Path(reports_dir) / name: flights[name] for name in names},
+                             {Path(reports_dir) / name: metrics[name] for name in names})
     t = flights[names[0]].odom_t
     positions = {n: np.column_stack([np.interp(t, f.odom_t, f.position[:, a]) for a in range(3)])
                  for n, f in flights.items()}
@@ -207,6 +210,35 @@ def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_
         m['collided'] = bool(m['collided']) or any(name in (a, b) for _, a, b, _ in collisions)
         m['vehicle_collisions'] = sum(name in (a, b) for _, a, b, _ in collisions)
     return FleetRun(names, metrics, [], collisions, t, separation, plan, {}, positions, controllers)
+
+
+def _draw_report_figures(job) -> list[str]:
+    flight, report_dir = job
+    from quad_bringup.report import draw_figures
+
+    return [str(p) for p in draw_figures(flight, report_dir)]
+
+
+def draw_reports_figures(flights: dict, metrics: dict):
+    """Each report directory's figures (flights: report dir -> Flight), drawn on every core at once (the
+    figures are most of a report's time: one vehicle after another made a fleet's user wait for all of them in
+    turn), then linked from its report.md. Raises RuntimeError naming the report whose figures failed."""
+    from quad_bringup.executors import LocalExecutor
+    from quad_bringup.report import write_markdown
+
+    dirs = list(flights)
+    if len(dirs) == 1:
+        drawn = {0: _draw_report_figures((flights[dirs[0]], dirs[0]))}
+    else:
+        pool = LocalExecutor(min(len(dirs), os.cpu_count() or 1))
+        try:
+            drawn = dict(pool.map_unordered(_draw_report_figures, [(flights[d], d) for d in dirs]))
+        finally:
+            pool.close()
+    for k, d in enumerate(dirs):
+        if isinstance(drawn[k], BaseException):
+            raise RuntimeError(f'{d}: figures not drawn: {drawn[k]}') from drawn[k]
+        write_markdown(metrics[d], d, [Path(f) for f in drawn[k]])
 
 
 def flown_contacts(t, positions, names, radii_m) -> tuple[np.ndarray, list]:

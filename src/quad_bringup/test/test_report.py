@@ -242,6 +242,32 @@ def test_report_writes_metrics_markdown_and_figures(tmp_path):
     assert all((tmp_path / 'run' / 'figures' / n).stat().st_size > 10_000 for n in figures)
 
 
+def test_a_fleets_reports_get_their_figures_drawn_side_by_side(tmp_path):
+    """fleet_graph.draw_reports_figures: each report directory its own flight's figures, linked from its
+    report.md; a flight that cannot be drawn names its report."""
+    from quad_bringup.fleet_graph import draw_reports_figures
+
+    flights, metrics = {}, {}
+    for name, end_s in (('cf1', None), ('cf2', T0_S + T_S / 2)):
+        flight = load_flight(make_bag(tmp_path / name / 'bag', **({'end_s': end_s} if end_s else {})))
+        flights[tmp_path / name] = flight
+        metrics[tmp_path / name] = write_report(tmp_path / name / 'bag', tmp_path / name, figures=False, flight=flight)
+        assert 'figures/' not in (tmp_path / name / 'report.md').read_text()
+    draw_reports_figures(flights, metrics)
+    for d in flights:
+        md = (d / 'report.md').read_text()
+        figures = sorted(p.name for p in (d / 'figures').glob('*.png'))
+        assert len(figures) == 6 and all(f'figures/{n}' in md for n in figures)
+    # cf2's flight ends half way: its position figure differs from cf1's
+    assert ((tmp_path / 'cf1' / 'figures' / 'fig1_position_velocity.png').read_bytes()
+            != (tmp_path / 'cf2' / 'figures' / 'fig1_position_velocity.png').read_bytes())
+    broken = load_flight(make_bag(tmp_path / 'cf3' / 'bag'))
+    broken.odom_t = None
+    with pytest.raises(RuntimeError, match='cf3: figures not drawn'):
+        draw_reports_figures({tmp_path / 'cf1': flights[tmp_path / 'cf1'], tmp_path / 'cf3': broken}, metrics |
+                             {tmp_path / 'cf3': {}})
+
+
 def test_report_command(tmp_path, capsys):
     bag = make_bag(tmp_path / 'run' / 'bag')
     parser = __import__('argparse').ArgumentParser()
