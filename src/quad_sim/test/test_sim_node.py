@@ -39,8 +39,19 @@ def _start_sim(env, *params, module='quad_sim.sim_node'):
     return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def _stop(proc):
+def _stop(proc, graph=None):
+    """Ctrl-C, then its log. graph: the test's lockstep follower, spun until the simulator has exited: on Ctrl-C it
+    waits for its followers to take the last odometry (DRAIN_STALL_S, 30 s, for one that stopped answering)."""
     proc.send_signal(signal.SIGINT)
+    try:
+        if graph is not None:
+            graph.spin_until(lambda: proc.poll() is not None)
+    finally:
+        log = _reap(proc)
+    return log
+
+
+def _reap(proc):
     try:
         return proc.communicate(timeout=30)[0]
     except subprocess.TimeoutExpired:
@@ -144,7 +155,7 @@ def _fly_once(steps=200, real_controller=False, inject=None, params=()):
             stamps = {round(t, 9) for t, *_ in graph.odom[:steps]}  # every /clock of them, taken (none is lost)
             graph.spin_until(lambda: stamps <= {round(c, 9) for c in graph.clock})
         finally:
-            log = _stop(procs[-1])
+            log = _stop(procs[-1], graph)
             for p in procs[:-1]:
                 _stop(p)
             graph.close()
