@@ -54,6 +54,28 @@ class LocalExecutor:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
+def _tcp_refused(address: str, timeout_s: float = 5.0) -> str | None:
+    """Why a tcp:// scheduler address takes no connection (refused, unreachable), or None (it does, or the
+    address is not tcp://): Dask's Client retries a closed port until its 20 s timeout; the user hears at once."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address)
+    if parts.scheme != 'tcp':
+        return None
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError as exc:
+        return str(exc)
+    if host is None or port is None:
+        return None
+    try:
+        socket.create_connection((host, port), timeout=timeout_s).close()
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return None
+
+
 class DaskExecutor:
     """A dask.distributed Client on an existing scheduler (`dask scheduler`, `dask worker ADDRESS`)."""
 
@@ -65,6 +87,9 @@ class DaskExecutor:
         if '://' not in address or not address.split('://', 1)[1]:
             raise RuntimeError(f'--scheduler {address!r} refused: give the scheduler\'s address, e.g. '
                                'tcp://10.0.0.1:8786')
+        refused = _tcp_refused(address)
+        if refused:
+            raise RuntimeError(f'--scheduler {address}: cannot connect ({refused})')
         try:
             self._client = Client(address, timeout='20s')
         except (OSError, TimeoutError, ValueError) as exc:
