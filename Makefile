@@ -52,7 +52,7 @@ test-packages: $(BUILD_STAMP)
 	$(COLCON) test-result --test-result-base build --verbose
 
 test-graph: $(BUILD_STAMP)
-	source install/setup.bash && $(PY) -m pytest -q -p no:cacheprovider test
+	source install/setup.bash && $(PY) -m pytest -q -p no:cacheprovider --durations=15 test
 
 fly: $(VENV_STAMP)
 	./quadflight fly $(MISSION)
