@@ -46,6 +46,10 @@ MEASURED_LAG_S = (0.17, 0.21)    # ArduCopter SITL roll/pitch under pd/pid
 MEASURED_LATENCY_S = 0.05        # its telemetry
 MARGIN_LAG = 1.5
 MARGIN_LATENCY = 2.0
+# PX4 v1.16 SITL + SIH, attitude setpoint -> attitude as a first order plus dead time (tau_s, dead_time_s): fits of
+# 0.145-0.17 s / 0.09-0.11 s on the flights that did not oscillate (control_real, pd; R^2 0.99-1.00). A pure dead
+# time, where the emulator's own shaping (first order + angle-P loop) has none at the same mean delay
+PX4_SIH_ATTITUDE_RESPONSE_S = (0.15, 0.105)
 
 
 # ROS_DOMAIN_ID: Fast DDS (the wheels' RMW) derives its ports from it and takes 0-232 (port 7400 + 250 x id + 11

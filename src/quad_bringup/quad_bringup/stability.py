@@ -125,7 +125,8 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
                       thrust_error: float = 0.0, start_offset_m=(0.5, 0.0, 0.3), duration_s: float = 20.0,
                       rate_hz: float = RATE_HZ, physics_rate_hz: float = 500.0,
                       telemetry_rate_hz: float = TELEMETRY_RATE_HZ, burst_s: float = BURST_S, seed: int = 0,
-                      initial_yaw_rad: float = 0.0, response: tuple | None = None) -> Hold:
+                      initial_yaw_rad: float = 0.0, response: tuple | None = None, rate_loop: str = 'default',
+                      dead_time_s: float = 0.0) -> Hold:
     """The controller holds a point from start_offset_m behind the emulator's attitude response (lag_s) and
     telemetry (latency_s) on vehicle_path's plant with thrust_error, facing initial_yaw_rad (the point's yaw is
     0). Each period, as mavlink_vehicle's loop: the controller sees the newest telemetry at least latency_s old,
@@ -133,7 +134,8 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
     line (at telemetry_rate_hz: what the bridge asks the vehicle for). Telemetry leaves in bursts up to burst_s
     apart (uniform, seeded), as the emulated ArduPilot sends it: between bursts the controller sees the last one
     released. response = (tau_s, dead_time_s): the plant's attitude response is that first order plus dead time
-    (the module) instead of the emulator's; lag_s is then tau_s + dead_time_s (reported only)."""
+    (the module) instead of the emulator's; lag_s is then tau_s + dead_time_s (reported only). Otherwise the
+    emulator's plant with its --rate-loop (rate_loop) and --attitude-dead-time-s (dead_time_s, part of lag_s)."""
     nominal = load_vehicle(vehicle_path)    # what the controller is configured with
     extra = {'thrust_error': thrust_error} if thrust_error else {}
     if response is not None:
@@ -141,14 +143,14 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
         plant = load_vehicle(vehicle_path, plant={**extra, 'attitude_loop': {'type': 'lag', 'time_constant_s': tau_s}})
         lag_s, shaper, dead = tau_s + dead_s, AttitudeResponse(0.0, np.array([0.0, 0.0, 0.0, 1.0])), DelayLine(dead_s)
     else:
-        plant = emulated_vehicle(vehicle_path, extra or None)
+        plant = emulated_vehicle(vehicle_path, extra or None, rate_loop=rate_loop)
         dead = None
     target = np.array([0.0, 0.0, HOLD_ALTITUDE_M])
     sim = Simulator(plant, physics_rate_hz=physics_rate_hz, initial_position=target + np.asarray(start_offset_m,
                                                                                                  dtype=float),
                     initial_yaw=initial_yaw_rad, setpoint_timeout_s=1e6)
     if response is None:
-        shaper = AttitudeResponse(tau_for_lag_s(plant, lag_s), sim.state.quaternion)
+        shaper = AttitudeResponse(tau_for_lag_s(plant, lag_s - dead_time_s), sim.state.quaternion, dead_time_s)
     telemetry = DelayLine(latency_s)
     control = make_controller(controller, gains, nominal, Limits.of(nominal), rate_hz)
     ref = Reference(position=target, velocity=np.zeros(3), acceleration=np.zeros(3), jerk=np.zeros(3), yaw=0.0,

@@ -125,19 +125,41 @@ def tau_for_lag_s(vehicle, lag_s: float) -> float:
 
 
 class AttitudeResponse:
-    """First-order attitude command model (time constant tau_s; tau_s = 0: the target passes through)."""
+    """First-order attitude command model (time constant tau_s; tau_s = 0: the target passes through) behind a
+    pure dead time (dead_time_s: the target and its rates are acted on that late; PX4 v1.16 SIH's setpoint ->
+    attitude fits 0.09-0.11 s of it before its first order, where a lag of the same mean delay without it keeps a
+    stiff position loop stable that PX4 SIH drove into a limit cycle)."""
 
-    def __init__(self, tau_s: float, initial_quaternion):
+    def __init__(self, tau_s: float, initial_quaternion, dead_time_s: float = 0.0):
         if not (math.isfinite(tau_s) and tau_s >= 0.0):
             raise ValueError(f'attitude time constant = {tau_s!r} s must be a finite number >= 0')
+        if not (math.isfinite(dead_time_s) and 0.0 <= dead_time_s <= 1.0):
+            raise ValueError(f'--attitude-dead-time-s = {dead_time_s!r} must be a number in [0, 1]')
         self.tau_s = float(tau_s)
         self.q = rotations.normalize(np.asarray(initial_quaternion, dtype=float))
+        self.dead_time_s = float(dead_time_s)
+        self._late = collections.deque()   # (time s, target, rates) waiting out the dead time
+        self._now_s = 0.0
 
     def reset(self, quaternion):
         self.q = rotations.normalize(np.asarray(quaternion, dtype=float))
+        self._late.clear()
+
+    def _delayed(self, q_target, dt_s: float, rates_ff):
+        """The target and rates given dead_time_s ago (the newest at least that old; the current attitude held,
+        no rates, until one is)."""
+        self._now_s += max(dt_s, 0.0)
+        self._late.append((self._now_s, q_target, rates_ff))
+        while len(self._late) > 1 and self._late[1][0] <= self._now_s - self.dead_time_s + 1e-9:
+            self._late.popleft()
+        if self._late[0][0] > self._now_s - self.dead_time_s + 1e-9:
+            return self.q, None
+        return self._late[0][1], self._late[0][2]
 
     def step(self, q_target, dt_s: float, rates_ff=None) -> tuple[np.ndarray, np.ndarray]:
-        """(commanded quaternion, commanded body rates) after dt_s toward q_target."""
+        """(commanded quaternion, commanded body rates) after dt_s toward q_target (as it was dead_time_s ago)."""
+        if self.dead_time_s:
+            q_target, rates_ff = self._delayed(q_target, dt_s, rates_ff)
         q_target = rotations.normalize(np.asarray(q_target, dtype=float))
         ff = np.zeros(3) if rates_ff is None else np.asarray(rates_ff, dtype=float)
         if self.tau_s == 0.0 or dt_s <= 0.0:

@@ -33,6 +33,13 @@ process of time constant EKF2_TAU_VEL and standard deviation sigma_a sqrt(dt tau
 (SIH_VELOCITY_NOISE_MPS; the delayed filter's own, slower velocity error comes on top and is not modelled). The
 noise is on the body axes (the accelerometer's), rotated into the world by the attitude now; the position is not
 touched (its wander is the measured one above).
+
+Velocity wander (`velocity_wander_mps` horizontal / `velocity_wander_z_mps` vertical, correlation time
+`velocity_wander_tau_s`; off by default): the delayed filter's own, slower velocity error, a first-order
+Gauss-Markov process per world axis stepped as the position's wander. PX4 v1.16 SIH (EKF2 - SIH truth over four
+flights): 0.1-0.32 m/s RMS horizontally, 0.14-0.19 m/s vertically, almost all below 0.5 Hz, autocorrelation time
+2-5 s; the published velocity is not the published position's derivative (0.2 m/s RMS apart), so the two wander
+independently here.
 """
 
 import collections
@@ -52,7 +59,8 @@ SIH_VELOCITY_NOISE_MPS = tuple(a * math.sqrt(SIH_IMU_DT_S * VELOCITY_TAU_S / 2.0
 
 class Estimate:
     def __init__(self, lag_s: float = 0.0, wander_m: float = 0.0, wander_z_m: float = 0.0, tau_s: float = 60.0,
-                 seed: int = 0, velocity_noise_mps=(0.0, 0.0, 0.0)):
+                 seed: int = 0, velocity_noise_mps=(0.0, 0.0, 0.0), velocity_wander_mps: float = 0.0,
+                 velocity_wander_z_mps: float = 0.0, velocity_wander_tau_s: float = 3.0):
         for name, value in (('--estimator-lag-s', lag_s), ('--estimator-wander-m', wander_m),
                             ('--estimator-wander-z-m', wander_z_m)):
             if not (math.isfinite(value) and 0.0 <= value <= 10.0):
@@ -64,6 +72,16 @@ class Estimate:
             raise ValueError(f'--estimator-velocity-noise-mps = {noise.tolist()} must be three numbers in [0, 1] '
                              f'(body x, y, z; PX4 SIH: {", ".join(f"{v:.4f}" for v in SIH_VELOCITY_NOISE_MPS)})')
         self.velocity_sigma = noise
+        for name, value in (('--estimator-velocity-wander-mps', velocity_wander_mps),
+                            ('--estimator-velocity-wander-z-mps', velocity_wander_z_mps)):
+            if not (math.isfinite(value) and 0.0 <= value <= 2.0):
+                raise ValueError(f'{name} = {value!r} must be a number in [0, 2]')
+        if not (math.isfinite(velocity_wander_tau_s) and velocity_wander_tau_s > 0.0):
+            raise ValueError(f'--estimator-velocity-wander-tau-s = {velocity_wander_tau_s!r} must be a number > 0')
+        self.velocity_wander_sigma = np.array([velocity_wander_mps, velocity_wander_mps, velocity_wander_z_mps])
+        self.velocity_wander_tau_s = float(velocity_wander_tau_s)
+        self.velocity_wander = np.zeros(3)
+        self._velocity_wander_rng = np.random.default_rng([seed, 2])   # its own stream: the others are unchanged
         self.velocity_noise_body = np.zeros(3)
         self._velocity_rng = np.random.default_rng([seed, 1])   # its own stream: a seed's wander is unchanged
         self.lag_s, self.tau_s = float(lag_s), float(tau_s)
@@ -86,14 +104,19 @@ class Estimate:
             a = math.exp(-max(now_s - self.last_s, 0.0) / VELOCITY_TAU_S)
             self.velocity_noise_body = (a * self.velocity_noise_body + self.velocity_sigma * math.sqrt(1.0 - a * a)
                                         * self._velocity_rng.standard_normal(3))
+        if self.last_s is not None and self.velocity_wander_sigma.any():
+            a = math.exp(-max(now_s - self.last_s, 0.0) / self.velocity_wander_tau_s)
+            self.velocity_wander = (a * self.velocity_wander + self.velocity_wander_sigma * math.sqrt(1.0 - a * a)
+                                    * self._velocity_wander_rng.standard_normal(3))
         self.last_s = now_s
         self._history.append((now_s, truth.position.copy()))
         while len(self._history) > 1 and self._history[1][0] <= now_s - self.lag_s:
             self._history.popleft()
         _, position = self._history[0]
-        if not self.lag_s and not self.sigma.any() and not self.velocity_sigma.any():
+        if (not self.lag_s and not self.sigma.any() and not self.velocity_sigma.any()
+                and not self.velocity_wander_sigma.any()):
             return truth
-        velocity = truth.velocity
+        velocity = truth.velocity + self.velocity_wander
         if self.velocity_sigma.any():
             velocity = velocity + rotations.to_matrix(truth.quaternion) @ self.velocity_noise_body
         return State(position=position + self.wander, velocity=velocity, quaternion=truth.quaternion,

@@ -108,7 +108,9 @@ class MavlinkVehicle:
         self.system_id = int(self.ap.params[SYSTEM_ID_PARAMS[self.flavour]])
         check_drag(args.drag_per_s)   # bad values before the vehicle file is read
         self.estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
-                                 args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps)
+                                 args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps,
+                                 args.estimator_velocity_wander_mps, args.estimator_velocity_wander_z_mps,
+                                 args.estimator_velocity_wander_tau_s)
         vehicle, drag = with_linear_drag(emulated_vehicle(parameter_file('--vehicle', args.vehicle),
                                                           rate_loop=args.rate_loop), args.drag_per_s)
         self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
@@ -119,7 +121,7 @@ class MavlinkVehicle:
             self.ap.armed = True
             self.ap.mode = 'AUTO.LOITER' if self.flavour == 'px4' else 'LOITER'
         tau_s = default_tau_s(vehicle) if args.attitude_tau_s is None else args.attitude_tau_s
-        self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion)
+        self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion, args.attitude_dead_time_s)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
         self.estimated = self.sim.state   # what the autopilot believes (its hold and its telemetry fly this)
@@ -440,6 +442,10 @@ def build_parser():
                     help='attitude shaping time constant; default: what makes the roll/pitch lag 0.19 s on the '
                     "autopilot's loop (0.036 s; ArduCopter SITL measured 0.17-0.21 s), 0 when the vehicle file "
                     "sets quad_sim's attitude_loop to an autopilot-like one itself (so3_pd, lag)")
+    ap.add_argument('--attitude-dead-time-s', type=float, default=0.0,
+                    help='the attitude target is acted on this late, before the shaping (PX4 SIH measured 0.09-0.11 '
+                    's before a 0.15 s first order: --attitude-tau-s 0 --attitude-dead-time-s 0.1 with --rate-loop '
+                    'px4-sih); default 0')
     ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.035 (+ its bursts)')
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')
@@ -463,6 +469,12 @@ def build_parser():
     ap.add_argument('--rp-rates-with-attitude', choices=('fed', 'ignored'), default='fed',
                     help='PX4: roll/pitch rates of a SET_ATTITUDE_TARGET that sets the attitude: fed forward '
                          "(default) or ignored as PX4's mavlink_receiver does (yaw rate kept)")
+    ap.add_argument('--estimator-velocity-wander-mps', type=float, default=0.0,
+                    help="RMS of the estimate's slow horizontal velocity error per axis (PX4 SIH: 0.1-0.32 m/s)")
+    ap.add_argument('--estimator-velocity-wander-z-mps', type=float, default=0.0,
+                    help="RMS of the estimate's slow vertical velocity error (PX4 SIH: 0.14-0.19 m/s)")
+    ap.add_argument('--estimator-velocity-wander-tau-s', type=float, default=3.0,
+                    help="the velocity error's correlation time (PX4 SIH: 2-5 s)")
     ap.add_argument('--drag-per-s', type=float, default=0.0,
                     help='linear air drag, m/s^2 per m/s on every axis (PX4 SIH: SIH_KDV / SIH_MASS = 1.0); 0: none')
     ap.add_argument('--seed', type=int, default=0)

@@ -76,3 +76,15 @@ def test_px4_sih_rate_loop_from_px4s_defaults_on_sihs_airframe():
     assert default.attitude_loop.rate_p[0] == 60.0 and _rise_time_s(0.0, default) < 0.16
     with pytest.raises(ValueError, match='--rate-loop'):
         emulated_vehicle(VEHICLE, rate_loop='sih')
+
+
+def test_a_dead_time_holds_the_target_back_that_long():
+    """dead_time_s: the target (and its rates) reach the first order that late; until then the attitude holds."""
+    level = np.array([0.0, 0.0, 0.0, 1.0])
+    rolled = rotations.from_euler(0.2, 0.0, 0.0)
+    late = AttitudeResponse(0.0, level, dead_time_s=0.07)
+    got = [late.step(rolled, 0.01, np.array([0.0, 0.0, 1.0])) for _ in range(10)]
+    assert all(np.allclose(q, level) and not np.any(w) for q, w in got[:6])
+    assert all(np.allclose(q, rolled) and w[2] == 1.0 for q, w in got[7:])
+    with pytest.raises(ValueError, match='--attitude-dead-time-s'):
+        AttitudeResponse(0.0, level, dead_time_s=-0.1)

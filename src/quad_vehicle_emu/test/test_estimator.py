@@ -86,3 +86,27 @@ def test_velocity_noise_from_sih_accelerometer_over_ekf2_tau_vel():
     assert np.all(np.array(positions) == 0.0)
     with pytest.raises(ValueError, match='--estimator-velocity-noise-mps'):
         Estimate(velocity_noise_mps=(0.1, -0.1, 0.0))
+
+
+def test_velocity_wander_is_slow_at_its_rms_and_leaves_the_position_alone():
+    """`velocity_wander_mps` / `_z_mps` / `_tau_s` (PX4 SIH: 0.1-0.32 / 0.14-0.19 m/s, 2-5 s): per world axis a
+    Gauss-Markov process of that RMS and correlation time added to the velocity; the position and the other
+    streams (wander, velocity noise) unchanged for a seed."""
+    truth = State(position=np.array([1.0, 2.0, 3.0]), velocity=np.array([0.5, 0.0, 0.0]))
+    wandering = Estimate(wander_m=0.5, seed=4, velocity_wander_mps=0.2, velocity_wander_z_mps=0.15,
+                         velocity_wander_tau_s=3.0)
+    plain = Estimate(wander_m=0.5, seed=4)
+    errors, positions = [], []
+    for k in range(60000):
+        est = wandering.step(0.05 * k, truth)
+        errors.append(est.velocity - truth.velocity)
+        positions.append(est.position - plain.step(0.05 * k, truth).position)
+    v = np.array(errors)
+    assert np.sqrt(np.mean(v ** 2, axis=0)) == pytest.approx([0.2, 0.2, 0.15], rel=0.15)
+    corr = np.mean(v[60:, 0] * v[:-60, 0]) / np.mean(v[:, 0] ** 2)      # 3 s apart: about 1 / e
+    assert 0.25 < corr < 0.5
+    assert np.all(np.array(positions) == 0.0)
+    with pytest.raises(ValueError, match='--estimator-velocity-wander-mps'):
+        Estimate(velocity_wander_mps=-0.1)
+    with pytest.raises(ValueError, match='--estimator-velocity-wander-tau-s'):
+        Estimate(velocity_wander_mps=0.1, velocity_wander_tau_s=0.0)
