@@ -31,6 +31,7 @@ import time
 import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -55,6 +56,7 @@ from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
 from quad_sim.disturbances import load_profile
+from quad_sim.mocap import MocapConfig, MotionCapture
 from quad_sim.simulator import PHYSICS_RATE_HZ, SimulationStopped, Simulator
 from quad_sim.vehicle_contact import VEHICLE_COLLISION, VehicleContacts
 
@@ -108,7 +110,22 @@ SPECS = [
           min=0.0, max=1e6, read_only=True),
     Param('lockstep_followers', '', 'lockstep: comma-separated node names whose acknowledgements each step waits for '
           '(quad_common.lockstep; e.g. recorder): nothing they record is lost', read_only=True),
+    Param('mocap_rate_hz', 0.0, 'motion-capture stand-in (quad_sim.mocap) on external/pose: frames per second of sim '
+          'time, at most one per step; 0: off', min=0.0, max=10000.0, read_only=True),
+    Param('mocap_position_noise_m', 0.0, 'mocap: position noise, RMS per axis (m)', min=0.0, max=10.0,
+          read_only=True),
+    Param('mocap_attitude_noise_rad', 0.0, 'mocap: attitude noise, RMS per body axis (rad)', min=0.0, max=1.0,
+          read_only=True),
+    Param('mocap_latency_s', 0.0, 'mocap: sim time from the instant measured (the stamp) to publication (s)',
+          min=0.0, max=10.0, read_only=True),
+    Param('mocap_dropout_probability', 0.0, 'mocap: probability that a burst of lost frames starts at a frame',
+          min=0.0, max=1.0, read_only=True),
+    Param('mocap_dropout_burst_s', 0.0, 'mocap: a burst\'s length after its first lost frame (s); 0: one frame',
+          min=0.0, max=60.0, read_only=True),
 ]
+
+MOCAP_FIELDS = ('rate_hz', 'position_noise_m', 'attitude_noise_rad', 'latency_s', 'dropout_probability',
+                'dropout_burst_s')  # MocapConfig's, each the parameter mocap_<field>
 
 
 
@@ -143,6 +160,9 @@ class SimulatedVehicle:
             self.reference_sub = node.create_subscription(MultiDOFJointTrajectory, prefix + c.REFERENCE,
                                                           self._on_reference, c.qos(c.REFERENCE))
         self._odom_packer = cdr.OdometryPacker(child_frame_id=self.body_frame)
+        self.mocap = MotionCapture(node.mocap_config, seed=sim.seed) if node.mocap_config.enabled else None
+        self.mocap_pub = (node.create_publisher(PoseStamped, prefix + c.EXTERNAL_POSE, c.qos(c.EXTERNAL_POSE))
+                          if self.mocap else None)
         self.reset_bookkeeping()
 
     def reset_bookkeeping(self):
@@ -155,6 +175,8 @@ class SimulatedVehicle:
         self.events_reported = 0
         self.next_diagnostics_ns = 0
         self.next_sensors_ns = 0
+        if self.mocap is not None:
+            self.mocap.reset()
 
     def _log(self):
         return self.node.get_logger()
@@ -219,6 +241,8 @@ class SimulatedVehicle:
         if time_ns >= self.next_sensors_ns:
             self.next_sensors_ns = time_ns + self.node.sensor_period_ns
             self.publish_sensors(stamp)
+        if self.mocap is not None:
+            self.publish_mocap(time_ns)
         if len(self.sim.events) > self.events_reported or time_ns >= self.next_diagnostics_ns:
             self.publish_diagnostics()
 
@@ -237,6 +261,16 @@ class SimulatedVehicle:
             rotors = JointState(name=ROTOR_NAMES, velocity=self.sim.rotor_speeds_radps.tolist())
             rotors.header.stamp = stamp
             self.rotor_pub.publish(rotors)
+
+    def publish_mocap(self, time_ns: int):
+        """external/pose: the mocap frames delivered by now, each stamped with the instant it measured the truth
+        (quad_sim.mocap), in the world frame."""
+        for frame in self.mocap.offer(time_ns, self.sim.position_m, self.sim.state.quaternion):
+            msg = PoseStamped()
+            msg.header.stamp, msg.header.frame_id = stamp_of(frame.stamp_ns), contract.WORLD_FRAME
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in frame.position)
+            msg.pose.orientation = conversions.to_quaternion(frame.quaternion)
+            self.mocap_pub.publish(msg)
 
     def publish_diagnostics(self):
         sim = self.sim
@@ -302,6 +336,7 @@ class SimNode(Node):
         world = load_world(self._config(p['world'], 'world')) if p['world'] else None
         profile = load_profile(self._config(p['disturbances_file'], 'disturbances_file'), p['disturbances'])
         fleet = _fleet_layout(p)
+        self.mocap_config = MocapConfig(**{f: p[f'mocap_{f}'] for f in MOCAP_FIELDS})
         sims = []
         files_param = 'vehicle_files' if p['vehicle_files'] else 'vehicle'
         for k, (_, vehicle_file, position, radius_m) in enumerate(fleet):

@@ -317,3 +317,41 @@ def test_bad_parameters_refused_with_exit_2(param, words):
         out = proc.communicate(timeout=GIVE_UP_S)[0]
     assert proc.returncode == 2, out
     assert words in out
+
+
+def test_mocap_stand_in_publishes_the_truth_stamped_when_measured():
+    """mocap_rate_hz 50 with 10 ms steps, no noise, 30 ms latency, sim_node started as launch_ros starts it (the
+    installed executable, a node name remap, config/sim.yaml): external/pose carries a frame every 20 ms of sim
+    time, in map, stamped with its step and equal to that step's odometry (the truth here)."""
+    from ament_index_python.packages import get_package_prefix
+    from geometry_msgs.msg import PoseStamped
+
+    from quad_common.paths import resolve_config
+
+    with isolated_domain() as (domain, env):
+        graph = Graph(domain)
+        poses = []
+        graph.node.create_subscription(PoseStamped, contract.EXTERNAL_POSE, poses.append, RELIABLE)
+        argv = [os.path.join(get_package_prefix('quad_sim'), 'lib', 'quad_sim', 'sim_node'), '--ros-args',
+                '-r', '__node:=sim_node', '--params-file', str(resolve_config('config/sim.yaml'))]
+        for p in ('mocap_rate_hz:=50.0', 'mocap_latency_s:=0.03', 'lockstep_timeout_s:=5.0',
+                  f'lockstep_followers:={FOLLOWER}'):
+            argv += ['-p', p]
+        proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            graph.spin_until(lambda: len(poses) >= 30)
+            last_s = conversions.stamp_to_s(poses[29].header.stamp)
+            graph.spin_until(lambda: graph.odom and graph.odom[-1][0] >= last_s)
+        finally:
+            log = _stop(proc)
+            graph.close()
+    assert 'lockstep: crazyflie' in log, log
+    odom = {round(row[0], 9): np.array(row[1:]) for row in graph.odom}
+    stamps = [conversions.stamp_to_s(m.header.stamp) for m in poses[:30]]
+    assert np.allclose(stamps, 0.02 * np.arange(30), atol=1e-12)
+    for msg, t in zip(poses[:30], stamps):
+        truth = odom[round(t, 9)]
+        assert msg.header.frame_id == contract.WORLD_FRAME
+        assert np.array_equal(conversions.vec3(msg.pose.position), truth[0:3])
+        assert np.array_equal(conversions.quat(msg.pose.orientation), truth[6:10])
+    assert not np.allclose(truth[0:3], odom[0.0][0:3])  # it flew: the poses follow a moving vehicle
