@@ -343,7 +343,7 @@ def test_mocap_stand_in_publishes_the_truth_stamped_when_measured():
             last_s = conversions.stamp_to_s(poses[29].header.stamp)
             graph.spin_until(lambda: graph.odom and graph.odom[-1][0] >= last_s)
         finally:
-            log = _stop(proc)
+            log = _stop(proc, graph)
             graph.close()
     assert 'lockstep: crazyflie' in log, log
     odom = {round(row[0], 9): np.array(row[1:]) for row in graph.odom}
