@@ -1,0 +1,109 @@
+"""External pose: frame conversion, autopilot time, rate limit, faults (timeout, jump, late)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from quad_bridge import frames
+from quad_bridge.clock import ClockMapper
+from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter, to_enu
+from quad_common import rotations
+
+MS = 1_000_000
+OFFSET_NS = 5_000 * MS   # local - autopilot
+
+
+def _clock():
+    clock = ClockMapper()
+    for k in range(20):   # autopilot messages, 1 ms transport delay
+        remote_us = 1_000_000 + k * 50_000
+        clock.observe(remote_us, remote_us * 1000 + OFFSET_NS + MS)
+    return clock
+
+
+def _filter(**kw):
+    return ExternalPoseFilter(ExternalPoseConfig(**kw), _clock())
+
+
+def test_enu_is_converted_to_ned_frd_by_frames():
+    f = _filter()
+    q = rotations.from_yaw(0.3)
+    t = 7_000 * MS
+    out = f.offer([1.0, 2.0, 3.0], q, [0.1, 0.2, 0.3], t, t + 10 * MS)
+    np.testing.assert_allclose(out.position_ned, [2.0, 1.0, -3.0])
+    np.testing.assert_allclose(out.velocity_ned, [0.2, 0.1, -0.3])
+    np.testing.assert_allclose(out.quaternion_ned_frd, frames.quaternion_enu_to_ned(q))
+    yaw_ned = rotations.to_euler(out.quaternion_ned_frd)[2]
+    assert math.isclose(yaw_ned, math.pi / 2 - 0.3, abs_tol=1e-9)
+
+
+def test_y_up_is_a_rotation_about_x():
+    # Y-up: up is +y; forward x stays x; the world z axis (x cross y) is ENU -y.
+    p, q, v = to_enu('y_up', [1.0, 2.0, 3.0], [0, 0, 0, 1], [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(p, [1.0, -3.0, 2.0])
+    np.testing.assert_allclose(v, [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(rotations.to_matrix(q), np.eye(3), atol=1e-12)
+    # a yaw in Y-up is a rotation about its up axis (y): the same yaw about ENU z.
+    yaw = 0.4
+    q_yup = np.array([0.0, math.sin(yaw / 2), 0.0, math.cos(yaw / 2)])
+    _, q, _ = to_enu('y_up', [0, 0, 0], q_yup)
+    assert math.isclose(rotations.to_euler(q)[2], yaw, abs_tol=1e-9)
+
+
+def test_bad_frame_names_it():
+    with pytest.raises(ValueError, match='external_pose_frame.*z_up'):
+        ExternalPoseConfig(frame='z_up')
+
+
+def test_stamp_is_mapped_to_autopilot_time():
+    f = _filter()
+    t = 7_000 * MS
+    out = f.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + 10 * MS)
+    # the filter's line carries the smallest delay (1 ms): autopilot time = local - offset - 1 ms
+    assert abs(out.time_us - (t - OFFSET_NS - MS) // 1000) <= 1
+
+
+def test_rate_limited_to_max_rate():
+    f = _filter(max_rate_hz=30.0)
+    t0 = 7_000 * MS
+    sent = [f.offer([0, 0, 0], [0, 0, 0, 1], None, t0 + k * 5 * MS, t0 + k * 5 * MS + MS) for k in range(200)]
+    n = sum(out is not None for out in sent)   # 200 samples at 200 Hz over 1 s
+    assert 28 <= n <= 31, n
+    assert f.dropped_rate == 200 - n
+    assert 28 <= f.rate_hz(t0 + 1000 * MS) <= 31
+
+
+def test_jump_is_a_fault_and_not_forwarded():
+    f = _filter(max_speed_m_s=5.0, jump_margin_m=0.1)
+    t = 7_000 * MS
+    assert f.offer([0, 0, 1], [0, 0, 0, 1], None, t, t + MS) is not None
+    t += 40 * MS   # 40 ms: 0.2 m + 0.1 m allowed
+    assert f.offer([0.25, 0, 1], [0, 0, 0, 1], None, t, t + MS) is not None
+    t += 40 * MS
+    assert f.offer([1.5, 0, 1], [0, 0, 0, 1], None, t, t + MS) is None
+    assert f.fault.startswith('jump: 1.25 m in 40 ms')
+
+
+def test_late_sample_is_a_fault():
+    f = _filter(max_age_s=0.2)
+    t = 7_000 * MS
+    assert f.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + 250 * MS) is None
+    assert f.fault.startswith('late: stamp 250 ms old')
+    assert f.offer([0, 0, 0], [0, 0, 0, 1], None, t + 300 * MS, t + 310 * MS) is not None
+    assert f.fault is None
+
+
+def test_timeout_when_the_stream_stops():
+    f = _filter(timeout_s=0.5)
+    t = 7_000 * MS
+    assert f.check_timeout(t).startswith('timeout: never received')
+    f.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + MS)
+    assert f.check_timeout(t + 400 * MS) is None
+    assert f.check_timeout(t + 600 * MS).startswith('timeout: no sample for 0.60 s')
+
+
+def test_no_autopilot_time_is_a_fault():
+    f = ExternalPoseFilter(ExternalPoseConfig(), ClockMapper())
+    assert f.offer([0, 0, 0], [0, 0, 0, 1], None, 7_000 * MS, 7_001 * MS) is None
+    assert f.fault.startswith('no autopilot time')
