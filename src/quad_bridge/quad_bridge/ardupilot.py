@@ -19,6 +19,7 @@ import numpy as np
 
 from quad_bridge.backend import MAV_SYS_STATUS_PREARM_CHECK as PREARM
 from quad_bridge.backend import Backend, ParamCheck, StreamGroup, ThrustConfig, tilt_cos
+from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
@@ -59,6 +60,19 @@ class ArduPilot(Backend):
                  StreamGroup('imu', (('SCALED_IMU',), ('RAW_IMU',))),
                  StreamGroup('status', (('SYS_STATUS',),), share=0.0),
                  StreamGroup('battery', (('BATTERY_STATUS',),), share=0.0))
+
+    def external_pose_messages(self, pose):
+        """VISION_POSITION_ESTIMATE (NED position, FRD -> NED roll / pitch / yaw) and, with a velocity,
+        VISION_SPEED_ESTIMATE (NED): GCS_MAVLINK handle_vision_position_estimate / handle_vision_speed_estimate
+        into AP_VisualOdom (VISO_TYPE 1, MAVLink). Covariances zero: ArduPilot sums cov[0] + cov[6] + cov[11]
+        into one error, which a NaN would poison; zero leaves VISO_POS_M_NSE / VISO_VEL_M_NSE as the floor."""
+        roll, pitch, yaw = (float(a) for a in rotations.to_euler(pose.quaternion_ned_frd))
+        x, y, z = (float(c) for c in pose.position_ned)
+        out = [('vision_position_estimate', (pose.time_us, x, y, z, roll, pitch, yaw, [0.0] * 21, 0))]
+        if pose.velocity_frd is not None:
+            vx, vy, vz = (float(c) for c in pose.velocity_ned)
+            out.append(('vision_speed_estimate', (pose.time_us, vx, vy, vz, [0.0] * 9, 0)))
+        return tuple(out)
 
     def mode_name(self, custom_mode_word):
         return COPTER_MODES.get(int(custom_mode_word), f'MODE_{custom_mode_word}')

@@ -74,6 +74,11 @@ class Backend:
     telemetry = ()             # StreamGroup, ...
 
     # --- modes ----------------------------------------------------------------------------------
+    def external_pose_messages(self, pose) -> tuple:
+        """An external pose (quad_bridge.external_pose.PoseNed) as this autopilot's estimator takes it:
+        ((pymavlink send name, args), ...)."""
+        raise NotImplementedError
+
     def mode_name(self, custom_mode: int) -> str:
         raise NotImplementedError
 

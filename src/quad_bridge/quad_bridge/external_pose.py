@@ -37,7 +37,8 @@ def check_frame(frame: str) -> str:
 
 
 def to_enu(frame: str, position, quaternion, velocity=None):
-    """(position, quaternion (x,y,z,w), velocity or None) in `frame` -> world ENU / body FLU."""
+    """(world position, attitude body -> world (x,y,z,w), body velocity or None: nav_msgs/Odometry's twist is in
+    its child (body) frame) in `frame` -> world ENU position, attitude FLU -> ENU, body FLU velocity."""
     position = np.asarray(position, dtype=float)
     quaternion = rotations.normalize(quaternion)
     if check_frame(frame) == 'enu':
@@ -49,12 +50,17 @@ def to_enu(frame: str, position, quaternion, velocity=None):
 
 @dataclasses.dataclass(frozen=True)
 class PoseNed:
-    """One sample for the autopilot: world NED position (m), attitude body FRD -> NED (x,y,z,w), world NED
+    """One sample for the autopilot: world NED position (m), attitude body FRD -> NED (x,y,z,w), body FRD
     velocity (m/s) or None, and its time in the autopilot's boot clock (us)."""
     time_us: int
     position_ned: np.ndarray
     quaternion_ned_frd: np.ndarray
-    velocity_ned: np.ndarray | None
+    velocity_frd: np.ndarray | None
+
+    @property
+    def velocity_ned(self):
+        """v_NED = R(q_NED_FRD) v_FRD."""
+        return None if self.velocity_frd is None else rotations.to_matrix(self.quaternion_ned_frd) @ self.velocity_frd
 
 
 @dataclasses.dataclass
@@ -121,7 +127,7 @@ class ExternalPoseFilter:
         self.forwarded += 1
         self._sent_times_ns = [t for t in self._sent_times_ns if t > now_ns - 1_000_000_000] + [now_ns]
         return PoseNed(time_us, frames.world_enu_ned(p), frames.quaternion_enu_to_ned(q),
-                       None if v is None else frames.world_enu_ned(v))
+                       None if v is None else frames.body_flu_frd(v))
 
     def check_timeout(self, now_ns: int) -> str | None:
         """The timeout fault once the stream has been silent timeout_s (or never started), else the current one."""

@@ -14,6 +14,7 @@ import struct
 import numpy as np
 
 from quad_bridge.backend import Backend, ParamCheck, StreamGroup, ThrustConfig
+from quad_bridge.frames import to_mavlink_quaternion
 from quad_bridge.streamer import FIRST_RESEND_PERIODS
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
@@ -23,6 +24,10 @@ MAIN_MODES = {1: 'MANUAL', 2: 'ALTCTL', 3: 'POSCTL', 4: 'AUTO', 5: 'ACRO', 6: 'O
 AUTO_SUB_MODES = {1: 'READY', 2: 'TAKEOFF', 3: 'LOITER', 4: 'MISSION', 5: 'RTL', 6: 'LAND', 8: 'FOLLOW_TARGET',
                   9: 'PRECLAND'}
 MAV_PARAM_TYPE_REAL32 = 9
+MAV_FRAME_BODY_FRD = 12
+MAV_FRAME_LOCAL_FRD = 20
+MAV_ESTIMATOR_TYPE_VISION = 2   # MOCAP (6) goes to PX4's vehicle_mocap_odometry, which EKF2 does not fuse
+NAN = float('nan')
 
 
 def custom_mode(main_mode: int, sub_mode: int = 0) -> int:
@@ -47,6 +52,17 @@ class Px4(Backend):
                  StreamGroup('imu', (('HIGHRES_IMU',), ('SCALED_IMU',))),
                  StreamGroup('status', (('SYS_STATUS',),), share=0.0),
                  StreamGroup('battery', (('BATTERY_STATUS',),), share=0.0))
+
+    def external_pose_messages(self, pose):
+        """ODOMETRY: pose in MAV_FRAME_LOCAL_FRD (EKF2 rotates a local frame into its own unless it fuses the
+        external heading), velocity in MAV_FRAME_BODY_FRD (NaN: none), covariances NaN (unknown: EKF2 takes
+        EKF2_EVP_NOISE / EKF2_EVV_NOISE / EKF2_EVA_NOISE), estimator_type VISION (mavlink_receiver.cpp
+        handle_message_odometry publishes it to vehicle_visual_odometry)."""
+        v = (NAN, NAN, NAN) if pose.velocity_frd is None else tuple(float(c) for c in pose.velocity_frd)
+        x, y, z = (float(c) for c in pose.position_ned)
+        return (('odometry', (pose.time_us, MAV_FRAME_LOCAL_FRD, MAV_FRAME_BODY_FRD, x, y, z,
+                              to_mavlink_quaternion(pose.quaternion_ned_frd), *v, NAN, NAN, NAN,
+                              [NAN] + [0.0] * 20, [NAN] + [0.0] * 20, 0, MAV_ESTIMATOR_TYPE_VISION, 0)),)
 
     def mode_name(self, custom_mode_word):
         main, sub = decode(custom_mode_word)

@@ -1,5 +1,6 @@
 """External pose: frame conversion, autopilot time, rate limit, faults (timeout, jump, late)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -30,9 +31,11 @@ def test_enu_is_converted_to_ned_frd_by_frames():
     f = _filter()
     q = rotations.from_yaw(0.3)
     t = 7_000 * MS
-    out = f.offer([1.0, 2.0, 3.0], q, [0.1, 0.2, 0.3], t, t + 10 * MS)
+    out = f.offer([1.0, 2.0, 3.0], q, [0.1, 0.2, 0.3], t, t + 10 * MS)   # velocity in body FLU (the twist)
     np.testing.assert_allclose(out.position_ned, [2.0, 1.0, -3.0])
-    np.testing.assert_allclose(out.velocity_ned, [0.2, 0.1, -0.3])
+    np.testing.assert_allclose(out.velocity_frd, [0.1, -0.2, -0.3])
+    v_enu = rotations.to_matrix(q) @ [0.1, 0.2, 0.3]
+    np.testing.assert_allclose(out.velocity_ned, [v_enu[1], v_enu[0], -v_enu[2]])
     np.testing.assert_allclose(out.quaternion_ned_frd, frames.quaternion_enu_to_ned(q))
     yaw_ned = rotations.to_euler(out.quaternion_ned_frd)[2]
     assert math.isclose(yaw_ned, math.pi / 2 - 0.3, abs_tol=1e-9)
@@ -107,3 +110,53 @@ def test_no_autopilot_time_is_a_fault():
     f = ExternalPoseFilter(ExternalPoseConfig(), ClockMapper())
     assert f.offer([0, 0, 0], [0, 0, 0, 1], None, 7_000 * MS, 7_001 * MS) is None
     assert f.fault.startswith('no autopilot time')
+
+
+def _wire(backend, pose):
+    """The backend's messages as MAVLink 2 bytes, parsed back by pymavlink (what the autopilot receives)."""
+    from quad_bridge.mavlink_client import mavlink
+    sender, receiver = mavlink.MAVLink(None, srcSystem=255, srcComponent=191), mavlink.MAVLink(None)
+    out = []
+    for name, args in backend.external_pose_messages(pose):
+        msg = getattr(sender, name + '_encode')(*args)
+        out += receiver.parse_buffer(msg.pack(sender)) or []
+    return out
+
+
+def _pose():
+    f = _filter()
+    q = rotations.from_euler(0.1, -0.2, 0.3)   # ENU/FLU
+    t = 7_000 * MS
+    return f.offer([1.0, 2.0, 3.0], q, [1.0, 0.5, -0.2], t, t + MS), q
+
+
+def test_px4_gets_odometry_local_frd_body_frd_from_vision():
+    from quad_bridge.px4 import Px4
+    pose, q_enu = _pose()
+    (msg,) = _wire(Px4(), pose)
+    assert msg.get_type() == 'ODOMETRY'
+    assert (msg.frame_id, msg.child_frame_id, msg.estimator_type) == (20, 12, 2)   # LOCAL_FRD, BODY_FRD, VISION
+    assert msg.time_usec == pose.time_us
+    np.testing.assert_allclose([msg.x, msg.y, msg.z], [2.0, 1.0, -3.0], atol=1e-6)
+    q_wxyz = np.array(msg.q)   # body FRD -> NED, (w, x, y, z)
+    np.testing.assert_allclose(frames.from_mavlink_quaternion(q_wxyz), frames.quaternion_enu_to_ned(q_enu),
+                               atol=1e-6)
+    np.testing.assert_allclose([msg.vx, msg.vy, msg.vz], [1.0, -0.5, 0.2], atol=1e-6)   # body FRD
+    assert math.isnan(msg.pose_covariance[0]) and math.isnan(msg.rollspeed)
+
+
+def test_ardupilot_gets_vision_position_and_speed_estimate():
+    from quad_bridge.ardupilot import ArduPilot
+    pose, q_enu = _pose()
+    position, speed = _wire(ArduPilot(), pose)
+    assert (position.get_type(), speed.get_type()) == ('VISION_POSITION_ESTIMATE', 'VISION_SPEED_ESTIMATE')
+    assert position.usec == speed.usec == pose.time_us
+    np.testing.assert_allclose([position.x, position.y, position.z], [2.0, 1.0, -3.0], atol=1e-6)
+    q_ned = rotations.from_euler(position.roll, position.pitch, position.yaw)
+    np.testing.assert_allclose(rotations.to_matrix(q_ned), rotations.to_matrix(frames.quaternion_enu_to_ned(q_enu)),
+                               atol=1e-6)
+    v_enu = rotations.to_matrix(q_enu) @ [1.0, 0.5, -0.2]
+    np.testing.assert_allclose([speed.x, speed.y, speed.z], [v_enu[1], v_enu[0], -v_enu[2]], atol=1e-6)
+    assert all(c == 0.0 for c in position.covariance)   # ArduPilot sums three of them: a NaN would poison it
+    without_velocity = dataclasses.replace(pose, velocity_frd=None)
+    assert [m.get_type() for m in _wire(ArduPilot(), without_velocity)] == ['VISION_POSITION_ESTIMATE']
