@@ -350,8 +350,8 @@ class MavlinkBridge(Node):
         s = self.vehicle.status
         values = {}
         if self.params['vehicle_params'] != 'ignore':
-            answers = self.client.read_params(s.system, self.params['target_component'], s.backend.semantic_params,
-                                              self.params['command_timeout_s'])
+            answers = self.client.read_params(s.system, self.params['target_component'],
+                                              s.backend.param_names(self.config), self.params['command_timeout_s'])
             values = {n: s.backend.decode_param(v, t) for n, (v, t) in answers.items()}
         check = s.backend.check_params(values, self.config, self.params['vehicle_params'])
         with self.vehicle.lock:

@@ -48,6 +48,7 @@ class Px4(Backend):
     land_mode = 'AUTO.LAND'
     prestream = True
     semantic_params = ('MPC_THR_HOVER', 'COM_OF_LOSS_T')
+    external_pose_params = ('EKF2_EV_CTRL', 'EKF2_HGT_REF', 'EKF2_GPS_CTRL', 'EKF2_EV_DELAY')
     telemetry = (StreamGroup('odometry', (('LOCAL_POSITION_NED', 'ATTITUDE_QUATERNION'), ('ODOMETRY',))),
                  StreamGroup('imu', (('HIGHRES_IMU',), ('SCALED_IMU',))),
                  StreamGroup('status', (('SYS_STATUS',),), share=0.0),
@@ -117,3 +118,20 @@ class Px4(Backend):
             notes.append(f'COM_OF_LOSS_T = {loss_s:.2f} s < setpoint_timeout_s = {config.setpoint_timeout_s} s: '
                          'PX4\'s own offboard-loss failsafe (COM_OBL_RC_ACT) acts before the bridge\'s stale_action')
         return ParamCheck(tuple(problems), tuple(notes), config)
+
+    def _check_external_pose(self, values):
+        """EKF2_EV_CTRL bits 0 and 1 (fuse horizontal and vertical position), EKF2_HGT_REF 3 (vision height: the
+        barometer drifts indoors), EKF2_GPS_CTRL 0 (no GPS indoors: a GPS check would block arming), and the
+        EKF2_EV_DELAY the estimator assumes (the pose's age at the autopilot)."""
+        problems, notes = [], []
+        ev_ctrl, hgt_ref = int(values['EKF2_EV_CTRL']), int(values['EKF2_HGT_REF'])
+        if ev_ctrl & 3 != 3:
+            problems.append(f'EKF2_EV_CTRL = {ev_ctrl}: the external pose is not fused as position (set bits 0 '
+                            f'and 1: EKF2_EV_CTRL = {ev_ctrl | 3})')
+        if hgt_ref != 3:
+            problems.append(f'EKF2_HGT_REF = {hgt_ref}: height is not from the external pose (set EKF2_HGT_REF = 3)')
+        gps_ctrl = int(values['EKF2_GPS_CTRL'])
+        if gps_ctrl:
+            notes.append(f'EKF2_GPS_CTRL = {gps_ctrl}: GPS is fused where it is received (indoors: set 0)')
+        notes.append(f'EKF2_EV_DELAY = {values["EKF2_EV_DELAY"]:g} ms: the pose\'s age the estimator assumes')
+        return tuple(problems), tuple(notes)

@@ -160,3 +160,40 @@ def test_ardupilot_gets_vision_position_and_speed_estimate():
     assert all(c == 0.0 for c in position.covariance)   # ArduPilot sums three of them: a NaN would poison it
     without_velocity = dataclasses.replace(pose, velocity_frd=None)
     assert [m.get_type() for m in _wire(ArduPilot(), without_velocity)] == ['VISION_POSITION_ESTIMATE']
+
+
+PX4_OK = {'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 1.0, 'EKF2_EV_CTRL': 15, 'EKF2_HGT_REF': 3, 'EKF2_GPS_CTRL': 0,
+          'EKF2_EV_DELAY': 10.0}
+AP_OK = {'GUID_OPTIONS': 8, 'ATC_ANGLE_BOOST': 1, 'MOT_THST_HOVER': 0.5, 'VISO_TYPE': 1, 'EK3_SRC1_POSXY': 6,
+         'EK3_SRC1_VELXY': 6, 'EK3_SRC1_POSZ': 6, 'EK3_SRC1_YAW': 6}
+
+
+@pytest.mark.parametrize('policy', ['check', 'adopt'])
+def test_px4_external_vision_parameters_are_checked_with_an_external_pose(policy):
+    from quad_bridge.backend import ThrustConfig
+    from quad_bridge.px4 import Px4
+    config = ThrustConfig(external_pose=True)
+    assert set(Px4().param_names(config)) >= {'EKF2_EV_CTRL', 'EKF2_HGT_REF', 'EKF2_GPS_CTRL', 'EKF2_EV_DELAY'}
+    assert not set(Px4().param_names(ThrustConfig())) & {'EKF2_EV_CTRL'}
+    ok = Px4().check_params(PX4_OK, config, policy)
+    assert ok.problems == () and any('EKF2_EV_DELAY = 10 ms' in n for n in ok.notes)
+    bad = Px4().check_params({**PX4_OK, 'EKF2_EV_CTRL': 0, 'EKF2_HGT_REF': 0, 'EKF2_GPS_CTRL': 7}, config, policy)
+    assert [p.split(' =')[0] for p in bad.problems] == ['EKF2_EV_CTRL', 'EKF2_HGT_REF']
+    assert 'EKF2_EV_CTRL = 3' in bad.problems[0]
+    assert any(n.startswith('EKF2_GPS_CTRL = 7') for n in bad.notes)
+    assert Px4().check_params({**PX4_OK, 'EKF2_EV_CTRL': 0}, ThrustConfig(), policy).problems == ()
+    missing = dict(PX4_OK)
+    del missing['EKF2_HGT_REF']
+    assert 'EKF2_HGT_REF' in Px4().check_params(missing, config, policy).problems[0]
+
+
+def test_ardupilot_external_vision_parameters_are_checked_with_an_external_pose():
+    from quad_bridge.ardupilot import ArduPilot
+    from quad_bridge.backend import ThrustConfig
+    config = ThrustConfig(external_pose=True)
+    assert ArduPilot().check_params(AP_OK, config, 'check').problems == ()
+    bad = ArduPilot().check_params({**AP_OK, 'VISO_TYPE': 0, 'EK3_SRC1_POSXY': 3, 'EK3_SRC1_VELXY': 3,
+                                    'EK3_SRC1_POSZ': 1, 'EK3_SRC1_YAW': 0}, config, 'check')
+    assert [p.split(' =')[0] for p in bad.problems] == ['VISO_TYPE', 'EK3_SRC1_POSXY', 'EK3_SRC1_VELXY',
+                                                        'EK3_SRC1_YAW']
+    assert any(n.startswith('EK3_SRC1_POSZ = 1: from the barometer') for n in bad.notes)
