@@ -9,8 +9,10 @@ Either is then converted once to NED/FRD by quad_bridge.frames.
 Time: the sample's stamp (local ROS time) is mapped into the autopilot's boot time through the bridge's
 ClockMapper (to_remote_us), so the estimator fuses it at the instant it was measured.
 
-Rate: samples closer than 1 / max_rate_hz to the last one forwarded are dropped (PX4 EKF2 fuses external vision
-at up to ~30-50 Hz; ArduPilot's visual odometry at the rate VISION_POSITION_ESTIMATE arrives).
+Rate: a sample goes out when its stamp reaches the due time, which then advances by 1 / max_rate_hz (from the
+sample's stamp after a gap): a faster stream is thinned to max_rate_hz on average, not to the next multiple of its
+own period (PX4 EKF2 fuses external vision at up to ~30-50 Hz; ArduPilot's visual odometry at the rate
+VISION_POSITION_ESTIMATE arrives).
 
 Faults (each one line in diagnostics; while engaged the bridge ends the hand-over on any of them):
 - timeout: no sample for timeout_s;
@@ -20,6 +22,7 @@ Faults (each one line in diagnostics; while engaged the bridge ends the hand-ove
 
 import dataclasses
 import math
+import threading
 
 import numpy as np
 
@@ -83,7 +86,8 @@ class ExternalPoseConfig:
 
 
 class ExternalPoseFilter:
-    """Decides, per sample, forward / drop (rate) / reject (fault), and keeps what diagnostics report."""
+    """Decides, per sample, forward / drop (rate) / reject (fault), and keeps what diagnostics report. Thread-safe:
+    samples arrive on the executor's thread, the supervisor checks the timeout."""
 
     def __init__(self, config: ExternalPoseConfig, clock):
         self.config = config
@@ -93,13 +97,18 @@ class ExternalPoseFilter:
         self.dropped_rate = 0
         self._last_stamp_ns = None  # stamp of the last accepted sample (jump reference)
         self._last_position = None
-        self._last_sent_ns = None
+        self._next_due_ns = None    # stamp from which the next sample may go out (rate)
         self._last_arrival_ns = None
         self._sent_times_ns = []    # arrival times of forwarded samples over the last second (rate)
         self.last_age_s = math.nan
+        self._lock = threading.Lock()
 
     def offer(self, position, quaternion, velocity, stamp_ns: int, now_ns: int) -> PoseNed | None:
         """A sample measured at stamp_ns (local ROS time) arriving at now_ns: the PoseNed to send, or None."""
+        with self._lock:
+            return self._offer(position, quaternion, velocity, stamp_ns, now_ns)
+
+    def _offer(self, position, quaternion, velocity, stamp_ns, now_ns):
         cfg = self.config
         self._last_arrival_ns = now_ns
         self.last_age_s = (now_ns - stamp_ns) / 1e9
@@ -115,7 +124,8 @@ class ExternalPoseFilter:
                 self.fault = f'jump: {step:.2f} m in {dt * 1e3:.0f} ms > {bound:.2f} m'
                 return None
         self._last_position, self._last_stamp_ns = p, stamp_ns
-        if self._last_sent_ns is not None and stamp_ns - self._last_sent_ns < 1e9 / cfg.max_rate_hz:
+        period_ns = int(1e9 / cfg.max_rate_hz)
+        if self._next_due_ns is not None and stamp_ns < self._next_due_ns:
             self.dropped_rate += 1
             return None
         time_us = self.clock.to_remote_us(stamp_ns)
@@ -123,7 +133,8 @@ class ExternalPoseFilter:
             self.fault = 'no autopilot time yet: the clock mapping has no sample'
             return None
         self.fault = None
-        self._last_sent_ns = stamp_ns
+        self._next_due_ns = (stamp_ns if self._next_due_ns is None else max(self._next_due_ns, stamp_ns - period_ns)) \
+            + period_ns
         self.forwarded += 1
         self._sent_times_ns = [t for t in self._sent_times_ns if t > now_ns - 1_000_000_000] + [now_ns]
         return PoseNed(time_us, frames.world_enu_ned(p), frames.quaternion_enu_to_ned(q),
@@ -131,6 +142,10 @@ class ExternalPoseFilter:
 
     def check_timeout(self, now_ns: int) -> str | None:
         """The timeout fault once the stream has been silent timeout_s (or never started), else the current one."""
+        with self._lock:
+            return self._check_timeout(now_ns)
+
+    def _check_timeout(self, now_ns):
         if self._last_arrival_ns is None or now_ns - self._last_arrival_ns > self.config.timeout_s * 1e9:
             silent = 'never received' if self._last_arrival_ns is None else \
                 f'no sample for {(now_ns - self._last_arrival_ns) / 1e9:.2f} s'
@@ -139,4 +154,8 @@ class ExternalPoseFilter:
 
     def rate_hz(self, now_ns: int) -> float:
         """Samples forwarded over the last second."""
+        with self._lock:
+            return self._rate_hz(now_ns)
+
+    def _rate_hz(self, now_ns):
         return float(sum(1 for t in self._sent_times_ns if t > now_ns - 1_000_000_000))

@@ -75,6 +75,9 @@ def test_rate_limited_to_max_rate():
     assert 28 <= n <= 31, n
     assert f.dropped_rate == 200 - n
     assert 28 <= f.rate_hz(t0 + 1000 * MS) <= 31
+    f = _filter(max_rate_hz=30.0)   # 12 ms apart: every third (36 ms) would be 27.8 Hz; the due time keeps 30
+    sent = [f.offer([0, 0, 0], [0, 0, 0, 1], None, t0 + k * 12 * MS, t0 + k * 12 * MS + MS) for k in range(250)]
+    assert 89 <= sum(out is not None for out in sent) <= 91   # 3 s
 
 
 def test_jump_is_a_fault_and_not_forwarded():
