@@ -133,6 +133,7 @@ class Tap:
     cut the link, and can hold the vehicle's datagrams back and release them in bursts (as a real link does)."""
 
     GCS_SYSTEM = 255
+    RECORDED = ('SET_ATTITUDE_TARGET', 'COMMAND_LONG', 'ODOMETRY', 'VISION_POSITION_ESTIMATE', 'VISION_SPEED_ESTIMATE')
 
     def __init__(self, bridge_port):
         self.vehicle_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -208,7 +209,12 @@ class Tap:
             return
         now = time.monotonic()
         with self.lock:
-            self.sent += [(now, m) for m in msgs if m.get_type() in ('SET_ATTITUDE_TARGET', 'COMMAND_LONG')]
+            self.sent += [(now, m) for m in msgs if m.get_type() in self.RECORDED]
+
+    def sent_of(self, kind, since_s=0.0):
+        """(time, message) of each message of this kind the bridge sent since since_s."""
+        with self.lock:
+            return [(t, m) for t, m in self.sent if m.get_type() == kind and t >= since_s]
 
     def setpoints(self, since_s=0.0):
         with self.lock:

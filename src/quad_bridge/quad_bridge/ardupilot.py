@@ -19,6 +19,7 @@ import numpy as np
 
 from quad_bridge.backend import MAV_SYS_STATUS_PREARM_CHECK as PREARM
 from quad_bridge.backend import Backend, ParamCheck, StreamGroup, ThrustConfig, tilt_cos
+from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
@@ -26,6 +27,7 @@ COPTER_MODES = {0: 'STABILIZE', 1: 'ACRO', 2: 'ALT_HOLD', 3: 'AUTO', 4: 'GUIDED'
                 9: 'LAND', 11: 'DRIFT', 13: 'SPORT', 14: 'FLIP', 15: 'AUTOTUNE', 16: 'POSHOLD', 17: 'BRAKE',
                 18: 'THROW', 19: 'AVOID_ADSB', 20: 'GUIDED_NOGPS', 21: 'SMART_RTL'}
 GUID_OPTIONS_THRUST_BIT = 1 << 3   # SetAttitudeTarget_ThrustAsThrust
+EXTERNAL_NAV = 6                   # AP_NavEKF_Source SourceXY/SourceZ/SourceYaw ExternalNav
 ANGLE_BOOST_COS_MIN = 0.1          # get_throttle_boosted: 1 / constrain(cos(tilt), 0.1, 1)
 
 
@@ -55,10 +57,24 @@ class ArduPilot(Backend):
     land_mode = 'LAND'
     prestream = False
     semantic_params = ('GUID_OPTIONS', 'MOT_THST_HOVER', 'ATC_ANGLE_BOOST')
+    external_pose_params = ('VISO_TYPE', 'EK3_SRC1_POSXY', 'EK3_SRC1_VELXY', 'EK3_SRC1_POSZ', 'EK3_SRC1_YAW')
     telemetry = (StreamGroup('odometry', (('LOCAL_POSITION_NED', 'ATTITUDE_QUATERNION'), ('ODOMETRY',))),
                  StreamGroup('imu', (('SCALED_IMU',), ('RAW_IMU',))),
                  StreamGroup('status', (('SYS_STATUS',),), share=0.0),
                  StreamGroup('battery', (('BATTERY_STATUS',),), share=0.0))
+
+    def external_pose_messages(self, pose):
+        """VISION_POSITION_ESTIMATE (NED position, FRD -> NED roll / pitch / yaw) and, with a velocity,
+        VISION_SPEED_ESTIMATE (NED): GCS_MAVLINK handle_vision_position_estimate / handle_vision_speed_estimate
+        into AP_VisualOdom (VISO_TYPE 1, MAVLink). Covariances zero: ArduPilot sums cov[0] + cov[6] + cov[11]
+        into one error, which a NaN would poison; zero leaves VISO_POS_M_NSE / VISO_VEL_M_NSE as the floor."""
+        roll, pitch, yaw = (float(a) for a in rotations.to_euler(pose.quaternion_ned_frd))
+        x, y, z = (float(c) for c in pose.position_ned)
+        out = [('vision_position_estimate', (pose.time_us, x, y, z, roll, pitch, yaw, [0.0] * 21, 0))]
+        if pose.velocity_frd is not None:
+            vx, vy, vz = (float(c) for c in pose.velocity_ned)
+            out.append(('vision_speed_estimate', (pose.time_us, vx, vy, vz, [0.0] * 9, 0)))
+        return tuple(out)
 
     def mode_name(self, custom_mode_word):
         return COPTER_MODES.get(int(custom_mode_word), f'MODE_{custom_mode_word}')
@@ -117,3 +133,25 @@ class ArduPilot(Backend):
         if config.thrust_mode == 'thrust':
             config = self._hover('MOT_THST_HOVER', values, config, adopt, problems, notes)
         return ParamCheck(tuple(problems), tuple(notes), config)
+
+    def _check_external_pose(self, values):
+        """VISO_TYPE 1 (MAVLink: AP_VisualOdom takes VISION_POSITION_ESTIMATE), EKF3 source set 1 on it
+        (AP_NavEKF_Source: 6 = ExternalNav): POSXY 6, VELXY 6 or 0 (none), POSZ 6 (1, the barometer: noted),
+        YAW 6 (1, the compass: noted)."""
+        problems, notes = [], []
+        viso, posxy, velxy = int(values['VISO_TYPE']), int(values['EK3_SRC1_POSXY']), int(values['EK3_SRC1_VELXY'])
+        posz, yaw = int(values['EK3_SRC1_POSZ']), int(values['EK3_SRC1_YAW'])
+        if viso != 1:
+            problems.append(f'VISO_TYPE = {viso}: the vehicle does not take the external pose (set VISO_TYPE = 1)')
+        if posxy != EXTERNAL_NAV:
+            problems.append(f'EK3_SRC1_POSXY = {posxy}: horizontal position is not from the external pose '
+                            f'(set {EXTERNAL_NAV})')
+        if velxy not in (0, EXTERNAL_NAV):
+            problems.append(f'EK3_SRC1_VELXY = {velxy}: horizontal velocity from another source (set {EXTERNAL_NAV} '
+                            'or 0)')
+        for name, value, other in (('EK3_SRC1_POSZ', posz, 'the barometer'), ('EK3_SRC1_YAW', yaw, 'the compass')):
+            if value == 1:
+                notes.append(f'{name} = 1: from {other}, not the external pose ({EXTERNAL_NAV})')
+            elif value != EXTERNAL_NAV:
+                problems.append(f'{name} = {value}: not from the external pose (set {EXTERNAL_NAV})')
+        return tuple(problems), tuple(notes)

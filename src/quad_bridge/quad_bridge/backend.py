@@ -34,6 +34,7 @@ class ThrustConfig:
     climb_rate_lead_s: float = 0.5
     setpoint_rate_hz: float = 50.0
     setpoint_timeout_s: float = 0.5
+    external_pose: bool = False            # an external pose (motion capture) is forwarded to the estimator
 
 
 @dataclass(frozen=True)
@@ -71,9 +72,15 @@ class Backend:
     land_mode = ''
     prestream = False          # must setpoints stream before the switch into offboard_mode?
     semantic_params = ()       # parameter names read on connect (PARAM_REQUEST_READ)
+    external_pose_params = ()  # ... and these with an external pose: the estimator must be set up to fuse it
     telemetry = ()             # StreamGroup, ...
 
     # --- modes ----------------------------------------------------------------------------------
+    def external_pose_messages(self, pose) -> tuple:
+        """An external pose (quad_bridge.external_pose.PoseNed) as this autopilot's estimator takes it:
+        ((pymavlink send name, args), ...)."""
+        raise NotImplementedError
+
     def mode_name(self, custom_mode: int) -> str:
         raise NotImplementedError
 
@@ -121,7 +128,7 @@ class Backend:
     def check_params(self, values: dict, config: ThrustConfig, policy: str) -> ParamCheck:
         """Compare the vehicle's semantic parameters with `config`. policy: check (contradictions refuse
         offboard) | adopt (take the vehicle's values) | ignore (trust the configuration, say so)."""
-        missing = [n for n in self.semantic_params if n not in values]
+        missing = [n for n in self.param_names(config) if n not in values]
         if policy == 'ignore':
             return ParamCheck(notes=('vehicle_params = ignore: the vehicle\'s parameters are not checked',),
                               config=config)
@@ -129,10 +136,23 @@ class Backend:
             return ParamCheck(problems=(f'parameter(s) {", ".join(missing)} not read from the vehicle '
                                         '(no PARAM_VALUE); set vehicle_params: ignore to fly on the configuration',),
                               config=config)
-        return self._check(values, config, policy == 'adopt')
+        check = self._check(values, config, policy == 'adopt')
+        if not config.external_pose:
+            return check
+        problems, notes = self._check_external_pose(values)
+        return replace(check, problems=check.problems + problems, notes=check.notes + notes)
+
+    def param_names(self, config: ThrustConfig) -> tuple:
+        """The vehicle parameters read on connect for this configuration."""
+        return self.semantic_params + (self.external_pose_params if config.external_pose else ())
 
     def _check(self, values, config, adopt) -> ParamCheck:
         return ParamCheck(config=config)
+
+    def _check_external_pose(self, values) -> tuple[tuple, tuple]:
+        """(problems, notes) of the estimator's set-up for an external pose; never adopted: the vehicle must be
+        configured (a parameter change reboots the estimator)."""
+        return (), ()
 
     def _hover(self, param: str, values, config, adopt, problems, notes):
         """The hover thrust rule shared by both autopilots: |vehicle - hover_throttle| <= hover_tolerance."""

@@ -14,7 +14,10 @@ import threading
 import time
 
 import numpy as np
+import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import Bool
@@ -27,6 +30,7 @@ from quad_bridge.backend import (
     rate_interval_us,
 )
 from quad_bridge.backends import BACKENDS, resolve
+from quad_bridge.external_pose import FRAMES, ExternalPoseConfig, ExternalPoseFilter
 from quad_bridge.handover import ACTIVE, PRESTREAM, PRESTREAM_S
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
@@ -105,6 +109,20 @@ PARAMS = [
     Param('realtime_priority', 0,
           'every thread of the bridge under SCHED_FIFO at this priority (1..99); 0 = off (the ordinary scheduler)',
           min=0, max=99, read_only=True),
+    Param('external_pose_enabled', False,
+          f'forward {contract.EXTERNAL_POSE} / {contract.EXTERNAL_ODOM} to the autopilot\'s estimator (motion '
+          'capture); its faults end a hand-over', read_only=True),
+    Param('external_pose_frame', 'enu', 'frame of the external pose: enu (ENU world, FLU body) | y_up (motion '
+          'capture Y-up: (x, y, z) -> (x, -z, y) ENU)', choices=FRAMES, read_only=True),
+    Param('external_pose_rate_hz', 30.0, 'external pose forwarded at most at this rate (PX4 EKF2: 30-50 Hz)',
+          min=1.0, max=200.0, read_only=True),
+    Param('external_pose_timeout_s', 0.5, 'no external pose for this long: fault', min=0.02, max=10.0,
+          read_only=True),
+    Param('external_pose_max_age_s', 0.2, 'an external pose older than this (stamp to arrival): fault (late)',
+          min=0.005, max=5.0, read_only=True),
+    Param('external_pose_max_speed_mps', 10.0, 'a position step beyond speed x dt + external_pose_jump_margin_m '
+          'between samples: fault (jump)', min=0.1, max=100.0, read_only=True),
+    Param('external_pose_jump_margin_m', 0.1, 'see external_pose_max_speed_mps', min=0.0, max=10.0, read_only=True),
 ]
 OFFBOARD_MIN_STREAM_HZ = 5.0  # on the wire over the pre-stream before asking PX4 for OFFBOARD (it needs > 2 Hz)
 SUPERVISOR_PERIOD_S = 0.05
@@ -129,7 +147,8 @@ class MavlinkBridge(Node):
                                    thrust_mode=p['ardupilot_thrust_mode'], speed_up_mps=p['ardupilot_speed_up_mps'],
                                    speed_down_mps=p['ardupilot_speed_down_mps'],
                                    climb_rate_lead_s=p['climb_rate_lead_s'], setpoint_rate_hz=p['setpoint_rate_hz'],
-                                   setpoint_timeout_s=p['setpoint_timeout_s'])
+                                   setpoint_timeout_s=p['setpoint_timeout_s'],
+                                   external_pose=p['external_pose_enabled'])
         self.flying_config = self.config   # after the vehicle's parameters were checked / adopted
         self.param_check = None
         self.param_read_lock = threading.Lock()
@@ -158,11 +177,35 @@ class MavlinkBridge(Node):
         self.telemetry = TelemetryPublisher(self, self.vehicle, self.client, self.on_state, p['stream_grace_s'])
         self.setpoints = SetpointPath(self, self.may_stream, self.on_stream_quiet)
         self.streamer = self.setpoints.streamer
+        self.external_pose = None
+        self.external_pose_faults = 0      # hand-overs ended by an external pose fault
+        if p['external_pose_enabled']:
+            self.external_pose = ExternalPoseFilter(ExternalPoseConfig(
+                frame=p['external_pose_frame'], max_rate_hz=p['external_pose_rate_hz'],
+                timeout_s=p['external_pose_timeout_s'], max_age_s=p['external_pose_max_age_s'],
+                max_speed_m_s=p['external_pose_max_speed_mps'], jump_margin_m=p['external_pose_jump_margin_m']),
+                self.telemetry.clock)
+            # A node and thread of its own: the services' executor waits in offboard's pre-stream (a second), and
+            # the pose must reach the autopilot meanwhile (it timed out there when it shared that executor).
+            name = f'{self.get_name()}_external_pose'
+            self.external_pose_node = rclpy.create_node(name, namespace=self.get_namespace(), context=self.context,
+                                                        cli_args=['--ros-args', '-r', f'__node:={name}'],
+                                                        start_parameter_services=False)
+            self.external_pose_node.create_subscription(PoseStamped, contract.EXTERNAL_POSE, self.on_external_pose,
+                                                        contract.qos(contract.EXTERNAL_POSE))
+            self.external_pose_node.create_subscription(Odometry, contract.EXTERNAL_ODOM, self.on_external_odometry,
+                                                        contract.qos(contract.EXTERNAL_ODOM))
+            self.external_pose_executor = SingleThreadedExecutor(context=self.context)
+            self.external_pose_executor.add_node(self.external_pose_node)
+            self.external_pose_thread = threading.Thread(target=self._spin_external_pose, name='external-pose-rx',
+                                                         daemon=True)
         self.supervisor = threading.Thread(target=self._supervise, name='supervisor', daemon=True)
 
         self.realtime, self.realtime_refused = self.apply_realtime(p['realtime_priority'])   # before our threads
         self.client.start()
         self.setpoints.start()
+        if self.external_pose is not None:
+            self.external_pose_thread.start()
         self.supervisor.start()
         self.get_logger().info(f'{NAME}: {p["fcu_url"]}, autopilot {p["autopilot"]}, keep-alive '
                                f'{p["setpoint_rate_hz"]} Hz, scheduling {self.realtime}')
@@ -238,6 +281,51 @@ class MavlinkBridge(Node):
             self.get_logger().info(f'{what}: {action}')
         self.publish_diagnostics()
 
+    # --- external pose (quad_bridge.external_pose): forwarded to the estimator, a fault ends the hand-over ----
+
+    def _spin_external_pose(self):
+        while not self.stopping.is_set() and self.context.ok():
+            self.external_pose_executor.spin_once(timeout_sec=0.1)
+
+    def on_external_pose(self, msg):
+        p, q = msg.pose.position, msg.pose.orientation
+        self._forward_external_pose((p.x, p.y, p.z), (q.x, q.y, q.z, q.w), None, msg.header.stamp)
+
+    def on_external_odometry(self, msg):
+        """nav_msgs/Odometry: the twist is in the child (body) frame."""
+        p, q, v = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist.linear
+        self._forward_external_pose((p.x, p.y, p.z), (q.x, q.y, q.z, q.w), (v.x, v.y, v.z), msg.header.stamp)
+
+    def _forward_external_pose(self, position, quaternion, velocity, header_stamp):
+        stamp_ns = header_stamp.sec * 1_000_000_000 + header_stamp.nanosec
+        try:
+            pose = self.external_pose.offer(position, quaternion, velocity, stamp_ns, time.time_ns())
+        except ValueError as exc:   # a zero / non-finite quaternion
+            self.external_pose.fault = f'bad sample: {exc}'
+            pose = None
+        backend = self.vehicle.status.backend
+        if pose is not None and backend is not None and self.link.state == LinkState.UP:
+            for name, args in backend.external_pose_messages(pose):
+                self.client.send(name, *args)
+        elif self.external_pose.fault:
+            self.on_external_pose_fault(self.external_pose.fault)
+
+    def on_external_pose_fault(self, fault):
+        """While the vehicle flies our setpoints on an estimate fed by the external pose, a fault (timeout, jump,
+        late) ends the hand-over and commands stale_action: the estimate would drift or jump under it."""
+        why = f'external pose: {fault}'
+        with self.vehicle.lock:
+            ended = self.vehicle.handover.end(why)
+            mode = self._stale_action_mode() if ended else None
+        if not ended:
+            return
+        self.external_pose_faults += 1
+        self.update_engaged()
+        if mode is not None and self.link.state == LinkState.UP:
+            self.set_mode(mode, wait=False)
+        self.get_logger().error(f'{why}: hand-over ended' + (f', commanding {mode}' if mode else ''))
+        self.publish_diagnostics()
+
     def _stale_action_mode(self) -> str | None:
         """The mode stale_action commands when the vehicle is armed in a mode that obeys SET_ATTITUDE_TARGET
         (it keeps flying the last one), else None. The mode is the one we commanded while its heartbeat is pending
@@ -286,6 +374,10 @@ class MavlinkBridge(Node):
                         self.get_logger().warn(streams.notes[-1])
                         self.request_messages(messages, self.group_rate_hz(group))
                 self.check_link_peers()
+                if self.external_pose is not None:
+                    fault = self.external_pose.check_timeout(time.time_ns())
+                    if fault and fault.startswith('timeout'):
+                        self.on_external_pose_fault(fault)
                 if now >= next_beat:
                     next_beat = now + 1.0
                     self.heartbeat_tick()
@@ -350,8 +442,8 @@ class MavlinkBridge(Node):
         s = self.vehicle.status
         values = {}
         if self.params['vehicle_params'] != 'ignore':
-            answers = self.client.read_params(s.system, self.params['target_component'], s.backend.semantic_params,
-                                              self.params['command_timeout_s'])
+            answers = self.client.read_params(s.system, self.params['target_component'],
+                                              s.backend.param_names(self.config), self.params['command_timeout_s'])
             values = {n: s.backend.decode_param(v, t) for n, (v, t) in answers.items()}
         check = s.backend.check_params(values, self.config, self.params['vehicle_params'])
         with self.vehicle.lock:
@@ -436,6 +528,8 @@ class MavlinkBridge(Node):
             check = self.read_vehicle_params()
         if check.problems:
             return self._refuse(response, 'offboard refused: ' + '; '.join(check.problems))
+        if self.external_pose is not None and self.external_pose.check_timeout(time.time_ns()):
+            return self._refuse(response, f'offboard refused: external pose {self.external_pose.fault}')
         if not self.streamer.fresh():
             refused = self.setpoints.refused_sources()
             return self._refuse(response, 'no live setpoint stream: publish cmd/attitude_thrust first' + (
@@ -588,7 +682,15 @@ class MavlinkBridge(Node):
             'received': st.received, 'sent': st.sent_total, 'keepalives': st.keepalives,
             'superseded': st.superseded, **counts,
             'geofence_breached': self.geofence.breached, 'geofence_braking': self.geofence.braking})
-        self.diag_pub.publish(diagnostics.array(stamp(time.time_ns()), [link, setpoints]))
+        statuses = [link, setpoints]
+        if self.external_pose is not None:
+            ep, now_ns = self.external_pose, time.time_ns()
+            statuses.append(diagnostics.status(
+                f'{NAME}: external pose', diagnostics.WARN if ep.fault else diagnostics.OK, ep.fault or 'forwarding',
+                {'frame': ep.config.frame, 'rate_hz': f'{ep.rate_hz(now_ns):.1f}',
+                 'age_ms': f'{ep.last_age_s * 1e3:.1f}', 'forwarded': ep.forwarded, 'dropped_rate': ep.dropped_rate,
+                 'fault': ep.fault or '', 'handovers_ended': self.external_pose_faults}))
+        self.diag_pub.publish(diagnostics.array(stamp(time.time_ns()), statuses))
 
     def land_on_shutdown(self):
         """Shut down (SIGINT, SIGTERM) while the vehicle flies our setpoints: command what `land` commands and wait
@@ -620,6 +722,10 @@ class MavlinkBridge(Node):
         self.supervisor.join(timeout=2.0)
         self.land_on_shutdown()   # the receive thread still reads the ACK
         self.setpoints.stop()
+        if self.external_pose is not None:
+            self.external_pose_thread.join(timeout=2.0)
+            self.external_pose_executor.shutdown()
+            self.external_pose_node.destroy_node()
         self.client.close()
         super().destroy_node()
 

@@ -14,6 +14,7 @@ import struct
 import numpy as np
 
 from quad_bridge.backend import Backend, ParamCheck, StreamGroup, ThrustConfig
+from quad_bridge.frames import to_mavlink_quaternion
 from quad_bridge.streamer import FIRST_RESEND_PERIODS
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
@@ -23,6 +24,10 @@ MAIN_MODES = {1: 'MANUAL', 2: 'ALTCTL', 3: 'POSCTL', 4: 'AUTO', 5: 'ACRO', 6: 'O
 AUTO_SUB_MODES = {1: 'READY', 2: 'TAKEOFF', 3: 'LOITER', 4: 'MISSION', 5: 'RTL', 6: 'LAND', 8: 'FOLLOW_TARGET',
                   9: 'PRECLAND'}
 MAV_PARAM_TYPE_REAL32 = 9
+MAV_FRAME_BODY_FRD = 12
+MAV_FRAME_LOCAL_FRD = 20
+MAV_ESTIMATOR_TYPE_VISION = 2   # MOCAP (6) goes to PX4's vehicle_mocap_odometry, which EKF2 does not fuse
+NAN = float('nan')
 
 
 def custom_mode(main_mode: int, sub_mode: int = 0) -> int:
@@ -43,10 +48,22 @@ class Px4(Backend):
     land_mode = 'AUTO.LAND'
     prestream = True
     semantic_params = ('MPC_THR_HOVER', 'COM_OF_LOSS_T')
+    external_pose_params = ('EKF2_EV_CTRL', 'EKF2_HGT_REF', 'EKF2_GPS_CTRL', 'EKF2_EV_DELAY')
     telemetry = (StreamGroup('odometry', (('LOCAL_POSITION_NED', 'ATTITUDE_QUATERNION'), ('ODOMETRY',))),
                  StreamGroup('imu', (('HIGHRES_IMU',), ('SCALED_IMU',))),
                  StreamGroup('status', (('SYS_STATUS',),), share=0.0),
                  StreamGroup('battery', (('BATTERY_STATUS',),), share=0.0))
+
+    def external_pose_messages(self, pose):
+        """ODOMETRY: pose in MAV_FRAME_LOCAL_FRD (EKF2 rotates a local frame into its own unless it fuses the
+        external heading), velocity in MAV_FRAME_BODY_FRD (NaN: none), covariances NaN (unknown: EKF2 takes
+        EKF2_EVP_NOISE / EKF2_EVV_NOISE / EKF2_EVA_NOISE), estimator_type VISION (mavlink_receiver.cpp
+        handle_message_odometry publishes it to vehicle_visual_odometry)."""
+        v = (NAN, NAN, NAN) if pose.velocity_frd is None else tuple(float(c) for c in pose.velocity_frd)
+        x, y, z = (float(c) for c in pose.position_ned)
+        return (('odometry', (pose.time_us, MAV_FRAME_LOCAL_FRD, MAV_FRAME_BODY_FRD, x, y, z,
+                              to_mavlink_quaternion(pose.quaternion_ned_frd), *v, NAN, NAN, NAN,
+                              [NAN] + [0.0] * 20, [NAN] + [0.0] * 20, 0, MAV_ESTIMATOR_TYPE_VISION, 0)),)
 
     def mode_name(self, custom_mode_word):
         main, sub = decode(custom_mode_word)
@@ -101,3 +118,20 @@ class Px4(Backend):
             notes.append(f'COM_OF_LOSS_T = {loss_s:.2f} s < setpoint_timeout_s = {config.setpoint_timeout_s} s: '
                          'PX4\'s own offboard-loss failsafe (COM_OBL_RC_ACT) acts before the bridge\'s stale_action')
         return ParamCheck(tuple(problems), tuple(notes), config)
+
+    def _check_external_pose(self, values):
+        """EKF2_EV_CTRL bits 0 and 1 (fuse horizontal and vertical position), EKF2_HGT_REF 3 (vision height: the
+        barometer drifts indoors), EKF2_GPS_CTRL 0 (no GPS indoors: a GPS check would block arming), and the
+        EKF2_EV_DELAY the estimator assumes (the pose's age at the autopilot)."""
+        problems, notes = [], []
+        ev_ctrl, hgt_ref = int(values['EKF2_EV_CTRL']), int(values['EKF2_HGT_REF'])
+        if ev_ctrl & 3 != 3:
+            problems.append(f'EKF2_EV_CTRL = {ev_ctrl}: the external pose is not fused as position (set bits 0 '
+                            f'and 1: EKF2_EV_CTRL = {ev_ctrl | 3})')
+        if hgt_ref != 3:
+            problems.append(f'EKF2_HGT_REF = {hgt_ref}: height is not from the external pose (set EKF2_HGT_REF = 3)')
+        gps_ctrl = int(values['EKF2_GPS_CTRL'])
+        if gps_ctrl:
+            notes.append(f'EKF2_GPS_CTRL = {gps_ctrl}: GPS is fused where it is received (indoors: set 0)')
+        notes.append(f'EKF2_EV_DELAY = {values["EKF2_EV_DELAY"]:g} ms: the pose\'s age the estimator assumes')
+        return tuple(problems), tuple(notes)

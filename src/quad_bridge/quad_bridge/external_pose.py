@@ -1,0 +1,161 @@
+"""An external pose (motion capture, vision) on its way to the autopilot's estimator: frame, time, rate, faults.
+
+Frames (parameter external_pose_frame):
+- enu:  world ENU, body FLU (ROS REP 103, what vrpn_mocap and mocap4r2 publish when set up Z-up).
+- y_up: motion-capture Y-up (world and rigid body: x forward, y up, z = x cross y); ENU = R_x(+90 deg) Y-up,
+  (x, y, z)_Yup -> (x, -z, y)_ENU, and the attitude R_ENU_FLU = R_x R_Yup R_x^T.
+Either is then converted once to NED/FRD by quad_bridge.frames.
+
+Time: the sample's stamp (local ROS time) is mapped into the autopilot's boot time through the bridge's
+ClockMapper (to_remote_us), so the estimator fuses it at the instant it was measured.
+
+Rate: a sample goes out when its stamp reaches the due time, which then advances by 1 / max_rate_hz (from the
+sample's stamp after a gap): a faster stream is thinned to max_rate_hz on average, not to the next multiple of its
+own period (PX4 EKF2 fuses external vision at up to ~30-50 Hz; ArduPilot's visual odometry at the rate
+VISION_POSITION_ESTIMATE arrives).
+
+Faults (each one line in diagnostics; while engaged the bridge ends the hand-over on any of them):
+- timeout: no sample for timeout_s;
+- jump: |p - p_last| > max_speed_m_s * dt + jump_margin_m (a swapped rigid body, a reflection);
+- late: now - stamp > max_age_s.
+"""
+
+import dataclasses
+import math
+import threading
+
+import numpy as np
+
+from quad_bridge import frames
+from quad_common import rotations
+
+FRAMES = ('enu', 'y_up')
+_Q_ENU_YUP = np.array([math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])   # +90 deg about x, (x, y, z, w)
+
+
+def check_frame(frame: str) -> str:
+    if frame not in FRAMES:
+        raise ValueError(f'external_pose_frame must be one of {", ".join(FRAMES)}, got {frame!r}')
+    return frame
+
+
+def to_enu(frame: str, position, quaternion, velocity=None):
+    """(world position, attitude body -> world (x,y,z,w), body velocity or None: nav_msgs/Odometry's twist is in
+    its child (body) frame) in `frame` -> world ENU position, attitude FLU -> ENU, body FLU velocity."""
+    position = np.asarray(position, dtype=float)
+    quaternion = rotations.normalize(quaternion)
+    if check_frame(frame) == 'enu':
+        return position, quaternion, None if velocity is None else np.asarray(velocity, dtype=float)
+    rotate = rotations.to_matrix(_Q_ENU_YUP)
+    q = rotations.multiply(rotations.multiply(_Q_ENU_YUP, quaternion), rotations.conjugate(_Q_ENU_YUP))
+    return rotate @ position, q, None if velocity is None else rotate @ np.asarray(velocity, dtype=float)
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseNed:
+    """One sample for the autopilot: world NED position (m), attitude body FRD -> NED (x,y,z,w), body FRD
+    velocity (m/s) or None, and its time in the autopilot's boot clock (us)."""
+    time_us: int
+    position_ned: np.ndarray
+    quaternion_ned_frd: np.ndarray
+    velocity_frd: np.ndarray | None
+
+    @property
+    def velocity_ned(self):
+        """v_NED = R(q_NED_FRD) v_FRD."""
+        return None if self.velocity_frd is None else rotations.to_matrix(self.quaternion_ned_frd) @ self.velocity_frd
+
+
+@dataclasses.dataclass
+class ExternalPoseConfig:
+    frame: str = 'enu'
+    max_rate_hz: float = 30.0
+    timeout_s: float = 0.5
+    max_age_s: float = 0.2
+    max_speed_m_s: float = 10.0
+    jump_margin_m: float = 0.1
+
+    def __post_init__(self):
+        check_frame(self.frame)
+        for name in ('max_rate_hz', 'timeout_s', 'max_age_s', 'max_speed_m_s'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f'external pose {name} must be finite and > 0, got {value}')
+        if not (math.isfinite(self.jump_margin_m) and self.jump_margin_m >= 0):
+            raise ValueError(f'external pose jump_margin_m must be finite and >= 0, got {self.jump_margin_m}')
+
+
+class ExternalPoseFilter:
+    """Decides, per sample, forward / drop (rate) / reject (fault), and keeps what diagnostics report. Thread-safe:
+    samples arrive on the executor's thread, the supervisor checks the timeout."""
+
+    def __init__(self, config: ExternalPoseConfig, clock):
+        self.config = config
+        self.clock = clock          # quad_bridge.clock.ClockMapper (to_remote_us)
+        self.fault = None           # the newest fault, one line, or None
+        self.forwarded = 0
+        self.dropped_rate = 0
+        self._last_stamp_ns = None  # stamp of the last accepted sample (jump reference)
+        self._last_position = None
+        self._next_due_ns = None    # stamp from which the next sample may go out (rate)
+        self._last_arrival_ns = None
+        self._sent_times_ns = []    # arrival times of forwarded samples over the last second (rate)
+        self.last_age_s = math.nan
+        self._lock = threading.Lock()
+
+    def offer(self, position, quaternion, velocity, stamp_ns: int, now_ns: int) -> PoseNed | None:
+        """A sample measured at stamp_ns (local ROS time) arriving at now_ns: the PoseNed to send, or None."""
+        with self._lock:
+            return self._offer(position, quaternion, velocity, stamp_ns, now_ns)
+
+    def _offer(self, position, quaternion, velocity, stamp_ns, now_ns):
+        cfg = self.config
+        self._last_arrival_ns = now_ns
+        self.last_age_s = (now_ns - stamp_ns) / 1e9
+        if self.last_age_s > cfg.max_age_s:
+            self.fault = f'late: stamp {self.last_age_s * 1e3:.0f} ms old > {cfg.max_age_s * 1e3:.0f} ms'
+            return None
+        p, q, v = to_enu(cfg.frame, position, quaternion, velocity)
+        if self._last_position is not None:
+            dt = max(0.0, (stamp_ns - self._last_stamp_ns) / 1e9)
+            step = float(np.linalg.norm(p - self._last_position))
+            bound = cfg.max_speed_m_s * dt + cfg.jump_margin_m
+            if step > bound:
+                self.fault = f'jump: {step:.2f} m in {dt * 1e3:.0f} ms > {bound:.2f} m'
+                return None
+        self._last_position, self._last_stamp_ns = p, stamp_ns
+        period_ns = int(1e9 / cfg.max_rate_hz)
+        if self._next_due_ns is not None and stamp_ns < self._next_due_ns:
+            self.dropped_rate += 1
+            return None
+        time_us = self.clock.to_remote_us(stamp_ns)
+        if time_us is None:
+            self.fault = 'no autopilot time yet: the clock mapping has no sample'
+            return None
+        self.fault = None
+        self._next_due_ns = (stamp_ns if self._next_due_ns is None else max(self._next_due_ns, stamp_ns - period_ns)) \
+            + period_ns
+        self.forwarded += 1
+        self._sent_times_ns = [t for t in self._sent_times_ns if t > now_ns - 1_000_000_000] + [now_ns]
+        return PoseNed(time_us, frames.world_enu_ned(p), frames.quaternion_enu_to_ned(q),
+                       None if v is None else frames.body_flu_frd(v))
+
+    def check_timeout(self, now_ns: int) -> str | None:
+        """The timeout fault once the stream has been silent timeout_s (or never started), else the current one."""
+        with self._lock:
+            return self._check_timeout(now_ns)
+
+    def _check_timeout(self, now_ns):
+        if self._last_arrival_ns is None or now_ns - self._last_arrival_ns > self.config.timeout_s * 1e9:
+            silent = 'never received' if self._last_arrival_ns is None else \
+                f'no sample for {(now_ns - self._last_arrival_ns) / 1e9:.2f} s'
+            self.fault = f'timeout: {silent} (> {self.config.timeout_s:.2f} s)'
+        return self.fault
+
+    def rate_hz(self, now_ns: int) -> float:
+        """Samples forwarded over the last second."""
+        with self._lock:
+            return self._rate_hz(now_ns)
+
+    def _rate_hz(self, now_ns):
+        return float(sum(1 for t in self._sent_times_ns if t > now_ns - 1_000_000_000))

@@ -1,0 +1,100 @@
+"""An external pose (motion capture) through the bridge over real UDP to the emulated autopilots, seen on the wire by
+a tap: forwarded in the autopilot's message at the configured rate, converted to NED; a jump, a late sample and a
+stopped stream are faults in the diagnostics, refuse `offboard`, and end a hand-over with stale_action."""
+
+import threading
+import time
+
+import pytest
+from bridge_graph import SetpointPublisher, tapped_graph
+from geometry_msgs.msg import PoseStamped
+from std_srvs.srv import SetBool
+
+from quad_common import contract
+
+HOVER = 0.5
+VEHICLE_ARGS = {'px4': ('--offboard-loss-s', '3.0'), 'ardupilot': ('--param', 'GUID_OPTIONS=8')}
+WIRE = {'px4': 'ODOMETRY', 'ardupilot': 'VISION_POSITION_ESTIMATE'}
+STATUS = 'mavlink_bridge: external pose'
+DO_SET_MODE = 176
+
+
+class PosePublisher:
+    """external/pose at rate_hz from a thread; position and stamp age can be changed while it runs."""
+
+    def __init__(self, observer, rate_hz=100.0):
+        self.node, self.period_s = observer.node, 1.0 / rate_hz
+        self.pub = self.node.create_publisher(PoseStamped, contract.EXTERNAL_POSE, contract.qos(contract.EXTERNAL_POSE))
+        self.position, self.age_s = (1.0, 2.0, 0.5), 0.0
+        self.running = threading.Event()
+        self.running.set()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while self.running.is_set():
+            msg = PoseStamped()
+            t_ns = time.time_ns() - int(self.age_s * 1e9)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t_ns, 1_000_000_000)
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = self.position
+            msg.pose.orientation.w = 1.0
+            self.pub.publish(msg)
+            time.sleep(self.period_s)   # pacing the publisher, not synchronisation
+
+    def stop(self):
+        self.running.clear()
+        self.thread.join(timeout=2)
+
+
+@pytest.fixture
+def graph(tmp_path):
+    with tapped_graph(tmp_path) as (procs, observer, start_tapped):
+        def start(flavour, **bridge_params):
+            return start_tapped(flavour, (0.0, 0.0, 1.0), (*VEHICLE_ARGS[flavour], '--hover-throttle', str(HOVER)),
+                                hover_throttle=HOVER, external_pose_enabled=True, **bridge_params)
+        yield procs, observer, start
+
+
+def _fault(observer):
+    return observer.status(STATUS)[1].get('fault', '')
+
+
+@pytest.mark.parametrize('flavour', ['px4', 'ardupilot'])
+def test_external_pose_is_forwarded_and_its_faults_end_the_hand_over(graph, flavour):
+    procs, observer, start = graph
+    tap = start(flavour, vehicle_params='ignore', external_pose_rate_hz=30.0)
+    kind = WIRE[flavour]
+    assert _fault(observer).startswith('timeout: never received') or not observer.status(STATUS)[0]
+    poses = PosePublisher(observer)
+    observer.wait_for(lambda: len(tap.sent_of(kind)) > 60, f'{kind} on the wire')
+    sent = tap.sent_of(kind)
+    t, m = sent[-1]
+    assert (m.x, m.y, m.z) == pytest.approx((2.0, 1.0, -0.5), abs=1e-5)   # ENU (1, 2, 0.5) in NED
+    if flavour == 'px4':
+        assert (m.frame_id, m.child_frame_id, m.estimator_type) == (20, 12, 2)
+    window = [s for s, _ in sent if s > sent[-1][0] - 1.0]
+    assert 25 <= len(window) <= 32, len(window)   # 100 Hz published, 30 Hz forwarded
+    observer.wait_for(lambda: observer.status(STATUS)[0] == 'forwarding', 'the external pose status forwarding')
+
+    setpoints = SetpointPublisher(observer, force_mps2=9.81)
+    try:
+        observer.wait_for(lambda: int(observer.setpoints()[1].get('received', 0)) > 10, 'setpoints heard')
+        result = observer.call('offboard', SetBool.Request(data=True))
+        assert result.success, result.message
+        observer.wait_for(lambda: observer.setpoints()[1].get('handover') == 'active', 'the hand-over active')
+        since = time.monotonic()
+        poses.position = (6.0, 2.0, 0.5)                     # 5 m in one sample: a swapped rigid body
+        observer.wait_for(lambda: _fault(observer).startswith('jump'), 'the jump fault')
+        observer.wait_for(lambda: observer.setpoints()[1].get('handover') != 'active', 'the hand-over ended')
+        assert 'external pose: jump' in observer.setpoints()[0]
+        observer.wait_for(lambda: any(m.command == DO_SET_MODE for _, m in tap.sent_of('COMMAND_LONG', since)),
+                          'stale_action commanded')
+        assert not [m for _, m in tap.sent_of(kind, since) if abs(m.x - 2.0) > 1.0]   # the jump never went out
+        result = observer.call('offboard', SetBool.Request(data=True))
+        assert not result.success and 'external pose jump' in result.message, result.message
+    finally:
+        setpoints.stop()
+    poses.position, poses.age_s = (1.0, 2.0, 0.5), 0.5             # back in place, but 500 ms old
+    observer.wait_for(lambda: _fault(observer).startswith('late'), 'the late fault')
+    poses.stop()
+    observer.wait_for(lambda: _fault(observer).startswith('timeout: no sample'), 'the timeout fault')
