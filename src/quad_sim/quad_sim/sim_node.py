@@ -55,17 +55,17 @@ from quad_common.paths import resolve_config
 from quad_common.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
+from quad_sim import lockstep_policy
 from quad_sim.disturbances import load_profile
+from quad_sim.lockstep_policy import LOST_STEP_TIMEOUT_S, STARTUP_REPUBLISH_S
 from quad_sim.mocap import MocapConfig, MotionCapture
 from quad_sim.simulator import PHYSICS_RATE_HZ, SimulationStopped, Simulator
 from quad_sim.vehicle_contact import VEHICLE_COLLISION, VehicleContacts
 
 NAME = 'sim_node'
 DIAGNOSTICS_PERIOD_S = 1.0  # sim time
-STARTUP_REPUBLISH_S = 0.1   # wall time between re-publications of the first step until a setpoint arrives
 DRAIN_STALL_S = 30.0        # wall time, at shutdown, a follower may go without acknowledging anything new
 FOLLOWER_WARN_S = 5.0       # wall time waiting for a follower before each warning naming it
-LOST_STEP_TIMEOUT_S = 0.02  # wall time per step for a setpoint once one missed lockstep_timeout_s
 ROTOR_NAMES = [f'rotor_{i}' for i in range(4)]
 
 SPECS = [
@@ -184,10 +184,11 @@ class SimulatedVehicle:
     def _on_setpoint(self, raw: bytes):
         """cmd/attitude_thrust, serialized (quad_common.cdr: the tick's critical path)."""
         stamp_ns = cdr.header_stamp_ns(raw, Imu)
-        if stamp_ns < self.setpoint_stamp_ns:
-            return  # older than the one applied
-        period_ns = self.node.steps_per_period * self.sim.step_ns
-        if stamp_ns > self.sim.time_ns + period_ns:
+        verdict = lockstep_policy.classify_setpoint(stamp_ns, self.setpoint_stamp_ns, self.sim.time_ns,
+                                                    self.node.steps_per_period * self.sim.step_ns)
+        if verdict == lockstep_policy.OLDER:
+            return
+        if verdict == lockstep_policy.FUTURE:
             self.future_setpoints += 1
             self._log().warn(
                 f'{self.prefix}setpoint refused: stamped {stamp_ns * 1e-9:.3f} s, ahead of sim time '
@@ -502,8 +503,8 @@ class SimNode(Node):
                 continue
             if not self.running():
                 break
-            if all(v.setpoint_stamp_ns >= t_k or v.setpoints_received > 0 or v.controller_present()
-                   for v in self.vehicles):
+            if lockstep_policy.may_advance(((v.setpoint_stamp_ns, v.setpoints_received, v.controller_present)
+                                            for v in self.vehicles), t_k):
                 self.advance(self.steps_per_period)
         if self._first_advance is not None:
             wall_s = time.monotonic() - self._first_advance[0]
@@ -528,35 +529,27 @@ class SimNode(Node):
         joined late or answered before they were matched); once one was missed, LOST_STEP_TIMEOUT_S at most.
         Returns the vehicles it waited for (those without one at its start)."""
         now = time.monotonic()
-        deadlines = {}
-        for v in self.vehicles:
-            timeout_s = self.params['lockstep_timeout_s'] if v.setpoints_received else min(
-                self.params['lockstep_timeout_s'], STARTUP_REPUBLISH_S)
-            if v.controller_lost:  # one step per LOST_STEP_TIMEOUT_S: a controller that is only slow catches up;
-                # none at all once it left the graph (a fleet's other vehicles fly on at full speed)
-                timeout_s = min(timeout_s, LOST_STEP_TIMEOUT_S if v.has_setpoint_publisher() else 0.0)
-            deadlines[v] = now + timeout_s
-        republish_at = now + STARTUP_REPUBLISH_S
-        waiting = [v for v in self.vehicles if v.setpoint_stamp_ns < t_k]
-        waited_for = list(waiting)
-        while waiting and self.running():
+        deadlines = {v: now + lockstep_policy.setpoint_timeout_s(
+            self.params['lockstep_timeout_s'], v.setpoints_received, v.controller_lost,
+            v.controller_lost and v.has_setpoint_publisher()) for v in self.vehicles}
+        waited_for = [v for v in self.vehicles if v.setpoint_stamp_ns < t_k]
+        wait = lockstep_policy.SetpointWait(waited_for, deadlines, now)
+        while wait.waiting and self.running():
             now = time.monotonic()
-            for v in [v for v in waiting if now >= deadlines[v]]:
-                waiting.remove(v)
+            for v in wait.expire(now):
                 if v.setpoints_received > 0 and not v.controller_lost:
                     v.controller_lost = True
                     self.get_logger().warn(
                         f'{v.name}: ' * bool(v.prefix) + f'no setpoint for t = {t_k * 1e-9:.3f} s within '
                         f'lockstep_timeout_s: each step now waits {LOST_STEP_TIMEOUT_S} s at most (the failsafe '
                         'lands the vehicle) until one arrives')
-            if not waiting:
+            if not wait.waiting:
                 break
-            starting = [v for v in waiting if v.setpoints_received == 0]
-            if starting and now >= republish_at:  # for nodes that joined late
+            starting = [v for v in wait.waiting if v.setpoints_received == 0]
+            if starting and wait.republish_due(now):  # for nodes that joined late
                 self.publish_step(starting)
-                republish_at = now + STARTUP_REPUBLISH_S
-            executor.spin_once(timeout_sec=max(min(min(deadlines[v] for v in waiting), republish_at) - now, 0.0))
-            waiting = [v for v in waiting if v.setpoint_stamp_ns < t_k]
+            executor.spin_once(timeout_sec=wait.wake_in_s(now))
+            wait.answered(lambda v: v.setpoint_stamp_ns >= t_k)
         return waited_for
 
     def _await_followers(self, executor, stamp_ns, timeout_s=None):
