@@ -13,6 +13,7 @@ import signal
 import socket
 import struct
 import sys
+import time
 
 from quad_common.realtime import apply_or_report
 
@@ -35,7 +36,6 @@ def read_record(path):
 
 
 def main(argv):
-    import time
     record_path, bridge_ports = argv[0], [int(p) for p in argv[1:]]
 
     def bound():
