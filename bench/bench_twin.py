@@ -51,8 +51,10 @@ def replay_numbers(stdout: str) -> dict:
 
     def cm(line, what):
         return float(line.split(f'{what} RMSE ')[1].split(' cm')[0])
+    source = next((x.split(', ', 1)[1] for x in stdout.splitlines() if x.startswith("the twin's controller flew")),
+                  'fresh')
     return {'flight': cm(closed, 'flight'), 'twin': cm(closed, 'twin'), 'trace': cm(closed, '|twin - flight|'),
-            'open': cm(opened, '|twin - flight|')}
+            'open': cm(opened, '|twin - flight|'), 'telemetry': source}
 
 
 def identify_and_replay(bag: Path, out: Path) -> tuple[dict, dict]:

@@ -1,9 +1,9 @@
 """`quadflight identify` and `quadflight replay` on a flight recorded as on a real vehicle (issue 23): the emulated
 PX4 (quad_vehicle_emu: 0.19 s roll/pitch lag, 20 ms telemetry), mavlink_bridge, position_controller on
 control_real.yaml, the recorder, `offboard`, a 3 m square at 1 m/s, `land` (bench/bench_twin.py, docs/benchmarks.md).
-identify finds the emulator's lag and thrust and writes the model; replay's twin, which sees odometry as old as
-the bag shows, flies within 20 % of the flight's RMSE and traces the flight; a twin with fresh odometry (replay
-before it read the bag's telemetry) is no twin. The margin check's verdict holds on the emulator's attitude
+identify finds the emulator's lag and thrust and writes the model; replay's twin, which flies odometry as old as
+the flight's controller reported it did, flies within 20 % of the flight's RMSE and traces the flight; a twin with
+fresh odometry is no twin. The margin check's verdict holds on the emulator's attitude
 structure at the margin it states."""
 
 import sys
@@ -32,6 +32,7 @@ def test_replay_twin_of_an_emulated_px4_flight_within_20_percent(flown):
     assert r['thrust_scale'] == pytest.approx(1.0, abs=0.01)
     flight, twin, trace = numbers['flight'], numbers['twin'], numbers['trace']
     assert 3.0 < flight < 40.0, numbers
+    assert numbers['telemetry'] == 'as the controller reported it', numbers   # its diagnostics, not the recorder's
     assert abs(twin / flight - 1) < 0.2, numbers
     assert trace < bench_twin.TRACE_GOAL * flight, numbers
     fresh = bench_twin.fresh_twin(bag, tmp / 'model.yaml')

@@ -112,6 +112,8 @@ class Flight:
     cmd_record_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # bag time of each cmd
     engaged: list = field(default_factory=list)  # (bag time ns, bool) of each vehicle/engaged message
     handover: list = field(default_factory=list)  # (bag time ns, phase) of the bridge's `handover` diagnostics
+    controller_odom_age: list = field(default_factory=list)  # (bag time ns, ms): the controller's reported
+    #                                       mean odometry age (contract.CONTROLLER_ODOM_AGE_MS)
 
 
 GAP_FACTOR = 1.5  # an odometry interval longer than this many typical periods is a gap

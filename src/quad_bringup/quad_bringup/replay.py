@@ -3,12 +3,12 @@ with the position controller and gains, and the bag's setpoints fed open loop.
 
 Closed loop: the PositionController (quad_control, RATE_HZ) tracks the recorded plan (the bag's `trajectory`)
 on Simulator(vehicle) from the flight's position and yaw at the plan's start, each tick seeing the simulator's
-odometry as old as the flight's controller saw the vehicle's (telemetry_of: the bag's median record - stamp age
-plus half its odometry period, the mean wait for the next sample; the state that long ago, interpolated between
-ticks, so a 30 ms age is not rounded to a 10 ms tick; a simulator's lockstep bag: fresh every tick, as the offline
-loop quad_bringup.closed_loop does). Through a vehicle's link the controller at t flies the state of t - age:
-the vehicle runs ahead of the plan by about that age (an emulated PX4 flight, 30 ms: 13 cm RMSE at 1.2 m/s where
-a fresh-odometry twin gave 4 cm), so a twin without it is no twin. Both with the model's aerodynamics (DRAG: the
+odometry as old as the flight's controller saw the vehicle's (telemetry_of: the mean age the controller reported,
+else the bag's median record - stamp age plus half its odometry period, the mean wait for the next sample; the
+state that long ago, interpolated between ticks, so a 30 ms age is not rounded to a 10 ms tick; a simulator's
+lockstep bag: fresh every tick, as the offline loop quad_bringup.closed_loop does). Through a vehicle's link the
+controller at t flies the state of t - age: the vehicle runs ahead of the plan by about that age, so a twin
+with fresh odometry is no twin. Both with the model's aerodynamics (DRAG: the
 drag identify measured; a vehicle file's own coefficients act too). Open loop: the recorded cmd/attitude_thrust
 (held from stamp to stamp) drives Simulator(vehicle) from the same start: errors of the model integrate, so it
 is scored over OPEN_LOOP_S only.
@@ -40,17 +40,25 @@ def _rmse(x) -> float:
     return float(np.sqrt(np.mean(np.sum(np.square(x), axis=-1)))) if len(x) else float('nan')
 
 
-def telemetry_of(flight) -> tuple[float, float]:
-    """(age_s, period_s) of the odometry the flight's controller saw: a vehicle's bag (wall-clock stamps) the
-    median record - stamp time and the median stamp interval; a simulator's bag (sim time, lockstep) (0, 0):
-    fresh odometry every tick."""
+def telemetry_of(flight, window_s=None) -> tuple[float, float, str]:
+    """(age_s, period_s, source) of the odometry the flight's controller saw. Where the controller reported it (its
+    diagnostics' contract.CONTROLLER_ODOM_AGE_MS over window_s, bag time: tick - odometry stamp, so the link, the
+    wait for the next sample and the phase of its timer against the telemetry are the flight's own) that mean age
+    and period 0; else a vehicle's bag (wall-clock stamps) the median record - stamp time (the recorder's own
+    delays included) and the median stamp interval; a simulator's bag (sim time, lockstep) (0, 0): fresh
+    odometry every tick."""
     from quad_bringup.stability import WALL_CLOCK_NS
     stamps = np.asarray(flight.odom_t, dtype=float)
     record = np.asarray(flight.odom_record_ns, dtype=np.int64)
     simulator = len(flight.clock_stamps_ns) > 0 or (len(stamps) and stamps[0] * 1e9 < WALL_CLOCK_NS)
     if simulator or len(record) != len(stamps) or len(stamps) < 2:
-        return 0.0, 0.0
-    return max(float(np.median(record * 1e-9 - stamps)), 0.0), float(np.median(np.diff(stamps)))
+        return 0.0, 0.0, 'a simulator\'s lockstep bag: fresh'
+    reported = [ms for record_ns, ms in flight.controller_odom_age
+                if window_s is None or window_s[0] <= record_ns * 1e-9 <= window_s[1] + 1.0]
+    if reported:
+        return max(float(np.mean(reported)) * 1e-3, 0.0), 0.0, 'as the controller reported it'
+    return (max(float(np.median(record * 1e-9 - stamps)), 0.0), float(np.median(np.diff(stamps))),
+            'as the bag shows (record - stamp)')
 
 
 def _state_at(times, states, t_s) -> State:
@@ -103,7 +111,8 @@ def replay(flight, vehicle_path, controller: str, gains: PositionGains, telemetr
     start_p, start_yaw = flight.position[i0], float(flight.euler[i0, 2])
     control = make_controller(controller, gains, nominal, Limits.of(nominal), RATE_HZ)
     period_s = 1.0 / RATE_HZ
-    age_s, odom_period_s = telemetry if telemetry is not None else telemetry_of(flight)
+    age_s, odom_period_s, source = ((*telemetry, 'given') if telemetry is not None
+                                    else telemetry_of(flight, (t0_s, end_s)))
     delay_s = age_s + 0.5 * odom_period_s   # a sample arrives age_s late and is flown until the next: its mean age
     seen_t, seen = [], []
 
@@ -139,7 +148,7 @@ def replay(flight, vehicle_path, controller: str, gains: PositionGains, telemetr
             'rmse_ratio': twin_rmse / flight_rmse if flight_rmse > 0 else float('inf'),
             'trace_rmse_m': _rmse(twin - flown), 'open_trace_rmse_m': _rmse(open_twin - flown[early]),
             'open_loop_s': float(t_o[-1] - t0_s), 'stopped': stopped_c or stopped_o,
-            'telemetry_age_s': age_s, 'telemetry_period_s': odom_period_s}
+            'telemetry_age_s': age_s, 'telemetry_period_s': odom_period_s, 'telemetry_source': source}
 
 
 def write_figure(result: dict, path, title: str):

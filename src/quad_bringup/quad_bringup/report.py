@@ -92,6 +92,7 @@ class _FlightParts:
 
     def __init__(self):
         self.odom, self.cmds, self.latest, self.clock, self.engaged, self.handover = [], [], {}, [], [], []
+        self.odom_age = []
         self.errors, self.collision, self.published = [], None, None
 
     def add(self, topic: str, msg, record_ns: int):
@@ -114,6 +115,10 @@ class _FlightParts:
                 phase = next((kv.value for kv in st.values if kv.key == HANDOVER_KEY), None)
                 if phase is not None:
                     self.handover.append((record_ns, phase))
+                if st.name == contract.CONTROLLER_STATUS:
+                    age = {kv.key: kv.value for kv in st.values}.get(contract.CONTROLLER_ODOM_AGE_MS, 'None')
+                    if age != 'None':
+                        self.odom_age.append((record_ns, float(age)))
                 if st.name == contract.SIM_PUBLISHED:
                     steps = int({kv.key: kv.value for kv in st.values}.get('steps', -1))
                     if self.published is None or _ns(msg.header.stamp) >= self.published[0]:
@@ -145,7 +150,7 @@ class _FlightParts:
             clock_stamps_ns=np.array(sorted(clock), dtype=np.int64), sim_published=published,
             collisions_known=bool(clock) or published is not None or collision is not None,   # a simulator's bag
             truncated=None if repair is None else repair.as_dict(), engaged=sorted(self.engaged),
-            handover=sorted(self.handover))
+            handover=sorted(self.handover), controller_odom_age=sorted(self.odom_age))
         if TRAJECTORY in latest:
             flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
         if WAYPOINTS in latest:

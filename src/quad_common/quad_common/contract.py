@@ -110,6 +110,9 @@ SIM_STATUS = 'sim_node: {}'        # .format('collision' | 'failsafe' | 'saturat
 SIM_PUBLISHED = SIM_STATUS.format('published')   # steps: distinct odom and /clock steps published
 SIM_FAILSAFE = SIM_STATUS.format('failsafe')     # FAILSAFE_TIME_S once the failsafe has landed the vehicle
 CONTROLLER_STATUS = 'position_controller: cmd/attitude_thrust'
+# the mean age (tick time - odometry stamp, ms) of the odometry the controller flew since its previous report: what
+# a vehicle's link delays plus the wait for the next sample and tick, measured where it acts (replay's twin flies it)
+CONTROLLER_ODOM_AGE_MS = 'odom_age_ms'
 RECORDER_STATUS = 'recorder'       # one value per topic: messages written to the bag
 
 

@@ -117,6 +117,7 @@ class PositionControllerNode(Node):
         self.stale = False
         self.last_error = ''
         self.tick_times_ns = deque(maxlen=4096)
+        self.odom_age_ns = [0, 0]     # (sum, count) of tick - odometry stamp since the last diagnostics
         self.node_counts = dict.fromkeys(('odom_timeouts', 'nonfinite_odom', 'future_odom', 'rejected_trajectories'),
                                          0)
         self.last_future_odom = ''  # 'stamp s > clock s' of the last odometry refused as from the future
@@ -310,6 +311,9 @@ class PositionControllerNode(Node):
         if self.ref_pub.get_subscription_count():   # packing it is ~60 us; a fleet's controllers publish it to nobody
             self.ref_pub.publish(self._reference_packer.pack(tick.reference, tick.t_ns))
         self.tick_times_ns.append(tick.t_ns)
+        if self.loop.odom is not None:
+            self.odom_age_ns[0] += tick.t_ns - self.loop.odom[0]
+            self.odom_age_ns[1] += 1
 
     # --- reporting ------------------------------------------------------------------------------
 
@@ -317,6 +321,12 @@ class PositionControllerNode(Node):
         self.last_error = reason
         self.get_logger().error(reason)
         self.publish_diagnostics(fault=reason)
+
+    def _mean_odom_age_ms(self) -> str | None:
+        """Mean tick - odometry stamp (ms) of the setpoints since the last call (None: none published)."""
+        total_ns, count = self.odom_age_ns
+        self.odom_age_ns = [0, 0]
+        return f'{total_ns * 1e-6 / count:.3f}' if count else None
 
     def _loop_rate_hz(self, now_ns: int) -> float:
         window_ns = int(DIAGNOSTICS_PERIOD_S * 2e9)
@@ -349,7 +359,8 @@ class PositionControllerNode(Node):
                   'integral_m_s': np.round(self.controller.integral_m_s, 4).tolist(), 'last_error': self.last_error,
                   'hold_position_m': None if self.loop.hold is None else self.loop.hold.position.tolist(),
                   'start_step_m': self.loop.last_start_step_m, 'max_start_step_m': self.loop.max_start_step_m,
-                  'last_future_odom': self.last_future_odom, 'realtime': self.realtime}
+                  'last_future_odom': self.last_future_odom, 'realtime': self.realtime,
+                  contract.CONTROLLER_ODOM_AGE_MS: self._mean_odom_age_ms()}
         if level == diagnostics.OK and self.realtime_refused:
             level, message = diagnostics.WARN, f'realtime {self.realtime}'
         self.diag_pub.publish(diagnostics.array(_stamp(now_ns), [

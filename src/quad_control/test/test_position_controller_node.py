@@ -408,3 +408,22 @@ def test_without_wait_for_engagement_a_plan_runs_on_its_stamp(graph):
     graph.traj_pub.publish(_line_trajectory([0.0, 0.0, 1.0], 2.0))
     graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
     assert np.allclose(graph.step(2.5, z=1.0), [0.25, 0, 1.0])
+
+
+def test_diagnostics_report_the_mean_age_of_the_odometry_the_setpoints_flew(graph):
+    """odom_age_ms: tick time - the odometry's stamp, averaged over the setpoints since the last report (replay's
+    twin flies the flight with it); None when no setpoint was published since."""
+    graph.start(use_sim_time=True, lockstep=False, odom_timeout_s=10.0)
+    graph.publish_clock(0.995)
+    graph.publish_odom(0.96)
+    graph.spin_until(lambda: graph.node.loop.odom is not None and graph.node.loop.odom[0] == 960_000_000, 'odom')
+    graph.node_status()      # the report window starts here
+    n = len(graph.references)
+    graph.publish_clock(1.0)
+    graph.spin_until(lambda: any(m.header.stamp == conv.s_to_stamp(1.0) for m in graph.references), 'tick at 1.0')
+    ticks_s = [conv.stamp_to_s(m.header.stamp) for m in graph.references[n:]]
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert float(values['odom_age_ms']) == pytest.approx(1e3 * (np.mean(ticks_s) - 0.96), abs=1e-3)
+    assert float(values['odom_age_ms']) >= 35.0 - 1e-3       # ticks at 0.995 and 1.0 on the odometry of 0.96
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert values['odom_age_ms'] == 'None'

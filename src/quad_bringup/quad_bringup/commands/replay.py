@@ -44,10 +44,9 @@ def run(args) -> int:
     print(f'closed loop ({controller}, {vehicle}): flight RMSE {100 * result["flight_rmse_m"]:.2f} cm, twin RMSE '
           f'{100 * result["twin_rmse_m"]:.2f} cm ({100 * (result["rmse_ratio"] - 1):+.0f} %, goal within '
           f'{RMSE_GOAL:.0%}); |twin - flight| RMSE {100 * result["trace_rmse_m"]:.2f} cm')
-    if result['telemetry_period_s']:
-        print(f'the twin\'s controller saw odometry {1000 * result["telemetry_age_s"]:.0f} ms old every '
-              f'{1000 * result["telemetry_period_s"]:.0f} ms, as the bag shows (record - stamp; flown '
-              f'{1000 * (result["telemetry_age_s"] + 0.5 * result["telemetry_period_s"]):.0f} ms late)')
+    if result['telemetry_age_s']:
+        flown_ms = 1000 * (result['telemetry_age_s'] + 0.5 * result['telemetry_period_s'])
+        print(f'the twin\'s controller flew odometry {flown_ms:.0f} ms old on average, {result["telemetry_source"]}')
     print(f'open loop (the recorded setpoints, first {result["open_loop_s"]:.1f} s): |twin - flight| RMSE '
           f'{100 * result["open_trace_rmse_m"]:.2f} cm')
     if result['stopped']:
