@@ -14,7 +14,6 @@ nodes started as launch_ros starts them: the installed console script, `--ros-ar
 import ast
 import math
 import subprocess
-import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -34,7 +33,7 @@ ROOT = Path(__file__).resolve().parent.parent
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'
 MAZE = ROOT / 'config' / 'missions' / 'maze.yaml'
 SPEED_MPS = 0.5
-OFFBOARD_AFTER_S = 20.0     # the user calls `offboard` this long after `ros2 launch`
+PLAN_PASSED_S = 1.0         # the user calls `offboard` once the plan's clock is this far past its end
 SETTLE_S = 2.0              # after engagement: no more than 2 x the mission's speed, within 0.3 m
 DASH_SPEED_MPS = 2 * SPEED_MPS
 DASH_DISTANCE_M = 0.3
@@ -326,20 +325,24 @@ def test_sim_launch_realtime_flies_the_mission_with_a_late_controller(tmp_path, 
 def test_bridge_launch_graph_does_not_dash_when_offboard_comes_late(tmp_path, autopilot, reverse):
     """Issue 21: the plan used to run on the wall clock from launch: `offboard` 20 s later flew the vehicle to
     where the plan had got to (a 7 m dash at 5.9 m/s). Now it begins where the vehicle is when handed over,
-    whatever order the nodes started in (launch's, or the bridge first and trajectory_node last)."""
+    whatever order the nodes started in (launch's, or the bridge first and trajectory_node last). `offboard`
+    comes once the clock is past the plan's end (a plan on the wall clock would be at its last waypoint, 1.8 m
+    away), not after a fixed delay."""
     waypoints = [[0.0, 0.0, 1.0], [1.5, 0.0, 1.0], [1.5, 1.0, 1.2]]
     port = free_udp_port()
     with _launched(tmp_path) as (start, procs, observer):
         procs.vehicle(autopilot, f'udpout:127.0.0.1:{port}', position=waypoints[0],
                       extra=VEHICLE_PARAMS[autopilot])
-        launched_at = time.monotonic()
         start(LAUNCH / f'{autopilot}.launch.py', reverse, mission=str(_mission(tmp_path, waypoints)),
               fcu_url=f'udpin:127.0.0.1:{port}')
         observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
         observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
         assert _node_names(observer).count('/mavlink_bridge') == 1, _node_names(observer)
         assert '/mavlink_bridge_setpoints' in _node_names(observer)
-        time.sleep(max(0.0, launched_at + OFFBOARD_AFTER_S - time.monotonic()))   # the user's delay, not a sync
+        plan = observer.trajectory
+        plan_end_s = stamp_to_s(plan.header.stamp) + stamp_to_s(plan.points[-1].time_from_start)
+        observer.wait_for(lambda: observer.odom and observer.odom[-1][0] > plan_end_s + PLAN_PASSED_S,
+                          'the clock past the plan\'s end')
         assert observer.controller()[1].get('engaged') == 'False'
         with observer.lock:
             n_before = len(observer.odom)
@@ -357,8 +360,8 @@ def test_bridge_launch_graph_does_not_dash_when_offboard_comes_late(tmp_path, au
         window = (t[1:] - t[:-1]) > 0
         speed = np.linalg.norm(np.diff(p, axis=0), axis=1)[window] / np.diff(t)[window]
         peak = np.convolve(speed, np.ones(5) / 5, mode='valid')[: max(1, int(first.sum()) - 5)].max()  # 0.1 s
-        print(f'{autopilot}: offboard {OFFBOARD_AFTER_S:.0f} s after launch: first {SETTLE_S} s moved {dist:.3f} m, '
-              f'peak {peak:.2f} m/s')
+        print(f'{autopilot}: offboard {engaged_at - plan_end_s:.1f} s after the plan\'s end: first {SETTLE_S} s '
+              f'moved {dist:.3f} m, peak {peak:.2f} m/s')
         assert dist < DASH_DISTANCE_M and peak < DASH_SPEED_MPS
         _, values = observer.controller()
         assert values['engaged'] == 'True' and values['refused_start_steps'] == '0'
