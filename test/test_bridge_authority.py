@@ -1,4 +1,4 @@
-"""Who may command the vehicle (issue 27.1): the bridge flies setpoints only from its `setpoint_source` node. An
+"""Who may command the vehicle: the bridge flies setpoints only from its `setpoint_source` node. An
 intruder node of the same ROS domain and namespace publishing a 10 deg roll on cmd/attitude_thrust is refused
 and named in the diagnostics; `offboard` with only the intruder publishing is refused; with the controller
 publishing too, every SET_ATTITUDE_TARGET the emulated PX4 receives (seen on the wire by a tap) is the
@@ -84,7 +84,7 @@ def test_the_fast_dds_of_the_pypi_wheels_has_no_dds_security(tmp_path, ros_env):
 
 
 def test_a_second_vehicle_on_the_link_is_refused_and_reported(tmp_path):
-    """Issue 27.2: an emulator left running on the bridge's port, with the same system id (telemetry would mix:
+    """An emulator left running on the bridge's port, with the same system id (telemetry would mix:
     odometry jumping between the two) or another one (target_system 0 may have taken the wrong vehicle)."""
     from bridge_graph import free_udp_port, running_graph
     with running_graph(tmp_path) as (procs, observer):

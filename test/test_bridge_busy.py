@@ -1,7 +1,7 @@
-"""Issue 13.4 and 13.5 against the emulator (quad_vehicle_emu.mavlink_vehicle, a process of its own speaking
+"""A busy bridge against the emulator (quad_vehicle_emu.mavlink_vehicle, a process of its own speaking
 MAVLink): the bridge's telemetry never pauses for the rest of the node; a 10,000-point trajectory arriving while
 the vehicle hovers in offboard under the default timeouts neither stalls the controller nor makes the bridge
-stale; and (13.3) a plan that starts away from the vehicle is refused, the hold point survives a stale-odometry
+stale; and a plan that starts away from the vehicle is refused, the hold point survives a stale-odometry
 event, and a plan that starts at the vehicle is flown."""
 
 import json
@@ -38,7 +38,7 @@ ODOM_GAP_BOUND_S = 0.3
 TELEMETRY_HZ = 50.0       # the bridge's default telemetry_rate_hz
 SETTLE_S = 0.3        # odometry looked at after the busy phases end
 REAL_PROFILE = ('config/control.yaml', 'config/control_real.yaml')  # as the bridge launch files fly
-BIG_PLAN_POINTS = 10_000  # 100 s at 100 Hz: 1.8 MB; 0.2-0.7 s through Python messages (issue 13.4), 5-30 ms now
+BIG_PLAN_POINTS = 10_000  # 100 s at 100 Hz: 1.8 MB; 0.2-0.7 s through Python messages, 5-30 ms now
 HOLD_BOUND_M = 0.05   # hovering in offboard (quiet machine: about 1 cm)
 AFTER_PLAN_S = 3.0    # odometry looked at after the controller took the plan
 STALE_TIMEOUT_S = 0.5  # the controller's odom_timeout_s in the start-step test; the cut lasts twice that

@@ -1,4 +1,4 @@
-"""`quadflight report` of a flight recorded as on a real vehicle (issue 13 point 11): the emulated autopilot,
+"""`quadflight report` of a flight recorded as on a real vehicle: the emulated autopilot,
 mavlink_bridge, position_controller with the real-vehicle profile, the recorder, `land` after the plan. The
 scored window ends at completion by the vehicle's own tolerances (px4_quad.yaml: 10 cm, 0.1 m/s) or at the plan's
 end plus its settle time, never in the landing that follows; the report says which, and what it scored."""

@@ -1,4 +1,4 @@
-"""Issue 26: nothing lost on a machine that is really busy. Two `quadflight fly` of the same mission at once beside
+"""Nothing lost on a machine that is really busy. Two `quadflight fly` of the same mission at once beside
 four busy-looping processes (on the 2-core machine: load ~6 from this test alone); the lockstep followers hold
 the simulator, so each bag has every step sim_node published. The timeout is a hang guard only."""
 

@@ -323,7 +323,7 @@ def test_sim_launch_realtime_flies_the_mission_with_a_late_controller(tmp_path, 
 @pytest.mark.parametrize('autopilot,reverse', [('px4', False), ('ardupilot', False), ('px4', True)],
                          ids=['px4', 'ardupilot', 'px4-reverse-order'])
 def test_bridge_launch_graph_does_not_dash_when_offboard_comes_late(tmp_path, autopilot, reverse):
-    """Issue 21: the plan used to run on the wall clock from launch: `offboard` 20 s later flew the vehicle to
+    """The plan used to run on the wall clock from launch: `offboard` 20 s later flew the vehicle to
     where the plan had got to (a 7 m dash at 5.9 m/s). Now it begins where the vehicle is when handed over,
     whatever order the nodes started in (launch's, or the bridge first and trajectory_node last). `offboard`
     comes once the clock is past the plan's end (a plan on the wall clock would be at its last waypoint, 1.8 m

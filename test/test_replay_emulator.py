@@ -1,4 +1,4 @@
-"""`quadflight identify` and `quadflight replay` on a flight recorded as on a real vehicle (issue 23): the emulated
+"""`quadflight identify` and `quadflight replay` on a flight recorded as on a real vehicle: the emulated
 PX4 (quad_vehicle_emu: 0.19 s roll/pitch lag, 20 ms telemetry), mavlink_bridge, position_controller on
 control_real.yaml, the recorder, `offboard`, a 3 m square at 1 m/s, `land` (bench/bench_twin.py, docs/benchmarks.md).
 identify finds the emulator's lag and thrust and writes the model; replay's twin, which flies odometry as old as

@@ -1,4 +1,4 @@
-"""One writer per sweep directory, and nothing left running after a SIGKILL of sweep (issue 27.7): a second sweep
+"""One writer per sweep directory, and nothing left running after a SIGKILL of sweep: a second sweep
 into the same --out is refused while the first runs (before: 48 rows for 24 runs, a second CSV header inside
 runs.csv); SIGKILL of the first ends its forkserver, workers and resource tracker; the next sweep resumes."""
 

@@ -129,7 +129,7 @@ def test_ardupilot_parameters_timesync_and_boot_clock(vehicles):
 def test_px4_offboard_needs_a_setpoint_stream_first_and_fails_safe_as_px4_does(vehicles):
     """Without RC the default COM_OBL_RC_ACT 0 (Position) is POSCTL all the same (PX4's failsafe framework leaves
     manual control out of modeCanRun), flown without sticks as PX4 v1.16 SIH flew it with the bridge killed:
-    descending level at about MPC_LAND_SPEED (0.7 m/s), nothing holding it horizontally (issue 28)."""
+    descending level at about MPC_LAND_SPEED (0.7 m/s), nothing holding it horizontally."""
     v = vehicles('px4', position=(0.0, 0.0, 5.0))
     v.set_interval(0, 20.0)                                             # HEARTBEAT at 20 Hz: timing
     assert v.mode() == PX4_MODES['AUTO.LOITER']

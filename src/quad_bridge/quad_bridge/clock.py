@@ -24,7 +24,7 @@ chosen estimate's samples about its line; drift_ppm its drift.
 
 Thread-safe: the receive thread feeds it while diagnostics (the supervisor, the services) read it; every method
 holds one lock (iterating a window while the receive thread appended to it raised "deque mutated during
-iteration" and killed the bridge in `offboard`, issue 28).
+iteration" and killed the bridge in `offboard`).
 """
 
 import collections
@@ -54,7 +54,7 @@ def _line(remote_ns, offset_ns):
     offset = a + drift (r - r_ref), r_ref the newest point; drift 0 (standard error inf) and the smallest offset
     when the points are too few, too close together, or say a drift no clock has. On Python numbers: the window
     holds at most ~40 points and the line is refitted ~20 times a second (every new bucket minimum), where
-    numpy's per-call overhead made it most of the receive thread's clock work (issue 26)."""
+    numpy's per-call overhead would dominate the receive thread's clock work."""
     r_ref, off_ref = int(remote_ns[-1]), int(min(offset_ns))
     x = [(r - r_ref) / 1e9 for r in remote_ns]
     y = [float(o - off_ref) for o in offset_ns]

@@ -23,8 +23,7 @@ class LinkState:
     Alive is decided from the vehicle's own messages as the receive thread read them (message(): every message
     of the vehicle, not only its 1 Hz heartbeat), and a loss only once the receive thread has drained the link
     past the deadline (update()'s drained_s: it found nothing more to read then): a receive thread that is
-    behind or starved (a busy companion computer) is no evidence of a silent vehicle. Before issue 28 a 2 s
-    gap in the thread's handling of heartbeats ended hand-overs mid-flight the relay never saw a gap in.
+    behind or starved (a busy companion computer) is no evidence of a silent vehicle.
     Packet loss from the vehicle's MAVLink sequence numbers (SequenceCounter). The receive thread reports, the
     supervisor and diagnostics ask: all under one lock."""
 

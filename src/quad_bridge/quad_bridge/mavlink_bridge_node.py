@@ -524,7 +524,7 @@ class MavlinkBridge(Node):
             return self._answer(response, f'mode {mode}', self.set_mode(mode))
         check = self.param_check
         if check is None or self.params['vehicle_params'] != 'ignore':
-            # read again: the vehicle's values now, not connect's (MPC_THR_HOVER set on the vehicle since, issue 28)
+            # read again: the vehicle's values now, not connect's (MPC_THR_HOVER may have been set on the vehicle since)
             check = self.read_vehicle_params()
         if check.problems:
             return self._refuse(response, 'offboard refused: ' + '; '.join(check.problems))

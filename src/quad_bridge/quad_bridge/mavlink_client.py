@@ -5,13 +5,13 @@ The receive thread reads all the link has delivered before it handles any (one w
 message), and decodes only the kinds its owner uses (`decode`): every other message is checked (length, CRC)
 and handed on as its header alone (Counted: kind, sender, sequence number), so the link's liveness and packet
 counts see every message while the payloads nobody reads are never unpacked. pymavlink's full parse and its
-recv_match bookkeeping of every message were most of the bridge's CPU with an autopilot's real telemetry
-(issue 26: PX4's 200 messages/s, ArduPilot's bursts). A signing link decodes everything (pymavlink checks
+recv_match bookkeeping of every message would dominate the bridge's CPU with an autopilot's real telemetry
+(PX4's hundreds of messages/s, ArduPilot's bursts). A signing link decodes everything (pymavlink checks
 the signatures).
 
 Each message is handled with the time its bytes arrived (`arrival_ns`, CLOCK_REALTIME ns): on a UDP link the
 kernel's receive timestamp of its datagram (SO_TIMESTAMPNS), so a receive thread that waited for a CPU on a busy
-machine does not make the vehicle's messages look late to the clock filter and TIMESYNC (issue 26); on a stream
+machine does not make the vehicle's messages look late to the clock filter and TIMESYNC; on a stream
 link the time its chunk was read.
 
 A UDP server link (udpin) answers only its vehicle's address (quad_bridge.link.VehicleAddress, named by the owner
@@ -41,8 +41,8 @@ URL_PREFIXES = ('udpin:', 'udpout:', 'udp:', 'udpbcast:', 'tcp:', 'tcpin:')
 CLIENT_DECODES = ('COMMAND_ACK', 'PARAM_VALUE')   # the client's own waiters read these
 MAX_READS_PER_BATCH = 256     # datagrams (or stream chunks) read before handling them
 # Reading (and decoding) stops after this much time even with more queued, the batch is handled and the thread
-# gives up the interpreter before the next: after a stall 256 datagrams of 200 messages/s took ~10 ms of
-# Python in one go, which the setpoint thread could take back only at the GIL switch interval (issue 26).
+# gives up the interpreter before the next: after a stall a full batch is many ms of Python in one go,
+# which the setpoint thread could take back only at the GIL switch interval.
 MAX_BATCH_S = 0.002
 MAVLINK2_MAGIC = 0xFD
 MAVLINK2_FRAME_BYTES = 12     # header 10 + CRC 2
@@ -123,8 +123,8 @@ class Counted:
 class Decoded(Counted):
     """A message decoded here, not by pymavlink: its fields as attributes, by pymavlink's names and with pymavlink's
     values (numeric fields; arrays as lists), and pymavlink's accessors (Counted's). For the kinds decoded that have
-    no char field: pymavlink's decode (the message object, its header object, the payload and CRC kept) was the
-    larger part of the receive thread's Python per message (issue 26)."""
+    no char field: pymavlink's decode (the message object, its header object, the payload and CRC kept) would be the
+    larger part of the receive thread's Python per message."""
 
     __slots__ = ('__dict__',)
 
@@ -255,7 +255,7 @@ class MavlinkClient:
                              pitch_rate, yaw_rate, thrust):
         """SET_ATTITUDE_TARGET, the bytes pymavlink's set_attitude_target_send puts on the wire (MAVLink 2, the
         payload's trailing zeros cut, the same sequence number and counters), without its message object and
-        header object: every setpoint goes through here (issue 26). A signing link, or one with a send callback,
+        header object: every setpoint goes through here. A signing link, or one with a send callback,
         goes through pymavlink."""
         with self._send_lock:
             mav = self.conn.mav

@@ -1,4 +1,4 @@
-"""Who else is on the link (issue 27.2): a second vehicle with our target's system id, or vehicles of other system
+"""Who else is on the link: a second vehicle with our target's system id, or vehicles of other system
 ids. No socket: fed every parsed message with a monotonic time by the receive thread.
 
 Two senders with one (system, component) are found by MAVLink's packet sequence number: each sender counts its

@@ -4,8 +4,8 @@ wire at once by quad_bridge.streamer when the hand-over allows it.
 
 The thread waits on a wait set of its own (the subscription and a wake-up guard condition), bounded by the
 keep-alive's next deadline, and runs the keep-alive itself (SetpointStreamer.tick): one thread and one wake-up
-per setpoint where a setpoint thread, an executor's periodic pass over the node and a keep-alive thread woke
-each period before (issue 26). After a stall it takes every setpoint queued, oldest first, each on the wire as
+per setpoint where a setpoint thread, an executor's periodic pass over the node and a keep-alive thread would each
+wake every period. After a stall it takes every setpoint queued, oldest first, each on the wire as
 it is taken, so the newest goes out last and wins (the subscription keeps the newest SETPOINT_QUEUE_DEPTH, and
 the publisher's KEEP_LAST history drops its oldest, never its newest)."""
 

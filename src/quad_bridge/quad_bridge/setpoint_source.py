@@ -139,7 +139,7 @@ class SerializedTake:
         if self._rcutils.rcutils_uint8_array_init(ctypes.byref(self._message), ctypes.c_size_t(capacity),
                                                   ctypes.byref(self._allocator)) != RCL_RET_OK:
             raise MemoryError('rcutils_uint8_array_init failed')
-        # made once: every setpoint is taken through here (issue 26)
+        # made once: every setpoint is taken through here
         self._take_c = self._rcl.rcl_take_serialized_message
         self._message_ref, self._info_ref = ctypes.byref(self._message), ctypes.byref(self._info)
         self._gid_address = ctypes.addressof(self._info) + _MessageInfo.publisher_gid.offset + _Gid.data.offset

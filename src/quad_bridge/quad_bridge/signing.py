@@ -1,4 +1,4 @@
-"""What MAVLink 2 signing tells about the link (issue 27.3): the bridge's and the vehicle's keys disagreeing shows
+"""What MAVLink 2 signing tells about the link: the bridge's and the vehicle's keys disagreeing shows
 as timeouts elsewhere (parameters not read, no heartbeat); this names signing instead. Counts from pymavlink's
 MAVLinkSigning (sig_count: packets carrying a signature; badsig_count: signatures that failed our key) and the
 packets refused as unsigned."""

@@ -8,7 +8,7 @@ stale stream. No rclpy: the caller hands in what to send and whether it may.
 
 The keep-alive runs in a thread of its own (start()), or, with `wake`, in the owner's thread: the owner calls
 tick() when the delay tick() last returned has passed (mavlink_bridge: the setpoint thread, whose wait for the
-next setpoint is bounded by it, so a setpoint stream at the keep-alive rate wakes one thread, not two; issue 26).
+next setpoint is bounded by it, so a setpoint stream at the keep-alive rate wakes one thread, not two).
 """
 
 import math
@@ -118,8 +118,8 @@ class SetpointStreamer:
         """Re-send when FIRST_RESEND_PERIODS passed after a new setpoint's send, then every period; report once
         when the setpoints stopped for timeout_s, or the wire went quiet for timeout_s (the vehicle keeps flying
         the last setpoint meanwhile). The setpoints' own age decides, not the wire's: the keep-alive re-sends the
-        last one until it is timeout_s old, and waiting for the wire to go quiet after that took 2 x timeout_s
-        (issue 28). Returns the next wait."""
+        last one until it is timeout_s old, and waiting for the wire to go quiet after that takes 2 x timeout_s.
+        Returns the next wait."""
         report = None
         with self.lock:
             now = self.clock()

@@ -35,7 +35,7 @@ def state_from_local_position(msg, q_ned, rates_frd) -> State:
 def attitude_enu(msg) -> tuple:
     """ATTITUDE_QUATERNION -> (quaternion ENU/FLU (x, y, z, w), body rates FLU) as Python floats: the arithmetic
     of frames.from_mavlink_quaternion, quaternion_ned_to_enu and body_flu_frd without their arrays (every
-    attitude message; issue 26)."""
+    attitude message goes through here)."""
     w, x, y, z = float(msg.q1), float(msg.q2), float(msg.q3), float(msg.q4)
     sign = -frames.S if -w - z < 0 else frames.S
     return ((sign * (-x - y), sign * (y - x), sign * (z - w), sign * (-w - z)),

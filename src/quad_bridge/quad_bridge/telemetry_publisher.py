@@ -39,7 +39,8 @@ def stamp(ns: int) -> Time:
 
 class OdometryFloats(cdr.OdometryPacker):
     """cdr.OdometryPacker's bytes from Python floats (position, quaternion, body velocity, body rates), the
-    layout it holds: LOCAL_POSITION_NED's odometry without a State's arrays between (issue 26)."""
+    layout it holds: LOCAL_POSITION_NED's odometry without a State's arrays between (every
+    odometry message goes through here)."""
 
     def pack_floats(self, position, quaternion, v_body, rates, time_ns: int) -> bytes:
         return self._struct.pack(cdr.CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._frames,

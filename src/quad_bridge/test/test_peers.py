@@ -1,4 +1,4 @@
-"""A second vehicle on the link (issue 27.2): two senders as one system id found from MAVLink's packet sequence
+"""A second vehicle on the link: two senders as one system id found from MAVLink's packet sequence
 numbers; a lossy or reordering link with one sender is not; other vehicles' system ids reported."""
 
 import random

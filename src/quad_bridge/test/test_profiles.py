@@ -1,4 +1,4 @@
-"""The shipped real-vehicle profiles (issue 27.1): every key is a bridge parameter, the geofence is on with a valid
+"""The shipped real-vehicle profiles: every key is a bridge parameter, the geofence is on with a valid
 box that holds every shipped mission with 1 m to spare, and only the position controller may command."""
 
 import numpy as np

@@ -157,7 +157,7 @@ def _serialized(q, f, rates=None, frame_id='base_link', q_unset=False, f_unset=F
 
 
 def test_the_float_path_from_cdr_gives_what_imu_to_setpoint_and_check_setpoint_give():
-    """setpoint_from_cdr (issue 26) against cdr.imu_to_setpoint + check_setpoint: the same values, bit for bit,
+    """setpoint_from_cdr against cdr.imu_to_setpoint + check_setpoint: the same values, bit for bit,
     the same clamping and the same errors, for setpoints within the tilt limit and beyond, with and without body
     rates, frame ids of every alignment, unset fields, NaN, inf, a zero quaternion and a negative thrust."""
     from quad_bridge.setpoint import setpoint_from_cdr

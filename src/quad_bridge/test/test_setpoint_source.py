@@ -1,4 +1,4 @@
-"""The setpoint source gate (issue 27.1): a GID is admitted only when the graph names its node setpoint_source and
+"""The setpoint source gate: a GID is admitted only when the graph names its node setpoint_source and
 no other publisher claims that name; unknown GIDs ask the graph at most every GRAPH_REFRESH_MIN_S."""
 
 from types import SimpleNamespace

@@ -1,4 +1,4 @@
-"""The receive thread's telemetry on Python floats (issue 26) against the numpy path it replaced: the same
+"""The receive thread's telemetry on Python floats against the numpy path it replaced: the same
 `odom` and `imu` values from the same MAVLink messages (telemetry.state_from_local_position, imu_flu and
 cdr.OdometryPacker / ImuPacker)."""
 

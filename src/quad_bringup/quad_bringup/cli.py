@@ -66,7 +66,7 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:   # a command that keeps something on Ctrl-C catches it itself (fly, sweep, tune)
         print(f'quadflight {args.command}: interrupted', file=sys.stderr)
         return 130
-    except OSError as exc:      # one line, never a traceback (issue 27.10)
+    except OSError as exc:      # one line, never a traceback
         where = f'{exc.filename}: ' if exc.filename else ''
         print(f'quadflight {args.command}: {where}{exc.strerror or exc}', file=sys.stderr)
         return 2

@@ -1,4 +1,4 @@
-"""One set of limits for the numeric options of every command (issue 27.12): fly, plan, report, identify and the
+"""One set of limits for the numeric options of every command: fly, plan, report, identify and the
 completion rule read these, so a value one command refuses no other accepts. Pure Python."""
 
 import math

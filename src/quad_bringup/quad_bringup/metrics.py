@@ -227,7 +227,7 @@ def compute_metrics(flight: Flight, rule: Completion = Completion(), published_s
         'collided': collided if collided or flight.collisions_known else None,   # None: n/a (a real flight)
         'collision_time_s': None if not collided else flight.collision_time_s - t0,
         'final_error_m': float(np.linalg.norm(flight.position[-1] - final)),
-        # issue 27.13: a flight that began away from the plan's start joins it, and its first errors are the join
+        # a flight that began away from the plan's start joins it, and its first errors are the join
         'start_offset_m': float(np.linalg.norm(flight.position[int(np.argmin(np.abs(flight.odom_t - t0)))]
                                                - flight.trajectory.position[0, :3])),
         'max_speed_mps': float(np.max(np.linalg.norm(flight.velocity[window], axis=1))),

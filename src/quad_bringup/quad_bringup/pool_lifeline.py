@@ -1,6 +1,6 @@
 """Imported by the local pool's forkserver (multiprocessing's preload) and called in each worker: the process
 dies (SIGKILL) when its parent does, so a SIGKILLed sweep or tune leaves no forkserver, worker or resource tracker
-behind (issue 27.7; the tracker exits once no process holds its pipe). Linux prctl(PR_SET_PDEATHSIG); elsewhere
+behind (the tracker exits once no process holds its pipe). Linux prctl(PR_SET_PDEATHSIG); elsewhere
 nothing is done."""
 
 import ctypes

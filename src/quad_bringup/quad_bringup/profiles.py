@@ -1,4 +1,4 @@
-"""A control profile (`fly --control-profile`, a sweep's `profile:`) checked before anything starts (issue 27.8):
+"""A control profile (`fly --control-profile`, a sweep's `profile:`) checked before anything starts:
 one node key, `position_controller: ros__parameters:`, every key a parameter of position_controller, every value
 of its type and within its declared range (quad_common.params.check_value, what the node itself refuses at
 start-up). A typo, a vehicle file or a negative gain is refused naming the file, the key and the value."""

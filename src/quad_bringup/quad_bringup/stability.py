@@ -9,7 +9,7 @@ lag is the requested one), its telemetry read through quad_vehicle_emu.attitude.
 The controller is quad_control's PositionController, the one position_controller's ControlLoop runs, at its rate,
 holding a point from a start offset. No ROS, no sockets: the graph version is test/test_bridge_real_profile.py.
 
-Measured on ArduCopter (issue 13): roll/pitch lag 0.17-0.21 s, ~50 ms of telemetry. A profile is offered
+Measured on ArduCopter SITL: roll/pitch lag 0.17-0.21 s, ~50 ms of telemetry. A profile is offered
 only with margin: it settles (no sustained oscillation) at MARGIN_LAG x the lag and MARGIN_LATENCY x the latency.
 
 `quadflight identify` checks the response it measured instead (hold_on_autopilot's `response`): the FOPDT fit's
@@ -18,7 +18,7 @@ time_constant_s = tau, tracked with the target's rate fed forward: no further de
 commanded attitude, both x MARGIN_LAG, with the telemetry the bag shows (Telemetry: its latency, rate and bursts).
 The emulator's structure (a 1 / 6.5 s angle-P loop plus shaping) lags a response of the same mean delay by ~16 deg
 more at the position loop's crossover (6 rad/s at 0.27 s), so it refused what rotorpy's PD attitude loop (one
-dominant pole) flies with 5 cm of overshoot at 1.5x its lag (issue 23).
+dominant pole) flies with little overshoot at 1.5x its lag.
 """
 
 from dataclasses import dataclass
@@ -45,7 +45,7 @@ SETTLED_TILT_DEG = 2.0           # largest tilt over the last quarter of a settl
 SETTLED_OSCILLATION_DEG = 0.5    # tilt standard deviation over the last quarter of a settled hold
 SETTLED_OSCILLATION_M = 0.005    # position standard deviation over the last quarter of a settled hold
 TELEMETRY_RATE_HZ = 50.0         # mavlink_bridge's telemetry_rate_hz: the odometry stream it requests
-BURST_S = DEFAULT_BURST_S['ardupilot']   # ArduPilot SITL's telemetry arrived 0.5-65 ms apart (issue 13)
+BURST_S = DEFAULT_BURST_S['ardupilot']   # ArduPilot SITL's telemetry arrived 0.5-65 ms apart
 HOLD_ALTITUDE_M = 20.0           # room for a flip to show as a flip, not as ground contact
 WALL_CLOCK_NS = 10**18           # stamps past 2001: a wall clock, not a simulator's time from 0 (as identify)
 

@@ -80,7 +80,7 @@ def parse_parameters(entry, base: dict) -> list[tuple[str, tuple[str, ...], floa
 
 
 def check_optimizer(options: dict) -> dict:
-    """differential_evolution's settings within what it accepts (issue 27.9: maxiter -1 ran anyway)."""
+    """differential_evolution's settings within what it accepts (it runs even with maxiter -1, so we refuse it)."""
     def number(key, low, high, integer=False, low_inclusive=True):
         value = options[key]
         kind = int if integer else (int, float)

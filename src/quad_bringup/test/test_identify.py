@@ -163,7 +163,7 @@ def _ended(proc):
     return f'exited {proc.returncode}: {proc.stdout.read()[-2000:]}'
 
 
-# --- the window in which the vehicle flew our setpoints (issue 28) ----------------------------------------
+# --- the window in which the vehicle flew our setpoints ----------------------------------------
 
 EPOCH_NS = 1_796_000_000 * 10**9   # a bridge flight is stamped with the wall clock
 RECORD_DELAY_NS = 3_000_000       # a message reaches the recorder 3 ms after its stamp

@@ -188,7 +188,7 @@ def test_collision_from_diagnostics(tmp_path):
 
 
 def test_a_bag_without_a_simulator_does_not_say_it_did_not_collide(tmp_path):
-    """Issue 27.13: a bridge bag has no collision information: `Collided` is n/a, not False."""
+    """A bridge bag has no collision information: `Collided` is n/a, not False."""
     metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag', end_s=REAL_LAND_S + 4.0, real=True)),
                               Completion(settle_s=2.0))
     assert metrics['collided'] is None
@@ -209,7 +209,7 @@ def test_report_says_whose_speed_and_why_time_actual_is_shorter(tmp_path):
 
 
 def test_report_says_when_the_flight_began_away_from_the_plan(tmp_path):
-    """Issue 27.13: a bridge flight started 0.5 m from the plan's start joined it silently."""
+    """A bridge flight started 0.5 m from the plan's start joined it silently."""
     from quad_bringup.report import report_markdown
     flight = load_flight(make_bag(tmp_path / 'bag'))
     on_plan = compute_metrics(flight, Completion())

@@ -1,4 +1,4 @@
-"""Who is already in a ROS domain (rclpy): quad_common.domains.isolated_domain's probe for `fly` (issue 27.4)."""
+"""Who is already in a ROS domain (rclpy): quad_common.domains.isolated_domain's probe for `fly`."""
 
 import time
 

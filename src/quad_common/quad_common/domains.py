@@ -24,7 +24,7 @@ def isolated_domain(probe=None):
     Also puts the discovery profile into os.environ (unless one is set): participants this process creates
     afterwards announce as the children do (Fast DDS reads the profile at its first participant). probe(domain)
     -> node names (quad_common.domain_probe.foreign_nodes): a domain whose lock is free but which already holds
-    nodes, a graph started without our lock files (a real bridge), is passed over (issue 27.4).
+    nodes, a graph started without our lock files (a real bridge), is passed over.
     """
     if not any(os.environ.get(v) for v in _PROFILE_VARIABLES):
         os.environ.update(dict.fromkeys(_PROFILE_VARIABLES, FASTDDS_PROFILE))

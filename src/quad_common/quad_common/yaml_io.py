@@ -66,7 +66,7 @@ def _note_fallback():
 
 def refuse_number_text(data: dict, keys, where: str):
     """ValueError for a value YAML read as text that was meant as a number (`speed: 1e9` is the string '1e9' to
-    YAML 1.1; issue 27.12), naming the field and how to write it."""
+    YAML 1.1), naming the field and how to write it."""
     for key in keys:
         value = data.get(key)
         if isinstance(value, str) and _EXPONENT.match(value.strip()):
@@ -91,7 +91,7 @@ def suggestion(key, known) -> str:
 
 def refuse_typos(data: dict, known, where: str):
     """ValueError for a top-level key that is not known but nearly is (a typo: `robot_raduis_m`, `mass_kgg`);
-    other unknown keys stay the file's own (issue 27.9)."""
+    other unknown keys stay the file's own."""
     import difflib
     for key in data:
         if key in known or not isinstance(key, str):

@@ -1,4 +1,4 @@
-"""fly's ROS domain (issue 27.4): a domain whose lock file is free but which already holds a graph started without
+"""fly's ROS domain: a domain whose lock file is free but which already holds a graph started without
 it (a real bridge, someone's ros2 launch) is passed over, naming its nodes."""
 
 import subprocess

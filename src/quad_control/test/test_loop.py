@@ -1,4 +1,5 @@
-"""ControlLoop's rules without ROS: the dt clamp, lockstep deferral, engagement and the start-step refusal, with a
+"""ControlLoop's rules without ROS: the dt clamp, lockstep deferral, engagement and pause/resume, the hold point, the
+start-step refusal, plan start and end, and the dead controller, with a
 recording stand-in for the controller (the loop's contract is what it hands the controller and what it returns)."""
 
 import numpy as np
@@ -6,7 +7,8 @@ import pytest
 
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.types import AttitudeSetpoint, State
-from quad_control.loop import ControlLoop
+from quad_control.loop import CONTROLLER_FAILED, ControlLoop
+from quad_control.plugins import ControllerFailed
 from quad_control.position import Saturation
 
 RATE_HZ = 100.0
@@ -103,3 +105,63 @@ def test_a_controller_refusal_is_a_fault_and_no_setpoint():
     loop.set_odometry(0, _state())
     assert loop.tick(0) is None
     assert loop.counts['control_errors'] == 1 and 'non-finite state' in faults[0]
+
+
+def test_the_hold_point_is_anchored_once_and_not_moved_by_later_odometry_or_a_refused_plan():
+    loop = ControlLoop(Recorder(), RATE_HZ, max_start_step_m=0.5)
+    loop.set_odometry(0, _state((0.0, 0.0, 1.0)))
+    loop.tick(0)
+    loop.set_odometry(PERIOD_NS, _state((0.3, 0.0, 1.2)))
+    assert np.allclose(loop.tick(PERIOD_NS).reference.position, [0.0, 0.0, 1.0])
+    loop.set_trajectory(2 * PERIOD_NS, _line(start=(5.0, 0.0, 1.0)))
+    assert np.allclose(loop.tick(2 * PERIOD_NS).reference.position, [0.0, 0.0, 1.0])
+    assert loop.mode(2 * PERIOD_NS) == 'hold (no trajectory)'
+
+
+def test_taking_a_plan_resets_the_controller_and_after_its_end_the_reference_is_its_final_point():
+    ctl = Recorder()
+    loop = ControlLoop(ctl, RATE_HZ)
+    loop.set_odometry(0, _state())
+    loop.set_trajectory(PERIOD_NS, _line(duration_s=1.0))
+    assert np.allclose(loop.tick(0).reference.position, [0.0, 0.0, 1.0]) and ctl.resets == 0
+    assert loop.tick(PERIOD_NS).reference.position[0] == pytest.approx(0.0) and ctl.resets == 1
+    assert loop.tick(50 * PERIOD_NS).reference.position[0] == pytest.approx(0.49)
+    assert np.allclose(loop.tick(500 * PERIOD_NS).reference.position, [1.0, 0.0, 1.0])
+    assert loop.mode(500 * PERIOD_NS) == 'hold (trajectory ended)'
+
+
+def test_a_dead_controller_is_never_called_again_and_no_tick_produces_a_setpoint():
+    faults = []
+    ctl = Recorder(fail_with=ControllerFailed('raised'))
+    loop = ControlLoop(ctl, RATE_HZ, on_fault=faults.append)
+    loop.set_odometry(0, _state())
+    assert loop.tick(0) is None
+    ctl.fail_with = None
+    assert loop.tick(PERIOD_NS) is None and ctl.calls == []
+    assert loop.counts['controller_failures'] == 1 and len(faults) == 1 and faults[0].startswith(CONTROLLER_FAILED)
+
+
+def test_lockstep_waits_for_engagement_and_for_a_plan_when_asked():
+    ctl = Recorder()
+    loop = ControlLoop(ctl, RATE_HZ, lockstep=True, wait_for_trajectory=True, engaged=False)
+    loop.set_odometry(PERIOD_NS, _state())
+    assert loop.tick(PERIOD_NS) is None                      # not engaged
+    assert loop.set_engaged(PERIOD_NS, True) is None         # engaged, but no plan yet
+    out = loop.set_trajectory(PERIOD_NS, _line())
+    assert out is not None and out.t_ns == PERIOD_NS and len(ctl.calls) == 1
+
+
+def test_the_end_of_a_hand_over_pauses_the_plan_and_the_next_engagement_resumes_it_after_the_delay():
+    loop = ControlLoop(Recorder(), RATE_HZ, engage_delay_s=0.5, max_start_step_m=10.0)
+    loop.set_odometry(0, _state())
+    loop.set_trajectory(0, _line(duration_s=1.0))
+    loop.tick(0)
+    loop.set_odometry(30 * PERIOD_NS, _state((0.3, 0.0, 1.0)))
+    assert loop.tick(30 * PERIOD_NS).reference.position[0] == pytest.approx(0.3)
+    loop.set_engaged(40 * PERIOD_NS, False)                  # paused at 0.4 s of the plan
+    loop.set_odometry(60 * PERIOD_NS, _state((0.2, 0.1, 1.0)))
+    assert np.allclose(loop.tick(60 * PERIOD_NS).reference.position, [0.2, 0.1, 1.0])   # follows the vehicle
+    loop.set_engaged(100 * PERIOD_NS, True)
+    assert np.allclose(loop.tick(120 * PERIOD_NS).reference.position, [0.2, 0.1, 1.0])  # hold, re-anchored
+    resumed = loop.tick(150 * PERIOD_NS)                     # 1.0 s + 0.5 s: the plan resumes at 0.4 s
+    assert resumed.reference.position[0] == pytest.approx(0.4)

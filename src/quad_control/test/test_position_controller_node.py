@@ -225,7 +225,7 @@ def test_stale_odometry_stops_setpoints_then_resumes(graph):
 
 
 def test_odometry_waiting_in_the_subscription_is_not_stale(graph):
-    """Issue 13.5 (the controller's side): a process that was not scheduled for longer than odom_timeout_s finds
+    """A process that was not scheduled for longer than odom_timeout_s finds
     its timer and a new odometry ready at once; the tick takes that odometry before judging staleness (on a loaded
     2-core machine the tick used to run first and stop the setpoints although odometry was there)."""
     node = graph.start(odom_timeout_s=0.2, rate_hz=100.0)
@@ -278,7 +278,7 @@ def _line_trajectory(start_xyz, start_s):
 
 
 def test_plan_starting_away_from_the_vehicle_is_refused_and_held(graph):
-    """Issue 13.3: a plan whose start is 1.5 m from where the vehicle hovers is not flown as a step."""
+    """A plan whose start is 1.5 m from where the vehicle hovers is not flown as a step."""
     graph.start(use_sim_time=True, lockstep=True, max_start_step_m=0.5)
     assert np.allclose(graph.step(1.0, z=1.0), [0, 0, 1.0])
     graph.traj_pub.publish(_line_trajectory([1.5, 0.0, 1.0], 2.0))
@@ -301,7 +301,7 @@ def test_plan_starting_away_from_the_vehicle_is_refused_and_held(graph):
 
 
 def test_hold_point_is_not_re_anchored_after_stale_odometry(graph):
-    """Issue 13.3: after a stale-odometry event the hold point stays where it was anchored (it used to move to
+    """After a stale-odometry event the hold point stays where it was anchored (it used to move to
     wherever the vehicle had drifted)."""
     graph.start(odom_timeout_s=0.2, rate_hz=100.0)
     graph.odom_until(lambda: len(graph.references) > 0, 'references with fresh odom', x=0.0, z=1.0)
@@ -316,7 +316,7 @@ def test_hold_point_is_not_re_anchored_after_stale_odometry(graph):
 
 
 def test_ticks_go_on_while_a_trajectory_is_decoded(graph):
-    """Issue 13.4: the tick never waits for a trajectory. The decode is held (an Event) while the lockstep graph
+    """The tick never waits for a trajectory. The decode is held (an Event) while the lockstep graph
     steps on: setpoints keep coming from the hold point; once released, the plan is swapped in between ticks."""
     graph.start(use_sim_time=True, lockstep=True)
     release, decoding = threading.Event(), threading.Event()
@@ -340,7 +340,7 @@ def test_ticks_go_on_while_a_trajectory_is_decoded(graph):
 
 
 def test_odometry_from_the_future_is_refused_and_a_later_valid_one_applied(graph):
-    """Issue 14 (same check as the simulator's): odometry stamped beyond one period ahead of the node clock is
+    """Odometry stamped beyond one period ahead of the node clock is
     refused, counted and named in diagnostics; it does not become the newest odometry a lockstep tick runs on."""
     graph.start(use_sim_time=True, lockstep=True, rate_hz=100.0)
     graph.step(1.0, z=1.0)
@@ -361,7 +361,7 @@ def test_odometry_from_the_future_is_refused_and_a_later_valid_one_applied(graph
 
 
 def test_plan_runs_only_while_engaged_and_starts_from_the_vehicle(graph):
-    """Issue 21: before the hand-over the setpoints hover where the vehicle is and the plan's clock does not run;
+    """Before the hand-over the setpoints hover where the vehicle is and the plan's clock does not run;
     at engagement the controller holds where the vehicle is and a plan whose stamp has passed begins its own
     start delay later; the end of the hand-over pauses it, the next engagement resumes it from there. Not lockstep:
     a bridge's controller ticks before the hand-over (lockstep ticks wait for the simulator's engagement)."""

@@ -227,7 +227,7 @@ def test_quiet_step_runs_equal_step_by_step_physics(crazyflie, monkeypatch):
 
 def test_failsafe_brakes_and_lands_where_the_setpoints_stopped(crazyflie):
     """PX4's and ArduPilot's setpoint-loss landing hold position while descending; a failsafe that only levels
-    drifted 2.4 m from a 0.5 m/s flight (issue 14). From 2 m/s it must come down within 0.5 m of the position at
+    drifted 2.4 m from a 0.5 m/s flight. From 2 m/s it must come down within 0.5 m of the position at
     the last setpoint."""
     sim = Simulator(crazyflie, initial_position=(0.0, 0.0, 1.5), setpoint_timeout_s=0.5)
     sim._x[3:5] = (2.0 / math.sqrt(2), 2.0 / math.sqrt(2))   # a 2 m/s flight along (1, 1), level

@@ -192,7 +192,7 @@ def test_bad_start_up_parameters_exit_2_naming_the_field(args, words):
 
 
 def test_with_sim_time_the_plan_waits_for_the_first_clock(graph):
-    """Issue 21: under use_sim_time the node planned before the first /clock and stamped the plan 0 + 1 s, in the
+    """Under use_sim_time the node planned before the first /clock and stamped the plan 0 + 1 s, in the
     past once simulated time arrived (refused by the controller's start-step guard). It now plans at start (a bad
     request still fails at once) and publishes, stamped clock + start_delay_s, when time exists."""
     from rosgraph_msgs.msg import Clock

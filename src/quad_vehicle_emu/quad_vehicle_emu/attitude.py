@@ -13,7 +13,7 @@ work on the quaternion error, so a large yaw error never turns the tilt the wron
 Euler-angle differences does: from a 180 deg yaw error and a 0.3 m offset eq. 6 runs away). Its gains are
 PX4's defaults MC_ROLL_P = MC_PITCH_P = 6.5, MC_YAW_P = 2.8 with 60 / 30 rad/s rate loops, without roll/pitch
 rate feed-forward, so its own lag is 1 / MC_ROLL_P = 0.154 s. The default total lag is 0.19 s, inside the
-0.17-0.21 s measured on ArduCopter SITL (issue 13; test_attitude_response.py): calibrated to that measurement,
+0.17-0.21 s measured on ArduCopter SITL (test_attitude_response.py): calibrated to that measurement,
 not taken from ATC_INPUT_TC.
 
 A requested total lag L (the mean delay -G'(0)/G(0) of the attitude response G, what an FOPDT fit calls
@@ -34,7 +34,7 @@ from quad_common import rotations
 from quad_common.vehicle import load_vehicle
 from quad_sim.attitude_poles import attitude_mean_delay_s
 
-DEFAULT_LAG_S = 0.19     # total roll/pitch lag: ArduCopter SITL's 0.17-0.21 s (issue 13)
+DEFAULT_LAG_S = 0.19     # total roll/pitch lag: ArduCopter SITL's 0.17-0.21 s
 # the autopilot's attitude loop in place of a vehicle file's eq. 6: PX4's defaults (mc_att_control_params.c
 # MC_ROLL_P / MC_PITCH_P 6.5, MC_YAW_P 2.8; rate loops as config/plant_family.yaml's autopilot_so3)
 AUTOPILOT_LOOP = {'type': 'so3_pd', 'angle_p': [6.5, 6.5, 2.8], 'rate_p': [60.0, 60.0, 30.0],

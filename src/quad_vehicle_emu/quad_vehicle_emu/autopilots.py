@@ -301,7 +301,7 @@ class Px4(Autopilot):
             return Target(q, thrust * GRAVITY_MPS2 / self.hover_throttle, rates)
         if self.mode in p.PX4_NEEDS_MANUAL_CONTROL:
             # a stick mode with no sticks (the emulator has no RC): as PX4 v1.16 SIH flew it with the bridge
-            # killed, descending level, nothing holding it horizontally (it drifted 3 m; issue 28)
+            # killed, descending level, nothing holding it horizontally (it drifts)
             return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
         if self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.RTL'):
             return self._idle(state) if landed and self.hold_position is not None and landed_s > 0.5 else \

@@ -1,4 +1,4 @@
-"""Linear air drag on the emulated vehicle, as PX4's SIH simulator flies it (issue 28).
+"""Linear air drag on the emulated vehicle, as PX4's SIH simulator flies it.
 
 PX4 SIH's multicopter (src/modules/simulation/simulator_sih/sih.cpp, generate_force_and_torques) feels
 `_Fa_E = -SIH_KDV * v_apparent`: a drag force linear in the airspeed, the same on every axis, SIH_KDV 1.0 N/(m/s)

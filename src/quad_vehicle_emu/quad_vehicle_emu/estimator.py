@@ -1,4 +1,4 @@
-"""The autopilot's state estimate, as PX4 v1.16 SIH showed it (issue 28): not the truth but the truth's
+"""The autopilot's state estimate, as PX4 v1.16 SIH showed it: not the truth but the truth's
 position lag_s late and off by a slow wander. Its own position hold and its telemetry use the estimate, so what a
 position controller flies is the estimate, and the truth wanders with it.
 

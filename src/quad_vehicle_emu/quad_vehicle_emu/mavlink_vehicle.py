@@ -45,7 +45,7 @@ DEFAULT_VEHICLE = 'vehicles/px4_quad.yaml'   # found as every file argument is (
 SYSTEM_ID_PARAMS = {'px4': 'MAV_SYS_ID', 'ardupilot': 'SYSID_THISMAV'}
 HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
 EARTH_RADIUS_M = 6378137.0
-# ArduCopter SITL's telemetry was ~50 ms old (issue 13): 35 ms here plus the wait for the next burst, uniform
+# ArduCopter SITL's telemetry was ~50 ms old: 35 ms here plus the wait for the next burst, uniform
 # up to 40 ms apart (mean wait E[T^2] / 2E[T] = 40 / 3 ms), 48 ms on average
 DEFAULT_LATENCY_S = {'px4': 0.02, 'ardupilot': 0.035}
 DEFAULT_BURST_S = {'px4': 0.0, 'ardupilot': 0.04}      # ArduPilot SITL telemetry arrived 0.5-65 ms apart

@@ -16,7 +16,7 @@ HEADER = '# quadflight identify '   # the first line of every profile identify w
 
 
 def out_refusal(out: Path, inputs) -> str | None:
-    """--out may replace only a profile identify wrote (issue 27.5: inputs are never modified)."""
+    """--out may replace only a profile identify wrote (inputs are never modified)."""
     from quad_bringup.inputs import same_file
     for what, path in inputs:
         if path is not None and same_file(out, path):

@@ -50,7 +50,7 @@ def summary_table(result) -> str:
 
 
 def refuse_overwriting_inputs(outputs, inputs) -> str | None:
-    """Inputs are never modified (issue 27.5): the refusal when an output path is one of the inputs."""
+    """Inputs are never modified: the refusal when an output path is one of the inputs."""
     from quad_bringup.inputs import same_file
     for name, out in outputs:
         for what, path in inputs:

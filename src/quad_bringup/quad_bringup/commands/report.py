@@ -90,7 +90,7 @@ def run(args) -> int:
     try:
         metrics = write_report(bag, out, extra, rule)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:
-        if created:   # a refusal leaves nothing behind (issue 27.11)
+        if created:   # a refusal leaves nothing behind
             shutil.rmtree(out, ignore_errors=True)
         why = str(exc) or 'none of the flight topics (odom, trajectory, cmd/attitude_thrust) in it'
         print(f'quadflight report: {bag}: {why}', file=sys.stderr)
