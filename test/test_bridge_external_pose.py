@@ -1,6 +1,8 @@
 """An external pose (motion capture) through the bridge over real UDP to the emulated autopilots, seen on the wire by
 a tap: forwarded in the autopilot's message at the configured rate, converted to NED; a jump, a late sample and a
-stopped stream are faults in the diagnostics, refuse `offboard`, and end a hand-over with stale_action."""
+stopped stream are faults in the diagnostics, refuse `offboard`, and end a hand-over with stale_action.
+The bridge's vehicle-parameter check reads the emulator's external vision parameters: set as the
+autopilots' docs say, offboard runs; left at their defaults, it is refused naming the parameter."""
 
 import threading
 import time
@@ -49,10 +51,18 @@ class PosePublisher:
 @pytest.fixture
 def graph(tmp_path):
     with tapped_graph(tmp_path) as (procs, observer, start_tapped):
-        def start(flavour, **bridge_params):
-            return start_tapped(flavour, (0.0, 0.0, 1.0), (*VEHICLE_ARGS[flavour], '--hover-throttle', str(HOVER)),
+        def start(flavour, vehicle_args=(), **bridge_params):
+            return start_tapped(flavour, (0.0, 0.0, 1.0),
+                                (*VEHICLE_ARGS[flavour], *vehicle_args, '--hover-throttle', str(HOVER)),
                                 hover_throttle=HOVER, external_pose_enabled=True, **bridge_params)
         yield procs, observer, start
+
+
+# the vehicle set for external vision as the autopilots' docs say (no GPS, height and position from vision)
+EV_PARAMS = {'px4': ('EKF2_EV_CTRL=3', 'EKF2_HGT_REF=3', 'EKF2_GPS_CTRL=0', 'EKF2_EV_DELAY=20'),
+             'ardupilot': ('VISO_TYPE=1', 'EK3_SRC1_POSXY=6', 'EK3_SRC1_VELXY=6', 'EK3_SRC1_POSZ=6',
+                           'EK3_SRC1_YAW=6')}
+UNSET = {'px4': 'EKF2_HGT_REF = 1', 'ardupilot': 'VISO_TYPE = 0'}
 
 
 def _fault(observer):
@@ -98,3 +108,24 @@ def test_external_pose_is_forwarded_and_its_faults_end_the_hand_over(graph, flav
     observer.wait_for(lambda: _fault(observer).startswith('late'), 'the late fault')
     poses.stop()
     observer.wait_for(lambda: _fault(observer).startswith('timeout: no sample'), 'the timeout fault')
+
+
+@pytest.mark.parametrize('flavour', ['px4', 'ardupilot'])
+@pytest.mark.parametrize('ev_params_set', [True, False])
+def test_vehicle_param_check_reads_the_emulators_external_vision_parameters(graph, flavour, ev_params_set):
+    procs, observer, start = graph
+    args = [a for value in EV_PARAMS[flavour] for a in ('--param', value)] if ev_params_set else []
+    start(flavour, vehicle_args=args, vehicle_params='check')
+    poses = PosePublisher(observer)
+    setpoints = SetpointPublisher(observer, force_mps2=9.81)
+    try:
+        observer.wait_for(lambda: observer.status(STATUS)[0] == 'forwarding', 'the external pose status forwarding')
+        observer.wait_for(lambda: int(observer.setpoints()[1].get('received', 0)) > 10, 'setpoints heard')
+        result = observer.call('offboard', SetBool.Request(data=True))
+        if ev_params_set:
+            assert result.success, result.message
+        else:
+            assert not result.success and UNSET[flavour] in result.message, result.message
+    finally:
+        setpoints.stop()
+        poses.stop()

@@ -41,6 +41,20 @@ ARDUCOPTER_PARAMS = [
     ParamSpec('LAND_SPEED', 50.0, p.MAV_PARAM_TYPE_INT16, 30.0, 200.0,
               'ArduCopter/Parameters.cpp, final descent cm/s, default 50'),
     ParamSpec('SYSID_THISMAV', 1, p.MAV_PARAM_TYPE_INT16, 1, 255, 'ArduCopter/Parameters.cpp, default 1'),
+    ParamSpec('VISO_TYPE', 0, p.MAV_PARAM_TYPE_INT8, 0, 3,
+              'libraries/AP_VisualOdom/AP_VisualOdom.cpp, default 0 (none); 1 MAVLink'),
+    ParamSpec('VISO_DELAY_MS', 10, p.MAV_PARAM_TYPE_INT16, 0, 250,
+              'libraries/AP_VisualOdom/AP_VisualOdom.cpp, sensor delay ms, default 10'),
+    ParamSpec('EK3_SRC1_POSXY', 3, p.MAV_PARAM_TYPE_INT8, 0, 7,
+              'libraries/AP_NavEKF/AP_NavEKF_Source.cpp, default 3 (GPS); 6 ExternalNAV'),
+    ParamSpec('EK3_SRC1_VELXY', 3, p.MAV_PARAM_TYPE_INT8, 0, 7,
+              'libraries/AP_NavEKF/AP_NavEKF_Source.cpp, default 3 (GPS); 6 ExternalNAV'),
+    ParamSpec('EK3_SRC1_POSZ', 1, p.MAV_PARAM_TYPE_INT8, 0, 7,
+              'libraries/AP_NavEKF/AP_NavEKF_Source.cpp, default 1 (Baro); 6 ExternalNAV'),
+    ParamSpec('EK3_SRC1_VELZ', 3, p.MAV_PARAM_TYPE_INT8, 0, 7,
+              'libraries/AP_NavEKF/AP_NavEKF_Source.cpp, default 3 (GPS); 6 ExternalNAV'),
+    ParamSpec('EK3_SRC1_YAW', 1, p.MAV_PARAM_TYPE_INT8, 0, 8,
+              'libraries/AP_NavEKF/AP_NavEKF_Source.cpp, default 1 (Compass); 6 ExternalNAV'),
 ]
 
 PX4_PARAMS = [
@@ -57,6 +71,15 @@ PX4_PARAMS = [
     ParamSpec('MC_ROLL_P', 6.5, p.MAV_PARAM_TYPE_REAL32, 0.0, 12.0,
               'src/modules/mc_att_control/mc_att_control_params.c, roll angle P 1/s, default 6.5'),
     ParamSpec('MAV_SYS_ID', 1, p.MAV_PARAM_TYPE_INT32, 1, 250, 'src/modules/mavlink/mavlink_params.c'),
+    ParamSpec('EKF2_EV_CTRL', 15, p.MAV_PARAM_TYPE_INT32, 0, 15,
+              'src/modules/ekf2/module.yaml, external vision aiding bitmask (0 hor. pos, 1 vert. pos, 2 vel, 3 yaw), '
+              'default 15'),
+    ParamSpec('EKF2_HGT_REF', 1, p.MAV_PARAM_TYPE_INT32, 0, 3,
+              'src/modules/ekf2/module.yaml, height reference 0 baro 1 GPS 2 range 3 vision, default 1'),
+    ParamSpec('EKF2_EV_DELAY', 0.0, p.MAV_PARAM_TYPE_REAL32, 0.0, 300.0,
+              'src/modules/ekf2/module.yaml, vision measurement delay ms, default 0'),
+    ParamSpec('EKF2_GPS_CTRL', 7, p.MAV_PARAM_TYPE_INT32, 0, 15,
+              'src/modules/ekf2/module.yaml, GNSS aiding bitmask (0 lon/lat, 1 alt, 2 3D vel, 3 heading), default 7'),
 ]
 
 

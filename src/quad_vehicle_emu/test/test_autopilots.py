@@ -67,3 +67,21 @@ def test_px4_drops_roll_and_pitch_rates_with_an_attitude_when_asked():
     dropped.on_attitude_target(msg, 0.0)
     assert np.allclose(fed.setpoint[2], [0.3, 0.2, -0.1])          # FRD -> FLU
     assert np.allclose(dropped.setpoint[2], [0.0, 0.0, -0.1])
+
+
+@pytest.mark.parametrize('flavour, defaults, enabled', [
+    ('px4', {'EKF2_EV_CTRL': 15, 'EKF2_HGT_REF': 1, 'EKF2_EV_DELAY': 0.0, 'EKF2_GPS_CTRL': 7},
+     {'EKF2_HGT_REF': 3, 'EKF2_GPS_CTRL': 0, 'EKF2_EV_DELAY': 20.0}),
+    ('ardupilot', {'VISO_TYPE': 0, 'VISO_DELAY_MS': 10, 'EK3_SRC1_POSXY': 3, 'EK3_SRC1_VELXY': 3,
+                   'EK3_SRC1_POSZ': 1, 'EK3_SRC1_VELZ': 3, 'EK3_SRC1_YAW': 1},
+     {'VISO_TYPE': 1, 'EK3_SRC1_POSXY': 6, 'EK3_SRC1_VELXY': 6, 'EK3_SRC1_POSZ': 6, 'EK3_SRC1_YAW': 6}),
+])
+def test_external_vision_parameters_have_the_autopilots_defaults_and_are_settable(flavour, defaults, enabled):
+    from quad_vehicle_emu.autopilots import make_autopilot
+    params = make_autopilot(flavour, 0.5).params
+    assert {name: params[name] for name in defaults} == pytest.approx(defaults)
+    for name, value in enabled.items():
+        decoded = params.decode(name, *params.encode(name))   # PARAM_VALUE round trip, as PARAM_SET carries it
+        assert decoded == params[name]
+        params.set(name, value)
+        assert params[name] == value
