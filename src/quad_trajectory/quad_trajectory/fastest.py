@@ -47,10 +47,11 @@ from quad_trajectory.polynomial import PiecewisePolynomial
 
 BAND = 5                 # segments either side in the banded Jacobian
 LP_BLOCK, LP_OVERLAP = 150, 25   # a long plan's step: blocks of 150 segments, each with 25 either side
-MAX_ITERATIONS = 20
+MAX_ITERATIONS = 12
 MIN_TRUST = 2e-3         # log-time trust radius below which the search stops
 FIRST_TRUST = 0.3
 GROW, SHRINK = 2.0, 0.4
+GROW_RATIO = 0.5         # a full step whose gain was at least this fraction of the predicted one grows the radius
 STALL_GAIN = 2e-4        # a step predicted to gain less than this fraction of the time ends the search
 LOOP_SAMPLES = 10        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
 SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
@@ -289,7 +290,7 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
         step = float(np.abs(d).max())
         if ratio < 0.25:
             trust = SHRINK * step
-        elif ratio > 0.75 and step > 0.99 * trust:
+        elif ratio > GROW_RATIO and step > 0.99 * trust:
             trust = min(GROW * trust, 1.0)
     # the search samples LOOP_SAMPLES points a segment; the plan is checked (and flown) at feasibility.py's
     return T * Constraints(vehicle, margin).feasible_scale(solve(T))
