@@ -47,11 +47,11 @@ from quad_trajectory.polynomial import PiecewisePolynomial
 
 BAND = 5                 # segments either side in the banded Jacobian
 LP_BLOCK, LP_OVERLAP = 150, 25   # a long plan's step: blocks of 150 segments, each with 25 either side
-MAX_ITERATIONS = 12
+MAX_ITERATIONS = 20
 MIN_TRUST = 2e-3         # log-time trust radius below which the search stops
 FIRST_TRUST = 0.3
 GROW, SHRINK = 2.0, 0.4
-GROW_RATIO = 0.5         # a full step whose gain was at least this fraction of the predicted one grows the radius
+GROW_RATIO = 0.75        # a full step whose gain was at least this fraction of the predicted one grows the radius
 STALL_GAIN = 2e-4        # a step predicted to gain less than this fraction of the time ends the search
 LOOP_SAMPLES = 10        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
 SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
@@ -264,9 +264,12 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
     for iteration in range(MAX_ITERATIONS):
         if trust < MIN_TRUST:
             break
+        near = min(NEAR * trust, 1.0)
         if J is None:   # kept while steps from the same point are refused
-            J, g = _linearised_constraints(solve, np.log(T), v, constraints, min(NEAR * trust, 1.0))
-        d = _lp_step(T, J, g, trust)
+            J, g = _linearised_constraints(solve, np.log(T), v, constraints, near)
+        # a row that no step inside the box can reach (g_r + trust |J_r|_1 <= 0) cannot bind: left out
+        rows = g + trust * np.asarray(abs(J).sum(axis=1)).ravel() > 0.0
+        d = _lp_step(T, J[rows], g[rows], trust)
         if d is None:
             trust *= SHRINK
             continue
