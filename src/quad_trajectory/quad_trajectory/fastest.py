@@ -21,7 +21,8 @@ uniform scaling.
   decays geometrically along a minimum-derivative spline), so dv/dx is banded: BAND segments either side,
   by finite differences with 2 BAND + 1 solves (every (2 BAND + 1)-th segment perturbed at once). The linear
   programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust radius
-  of its limit, |d_j| <= trust radius (HiGHS), gives the step; the new shape is scaled to the limits again and
+  of its limit (less the rows no step inside the box reaches, v_r + trust |J_r|_1 <= 0), |d_j| <= trust radius
+  (HiGHS), gives the step; the new shape is scaled to the limits again and
   kept when its total time is shorter; the trust radius follows how well the programme predicted the gain.
   A plan longer than LP_BLOCK + 2 LP_OVERLAP segments solves the programme in overlapping windows (_lp_step).
   BAND = 5 matters: with 3, the finite differences alias the influence of segments 4 away (about 20 % error
