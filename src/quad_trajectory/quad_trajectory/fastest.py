@@ -21,7 +21,8 @@ uniform scaling.
   decays geometrically along a minimum-derivative spline), so dv/dx is banded: BAND segments either side,
   by finite differences with 2 BAND + 1 solves (every (2 BAND + 1)-th segment perturbed at once). The linear
   programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust radius
-  of its limit, |d_j| <= trust radius (HiGHS), gives the step; the new shape is scaled to the limits again and
+  of its limit (less the rows no step inside the box reaches, v_r + trust |J_r|_1 <= 0), |d_j| <= trust radius
+  (HiGHS), gives the step; the new shape is scaled to the limits again and
   kept when its total time is shorter; the trust radius follows how well the programme predicted the gain.
   A plan longer than LP_BLOCK + 2 LP_OVERLAP segments solves the programme in overlapping windows (_lp_step).
   BAND = 5 matters: with 3, the finite differences alias the influence of segments 4 away (about 20 % error
@@ -51,6 +52,7 @@ MAX_ITERATIONS = 20
 MIN_TRUST = 2e-3         # log-time trust radius below which the search stops
 FIRST_TRUST = 0.3
 GROW, SHRINK = 2.0, 0.4
+GROW_RATIO = 0.75        # a full step whose gain was at least this fraction of the predicted one grows the radius
 STALL_GAIN = 2e-4        # a step predicted to gain less than this fraction of the time ends the search
 LOOP_SAMPLES = 10        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
 SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
@@ -263,9 +265,12 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
     for iteration in range(MAX_ITERATIONS):
         if trust < MIN_TRUST:
             break
+        near = min(NEAR * trust, 1.0)
         if J is None:   # kept while steps from the same point are refused
-            J, g = _linearised_constraints(solve, np.log(T), v, constraints, min(NEAR * trust, 1.0))
-        d = _lp_step(T, J, g, trust)
+            J, g = _linearised_constraints(solve, np.log(T), v, constraints, near)
+        # a row that no step inside the box can reach (g_r + trust |J_r|_1 <= 0) cannot bind: left out
+        rows = g + trust * np.asarray(abs(J).sum(axis=1)).ravel() > 0.0
+        d = _lp_step(T, J[rows], g[rows], trust)
         if d is None:
             trust *= SHRINK
             continue
@@ -289,7 +294,7 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
         step = float(np.abs(d).max())
         if ratio < 0.25:
             trust = SHRINK * step
-        elif ratio > 0.75 and step > 0.99 * trust:
+        elif ratio > GROW_RATIO and step > 0.99 * trust:
             trust = min(GROW * trust, 1.0)
     # the search samples LOOP_SAMPLES points a segment; the plan is checked (and flown) at feasibility.py's
     return T * Constraints(vehicle, margin).feasible_scale(solve(T))
