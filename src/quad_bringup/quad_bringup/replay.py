@@ -34,6 +34,8 @@ DRAG = profile_from_dict({'body_drag': True, 'rotor_drag': True}, 'replay')   # 
 #                                          identify measured (0 where it saw none)
 OPEN_LOOP_S = 2.0        # the open-loop trace is scored over the plan's first seconds (it drifts)
 RMSE_GOAL = 0.2          # the twin's closed-loop RMSE within 20 % of the flight's
+REPORT_PERIOD_S = 1.0    # position_controller's diagnostics period: the report after the plan's end covers its
+#                          last ticks
 
 
 def _rmse(x) -> float:
@@ -54,7 +56,7 @@ def telemetry_of(flight, window_s=None) -> tuple[float, float, str]:
     if simulator or len(record) != len(stamps) or len(stamps) < 2:
         return 0.0, 0.0, 'a simulator\'s lockstep bag: fresh'
     reported = [ms for record_ns, ms in flight.controller_odom_age
-                if window_s is None or window_s[0] <= record_ns * 1e-9 <= window_s[1] + 1.0]
+                if window_s is None or window_s[0] <= record_ns * 1e-9 <= window_s[1] + REPORT_PERIOD_S]
     if reported:
         return max(float(np.mean(reported)) * 1e-3, 0.0), 0.0, 'as the controller reported it'
     return (max(float(np.median(record * 1e-9 - stamps)), 0.0), float(np.median(np.diff(stamps))),

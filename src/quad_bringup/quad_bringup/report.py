@@ -112,23 +112,22 @@ class _FlightParts:
             self.engaged.append((record_ns, bool(msg.data)))
         elif topic == DIAGNOSTICS:
             for st in msg.status:
-                phase = next((kv.value for kv in st.values if kv.key == HANDOVER_KEY), None)
+                values = {kv.key: kv.value for kv in st.values}
+                phase = values.get(HANDOVER_KEY)
                 if phase is not None:
                     self.handover.append((record_ns, phase))
-                if st.name == contract.CONTROLLER_STATUS:
-                    age = {kv.key: kv.value for kv in st.values}.get(contract.CONTROLLER_ODOM_AGE_MS, 'None')
-                    if age != 'None':
-                        self.odom_age.append((record_ns, float(age)))
+                age_ms = values.get(contract.CONTROLLER_ODOM_AGE_MS, 'None')
+                if st.name == contract.CONTROLLER_STATUS and age_ms != 'None':
+                    self.odom_age.append((record_ns, float(age_ms)))
                 if st.name == contract.SIM_PUBLISHED:
-                    steps = int({kv.key: kv.value for kv in st.values}.get('steps', -1))
+                    steps = int(values.get('steps', -1))
                     if self.published is None or _ns(msg.header.stamp) >= self.published[0]:
                         self.published = (_ns(msg.header.stamp), steps)
                 if level_of(st) == ERROR_LEVEL:
                     t = conversions.stamp_to_s(msg.header.stamp)
                     self.errors.append((t, st.name, st.message))
                     if self.collision is None:  # an event is a key, not a name or a message
-                        self.collision = contract.event_time_s({kv.key: kv.value for kv in st.values},
-                                                               contract.COLLISION_TIME_S)
+                        self.collision = contract.event_time_s(values, contract.COLLISION_TIME_S)
         else:
             self.latest[topic] = msg  # latched topics: the newest plan counts
 
