@@ -39,9 +39,6 @@ from quad_common.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
 ACK_FLUSH_S = 0.05  # wall time: the newest odometry is acknowledged at least this often (a stopping simulator)
-# after a stop, rounds of spinning take what is already queued until a round takes nothing, for at most this long
-# (wall time): while publishers keep publishing every round takes something, and the stop must still end it
-DRAIN_S = 2.0
 ODOM = 'odom'
 CLOCK = contract.CLOCK
 
@@ -183,9 +180,8 @@ def main(args=None):
     try:
         while not stop:
             executor.spin_once(timeout_sec=0.1)
-        drained, deadline = -1, time.monotonic() + DRAIN_S
-        # messages already in the subscriptions' queues are not lost
-        while drained != node.bag.total and time.monotonic() < deadline:
+        drained = -1
+        while drained != node.bag.total:  # messages already in the subscriptions' queues are not lost
             drained = node.bag.total
             for _ in range(20):
                 executor.spin_once(timeout_sec=0.01)

@@ -122,34 +122,6 @@ def test_recorder_writes_every_message_and_closes_on_signal(graph, tmp_path, sig
     assert all(abs(t - time.time_ns()) < 3600e9 for t in stamps)  # receive times on the system clock
 
 
-STOP_BOUND_S = 20.0   # a stop while the graph keeps publishing ends the recorder well within this (about DRAIN_S)
-
-
-def test_recorder_stops_while_the_graph_keeps_publishing(graph, tmp_path):
-    """SIGTERM while odometry keeps arriving (a test stopping the recorder before the vehicle): the drain of what is
-    already queued ends, the bag is closed cleanly, nothing is left for a SIGKILL and a repair."""
-    node, env = graph
-    bag = tmp_path / 'bag'
-    proc, expected = publish_flight(node, env, bag, tmp_path)
-    odom_pub = node.create_publisher(Odometry, 'odom', 10)
-    proc.send_signal(signal.SIGTERM)
-    stopped_at, sent = time.monotonic(), 0
-    while time.monotonic() < stopped_at + STOP_BOUND_S:
-        odom_pub.publish(Odometry())
-        sent += 1
-        try:
-            proc.wait(timeout=0.005)   # the recorder's exit is the event; between polls, odometry keeps coming
-            break
-        except subprocess.TimeoutExpired:
-            pass
-    took_s = time.monotonic() - stopped_at
-    print(f'stopped {took_s:.2f} s after SIGTERM, {sent} odometry messages published meanwhile')
-    assert proc.returncode == 0, f'still running {took_s:.1f} s after SIGTERM'
-    out, _ = proc.communicate(timeout=TIMEOUT_S)
-    assert 'bag closed' in out, out
-    assert (bag / 'metadata.yaml').exists()
-
-
 def test_killed_recorder_leaves_a_readable_bag(graph, tmp_path):
     node, env = graph
     bag = tmp_path / 'bag'
