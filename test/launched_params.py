@@ -18,6 +18,7 @@ from rclpy.parameter import parameter_value_to_python
 from quad_common.testing import isolated_domain
 
 PUSHED = 'uav2'
+RESEND_S = 5.0   # a parameter service's request is asked again after this long without an answer
 
 
 def pushed_launch_file(tmp_path: Path, launch_file: Path, push: str = PUSHED, **arguments) -> Path:
@@ -47,18 +48,25 @@ class ParameterReader:
         self.executor.add_node(self.node)
 
     def _call(self, client, request, what, alive):
+        """The first answer to `request`, asked again every RESEND_S: a request sent as soon as the service is
+        discovered can be lost over DDS (the server's reply writer may not have matched this client's reader yet,
+        and the reply is then dropped), and list_parameters / get_parameters are safe to repeat."""
         deadline = time.monotonic() + WAIT_S
         while not client.wait_for_service(timeout_sec=0.1):
             alive()
             if time.monotonic() > deadline:
                 raise AssertionError(f'no {what} service within {WAIT_S} s')
-        future = client.call_async(request)
-        while not future.done():
+        futures, resend_at = [], 0.0
+        while not any(f.done() for f in futures):
             alive()
-            if time.monotonic() > deadline:
-                raise AssertionError(f'{what}: no answer within {WAIT_S} s')
+            now = time.monotonic()
+            if now > deadline:
+                raise AssertionError(f'{what}: no answer within {WAIT_S} s to {len(futures)} requests')
+            if now >= resend_at:
+                futures.append(client.call_async(request))
+                resend_at = now + RESEND_S
             self.executor.spin_once(timeout_sec=0.1)
-        return future.result()
+        return next(f for f in futures if f.done()).result()
 
     def parameters(self, fqn: str, alive=lambda: None) -> dict:
         """{name: value} of every parameter of the node `fqn`; an AssertionError when get_parameters answers

@@ -38,6 +38,7 @@ from quad_common.params import Param
 from quad_common.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
+DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends with a pass this long that takes nothing sent before it
 ACK_FLUSH_S = 0.05  # wall time: the newest odometry is acknowledged at least this often (a stopping simulator)
 ODOM = 'odom'
 CLOCK = contract.CLOCK
@@ -78,6 +79,10 @@ class RecorderNode(Node):
         self.ack = lockstep.Acknowledger(self, self.get_name())
         self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
         self._raw_subscriptions = {}
+        # the stop's wall time (ns; none yet: the largest int64) and how many messages published before it (their
+        # publisher's source timestamp) were taken: what the drain after a stop waits for
+        self.stop_ns = 2 ** 63 - 1
+        self.sent_before_stop = 0
         self._pending = []
         # the lockstep steps it acknowledges: the newest odom and /clock stamps all taken (a step's /clock follows
         # its odom on the wire; acknowledging odom alone let the simulator exit with its last /clock unsent); a
@@ -110,8 +115,10 @@ class RecorderNode(Node):
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if spec.latched else DurabilityPolicy.VOLATILE)
         self.bag.add_topic(topic, spec, depth=qos.depth)
 
-        def on_message(data: bytes, topic=topic):
+        def on_message(data: bytes, info: dict, topic=topic):
             self.bag.write(topic, time.time_ns(), data)
+            if info['source_timestamp'] <= self.stop_ns:
+                self.sent_before_stop += 1
             if topic in self._paced_newest_ns:
                 stamp_ns = _clock_ns(data) if topic == CLOCK else cdr.header_stamp_ns(data, Odometry)
                 self._paced_newest_ns[topic] = max(self._paced_newest_ns[topic], stamp_ns)
@@ -154,9 +161,22 @@ class RecorderNode(Node):
                                + ', '.join(f'{t}={n}' for t, n in self.bag.counts.items() if n))
 
 
+def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
+    """Takes what was published before the stop: passes of pass_s until one takes no message whose publisher
+    sent it before now. What a publisher sends after the stop is still written while the drain lasts, but does not
+    prolong it: publishers that never stop do not keep the recorder alive."""
+    node.stop_ns = time.time_ns()
+    taken = -1
+    while taken != node.sent_before_stop:
+        taken = node.sent_before_stop
+        deadline = time.monotonic() + pass_s
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
+
+
 def main(args=None):
-    """Spins until SIGINT/SIGTERM/SIGHUP (or the parent's death), then takes what is already delivered and closes
-    the bag."""
+    """Spins until SIGINT/SIGTERM/SIGHUP (or the parent's death), then drains what was published before the stop and
+    closes the bag."""
     stop = node_start.received   # a stop recorded since the console script's first line counts
     for sig in STOP_SIGNALS:
         signal.signal(sig, lambda signum, frame: stop.append(signum))
@@ -180,11 +200,7 @@ def main(args=None):
     try:
         while not stop:
             executor.spin_once(timeout_sec=0.1)
-        drained = -1
-        while drained != node.bag.total:  # messages already in the subscriptions' queues are not lost
-            drained = node.bag.total
-            for _ in range(20):
-                executor.spin_once(timeout_sec=0.01)
+        drain(node, executor)
     except ExternalShutdownException:
         pass
     finally:

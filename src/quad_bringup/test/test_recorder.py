@@ -4,6 +4,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -120,6 +121,41 @@ def test_recorder_writes_every_message_and_closes_on_signal(graph, tmp_path, sig
     assert xs == pytest.approx([0.001 * k for k in range(N_ODOM)])
     assert texts == ['hello bag']
     assert all(abs(t - time.time_ns()) < 3600e9 for t in stamps)  # receive times on the system clock
+
+
+def test_recorder_stopped_beside_a_publisher_that_never_stops_exits_with_all_sent_before_the_stop(graph, tmp_path):
+    """The drain after a stop ends at messages sent after it: a publisher still publishing does not keep the
+    recorder alive, and every message sent before the stop is in the bag (a contiguous prefix of the stream)."""
+    node, env = graph
+    bag = tmp_path / 'bag'
+    keep_all = QoSProfile(depth=100000, reliability=ReliabilityPolicy.RELIABLE)
+    pub = node.create_publisher(String, 'chatter', keep_all)
+    proc = start_recorder(bag, env, ['chatter'])
+    wait_for(lambda: pub.get_subscription_count() > 0 or proc.poll() is not None, 'the recorder to subscribe')
+    assert proc.poll() is None, proc.stdout.read()
+    sent, stop = [0], threading.Event()
+
+    def publish_forever():   # about 1 kHz, until the test ends (long after the recorder's stop)
+        while not stop.is_set():
+            pub.publish(String(data=str(sent[0])))
+            sent[0] += 1
+            time.sleep(0.001)   # the stream's period, not synchronisation
+
+    publisher = threading.Thread(target=publish_forever, daemon=True)
+    publisher.start()
+    try:
+        wait_for(lambda: sent[0] >= 500, 'the stream to run')
+        sent_before_stop = sent[0]
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60.0)   # a hang guard: the drain takes tenths of a second
+    finally:
+        stop.set()
+        publisher.join()
+    assert proc.returncode == 0, out
+    ts = typestore()
+    with Reader(bag) as reader:
+        numbers = [int(ts.deserialize_cdr(raw, c.msgtype).data) for c, _, raw in reader.messages()]
+    assert numbers == list(range(len(numbers))) and len(numbers) >= sent_before_stop, (len(numbers), sent_before_stop)
 
 
 def test_killed_recorder_leaves_a_readable_bag(graph, tmp_path):

@@ -20,11 +20,13 @@ from rclpy.executors import (
     TimeoutException,
 )
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.subscription import Subscription
 
 # The rclpy release whose internals this module uses (rclpy_implementation.WaitSet, Executor._guard and
-# _sigint_gc, a subscription handle's take_message, wait_for_ready_callbacks) and against which quad_common.cdr's
-# hand-packed layouts were checked; src/quad_common/test/test_rclpy_pin.py fails, naming both versions, when the
-# installed rclpy is another one or a layout no longer matches: re-check both there, then move the pin.
+# _sigint_gc, a subscription handle's take_message, Subscription._callback_type, wait_for_ready_callbacks) and
+# against which quad_common.cdr's hand-packed layouts were checked; src/quad_common/test/test_rclpy_pin.py fails,
+# naming both versions, when the installed rclpy is another one or a layout no longer matches: re-check both there,
+# then move the pin.
 CHECKED_RCLPY_VERSION = '7.1.5'
 
 
@@ -63,9 +65,10 @@ class HotPathExecutor(SingleThreadedExecutor):
     def __init__(self, hot: Callable[[], tuple], *, slow_period_s: float = SLOW_PERIOD_S, context=None,
                  take: Callable | None = None):
         """hot() -> (subscriptions, timers) or (subscriptions, timers, guard conditions) of the tick; asked before
-        every wait, as a node may replace them. Their callbacks take the message only (no MessageInfo; none for a
-        guard condition) and are plain functions (no coroutines). take(subscription) -> message or None replaces
-        the plain take of a hot subscription (quad_bridge.setpoint_source: with the publisher's GID)."""
+        every wait, as a node may replace them. Their callbacks take the message, or the message and its MessageInfo
+        when they take two arguments as rclpy's own executor decides (none for a guard condition), and are plain
+        functions (no coroutines). take(subscription) -> message or None replaces the plain take of a hot
+        subscription of the first kind (quad_bridge.setpoint_source: with the publisher's GID)."""
         super().__init__(context=context)
         self._hot = hot
         self._take = take or _take_message
@@ -126,6 +129,11 @@ class HotPathExecutor(SingleThreadedExecutor):
         served = bool(ready)
         for sub in subscriptions:
             if sub.handle.pointer in ready:
+                if sub._callback_type is Subscription.CallbackType.WithMessageInfo:  # callback(msg, MessageInfo)
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                    if taken is not None:
+                        sub.callback(*taken)
+                    continue
                 msg = self._take(sub)
                 if msg is not None:
                     sub.callback(msg)
