@@ -42,10 +42,7 @@ from quad_bringup.flight_options import (
     with_profile_controller,
     write_flown_mission,
 )
-from quad_bringup.recorder import DEFAULT_TOPICS
-from quad_bringup.report import load_flight, record_summary, write_report
 from quad_common import contract
-from quad_common.domain_probe import foreign_nodes
 from quad_common.domains import isolated_domain
 from quad_common.params import parameters_of
 from quad_control.parameters import NODE_NAME as CONTROLLER_NODE
@@ -161,6 +158,11 @@ def _fly(options: FlightOptions, log) -> FlightResult:
 
 def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock, log) -> FlightResult:
     """_fly once the run directory is this fly's."""
+    # here, not at the top: a refusal before start-up does not wait for rclpy, rosbags and the report's imports
+    from quad_bringup.recorder import DEFAULT_TOPICS
+    from quad_bringup.report import load_flight, record_summary, write_report
+    from quad_common.domain_probe import foreign_nodes
+
     clock.mark('validated, run directory made')
     if plan_overrides(options):
         flown = write_flown_mission(options, mission, run_dir / 'mission.yaml')

@@ -13,7 +13,7 @@ import yaml
 from quad_bringup import graph
 from quad_bringup.inputs import check_inputs
 from quad_bringup.limits import refusal
-from quad_bringup.report import Completion
+from quad_bringup.metrics import Completion
 from quad_common.paths import REPO_ROOT
 from quad_common.yaml_io import load_yaml
 from quad_trajectory.timing import ALLOCATIONS as TIME_ALLOCATIONS

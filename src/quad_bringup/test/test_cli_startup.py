@@ -37,3 +37,13 @@ def test_the_top_level_help_imports_no_command():
 @pytest.mark.parametrize('command', sorted(cli.SUBCOMMANDS))
 def test_a_command_help_page_imports_no_heavy_module(command):
     assert not imported_by(command, '--help') & set(HEAVY)
+
+
+@pytest.mark.parametrize('argv', [('fly', 'no_such_mission.yaml'),
+                                  ('fly', 'config/missions/maze.yaml', '--speed', '-1')],
+                         ids=['missing-file', 'bad-speed'])
+def test_a_fly_refused_before_start_up_imports_no_ros_client_and_no_bag_library(argv):
+    """The refusal is printed before rclpy, rosbags and matplotlib are imported (seconds on a loaded machine);
+    they come with the start-up of the graph."""
+    modules = imported_by(*argv)
+    assert not modules & {'rclpy', 'matplotlib', 'numba', 'rosbags'}, sorted(modules & {'rclpy', 'rosbags'})

@@ -67,7 +67,6 @@ def run_fleet(args) -> int:
 
 def run(args) -> int:
     from quad_bringup.flight import fly
-    from quad_bringup.report import metrics_table
     from quad_common.paths import resolve_config
     from quad_trajectory.fleet import is_fleet_file
 
@@ -79,6 +78,8 @@ def run(args) -> int:
         return run_fleet(args)
     result = fly(options_from(args), log=lambda line: print(line, flush=True), defer_figures=True)
     if result.metrics is not None:
+        from quad_bringup.report import metrics_table
+
         print(metrics_table(result.metrics))
         for note in result.notes:
             print(note)
