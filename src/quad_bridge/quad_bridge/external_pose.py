@@ -1,10 +1,7 @@
 """An external pose (motion capture, vision) on its way to the autopilot's estimator: frame, time, rate, faults.
 
-Frames (parameter external_pose_frame):
-- enu:  world ENU, body FLU (ROS REP 103, what vrpn_mocap and mocap4r2 publish when set up Z-up).
-- y_up: motion-capture Y-up (world and rigid body: x forward, y up, z = x cross y); ENU = R_x(+90 deg) Y-up,
-  (x, y, z)_Yup -> (x, -z, y)_ENU, and the attitude R_ENU_FLU = R_x R_Yup R_x^T.
-Either is then converted once to NED/FRD by quad_bridge.frames.
+Frames (parameter external_pose_frame): enu or y_up (quad_common.mocap_frames), then converted once to NED/FRD
+by quad_bridge.frames.
 
 Time: the sample's stamp (local ROS time) is mapped into the autopilot's boot time through the bridge's
 ClockMapper (to_remote_us), so the estimator fuses it at the instant it was measured.
@@ -27,28 +24,9 @@ import threading
 import numpy as np
 
 from quad_bridge import frames
-from quad_common import rotations
+from quad_common import mocap_frames, rotations
 
-FRAMES = ('enu', 'y_up')
-_Q_ENU_YUP = np.array([math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])   # +90 deg about x, (x, y, z, w)
-
-
-def check_frame(frame: str) -> str:
-    if frame not in FRAMES:
-        raise ValueError(f'external_pose_frame must be one of {", ".join(FRAMES)}, got {frame!r}')
-    return frame
-
-
-def to_enu(frame: str, position, quaternion, velocity=None):
-    """(world position, attitude body -> world (x,y,z,w), body velocity or None: nav_msgs/Odometry's twist is in
-    its child (body) frame) in `frame` -> world ENU position, attitude FLU -> ENU, body FLU velocity."""
-    position = np.asarray(position, dtype=float)
-    quaternion = rotations.normalize(quaternion)
-    if check_frame(frame) == 'enu':
-        return position, quaternion, None if velocity is None else np.asarray(velocity, dtype=float)
-    rotate = rotations.to_matrix(_Q_ENU_YUP)
-    q = rotations.multiply(rotations.multiply(_Q_ENU_YUP, quaternion), rotations.conjugate(_Q_ENU_YUP))
-    return rotate @ position, q, None if velocity is None else rotate @ np.asarray(velocity, dtype=float)
+FRAMES, check_frame, to_enu = mocap_frames.FRAMES, mocap_frames.check_frame, mocap_frames.to_enu
 
 
 @dataclasses.dataclass(frozen=True)

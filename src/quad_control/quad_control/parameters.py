@@ -3,6 +3,7 @@ quad_control.loop), the gains a set of values means, and the node's section of a
 
 import numpy as np
 
+from quad_common import mocap_frames
 from quad_common.params import Param, parameters_of, params_content
 from quad_control.loop import ENGAGE_DELAY_S, MAX_START_STEP_M, RATE_HZ
 from quad_control.plugins import refusal as controller_refusal
@@ -11,6 +12,7 @@ from quad_control.position import PositionGains
 NODE_NAME = 'position_controller'
 AXES = ('x', 'y', 'z')
 SEED = PositionGains()
+STATE_SOURCES = ('odom', 'external_pose')
 
 SPECS = [
     Param('controller', 'pd', 'position controller: pd (the seed eq. 1-5), pid (plus integral), se3 (geometric), '
@@ -50,6 +52,16 @@ SPECS = [
           'identify); the thrust command is divided by it; 1 = the seed', min=0.5, max=2.0),
     Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '
           'external acceleration (drag, wind) subtracted from a_des; 0 = off (the seed)', min=0.0, max=10.0),
+    Param('state_source', 'odom', 'the state the controller flies from: odom (the vehicle\'s estimate: the simulator, '
+          'the bridge) or external_pose (motion capture on external/pose: velocity by quad_control.pose_state\'s '
+          'alpha-beta filter)', choices=STATE_SOURCES, read_only=True),
+    Param('external_pose_frame', 'enu', 'state_source external_pose: frame of the pose, enu (ENU world, FLU body) '
+          '| y_up (motion-capture Y-up, quad_common.mocap_frames)', choices=mocap_frames.FRAMES, read_only=True),
+    Param('pose_position_noise_m', 0.001, 'state_source external_pose: the pose\'s position noise, RMS per axis (m)',
+          min=1e-6, max=1.0),
+    Param('pose_acceleration_mps2', 2.0, 'state_source external_pose: the acceleration the vehicle may do '
+          'unannounced (m/s^2): higher follows faster, lower smooths more (the filter\'s tracking index)',
+          min=0.01, max=100.0),
     Param('realtime_priority', 0, 'the tick\'s threads (the executor\'s, Fast DDS\'s) under SCHED_FIFO at this '
           'priority (1..99), the trajectory decoder left ordinary; 0 = off (the ordinary scheduler)', min=0, max=99,
           read_only=True),

@@ -5,6 +5,8 @@ Each tick at node-clock time t samples the latched `trajectory`, runs the contro
 odometry and publishes `cmd/attitude_thrust` and `control/reference`, both stamped t.
 lockstep: the tick waits for the odometry stamped >= t (contract: docs/quad_control.md).
 Failsafe: stale or non-finite odometry -> no setpoint at all, ERROR on `diagnostics`.
+state_source external_pose: `external/pose` (motion capture) takes odometry's place, its velocity from
+quad_control.pose_state's filter; every rule above holds for it (its stamp is the odometry's).
 The tick never waits for a trajectory: its bytes are decoded on a thread of their own (TrajectoryDecoder) and the
 result is swapped in on the executor's thread; odometry stamped more than one period ahead of the node clock is
 refused (a node on another clock, or one that ran ahead, must not become "the newest").
@@ -17,14 +19,16 @@ from collections import deque
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import cdr, contract, diagnostics, lockstep
+from quad_common import cdr, contract, diagnostics, lockstep, mocap_frames
 from quad_common.hot_path import HotPathExecutor
 from quad_common.node_main import run_node
 from quad_common.paths import parameter_file
@@ -34,6 +38,7 @@ from quad_common.vehicle import load_vehicle
 from quad_control.loop import ControlLoop, Tick
 from quad_control.parameters import NODE_NAME, SPECS, gains_from
 from quad_control.plugins import ControllerRefused, make_controller
+from quad_control.pose_state import PoseStateFilter
 from quad_control.position import Limits
 
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -127,7 +132,14 @@ class PositionControllerNode(Node):
         self.cmd_pub = self.create_publisher(Imu, c.SETPOINT, pace(c.SETPOINT))
         self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, c.REFERENCE, pace(c.REFERENCE))
         self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, c.qos(c.DIAGNOSTICS))
-        self.odom_sub = self.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM), raw=True)
+        if self.params['state_source'] == 'external_pose':   # motion capture: the filter makes the state
+            self.pose_filter = PoseStateFilter(self.params['pose_position_noise_m'],
+                                               self.params['pose_acceleration_mps2'], self.params['odom_timeout_s'])
+            self.odom_sub = self.create_subscription(PoseStamped, c.EXTERNAL_POSE, self._on_odom,
+                                                     c.qos(c.EXTERNAL_POSE), raw=True)
+        else:
+            self.pose_filter = None
+            self.odom_sub = self.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM), raw=True)
         self.engaged_sub = self.create_subscription(Bool, c.ENGAGED, self._on_engaged, c.qos(c.ENGAGED)) \
             if self.params['wait_for_engagement'] else None
         self._setpoint_packer = cdr.SetpointPacker()
@@ -186,10 +198,22 @@ class PositionControllerNode(Node):
 
     # --- inputs ---------------------------------------------------------------------------------
 
+    def _state_of(self, raw: bytes):
+        """(stamp ns, State) of a serialized odom (quad_common.cdr: the tick's critical path), or of an external pose
+        through the pose filter (state_source external_pose)."""
+        if self.pose_filter is None:
+            return cdr.odometry_to_state(raw)
+        msg = deserialize_message(raw, PoseStamped)
+        p, q = msg.pose.position, msg.pose.orientation
+        position, quaternion, _ = mocap_frames.to_enu(self.params['external_pose_frame'], (p.x, p.y, p.z),
+                                                      (q.x, q.y, q.z, q.w))
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        return stamp_ns, self.pose_filter.update(stamp_ns, position, quaternion)
+
     def _on_odom(self, raw: bytes):
-        """odom, serialized (quad_common.cdr: the tick's critical path)."""
+        """The state's message (odom, or external/pose with state_source external_pose)."""
         try:
-            stamp_ns, state = cdr.odometry_to_state(raw)
+            stamp_ns, state = self._state_of(raw)
             if not state.is_finite():
                 raise ValueError(f'position {state.position.tolist()}, velocity {state.velocity.tolist()}, '
                                  f'body rates {state.body_rates.tolist()}')

@@ -427,3 +427,39 @@ def test_diagnostics_report_the_mean_age_of_the_odometry_the_setpoints_flew(grap
     assert float(values['odom_age_ms']) >= 35.0 - 1e-3       # ticks at 0.995 and 1.0 on the odometry of 0.96
     values = {kv.key: kv.value for kv in graph.node_status().values}
     assert values['odom_age_ms'] == 'None'
+
+
+def test_state_source_external_pose_flies_from_motion_capture_with_a_filtered_velocity(graph):
+    """state_source external_pose: the controller takes no odometry; each pose on external/pose (Y-up here, as
+    Motive streams it) is its state, with the velocity quad_control.pose_state's filter makes of the poses."""
+    from geometry_msgs.msg import PoseStamped
+    pose_pub = graph.probe.create_publisher(PoseStamped, 'external/pose', RELIABLE)
+    graph.engaged_pub.publish(Bool(data=True))
+    graph.node = PositionControllerNode(context=graph.ctx, parameter_overrides=[
+        Parameter('use_sim_time', value=True), Parameter('lockstep', value=True),
+        Parameter('state_source', value='external_pose'), Parameter('external_pose_frame', value='y_up')])
+    graph.executor.add_node(graph.node)
+    graph.spin_until(lambda: pose_pub.get_subscription_count() > 0 and graph.clock_pub.get_subscription_count() > 0
+                     and len(graph.probe.get_publishers_info_by_topic('/cmd/attitude_thrust')) > 0
+                     and graph.node.loop.engaged, 'discovery')
+    assert graph.odom_pub.get_subscription_count() == 0      # odometry is not its state
+    graph.traj_pub.publish(_hover_trajectory(1.0))
+    graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
+    for k in range(50):   # ENU x = 0.5 t at 1 m height: Y-up (x, y, z) = (x_enu, z_enu, -y_enu)
+        t_s = 1.0 + 0.01 * k
+        msg = PoseStamped()
+        msg.header.stamp = conv.s_to_stamp(t_s)
+        msg.pose.position.x, msg.pose.position.y = 0.5 * t_s, 1.0
+        msg.pose.orientation.w = 1.0
+        pose_pub.publish(msg)
+        graph.publish_clock(t_s)
+        graph.spin_until(lambda t_s=t_s: graph.setpoints_at(t_s), f'setpoint at {t_s:.2f}')
+    stamp_ns, state = graph.node.loop.odom
+    assert stamp_ns == 1_490_000_000
+    assert np.allclose(state.position, [0.745, 0.0, 1.0], atol=1e-9)
+    assert np.allclose(state.velocity, [0.5, 0.0, 0.0], atol=0.01)   # from poses alone
+    # pd (eq. 1): ahead of the plan and moving away from it, the commanded acceleration points back: pitch < 0
+    [sp] = graph.setpoints_at(1.49)
+    tilt_x = 2.0 * (sp.orientation.w * sp.orientation.y + sp.orientation.x * sp.orientation.z)
+    assert tilt_x < 0.0
+    assert graph.node.counts['nonfinite_odom'] == 0
