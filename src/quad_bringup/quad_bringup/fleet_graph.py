@@ -137,10 +137,11 @@ def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted:
 
 def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True,
               rule: Completion | None = None, log=print, timeout_s: float = 600.0, reports: bool = False,
-              figures: bool = False) -> tuple[FleetRun, GraphTiming]:
+              figures: bool = False, defer_figures: bool = False) -> tuple[FleetRun, GraphTiming]:
     """Flies a planned (separation-checked) fleet through the ROS graph; returns its FleetRun (metrics per
     vehicle from the bag, the flown separation and collisions) and the timing. reports: each vehicle's report
-    (metrics.json, report.md, with figures/ if figures) under out_dir/vehicles/NAME. Raises RuntimeError naming
+    (metrics.json, report.md, with figures/ if figures; defer_figures: drawn by the run's finish(), so the caller
+    gives the verdict first) under out_dir/vehicles/NAME. Raises RuntimeError naming
     the process when one exits before the simulator has finished, or timeout_s (wall) passes."""
     run = prepare(plan, out_dir, speed_mps=speed_mps, hosted=hosted)
     timing = GraphTiming()
@@ -157,7 +158,7 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
             timing.processes = run.stop(log=log)
             timing.total_s = time.monotonic() - start
     reports_dir = run.out_dir / 'vehicles' if reports else None
-    return fleet_run(run.bag, plan, rule, reports_dir, figures), timing
+    return fleet_run(run.bag, plan, rule, reports_dir, figures, defer_figures), timing
 
 
 def cpu_s(pid: int) -> float:
@@ -181,7 +182,7 @@ def _stepping_s(log_path: Path, fallback_s: float) -> float:
 
 
 def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_dir=None,
-              figures: bool = False) -> FleetRun:
+              figures: bool = False, defer_figures: bool = False) -> FleetRun:
     """Each vehicle's metrics from the fleet's bag by `rule` (None: each vehicle's own completion rule, as fly
     scores), and its report under reports_dir/NAME when given; the flown
     separation and collisions on a common time base (the first vehicle's odometry stamps: in lockstep every
@@ -198,9 +199,15 @@ def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_
             extra = {'mission': f'{plan.fleet.name}/{name}', 'controller': controllers[name]}
             metrics[name] = write_report(bag_dir, Path(reports_dir) / name, extra, rules[name], figures=False,
                                          flight=flight)
+    finish = None
     if reports_dir is not None and figures:
-        draw_reports_figures({Path(reports_dir) / name: flights[name] for name in names},
-                             {Path(reports_dir) / name: metrics[name] for name in names})
+        jobs = ({Path(reports_dir) / name: flights[name] for name in names},
+                {Path(reports_dir) / name: metrics[name] for name in names})
+        if defer_figures:
+            def finish():
+                draw_reports_figures(*jobs)
+        else:
+            draw_reports_figures(*jobs)
     t = flights[names[0]].odom_t
     positions = {n: np.column_stack([np.interp(t, f.odom_t, f.position[:, a]) for a in range(3)])
                  for n, f in flights.items()}
@@ -209,7 +216,7 @@ def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_
     for name, m in metrics.items():
         m['collided'] = bool(m['collided']) or any(name in (a, b) for _, a, b, _ in collisions)
         m['vehicle_collisions'] = sum(name in (a, b) for _, a, b, _ in collisions)
-    return FleetRun(names, metrics, [], collisions, t, separation, plan, {}, positions, controllers)
+    return FleetRun(names, metrics, [], collisions, t, separation, plan, {}, positions, controllers, finish)
 
 
 def _draw_report_figures(job) -> list[str]:

@@ -14,6 +14,7 @@ flight goes on, as with obstacles, and the vehicle's metrics say it collided.
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,7 @@ class FleetRun:
     wall_s: dict = field(default_factory=dict)   # control, physics, collision, total
     positions: dict = field(default_factory=dict)   # name -> (ticks, 3) flown positions at t_s
     controllers: dict = field(default_factory=dict)  # name -> the controller it flew (pd, pid, se3)
+    finish: Callable | None = None         # draws the vehicles' report figures when they were deferred (fleet_graph)
 
     @property
     def sim_s(self) -> float:

@@ -118,7 +118,7 @@ def run(args) -> int:
                 raise ValueError('--disturbances is offline only (sim_node takes its profile from sim.yaml)')
             args.out = args.out or default_out_dir(fleet.name)
             result, timing = fly_graph(plan, args.out, speed_mps=args.speed, hosted=not args.process_per_node,
-                                       reports=True, figures=not args.no_figures)
+                                       reports=True, figures=not args.no_figures, defer_figures=True)
             result.wall_s['total'] = timing.flight_s
             result.wall_s['command'] = timing.total_s
         else:
@@ -131,7 +131,8 @@ def run(args) -> int:
     except ValueError as exc:
         print(f'quadflight fleet: {exc}', file=sys.stderr)
         return EXIT_REFUSED
-    print('\n'.join(verdict_lines(result)))
+    print('\n'.join(verdict_lines(result)), flush=True)
+    drawing = _start(result.finish)   # the vehicles' figures on the pool while this process draws fleet.png
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         d, t = result.closest()
@@ -142,6 +143,34 @@ def run(args) -> int:
                    'wall_s': result.wall_s, 'simulated_s': result.sim_s}
         (args.out / 'fleet.json').write_text(json.dumps(content, indent=1, default=float))
         write_figure(result, args.out / 'fleet.png')
-        print(f'wrote {args.out / "fleet.json"}, {args.out / "fleet.png"}')
+        print(f'wrote {args.out / "fleet.json"}, {args.out / "fleet.png"}', flush=True)
+    if (problem := drawing()) is not None:
+        print(f'quadflight fleet: {problem}', file=sys.stderr)
+        return EXIT_FAILED
+    if result.finish is not None:
+        print(f'wrote each vehicle\'s report and figures under {args.out / "vehicles"}')
     ok = all(m['completed'] and not m['collided'] for m in result.metrics.values())
     return EXIT_COMPLETED if ok else EXIT_FAILED
+
+
+def _start(draw):
+    """draw() on a thread of its own (it waits on a process pool); returns a join -> its error's text or None."""
+    if draw is None:
+        return lambda: None
+    import threading
+
+    error = []
+
+    def target():
+        try:
+            draw()
+        except Exception as exc:   # RuntimeError: a report whose figures failed (fleet_graph.draw_reports_figures)
+            error.append(str(exc) or repr(exc))
+
+    thread = threading.Thread(target=target, name='vehicle-figures')
+    thread.start()
+
+    def join():
+        thread.join()
+        return error[0] if error else None
+    return join
