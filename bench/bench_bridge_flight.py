@@ -36,6 +36,7 @@ from quad_common.vehicle import load_vehicle  # noqa: E402
 from quad_common.yaml_io import load_yaml  # noqa: E402
 from quad_control.loop import ControlLoop  # noqa: E402
 from quad_control.parameters import gains_from, profile_parameters  # noqa: E402
+from quad_control.pose_state import PoseStateFilter  # noqa: E402
 from quad_control.position import Limits, PositionController  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
 from quad_trajectory import planner  # noqa: E402
@@ -119,7 +120,8 @@ def score(stamps_s, positions, traj) -> float:
     return float(np.sqrt(np.mean(np.sum((positions[scored] - ref) ** 2, axis=1))))
 
 
-def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_early_s=None) -> float:
+def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_early_s=None,
+                      mocap=None, truth=False) -> float:
     """The PX4 SIH-like emulated chain without processes, MAVLink or a loaded machine: the emulator's own pieces
     (its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the estimate, the telemetry
     delay line at 20 ms and 50 Hz) under position_controller's ControlLoop at 100 Hz, the square planned as
@@ -131,7 +133,11 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
     seconds early (0..ODOM_EARLY_MAX_S; the bridge's clock fallback on PX4 SIH in issue 28: 0.07-0.15 s). Either
     stamp reaches the controller as position_controller's odometry stamp (the loop runs as the node does under the
     bridge, lockstep false: a tick controls from the newest odometry, whatever its stamp) and the scoring (score:
-    the plan at the stamp, as `quadflight report` does)."""
+    the plan at the stamp, as `quadflight report` does).
+    mocap: None, or (noise_m, latency_s, rate_hz): the controller flies from motion capture (position_controller's
+    state_source external_pose: the truth's position + Gaussian noise, delivered latency_s late at rate_hz, through
+    quad_control.pose_state's filter with the profile's pose parameters) instead of the odometry.
+    truth: score the truth (where the vehicle is, every 10 ms) against the plan, not the estimate."""
     early_s = None if odom_early_s is None else odom_early_s_checked(odom_early_s)
     values = _profile_values(profile)
     vehicle = load_vehicle(VEHICLE_FILE)
@@ -155,7 +161,13 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
                         float(option.get('--estimator-velocity-wander-tau-s', 3.0)))
     rp_rates_fed = option.get('--rp-rates-with-attitude', 'fed') == 'fed'   # PX4: mavlink_receiver drops them
     telemetry, velocities = DelayLine(0.02), DelayLine(velocity_lag_s)
-    seen, samples = None, []
+    seen, samples, truth_samples = None, [], []
+    if mocap is not None:
+        mocap_noise_m, mocap_latency_s, mocap_rate_hz = mocap
+        frames, rng = DelayLine(mocap_latency_s), np.random.default_rng(seed + 1000)
+        pose_filter = PoseStateFilter(values.get('pose_position_noise_m', 0.001),
+                                      values.get('pose_acceleration_mps2', 2.0), 0.2)
+        frame_every = max(1, round(100.0 / mocap_rate_hz))
     end_s = OFFLINE_HOVER_S + traj.duration_s + 3.0
     for k in range(int(end_s * 100) + 1):
         t_s = 0.01 * k
@@ -166,7 +178,15 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
             est = State(position=est.position, velocity=old[1] if old else est.velocity,
                         quaternion=est.quaternion, body_rates=est.body_rates)
         telemetry.push(t_s, est)
-        if k % 2 == 0 and telemetry.read(t_s) is not None:    # odometry at 50 Hz
+        if mocap is not None:
+            if k % frame_every == 0:
+                frames.push(t_s, (sim.state.position + rng.normal(0.0, mocap_noise_m, 3), sim.state.quaternion))
+            frame = frames.read(t_s)
+            if frame is not None and (seen is None or frame[0] > samples[-1][0]):
+                seen = pose_filter.update(round(frame[0] * 1e9), *frame[1])
+                loop.set_odometry(round(frame[0] * 1e9), seen)
+                samples.append((frame[0], seen.position.copy()))
+        elif k % 2 == 0 and telemetry.read(t_s) is not None:    # odometry at 50 Hz
             measured_s, seen = telemetry.read(t_s)
             stamp_s = t_s if early_s is None else measured_s - early_s
             loop.set_odometry(round(stamp_s * 1e9), seen)
@@ -181,7 +201,9 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
         q, w = shaper.step(sp.quaternion, 0.01, rates)
         sim.set_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=sp.specific_force_mps2, body_rates=w))
         sim.advance_steps(sim.steps_in(0.01))
-    return score([t for t, _ in samples], [p for _, p in samples], traj)
+        truth_samples.append((t_s, sim.state.position.copy()))   # where the vehicle is at t_s + 0.01
+    scored = [(t + 0.01, p) for t, p in truth_samples] if truth else samples
+    return score([t for t, _ in scored], [p for _, p in scored], traj)
 
 
 def offline_rows() -> list[tuple]:
