@@ -2,7 +2,7 @@
 arriving at a UDP listener on loopback (the kernel's receive time), p50/p99, at 50/100/250/500/1000 Hz published;
 the bridge's CPU per rate, setpoints that never reached the wire, and the longest gap between odometry
 messages meanwhile (the telemetry path must not pause). Beside it in the same run the floor: bench/bridge_echo.py,
-a minimal rclpy + pymavlink echo of the same message. Issue 17 goals: p99 < 2 ms, CPU < 5 % at 50 Hz, >= 500 Hz
+a minimal rclpy + pymavlink echo of the same message. Goals: p99 < 2 ms, CPU < 5 % at 50 Hz, >= 500 Hz
 sustained, none lost."""
 
 import bisect

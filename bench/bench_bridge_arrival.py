@@ -1,11 +1,11 @@
-"""The failure issue 13 saw on ArduCopter, measured: a vehicle hovering in GUIDED_NOGPS through mavlink_bridge and
+"""A failure once seen on ArduCopter, measured: a vehicle hovering in GUIDED_NOGPS through mavlink_bridge and
 position_controller (its defaults: 0.2 s odometry timeout; the bridge's stale-setpoint timeout) while
 trajectory_node plans and publishes a 10,000-point trajectory. The longest gap between `odom` messages (their
 arrival at a probe node) and between the controller's ticks (the stamps of `cmd/attitude_thrust`), from
 trajectory_node's start until 2 s after the controller has the plan, against the same in the 3 s before; and
 whether the hand-over survived (stale odometry / stale setpoints in the logs from the 3 s before on, the mode
 at the end). On a quiet machine and beside two busy-looping processes (the busy 2-core machine), for today's
-code and, in the same run, for the code before issue 13 (commit BASELINE, checked out from git into a temporary
+code and, in the same run, for the code before its fix (commit BASELINE, checked out from git into a temporary
 folder) on the same emulated vehicle."""
 
 import json
@@ -136,7 +136,7 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         old = baseline_src(Path(tmp))
         for busy in (0, 2):
-            for label, src in ((f'before issue 13 ({BASELINE})', old), ('today', None)):
+            for label, src in ((f'before the fix ({BASELINE})', old), ('today', None)):
                 r = run_once(src, busy)
                 print(f'{label} busy={busy}: {r}', file=sys.stderr)
                 rows.append((label, busy, r))

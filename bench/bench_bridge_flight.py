@@ -3,7 +3,7 @@ autopilot attitude response; telemetry 20 ms PX4 / 50 ms and bursts ArduPilot), 
 controller's own default timeouts, recorded and scored by `quadflight report --vehicle px4_quad.yaml`: the seed's
 pd (config/control.yaml) and the real-vehicle profile (config/control_real.yaml). Beside it, the reference: the
 same square flown on the autopilots' own software-in-the-loop builds (ArduCopter 4.6.0-dev SITL, PX4 v1.16.0
-SIH), as measured when the bridge was flown on them (docs/bridge.md; PX4 SIH's rows from issue 28, over 23 runs).
+SIH), as measured when the bridge was flown on them (docs/bridge.md; PX4 SIH's rows over 23 runs).
 The emulated PX4 also as PX4 SIH showed itself (`PX4 SIH-like`, two seeds of its estimate's wander each): its
 0.23 s attitude lag, SIH's linear air drag (SIH_KDV / SIH_MASS: 1.0 m/s^2 per m/s), an estimated position 0.15 s
 behind the truth wandering 0.6 m RMS horizontally and 0.8 m in height (60 s correlation, smoothed as EKF2's output
@@ -49,7 +49,7 @@ SQUARE = [(0.0, 0.0, 2.0), (3.0, 0.0, 2.0), (3.0, 3.0, 2.0), (0.0, 3.0, 2.0), (0
 SPEED_MPS = 0.8
 PROFILES = {'seed pd (control.yaml)': None, 'control_real.yaml (pid)': REAL_PROFILE}
 SE3_PROFILE = 'config/control_se3.yaml'
-# PX4 v1.16 SIH as issue 28 measured it: attitude lag 0.23 s (tau = 0.23 - 1 / 6.5, quad_vehicle_emu.attitude);
+# PX4 v1.16 SIH as measured on it: attitude lag 0.23 s (tau = 0.23 - 1 / 6.5, quad_vehicle_emu.attitude);
 # the estimate 0.4-0.8 m RMS off the truth (height 0.3-1.3 m), wandering 0.5 m a minute, 0.15 s behind; its clock
 # at 0.984-0.993 of wall time; and SIH's own airframe: SIH_KDV 1.0 N/(m/s) on SIH_MASS 1.0 kg (sih_params.yaml)
 # Beside them, from PX4's source (docs/emulator.md "PX4 SIH's attitude chain and velocity noise"): SIH's airframe
@@ -73,7 +73,7 @@ PX4_SIH_FITTED = ('--attitude-tau-s', '0.05', '--attitude-dead-time-s', '0.07', 
 SIH_SEEDS = (1, 2)
 SIH_PROFILES = {**PROFILES, 'control_se3.yaml (se3)': SE3_PROFILE}
 PX4_SIH_RMSE_M = {'seed pd (control.yaml)': (0.34, 0.55), 'control_real.yaml (pid)': (0.43, 0.53),
-                  'control_se3.yaml (se3)': (0.26, 0.27)}   # issue 28, PX4 v1.16.0 SIH
+                  'control_se3.yaml (se3)': (0.26, 0.27)}   # PX4 v1.16.0 SIH
 WITHIN = 0.30   # the goal: every SIH-like RMSE within 30 % of PX4 SIH's range
 REFERENCE = [
     ('ArduCopter 4.6.0-dev SITL', 'seed pd, pid, se3', '', '0.058-0.069', '', '', ''),
@@ -130,7 +130,7 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
     options: the emulator's flags it stands for (PX4_SIH_LIKE, or PX4_SIH_BEFORE).
     odom_early_s: None scores each odometry at its arrival (20 ms after it was measured; the rows in
     docs/emulator.md); a number stamps it as the bridge does, when it was measured on the vehicle's clock, that many
-    seconds early (0..ODOM_EARLY_MAX_S; the bridge's clock fallback on PX4 SIH in issue 28: 0.07-0.15 s). Either
+    seconds early (0..ODOM_EARLY_MAX_S; the bridge's clock fallback on PX4 SIH: 0.07-0.15 s). Either
     stamp reaches the controller as position_controller's odometry stamp (the loop runs as the node does under the
     bridge, lockstep false: a tick controls from the newest odometry, whatever its stamp) and the scoring (score:
     the plan at the stamp, as `quadflight report` does).

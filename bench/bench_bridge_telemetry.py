@@ -1,6 +1,7 @@
-"""mavlink_bridge against an autopilot's real telemetry (issue 26): the setpoint path's publish-to-wire latency
+"""mavlink_bridge against an autopilot's real telemetry: the setpoint path's publish-to-wire latency
 and the bridge's CPU while the vehicle streams what a real one streams. Setpoints at 50 Hz for RUN_S, today's
-code and, in the same run, the code before issue 26 (BASELINE, from git), alternating, REPEATS runs each (the
+code and, in the same run, the code before the receive-path change (BASELINE, from git), alternating, REPEATS
+runs each (the
 medians; lost summed), with no busy loops of ours and beside BUSY busy-looping processes. The vehicle doubles
 speak MAVLink 2 (pymavlink's dialect encoders) over UDP:
 

@@ -28,7 +28,7 @@ from quad_control.position import CONTROLLERS, PositionController, PositionGains
 
 RATES_HZ = (100.0, 250.0, 500.0)
 MEASURE_S = 4.0
-ARRIVAL_POINTS = 10_000   # a trajectory this long arrives while the node ticks (issue 13.4)
+ARRIVAL_POINTS = 10_000   # a trajectory this long arrives while the node ticks (a large plan must not stall the tick)
 ARRIVAL_WINDOW_S = 3.0
 
 

@@ -125,7 +125,7 @@ def main():
     print('\nThe controllers (Python, ~100 us per vehicle per tick) cost the most. The compiled physics costs a few '
           'tens of us per vehicle per tick; the numpy core costs milliseconds per tick at any size (~40 array '
           'operations per RK4 stage, 40 stages per tick), more than the whole Simulator loop up to 64 vehicles, so '
-          'fly_fleet loops over Simulators. Crazyswarm2\'s simulation (IMRCLab/crazyswarm2 issue 890): '
+          'fly_fleet loops over Simulators. Crazyswarm2\'s simulation (its own measurement, its machine): '
           '0.70x real time with 1 drone, 0.15x with 5, 0.05x with 16 (its machine, through ROS; this is not).')
 
 

@@ -31,7 +31,7 @@ NOTE = ('\n' +
 SIZES = (1, 4, 16, 64)
 PER_NODE_SIZES = (1, 4)      # one process per node (as launch_ros starts them) beside one process for the nodes
 REPEATS = {1: 5, 4: 7, 16: 3, 64: 1}   # runs per row (the spread from run to run is wide on a shared machine)
-CRAZYSWARM2 = {1: '0.70x', 4: '0.15x (5 drones)', 16: '0.05x', 64: ''}   # IMRCLab/crazyswarm2 issue 890
+CRAZYSWARM2 = {1: '0.70x', 4: '0.15x (5 drones)', 16: '0.05x', 64: ''}   # Crazyswarm2's own measurement (its machine)
 GOAL = {4: 5.0, 16: 1.0}
 
 
@@ -72,7 +72,7 @@ def main():
           'last (the real-time factor: simulated / stepping); the command = what the user waits for (processes '
           'started, planned, flown, stopped, the bag read and scored). Runs per row: the median and the range. '
           'Beside them the same fleet offline (fleet_loop, no ROS) and Crazyswarm2\'s simulation through ROS with '
-          '/clock (IMRCLab/crazyswarm2 issue 890, its machine). Goal: >= 5x at 4 vehicles and >= 1x at 16.\n')
+          '/clock (its own measurement, its machine). Goal: >= 5x at 4 vehicles and >= 1x at 16.\n')
     print('| vehicles | nodes | runs | simulated (s) | real-time factor (median) | range | command wall (s) | '
           'command real-time factor | completed (worst run) | worst rmse (cm) | offline (fleet_loop) | Crazyswarm2 |')
     print('|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|')

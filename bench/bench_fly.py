@@ -1,4 +1,4 @@
-"""The whole `quadflight fly` command (issue 17): wall time a user waits, against a baseline tree in the same run.
+"""The whole `quadflight fly` command: wall time a user waits, against a baseline tree in the same run.
 
 Flies config/missions/maze.yaml at 0.5 m/s (16.7 s simulated) with the command line as a user types it, new and
 baseline interleaved (a busy machine slows both alike), after one untimed run of each (numba caches, page

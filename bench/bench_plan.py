@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-BASELINE = os.environ.get('PLAN_BASELINE', 'f5909f4')   # main before the plan-speed change (issue 17)
+BASELINE = os.environ.get('PLAN_BASELINE', 'f5909f4')   # main before the plan-speed change
 RUNS = int(os.environ.get('PLAN_RUNS', '5'))
 SIZES = (10, 10001)
 BIG = 100001

@@ -6,7 +6,7 @@ recorded by the recorder (`quadflight record`'s node), `offboard`, trajectory_no
 --vehicle px4_quad.yaml --model-out MODEL` and `quadflight replay BAG --vehicle MODEL --control-profile
 control_real.yaml`. The emulator's truth (docs/emulator.md, quad_vehicle_emu.attitude and mavlink_vehicle): roll/pitch
 lag = the quaternion loop's 1 / angle P + the shaping tau, thrust scale 1 (its hover throttle is the bridge's),
-telemetry latency per autopilot (ArduPilot: plus the wait for its next burst, up to 40 ms apart). Goal (issue 23):
+telemetry latency per autopilot (ArduPilot: plus the wait for its next burst, up to 40 ms apart). Goal:
 the twin's RMSE within 20 % of the flight's; its trace |twin - flight| under 35 % of the flight's RMSE (TRACE_GOAL)."""
 
 import subprocess
@@ -132,7 +132,7 @@ def main():
                 continue
             print(f'{flavour}: {numbers}, fresh {fresh}', file=sys.stderr)
             rows.append((flavour, checked, numbers, fresh, truth(flavour)))
-    print('## Twin of emulated autopilot flights: identify + replay (issue 23)\n')
+    print('## Twin of emulated autopilot flights: identify + replay\n')
     print(__doc__.replace('\n', ' ').strip() + '\n')
     print('| autopilot | roll / pitch lag: true, identified (95 %) (s) | thrust scale: true, identified '
           '| telemetry latency: true; as the margin check takes it (the bag\'s record - stamp, at least 50 ms) '

@@ -1,5 +1,5 @@
-"""bench_bridge_flight's offline chain: the odometry stamps' bias (fly_chain_offline odom_early_s, issue 28: the
-bridge's old clock fallback stamped PX4 SIH's odometry 70-150 ms early). The bias must be range-checked, reach the
+"""bench_bridge_flight's offline chain: the odometry stamps' bias (fly_chain_offline odom_early_s: a
+clock fallback of the bridge once stamped PX4 SIH's odometry 70-150 ms early). The bias must be range-checked, reach the
 stamps position_controller's loop is given and the stamps the scoring uses, and leave the flight itself alone (under
 the bridge the loop controls from the newest odometry at the node's time, whatever its stamp: docs/emulator.md)."""
 

@@ -121,7 +121,7 @@ def test_a_second_vehicle_on_the_link_is_refused_and_reported(tmp_path):
 
 
 def test_quadflight_arm_offboard_land_call_the_bridge_without_the_ros2_cli(tmp_path):
-    """The README's walk-through on a machine without ROS: `quadflight arm|offboard|land` (issue 27, friction)."""
+    """The README's walk-through on a machine without ROS: `quadflight arm|offboard|land` (no ros2 CLI needed)."""
     import subprocess
     from pathlib import Path
 

@@ -302,7 +302,7 @@ RECEIVE_STALL_S = 2.6   # longer than link_timeout_s (2.0): the receive thread h
 
 
 def test_a_stalled_receive_thread_keeps_a_live_link_and_the_hand_over(graph):
-    """Issue 28.4, a busy companion computer: with the emulated PX4 hovering in offboard, the bridge's receive
+    """A busy companion computer: with the emulated PX4 hovering in offboard, the bridge's receive
     thread is held for RECEIVE_STALL_S (a handler that took that long; its messages wait in the socket). The
     link was declared lost after link_timeout_s by the supervisor's clock, ending the hand-over (PX4 SIH under
     load: AUTO.LAND mid-flight); the vehicle never went silent, so the link stays up, nothing is lost, the

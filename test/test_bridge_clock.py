@@ -1,5 +1,5 @@
 """The bridge's clock against the emulator (quad_vehicle_emu.mavlink_vehicle, a process of its own speaking MAVLink):
-issue 28.1, the receive thread feeding the clock while the services and diagnostics read it (no data race)."""
+the receive thread feeding the clock while the services and diagnostics read it (no data race)."""
 
 import threading
 
@@ -72,7 +72,7 @@ def test_offboard_and_diagnostics_while_telemetry_feeds_the_arrival_filter(graph
     assert clock == 'arrival minimum filter'
 
 
-# issue 28.3: PX4 SIH's clock ran at 0.984-0.993 of wall time; the emulator's runs at this rate of ours
+# PX4 SIH's clock ran at 0.984-0.993 of wall time; the emulator's runs at this rate of ours
 CLOCK_RATE = 0.985
 DRIFT_PPM = 1e6 * (1 / CLOCK_RATE - 1)   # what the bridge should find: +15228 ppm
 FLY_S = 16.0         # past the clock's 10 s window: a constant offset over it is 0.15 s wrong at its far end

@@ -1,4 +1,4 @@
-"""A fleet of emulated vehicles through launch/fleet.launch.py's graph (issue 25, real vehicles): PX4 system 1,
+"""A fleet of emulated vehicles through launch/fleet.launch.py's graph (real vehicles): PX4 system 1,
 ArduPilot system 2 and PX4 system 3, each with its trajectory_node, position_controller and mavlink_bridge under its
 namespace, started as launch_ros starts them (the installed console scripts, --ros-args). All three share one
 MAVLink link: a hub on loopback gives every vehicle's datagrams to every bridge and every bridge's to every

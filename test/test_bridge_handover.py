@@ -1,5 +1,5 @@
 """The hand-over over real UDP, seen on the wire by a tap between the bridge and the emulated autopilot
-(issue 13 points 1, 2, 8, 9): nothing reaches the vehicle before `offboard`; PX4's pre-stream; a pilot's mode
+nothing reaches the vehicle before `offboard`; PX4's pre-stream; a pilot's mode
 change, `land` and a disarm end the hand-over and re-arming never resumes it; a vehicle left flying our last
 setpoint in ArduPilot GUIDED gets the stale action; the clamp keeps the vertical acceleration; odometry keeps
 the autopilot's time through a bursty link."""

@@ -74,7 +74,7 @@ def test_bad_start_up_parameters_exit_2_naming_the_field(ros_env, param, value):
 
 def test_signed_link(graph, tmp_path):
     """A vehicle that accepts only signed messages obeys a bridge with its key; a bridge without a key or with
-    another key says it is signing (issue 27.3: they said "parameters not read" / "no vehicle heartbeat yet")."""
+    another key says it is signing (they once said "parameters not read" / "no vehicle heartbeat yet")."""
     procs, observer = graph
     key, wrong = tmp_path / 'signing.key', tmp_path / 'wrong.key'
     key.write_text('a5' * 32)

@@ -1,7 +1,7 @@
-"""What the bridge reads from the vehicle before it hands over, and which telemetry it uses (issue 13 points 5, 6,
-7), against the emulator of the autopilots' behaviour over real UDP: contradicting parameters refuse `offboard`
-with the parameter's name; ArduPilot's IMU comes from SCALED_IMU (it has no HIGHRES_IMU); one odometry source
-although PX4 sends LOCAL_POSITION_NED and ODOMETRY; PX4's pre-arm verdict from the health bit alone."""
+"""What the bridge reads from the vehicle before it hands over, and which telemetry it uses, against the emulator of the
+autopilots' behaviour over real UDP: contradicting parameters refuse `offboard` with the parameter's name;
+ArduPilot's IMU comes from SCALED_IMU (it has no HIGHRES_IMU); one odometry source although PX4 sends
+LOCAL_POSITION_NED and ODOMETRY; PX4's pre-arm verdict from the health bit alone."""
 
 import threading
 
@@ -97,8 +97,8 @@ def test_px4_one_odometry_source_and_its_prearm_verdict(graph):
 
 def test_hover_thrust_changed_on_the_vehicle_after_connect_is_read_again_at_offboard(graph):
     """Agreeing at connect (0.5 both), then a ground station sets MPC_THR_HOVER 0.4 on the vehicle: `offboard`
-    reads the parameters again and refuses naming the vehicle's new value (before issue 28 it flew on connect's
-    check, 20 % of thrust off)."""
+    reads the parameters again and refuses naming the vehicle's new value (flying on connect's
+    check would be 20 % of thrust off)."""
     procs, observer, start = graph
     tap = start('px4', hover_throttle=0.5)
     observer.wait_for(lambda: observer.link()[1].get('vehicle_params', '').startswith('COM_OF_LOSS_T'),

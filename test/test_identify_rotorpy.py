@@ -41,7 +41,7 @@ def test_the_profile_identify_accepts_settles_on_rotorpy_at_the_margin(flown):
     tmp, bag = flown
     out = tmp / 'se3_identified.yaml'
     done = identify_cli(bag, '--base', SE3, '--vehicle', CRAZYFLIE, '--out', out)
-    assert done.returncode == 0, done.stderr            # before issue 23: refused, 28 deg rms behind 0.1 s latency
+    assert done.returncode == 0, done.stderr            # a 0.1 s latency guess refused it (28 deg rms)
     assert 'telemetry latency 0.000 s, 100 Hz, bursts up to 0.000 s' in done.stdout   # the bag's, not ArduCopter's
     written = yaml.safe_load(out.read_text())['position_controller']['ros__parameters']
     assert written['attitude_lead_s'] == pytest.approx(bench_transfer.ROTORPY_LAG_S, rel=0.05)

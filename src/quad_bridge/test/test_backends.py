@@ -49,7 +49,7 @@ def test_unknown_mode_names_are_refused_by_name():
 
 def test_which_modes_obey_attitude_targets():
     assert PX4.obeys_setpoints('OFFBOARD') and not PX4.obeys_setpoints('AUTO.LOITER')
-    assert APM.obeys_setpoints('GUIDED') and APM.obeys_setpoints('GUIDED_NOGPS')   # issue 13 point 1
+    assert APM.obeys_setpoints('GUIDED') and APM.obeys_setpoints('GUIDED_NOGPS')   # GUIDED_NOGPS is a guided mode
     assert not APM.obeys_setpoints('LOITER') and not APM.obeys_setpoints('LAND')
     assert PX4.prestream and not APM.prestream
     assert PX4.hold_mode('hold') == 'AUTO.LOITER' and PX4.hold_mode('land') == 'AUTO.LAND'

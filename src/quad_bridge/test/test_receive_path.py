@@ -112,8 +112,8 @@ STALL_S = 0.05   # the receive thread held this long: a busy machine's wait for 
 
 def test_a_message_is_handled_with_when_its_datagram_arrived_not_when_the_thread_got_to_it():
     """The receive thread is held in the first message's handler while the second datagram arrives: the second is
-    handled STALL_S later, with the kernel's receive time of its datagram (issue 26: a starved thread's reading
-    time made the vehicle's messages look late to the clock filter and TIMESYNC)."""
+    handled STALL_S later, with the kernel's receive time of its datagram (a starved thread's reading
+    time would make the vehicle's messages look late to the clock filter and TIMESYNC)."""
     port = _free_port()
     release, first_in, second_in, seen = threading.Event(), threading.Event(), threading.Event(), []
 

@@ -114,8 +114,8 @@ def _stream(streamer, clock, arrivals_s, until_s):
 
 def test_a_controller_at_the_keep_alive_rate_puts_each_setpoint_on_the_wire_once():
     """A 50 Hz controller whose setpoints arrive up to 0.4 of a period late (a busy machine's jitter) against the
-    50 Hz keep-alive: no re-sends in between, one send and one wake-up per setpoint (issue 26: a keep-alive due
-    after one period re-sent just before the next setpoint, doubling datagrams and wake-ups)."""
+    50 Hz keep-alive: no re-sends in between, one send and one wake-up per setpoint (a keep-alive due
+    after one period would re-send just before the next setpoint, doubling datagrams and wake-ups)."""
     rng = np.random.default_rng(7)
     clock, sent = FakeClock(), []
     s = SetpointStreamer(sent.append, lambda: True, 50.0, 0.5, lambda *a: None, clock=clock)
@@ -324,7 +324,7 @@ def test_a_persistent_disagreement_still_switches_and_a_gross_one_at_once():
 
 
 def test_the_clock_line_on_python_numbers_is_numpys_least_squares():
-    """clock._line (Python numbers since issue 26) against numpy's least squares on the same points: offset,
+    """clock._line (on Python numbers) against numpy's least squares on the same points: offset,
     drift, residuals and standard error; too few points or too short a span give drift 0 as before."""
 
     from quad_bridge import clock as clk

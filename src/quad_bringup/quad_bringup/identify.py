@@ -50,7 +50,7 @@ MIN_BLOCK_EXCITATION_RAD = np.deg2rad(0.75)   # ... and each part of the interva
 #   0.28 s where the rest fit 0.17-0.19 s, widening the interval to 0.10-0.27 s and refusing a right 0.186 s)
 WINDOW_S = 0.5               # thrust-scale windows
 MIN_SPAN_S = 3.0
-# Quality gates (quality_refusal). On the issue-28 bags: the OFFBOARD window fitted R^2 0.99, the landing phase
+# Quality gates (quality_refusal). On the PX4 SIH bags: the OFFBOARD window fitted R^2 0.99, the landing phase
 # 0.11-0.32 with a thrust scale of 0.55-0.78 (+-15 %); the plant family's flights fit R^2 > 0.95 and +-1 %.
 MIN_FIT_R2 = 0.8
 MAX_LAG_CI_REL = 0.5         # width of the lag's 95 % interval / the lag

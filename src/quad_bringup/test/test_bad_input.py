@@ -1,5 +1,5 @@
 """Bad input refused before anything starts, in one line naming the field and the value, exit 2, nothing left
-behind and no input modified (issue 27, items 5, 6, 8, 10, 11, 12). Each failed on the code before."""
+behind and no input modified."""
 
 import json
 import shutil

@@ -174,7 +174,7 @@ LANDING_S = 12.0                  # after it: the autopilot's AUTO.LAND and the 
 def _bridge_bag(tmp_path, flown, window='engaged', engaged_through_landing=False):
     """The flight of `flown` (a closed_loop bag) as a bridge flight's bag: wall-clock stamps, GROUND_S on the ground
     before it and LANDING_S after it in which the controller commands 16-27 m/s^2 and +-8 deg that the vehicle,
-    descending and then standing, never flies (issue 28's landing phase), and `window`: 'engaged' (vehicle/engaged
+    descending and then standing, never flies (a landing phase), and `window`: 'engaged' (vehicle/engaged
     true from the hand-over's start to its end), 'diagnostics' (the bridge's 1 Hz hand-over status) or None."""
     from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, open_bag_reader, typestore
     from quad_common import contract

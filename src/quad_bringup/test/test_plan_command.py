@@ -100,7 +100,7 @@ def test_many_waypoints_plan_end_to_end(tmp_path):
     np.testing.assert_allclose(traj.evaluate(traj.breaks_s)[:, :3], np.round(w, 4), atol=1e-6)
 
 
-# --- time allocation: plan takes every option fly does (issue 22: plan advised an option it did not accept) ----
+# --- time allocation: plan takes every option fly does (plan must not advise an option it does not accept) ----
 
 def _choices(command, option='--time-allocation'):
     from quad_bringup.cli import build_parser

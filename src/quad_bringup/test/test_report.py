@@ -198,7 +198,7 @@ def test_a_bag_without_a_simulator_does_not_say_it_did_not_collide(tmp_path):
 
 
 def test_report_says_whose_speed_and_why_time_actual_is_shorter(tmp_path):
-    """Issue 27 (newcomer friction): `speed_mps: None` for the default mission; time actual < planned unexplained."""
+    """A newcomer's friction: `speed_mps: None` for the default mission; time actual < planned unexplained."""
     from quad_bringup.report import report_markdown
     metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag')), Completion(position_tolerance_m=0.2,
                                                                                   speed_tolerance_mps=0.5))

@@ -1,5 +1,5 @@
 """The emulated attitude loop responds like ArduCopter's: a 10 deg roll step reaches 63 % in 0.17-0.21 s
-(measured on ArduCopter SITL, issue 13), not in the 0.09 s of quad_sim's bare eq. 6 loop, and it is the
+(measured on ArduCopter SITL), not in the 0.09 s of quad_sim's bare eq. 6 loop, and it is the
 autopilot's quaternion loop: a 180 deg yaw error with a position offset is recovered, where eq. 6 runs away."""
 
 import math
