@@ -35,6 +35,8 @@ class FlightOptions:
     disturbances: str | None = None
     control_profile: Path | None = None   # a params file overriding config/control.yaml (e.g. control_fast.yaml)
     sim_parameters: dict | None = None    # sim_node parameters set last (sweep: seed, a plant-only vehicle file)
+    state_source: str | None = None       # position_controller's state_source over the profile's (external_pose:
+                                          # the simulator's motion-capture stand-in, graph.FLY_MOCAP)
     rule: Completion | None = None        # None: the vehicle's completion rule (its YAML), with `completion` over it
     completion: dict = field(default_factory=dict)   # Completion field -> value given on the command line
     time_limit_factor: float = 3.0
@@ -203,9 +205,10 @@ def node_parameters(options: FlightOptions) -> dict:
     if options.plant:
         sim['plant'] = options.plant
     sim.update(options.sim_parameters or {})
+    controller = {'state_source': options.state_source} if options.state_source else None
     return graph.params_file_content(graph.fly_graph(
         options.mission, controller=options.controller, control_profile=options.control_profile,
-        vehicle=options.vehicle, speed_mps=options.speed_mps, sim=sim))
+        vehicle=options.vehicle, speed_mps=options.speed_mps, sim=sim, controller_params=controller))
 
 
 def default_run_dir(mission_name: str, controller: str) -> Path:

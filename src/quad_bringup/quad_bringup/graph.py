@@ -39,6 +39,11 @@ CONFIG_PATH_PARAMETERS = ('vehicle', 'disturbances_file')
 MONITOR = 'fly_monitor'   # fly's flight monitor node (quad_bringup.flight_monitor), a lockstep follower
 RECORDER = 'recorder'     # fly's bag writer (quad_bringup.recorder_node), the other lockstep follower
 FLY_LOCKSTEP_TIMEOUT_S = 3.0   # fly's sim_node waits this long (wall time) for a setpoint: a loaded machine
+# the simulator's motion-capture stand-in (quad_sim.mocap) when fly's controller flies from it: a frame per 10 ms
+# lockstep step (the control rate), 1 mm and 2 mrad RMS, delivered at once (in lockstep a tick waits for the frame
+# stamped at it: a latency would hold the lockstep)
+FLY_MOCAP = {'mocap_rate_hz': 100.0, 'mocap_position_noise_m': 0.001, 'mocap_attitude_noise_rad': 0.002,
+             'mocap_latency_s': 0.0}
 FLY_ONLY = {'sim_node': ('lockstep_followers', 'lockstep_timeout_s')}  # what fly adds to the launch graph
 
 
@@ -229,12 +234,21 @@ def fleet_sim_graph(fleet_path, *, speed_mps: float | None = None, sim: dict | N
     return nodes
 
 
-def fly_graph(mission_path, *, sim: dict | None = None, **kwargs) -> list[NodeSpec]:
+def fly_graph(mission_path, *, sim: dict | None = None, controller_params: dict | None = None,
+              **kwargs) -> list[NodeSpec]:
     """sim_graph (lockstep; kwargs: its controller, control_profile, vehicle, speed_mps) plus what only fly has:
     the recorder and fly's monitor as the simulator's lockstep followers, a longer lockstep timeout, then `sim`
-    (sim_node parameters: the plant, disturbances, a sweep's)."""
-    extra = {'lockstep_followers': f'{RECORDER},{MONITOR}', 'lockstep_timeout_s': FLY_LOCKSTEP_TIMEOUT_S, **(sim or {})}
-    return sim_graph(mission_path, extra={'sim_node': extra}, **kwargs)
+    (sim_node parameters: the plant, disturbances, a sweep's) and `controller_params` (position_controller's, last).
+    A controller flying from motion capture (state_source external_pose) gets the simulator's stand-in
+    (FLY_MOCAP under `sim`)."""
+    extra = {'lockstep_followers': f'{RECORDER},{MONITOR}', 'lockstep_timeout_s': FLY_LOCKSTEP_TIMEOUT_S}
+    nodes = {'sim_node': {**extra, **(sim or {})}, 'position_controller': dict(controller_params or {})}
+    specs = sim_graph(mission_path, extra=nodes, **kwargs)
+    controller = next(s for s in specs if s.name == 'position_controller').merged_parameters()
+    if controller.get('state_source') == 'external_pose':
+        nodes['sim_node'] = {**extra, **FLY_MOCAP, **(sim or {})}
+        specs = sim_graph(mission_path, extra=nodes, **kwargs)
+    return specs
 
 
 def params_file_content(nodes: list[NodeSpec]) -> dict:

@@ -59,7 +59,7 @@ SPECS = [
           '| y_up (motion-capture Y-up, quad_common.mocap_frames)', choices=mocap_frames.FRAMES, read_only=True),
     Param('pose_position_noise_m', 0.001, 'state_source external_pose: the pose\'s position noise, RMS per axis (m)',
           min=1e-6, max=1.0),
-    Param('pose_acceleration_mps2', 20.0, 'state_source external_pose: the acceleration the vehicle may do '
+    Param('pose_acceleration_mps2', 5.0, 'state_source external_pose: the acceleration the vehicle may do '
           'unannounced (m/s^2): higher follows faster, lower smooths more (the filter\'s tracking index)',
           min=0.01, max=100.0),
     Param('realtime_priority', 0, 'the tick\'s threads (the executor\'s, Fast DDS\'s) under SCHED_FIFO at this '

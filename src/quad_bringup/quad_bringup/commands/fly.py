@@ -27,6 +27,10 @@ def add_arguments(parser):
     parser.add_argument('--disturbances', metavar='PROFILE', help='simulator disturbance profile (e.g. drag_wind)')
     parser.add_argument('--control-profile', type=input_path, metavar='FILE',
                         help='params file overriding config/control.yaml gains (e.g. config/control_fast.yaml)')
+    parser.add_argument('--state-source', choices=('odom', 'external_pose'),
+                        help="what the controller flies from: odom (the simulator's state), or external_pose: the "
+                             "simulator's motion-capture stand-in (1 mm, a frame per step), as in a lab "
+                             '(default: the control profile\'s state_source, odom)')
     parser.add_argument('--time-limit-factor', type=float, default=3.0, metavar='K',
                         help='give up after K x the planned duration + 10 s of simulated time (default 3)')
     add_completion_arguments(parser)
@@ -43,11 +47,12 @@ def options_from(args):
                          time_allocation=args.time_allocation,
                          vehicle=args.vehicle, plant=args.plant, disturbances=args.disturbances,
                          control_profile=args.control_profile, completion=completion_overrides(args),
-                         time_limit_factor=args.time_limit_factor, quiet=args.quiet, fly_anyway=args.fly_anyway)
+                         time_limit_factor=args.time_limit_factor, quiet=args.quiet, fly_anyway=args.fly_anyway,
+                         state_source=args.state_source)
 
 
 # fly's options a fleet does not take: each vehicle's vehicle file, controller and profile are in the fleet file
-NOT_FOR_FLEETS = ('controller', 'vehicle', 'plant', 'disturbances', 'control_profile')
+NOT_FOR_FLEETS = ('controller', 'vehicle', 'plant', 'disturbances', 'control_profile', 'state_source')
 
 
 def run_fleet(args) -> int:
