@@ -21,6 +21,7 @@ HOLD_TILT_MAX_RAD = math.radians(20.0)   # onboard position hold: gentle
 HOLD_POS_P, HOLD_VEL_P = 1.0, 1.5        # horizontal position hold, 1/s and 1/s
 LAND_DETECT_S = 1.0                      # ArduCopter land_detector.cpp LAND_DETECTOR_TRIGGER_SEC
 PX4_NOAID_TIMEOUT_S = 5.0                # src/modules/ekf2/module.yaml EKF2_NOAID_TOUT: dead reckoning, then invalid
+EKF_CHECK_S = 1.0                        # ArduCopter/ekf_check.cpp EKF_CHECK_ITERATIONS_MAX (10) at 10 Hz
 COPTER_EXTNAV_TIMEOUT_S = 7.0            # libraries/AP_NavEKF3/AP_NavEKF3_core.cpp posRetryTimeNoVel_ms
 PX4_MODES_NEED_POSITION = frozenset({'POSCTL', 'AUTO.LOITER', 'AUTO.MISSION', 'AUTO.RTL', 'AUTO.TAKEOFF'})
 COPTER_MODES_NEED_POSITION = frozenset({'GUIDED', 'LOITER', 'POSHOLD', 'AUTO', 'RTL', 'CIRCLE', 'BRAKE', 'SMART_RTL'})
@@ -328,6 +329,11 @@ class Px4(Autopilot):
             self._arm(False, now_s, 'landed')   # COM_DISARM_LAND after the land detector
         if not self.armed:
             return None
+        if self.mode in PX4_MODES_NEED_POSITION and not self.has_position(now_s):
+            # failsafe/framework.cpp checkModeFallback: the mode cannot run; with no position (and no RC) the
+            # fallback is Descend, which PX4 reports as AUTO.LAND (px4_custom_mode.h)
+            self.failsafe_mode = 'AUTO.LAND'
+            self._set_mode('AUTO.LAND', now_s, 'failsafe: No valid local position estimate, descending')
         if self.user_mode == 'OFFBOARD' and self.failsafe_mode is None and not self.offboard_signal(now_s):
             # commander/failsafe/failsafe.cpp fromOffboardLossActParam; framework.cpp modeCanRun leaves manual
             # control out ("handled separately"), so Position (0) runs POSCTL without RC too
@@ -346,6 +352,8 @@ class Px4(Autopilot):
         if self.mode in p.PX4_NEEDS_MANUAL_CONTROL:
             # a stick mode with no sticks (the emulator has no RC): as PX4 v1.16 SIH flew it with the bridge
             # killed, descending level, nothing holding it horizontally (it drifts)
+            return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
+        if self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.RTL') and not self.has_position(now_s):
             return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
         if self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.RTL'):
             return self._idle(state) if landed and self.hold_position is not None and landed_s > 0.5 else \
@@ -371,6 +379,7 @@ class ArduCopter(Autopilot):
         self.mode = 'STABILIZE'
         self.angle = None      # guided_angle_state: (q_enu or None, climb_rate_or_thrust, rates_flu, use_thrust)
         self.alt_target = None  # AC_PosControl z target while the climb rate is integrated
+        self.position_lost_s = None  # since when the EKF has had no position (armed)
 
     @property
     def custom_mode(self) -> int:
@@ -500,11 +509,23 @@ class ArduCopter(Autopilot):
             self._arm(False, now_s, 'landed')   # ModeLand: disarm once land_complete
         if not self.armed:
             return None
+        if self.has_position(now_s):
+            self.position_lost_s = None
+        elif self.position_lost_s is None:
+            self.position_lost_s = now_s
+        if self.mode in COPTER_MODES_NEED_POSITION and self.position_lost_s is not None and \
+                now_s - self.position_lost_s >= EKF_CHECK_S:
+            # ekf_check.cpp: position bad for EKF_CHECK_ITERATIONS_MAX checks at 10 Hz, failsafe_ekf_event with
+            # FS_EKF_ACTION 1 (default): set_mode_land_with_pause, landing without GPS
+            self.say(now_s, 'EKF Failsafe')
+            self._enter('LAND', now_s, 'EKF failsafe')
         if self.mode in p.COPTER_GUIDED_MODES and self.angle is not None:
             return self._angle_control(state, now_s, dt_s)
         if self.mode == 'LAND':
             if landed and landed_s > 0.5:
                 return self._idle(state)
+            if not self.has_position(now_s):    # mode_land.cpp nogps_run: level, descending, drifting
+                return self._descend_level(state, self.params['LAND_SPEED'] / 100.0)
             return self._hold(state, self.params['LAND_SPEED'] / 100.0)
         if landed:
             return self._idle(state)
