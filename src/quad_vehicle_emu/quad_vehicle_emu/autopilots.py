@@ -20,6 +20,11 @@ from quad_vehicle_emu.onboard_params import ARDUCOPTER_PARAMS, PX4_PARAMS, Param
 HOLD_TILT_MAX_RAD = math.radians(20.0)   # onboard position hold: gentle
 HOLD_POS_P, HOLD_VEL_P = 1.0, 1.5        # horizontal position hold, 1/s and 1/s
 LAND_DETECT_S = 1.0                      # ArduCopter land_detector.cpp LAND_DETECTOR_TRIGGER_SEC
+PX4_NOAID_TIMEOUT_S = 5.0                # src/modules/ekf2/module.yaml EKF2_NOAID_TOUT: dead reckoning, then invalid
+EKF_CHECK_S = 1.0                        # ArduCopter/ekf_check.cpp EKF_CHECK_ITERATIONS_MAX (10) at 10 Hz
+COPTER_EXTNAV_TIMEOUT_S = 7.0            # libraries/AP_NavEKF3/AP_NavEKF3_core.cpp posRetryTimeNoVel_ms
+PX4_MODES_NEED_POSITION = frozenset({'POSCTL', 'AUTO.LOITER', 'AUTO.MISSION', 'AUTO.RTL', 'AUTO.TAKEOFF'})
+COPTER_MODES_NEED_POSITION = frozenset({'GUIDED', 'LOITER', 'POSHOLD', 'AUTO', 'RTL', 'CIRCLE', 'BRAKE', 'SMART_RTL'})
 
 
 @dataclass
@@ -89,6 +94,28 @@ class Autopilot:
         self.setpoints = RateMeter()
         self.setpoint_time_s = -math.inf
         self.landed_since_s = None
+        self.external_pose_time_s = -math.inf   # last external-vision pose the estimator took
+
+    def on_external_pose(self, now_s):
+        """An external-vision pose arrived (PX4 ODOMETRY from a VISION estimator, ArduPilot
+        VISION_POSITION_ESTIMATE); the estimator fuses it when its parameters say so."""
+        self.external_pose_time_s = now_s
+
+    def gps_aiding(self) -> bool:
+        raise NotImplementedError
+
+    def vision_aiding(self) -> bool:
+        raise NotImplementedError
+
+    def position_timeout_s(self) -> float:
+        raise NotImplementedError
+
+    def has_position(self, now_s) -> bool:
+        """The estimator has a horizontal position: GPS aiding on (the emulator's GPS always has a fix), or
+        vision aiding on and a pose fused within the estimator's timeout (dead reckoning until then)."""
+        if self.gps_aiding():
+            return True
+        return self.vision_aiding() and now_s - self.external_pose_time_s <= self.position_timeout_s()
 
     def say(self, now_s, text):
         self.log.append((now_s, text))
@@ -190,9 +217,22 @@ class Px4(Autopilot):
         """offboardCheck.cpp: the last setpoint is younger than COM_OF_LOSS_T (what the failsafe watches)."""
         return now_s - self.setpoint_time_s < self.params['COM_OF_LOSS_T']
 
+    def gps_aiding(self) -> bool:
+        return bool(int(self.params['EKF2_GPS_CTRL']) & 1)    # bit 0: lon/lat
+
+    def vision_aiding(self) -> bool:
+        return bool(int(self.params['EKF2_EV_CTRL']) & 1)     # bit 0: horizontal position
+
+    def position_timeout_s(self) -> float:
+        return PX4_NOAID_TIMEOUT_S
+
     def can_run(self, mode, now_s) -> bool:
-        """Entering OFFBOARD (switch or arm) also needs the stream at > 2 Hz, as the user guide requires."""
+        """Entering OFFBOARD (switch or arm) also needs the stream at > 2 Hz, as the user guide requires. Modes
+        that need a local position (mode_requirements.cpp) cannot run without one (modeCheck.cpp); OFFBOARD with
+        attitude setpoints needs none (offboardCheck.cpp asks for it only with position control)."""
         if mode in p.PX4_NEEDS_MANUAL_CONTROL:
+            return False
+        if mode in PX4_MODES_NEED_POSITION and not self.has_position(now_s):
             return False
         if mode == 'OFFBOARD':
             return self.offboard_signal(now_s) and self.setpoints.rate_hz(now_s) > p.PX4_OFFBOARD_MIN_RATE_HZ
@@ -253,7 +293,12 @@ class Px4(Autopilot):
             arm = params[0] > 0.5
             forced = int(params[1]) == p.ARM_DISARM_FORCE_MAGIC
             if arm and not self.armed and not forced and not self.can_arm(now_s):
-                self.say(now_s, f'Arming denied: mode {self.mode} cannot arm')
+                if self.mode in PX4_MODES_NEED_POSITION and not self.has_position(now_s):
+                    # checks/modeCheck.cpp, then Commander::arm
+                    self.say(now_s, 'Preflight Fail: No valid local position estimate')
+                    self.say(now_s, 'Arming denied: Resolve system health failures first')
+                else:
+                    self.say(now_s, f'Arming denied: mode {self.mode} cannot arm')
                 return p.MAV_RESULT_DENIED
             if not arm and self.armed and not landed and not forced:
                 return p.MAV_RESULT_DENIED
@@ -284,6 +329,11 @@ class Px4(Autopilot):
             self._arm(False, now_s, 'landed')   # COM_DISARM_LAND after the land detector
         if not self.armed:
             return None
+        if self.mode in PX4_MODES_NEED_POSITION and not self.has_position(now_s):
+            # failsafe/framework.cpp checkModeFallback: the mode cannot run; with no position (and no RC) the
+            # fallback is Descend, which PX4 reports as AUTO.LAND (px4_custom_mode.h)
+            self.failsafe_mode = 'AUTO.LAND'
+            self._set_mode('AUTO.LAND', now_s, 'failsafe: No valid local position estimate, descending')
         if self.user_mode == 'OFFBOARD' and self.failsafe_mode is None and not self.offboard_signal(now_s):
             # commander/failsafe/failsafe.cpp fromOffboardLossActParam; framework.cpp modeCanRun leaves manual
             # control out ("handled separately"), so Position (0) runs POSCTL without RC too
@@ -302,6 +352,8 @@ class Px4(Autopilot):
         if self.mode in p.PX4_NEEDS_MANUAL_CONTROL:
             # a stick mode with no sticks (the emulator has no RC): as PX4 v1.16 SIH flew it with the bridge
             # killed, descending level, nothing holding it horizontally (it drifts)
+            return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
+        if self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.RTL') and not self.has_position(now_s):
             return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
         if self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.RTL'):
             return self._idle(state) if landed and self.hold_position is not None and landed_s > 0.5 else \
@@ -327,6 +379,7 @@ class ArduCopter(Autopilot):
         self.mode = 'STABILIZE'
         self.angle = None      # guided_angle_state: (q_enu or None, climb_rate_or_thrust, rates_flu, use_thrust)
         self.alt_target = None  # AC_PosControl z target while the climb rate is integrated
+        self.position_lost_s = None  # since when the EKF has had no position (armed)
 
     @property
     def custom_mode(self) -> int:
@@ -344,6 +397,15 @@ class ArduCopter(Autopilot):
         arming checks are enabled (ARMING_CHECK default 1), healthy when armed or the checks pass."""
         present = enabled = health = p.SENSORS_BASIC | p.MAV_SYS_STATUS_PREARM_CHECK
         return present, enabled, health
+
+    def gps_aiding(self) -> bool:
+        return int(self.params['EK3_SRC1_POSXY']) == 3          # AP_NavEKF_Source: 3 GPS
+
+    def vision_aiding(self) -> bool:
+        return int(self.params['EK3_SRC1_POSXY']) == 6 and int(self.params['VISO_TYPE']) > 0   # 6 ExternalNAV
+
+    def position_timeout_s(self) -> float:
+        return COPTER_EXTNAV_TIMEOUT_S
 
     @property
     def use_thrust(self) -> bool:
@@ -401,6 +463,11 @@ class ArduCopter(Autopilot):
             if arm and not self.armed and self.mode in p.COPTER_NO_ARMING and not forced:
                 self.say(now_s, f'Arm: Mode not armable ({self.mode})')
                 return p.MAV_RESULT_FAILED
+            if arm and not self.armed and self.mode in COPTER_MODES_NEED_POSITION and not forced and \
+                    not self.has_position(now_s):
+                # AP_Arming_Copter.cpp mandatory_gps_checks: the mode requires GPS and position_ok() is false
+                self.say(now_s, 'PreArm: Need Position Estimate')
+                return p.MAV_RESULT_FAILED
             if not arm and self.armed and not landed and not forced:
                 return p.MAV_RESULT_FAILED
             self._arm(arm, now_s)
@@ -409,6 +476,10 @@ class ArduCopter(Autopilot):
             names = {v: k for k, v in p.COPTER_MODES.items()}
             mode = names.get(int(params[1])) if int(params[0]) & p.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else None
             if mode is None:
+                return p.MAV_RESULT_FAILED
+            if mode in COPTER_MODES_NEED_POSITION and not self.has_position(now_s):
+                # mode.cpp Copter::set_mode: requires_GPS() and !position_ok() -> mode_change_failed
+                self.say(now_s, f'Mode change to {mode} failed: requires position')
                 return p.MAV_RESULT_FAILED
             self._enter(mode, now_s, 'commanded')
             return p.MAV_RESULT_ACCEPTED
@@ -438,11 +509,23 @@ class ArduCopter(Autopilot):
             self._arm(False, now_s, 'landed')   # ModeLand: disarm once land_complete
         if not self.armed:
             return None
+        if self.has_position(now_s):
+            self.position_lost_s = None
+        elif self.position_lost_s is None:
+            self.position_lost_s = now_s
+        if self.mode in COPTER_MODES_NEED_POSITION and self.position_lost_s is not None and \
+                now_s - self.position_lost_s >= EKF_CHECK_S:
+            # ekf_check.cpp: position bad for EKF_CHECK_ITERATIONS_MAX checks at 10 Hz, failsafe_ekf_event with
+            # FS_EKF_ACTION 1 (default): set_mode_land_with_pause, landing without GPS
+            self.say(now_s, 'EKF Failsafe')
+            self._enter('LAND', now_s, 'EKF failsafe')
         if self.mode in p.COPTER_GUIDED_MODES and self.angle is not None:
             return self._angle_control(state, now_s, dt_s)
         if self.mode == 'LAND':
             if landed and landed_s > 0.5:
                 return self._idle(state)
+            if not self.has_position(now_s):    # mode_land.cpp nogps_run: level, descending, drifting
+                return self._descend_level(state, self.params['LAND_SPEED'] / 100.0)
             return self._hold(state, self.params['LAND_SPEED'] / 100.0)
         if landed:
             return self._idle(state)

@@ -212,6 +212,11 @@ class MavlinkVehicle:
                 tuple(getattr(msg, 'thrust_body', (0.0, 0.0, 0.0)))), now)
         elif kind == 'COMMAND_LONG':
             self.on_command(msg, now)
+        elif kind == 'VISION_POSITION_ESTIMATE' or (kind == 'ODOMETRY' and (
+                self.flavour == 'ardupilot' or msg.estimator_type in p.PX4_VISUAL_ODOMETRY_ESTIMATORS)):
+            # PX4 mavlink_receiver.cpp: VISION_POSITION_ESTIMATE and ODOMETRY from VISION / VIO go to
+            # vehicle_visual_odometry (MOCAP elsewhere); ArduPilot GCS_Common.cpp hands both to AP_VisualOdom
+            self.ap.on_external_pose(now)
         elif kind == 'TIMESYNC' and msg.tc1 == 0:
             # both answer with their own boot clock in ns (PX4 src/modules/mavlink/mavlink_timesync.cpp,
             # ArduPilot GCS_Common.cpp handle_timesync: tc1 = now_ns, ts1 echoed)
@@ -397,9 +402,21 @@ class MavlinkVehicle:
             return
         self._emit(msg)
 
+    def send_statustext(self, text):
+        """MAV_SEVERITY_INFO; a text over 50 bytes goes in 50-byte chunks sharing a non-zero id, chunk_seq
+        counting up, the last one shorter (NUL-terminated) as both autopilots send it (PX4
+        src/modules/mavlink/streams/STATUSTEXT.hpp, ArduPilot libraries/GCS_MAVLink/GCS_Common.cpp)."""
+        data = text.encode()
+        if len(data) <= 50:
+            self.mav.statustext_send(6, data, 0, 0)
+            return
+        self.statustext_id = getattr(self, 'statustext_id', 0) % 0xFFFF + 1
+        for seq, start in enumerate(range(0, len(data) + 1, 50)):
+            self.mav.statustext_send(6, data[start:start + 50], self.statustext_id, seq)
+
     def send_log(self):
         for _, text in self.ap.log[self.log_index:]:
-            self.mav.statustext_send(6, text.encode()[:50])   # MAV_SEVERITY_INFO
+            self.send_statustext(text)
             print(f'mavlink_vehicle: {text}', flush=True)
         self.log_index = len(self.ap.log)
 

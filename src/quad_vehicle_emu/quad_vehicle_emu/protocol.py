@@ -131,6 +131,8 @@ def px4_mode_name(main_mode: int, sub_mode: int) -> str | None:
 
 # --- ArduPilot Copter ----------------------------------------------------------------------------------
 # HEARTBEAT.custom_mode is Mode::Number (ArduCopter/mode.h); MAV_CMD_DO_SET_MODE takes it in param2.
+PX4_VISUAL_ODOMETRY_ESTIMATORS = frozenset({2, 3})   # MAV_ESTIMATOR_TYPE_VISION, _VIO
+
 COPTER_MODES = {
     'STABILIZE': 0, 'ACRO': 1, 'ALT_HOLD': 2, 'AUTO': 3, 'GUIDED': 4, 'LOITER': 5, 'RTL': 6, 'CIRCLE': 7,
     'LAND': 9, 'DRIFT': 11, 'SPORT': 13, 'FLIP': 14, 'AUTOTUNE': 15, 'POSHOLD': 16, 'BRAKE': 17, 'THROW': 18,

@@ -85,3 +85,57 @@ def test_external_vision_parameters_have_the_autopilots_defaults_and_are_settabl
         assert decoded == params[name]
         params.set(name, value)
         assert params[name] == value
+
+
+GROUND = State(position=np.array([0.0, 0.0, 0.0]))
+
+
+def test_px4_without_gps_has_a_position_while_vision_is_fused_and_loses_it_after_the_no_aid_timeout():
+    px4 = Px4(hover_throttle=0.5, params={'EKF2_GPS_CTRL': 0})
+    assert px4.command(p.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0], True, 0.0) == p.MAV_RESULT_DENIED
+    assert [t for _, t in px4.log[-2:]] == ['Preflight Fail: No valid local position estimate',
+                                           'Arming denied: Resolve system health failures first']
+    px4.on_external_pose(1.0)
+    assert px4.has_position(1.0 + 4.9) and not px4.has_position(1.0 + 5.1)
+    assert px4.command(p.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0], True, 2.0) == p.MAV_RESULT_ACCEPTED
+    px4.params.set('EKF2_EV_CTRL', 14)          # horizontal position not fused
+    assert not px4.has_position(2.0)
+
+
+def test_arducopter_position_modes_need_gps_or_external_nav():
+    apm = ArduCopter(hover_throttle=0.5, params={'EK3_SRC1_POSXY': 6, 'VISO_TYPE': 1})
+    assert apm.command(p.MAV_CMD_DO_SET_MODE, [1, 4, 0], True, 0.0) == p.MAV_RESULT_FAILED
+    assert apm.log[-1][1] == 'Mode change to GUIDED failed: requires position'
+    assert apm.command(p.MAV_CMD_DO_SET_MODE, [1, 20, 0], True, 0.0) == p.MAV_RESULT_ACCEPTED   # GUIDED_NOGPS
+    apm.on_external_pose(1.0)
+    assert apm.command(p.MAV_CMD_DO_SET_MODE, [1, 4, 0], True, 1.5) == p.MAV_RESULT_ACCEPTED
+    assert apm.command(p.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0], True, 8.5) == p.MAV_RESULT_FAILED
+    assert apm.log[-1][1] == 'PreArm: Need Position Estimate'
+    assert apm.command(p.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0], True, 7.5) == p.MAV_RESULT_ACCEPTED
+    apm = ArduCopter(hover_throttle=0.5, params={'EK3_SRC1_POSXY': 6})   # VISO_TYPE 0: the pose is not taken
+    apm.on_external_pose(1.0)
+    assert not apm.has_position(1.0)
+
+
+def test_px4_descends_when_the_vision_pose_stops_in_hold():
+    px4 = Px4(hover_throttle=0.5, params={'EKF2_GPS_CTRL': 0})
+    px4.on_external_pose(0.0)
+    assert px4.command(p.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0], True, 0.0) == p.MAV_RESULT_ACCEPTED
+    px4.update(HOVERING, False, 4.9)
+    assert px4.mode == 'AUTO.LOITER'
+    sp = px4.update(State(position=np.array([0.0, 0.0, 1.0]), velocity=np.array([0.5, 0.0, 0.0])), False, 5.1)
+    assert px4.mode == 'AUTO.LAND', 'Hold cannot run without a position: Descend (reported as AUTO.LAND)'
+    assert sp.specific_force_mps2 < GRAVITY_MPS2 * 1.01
+    assert abs(sp.quaternion[0]) < 1e-9 and abs(sp.quaternion[1]) < 1e-9, 'level: nothing holds it horizontally'
+
+
+def test_arducopter_lands_one_second_after_the_ekf_loses_the_position_in_guided():
+    apm = ArduCopter(hover_throttle=0.5, params={'EK3_SRC1_POSXY': 6, 'VISO_TYPE': 1})
+    apm.on_external_pose(0.0)
+    assert apm.command(p.MAV_CMD_DO_SET_MODE, [1, 4, 0], True, 0.0) == p.MAV_RESULT_ACCEPTED
+    assert apm.command(p.MAV_CMD_COMPONENT_ARM_DISARM, [1, 0], True, 0.0) == p.MAV_RESULT_ACCEPTED
+    apm.update(HOVERING, False, 7.5)
+    apm.update(HOVERING, False, 8.4)
+    assert apm.mode == 'GUIDED'
+    apm.update(HOVERING, False, 8.6)
+    assert apm.mode == 'LAND' and apm.log[-2][1] == 'EKF Failsafe'
