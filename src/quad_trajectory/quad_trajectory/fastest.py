@@ -279,11 +279,11 @@ def _lp_step(T, J, g, trust):
     if m <= LP_BLOCK + 2 * LP_OVERLAP:
         res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
         return res.x if res.status == 0 else None
-    rows = np.repeat(np.arange(J.shape[0]), np.diff(J.indptr))
-    first = np.full(J.shape[0], m)
-    last = np.full(J.shape[0], -1)
-    np.minimum.at(first, rows, J.indices)
-    np.maximum.at(last, rows, J.indices)
+    # each row's first and last column (a row without entries fits every window)
+    empty = np.diff(J.indptr) == 0
+    columns = np.append(J.indices, 0)
+    first = np.where(empty, m, np.minimum.reduceat(columns, J.indptr[:-1])[:J.shape[0]])
+    last = np.where(empty, -1, np.maximum.reduceat(columns, J.indptr[:-1])[:J.shape[0]])
     d = np.zeros(m)
     for start in range(0, m, LP_BLOCK):
         stop = min(start + LP_BLOCK, m)
