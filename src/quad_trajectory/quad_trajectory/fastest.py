@@ -279,11 +279,12 @@ def _lp_step(T, J, g, trust):
     if m <= LP_BLOCK + 2 * LP_OVERLAP:
         res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
         return res.x if res.status == 0 else None
-    # each row's first and last column (a row without entries fits every window)
+    # each row's first and last column (a row without entries fits every window); reduceat's last row runs to
+    # the end of the array, so each ends in a sentinel that neither reduction picks
     empty = np.diff(J.indptr) == 0
-    columns = np.append(J.indices, 0)
-    first = np.where(empty, m, np.minimum.reduceat(columns, J.indptr[:-1])[:J.shape[0]])
-    last = np.where(empty, -1, np.maximum.reduceat(columns, J.indptr[:-1])[:J.shape[0]])
+    starts = J.indptr[:-1]
+    first = np.where(empty, m, np.minimum.reduceat(np.append(J.indices, m), starts))
+    last = np.where(empty, -1, np.maximum.reduceat(np.append(J.indices, -1), starts))
     d = np.zeros(m)
     for start in range(0, m, LP_BLOCK):
         stop = min(start + LP_BLOCK, m)
