@@ -265,6 +265,18 @@ def _derivative_directions(system, points, T, directions, s):
     return tuple(values), moved
 
 
+def _row_spans(J):
+    """Each row's first and last column of a CSR matrix (m and -1 for a row without entries, which then fits
+    every window). reduceat's last row runs to the end of the array, so each ends in a sentinel that neither
+    reduction picks."""
+    m = J.shape[1]
+    empty = np.diff(J.indptr) == 0
+    starts = J.indptr[:-1]
+    first = np.where(empty, m, np.minimum.reduceat(np.append(J.indices, m), starts))
+    last = np.where(empty, -1, np.maximum.reduceat(np.append(J.indices, -1), starts))
+    return first, last
+
+
 def _lp_step(T, J, g, trust):
     """The step d: min sum_j T_j d_j s.t. g + J d <= 0, |d_j| <= trust (HiGHS), or None if it fails.
 
@@ -279,12 +291,7 @@ def _lp_step(T, J, g, trust):
     if m <= LP_BLOCK + 2 * LP_OVERLAP:
         res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
         return res.x if res.status == 0 else None
-    # each row's first and last column (a row without entries fits every window); reduceat's last row runs to
-    # the end of the array, so each ends in a sentinel that neither reduction picks
-    empty = np.diff(J.indptr) == 0
-    starts = J.indptr[:-1]
-    first = np.where(empty, m, np.minimum.reduceat(np.append(J.indices, m), starts))
-    last = np.where(empty, -1, np.maximum.reduceat(np.append(J.indices, -1), starts))
+    first, last = _row_spans(J)
     d = np.zeros(m)
     for start in range(0, m, LP_BLOCK):
         stop = min(start + LP_BLOCK, m)

@@ -159,3 +159,15 @@ def test_the_analytic_jacobian_matches_finite_differences_of_full_solves(crazyfl
         for e in np.eye(T.size)])
     assert J.shape == numeric.shape and np.abs(numeric).max() > 0.1
     np.testing.assert_allclose(J.toarray(), numeric, rtol=0, atol=1e-5 * np.abs(numeric).max())
+
+
+def test_row_spans_of_the_lp_windows():
+    """First and last column of each row, empty rows included, and the last row not reading past its end."""
+    from scipy.sparse import csr_matrix
+
+    from quad_trajectory import fastest
+
+    dense = np.array([[0, 1.0, 2, 0, 0], [0, 0, 0, 0, 0], [0, 0, 0, 3, 4], [0, 0, 0, 0, 0], [0, 0, 5, 6, 0]])
+    first, last = fastest._row_spans(csr_matrix(dense))
+    np.testing.assert_array_equal(first, [1, 5, 3, 5, 2])
+    np.testing.assert_array_equal(last, [2, -1, 4, -1, 3])
