@@ -17,24 +17,30 @@ uniform scaling.
   alone just feasible (its neighbours' coupling ignored; a vectorised bisection for all segments at once); the
   shortest of these, scaled, starts the search.
 - Step: the normalised violation of each check at each sample, v (need / limit - 1 above, (limit - need) /
-  range below; <= 0 feasible). A change of T_j moves the spline mostly near segment j (a joint's influence
-  decays geometrically along a minimum-derivative spline), so dv/dx is banded: BAND segments either side,
-  by finite differences with 2 BAND + 1 solves (every (2 BAND + 1)-th segment perturbed at once). The linear
-  programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust radius
-  of its limit (less the rows no step inside the box reaches, v_r + trust |J_r|_1 <= 0), |d_j| <= trust radius
-  (HiGHS), gives the step; the new shape is scaled to the limits again and
-  kept when its total time is shorter; the trust radius follows how well the programme predicted the gain.
+  range below; <= 0 feasible), and its Jacobian dv/dx. The spline's normalised-time coefficients y solve
+  A(T) y = b (solver.System; b is the points), and only the continuity rows' factors (T_k+1 / T_k)^p depend on
+  T, so dy/dx_j = -A^-1 (dA/dx_j y): one banded LU of A (LAPACK gbtrf) gives y and every direction's dy by
+  back-substitution. Derivative q at the normalised time s is T^-q P^(q)(s), so its change is
+  T^-q dP^(q)(s) - q dx p^(q); the needs (a pointwise function of a, j, snap) change along it by a
+  directional difference of step NEEDS_STEP, without a new solve. A change of T_j moves the spline mostly near
+  segment j (a joint's influence decays geometrically along a minimum-derivative spline), so dv/dx is taken
+  banded: BAND segments either side, every (2 BAND + 1)-th segment moved at once in one direction (2 BAND + 1
+  directions). The linear programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample)
+  within NEAR x the trust radius of its limit (less the rows no step inside the box reaches,
+  v_r + trust |J_r|_1 <= 0), |d_j| <= trust radius (HiGHS), gives the step; the new shape is scaled to the
+  limits again and kept when its total time is shorter; the trust radius follows how well the programme
+  predicted the gain.
   A plan longer than LP_BLOCK + 2 LP_OVERLAP segments solves the programme in overlapping windows (_lp_step).
-  BAND = 5 matters: with 3, the finite differences alias the influence of segments 4 away (about 20 % error
-  in the Jacobian) and the search stalls 2-3 % short of the optimum on slalom_dense.
+  BAND = 5 matters: with 3, the directions alias the influence of segments 4 away (about 20 % error in the
+  Jacobian) and the search stalls 2-3 % short of the optimum on slalom_dense.
   Every near sample is a row, not only each segment's peak: the peak moves between samples as the times
   change, and a programme that sees only the peaks steps into the samples it does not see.
 - Stop: after MAX_ITERATIONS steps, when the radius falls below MIN_TRUST, or when the programme predicts
   less than STALL_GAIN of the total time.
 The search samples LOOP_SAMPLES points a segment (fewer rows in each programme), the result is then scaled to
-pass at feasibility.py's 32. Cost per step: 2 BAND + 2 solves, as many need evaluations, one LP. Measured
-against a brute-force reference (scipy SLSQP over all times, every sample a constraint, several starts) in
-bench/bench_fastest.py.
+pass at feasibility.py's 32. Cost per step: one banded LU with 2 BAND + 2 right-hand sides, 2 BAND + 2 need
+evaluations, one solve and scale for the new shape, one LP. Measured against a brute-force
+reference (scipy SLSQP over all times, every sample a constraint, several starts) in bench/bench_fastest.py.
 
 Short first and last legs: a leg from rest to cruise asks for a spike of acceleration when it is given the
 same time as its neighbours (the sqrt profile on long_100: 3.9 m/s^2 against 0.2 mid-flight). Here that spike
@@ -44,7 +50,7 @@ is a sample like any other, so the first and last legs are lengthened until it f
 import numpy as np
 
 from quad_trajectory import feasibility, solver, timing
-from quad_trajectory.polynomial import PiecewisePolynomial
+from quad_trajectory.polynomial import PiecewisePolynomial, derivative_factors
 
 BAND = 5                 # segments either side in the banded Jacobian
 LP_BLOCK, LP_OVERLAP = 150, 25   # a long plan's step: blocks of 150 segments, each with 25 either side
@@ -58,7 +64,7 @@ LOOP_SAMPLES = 10        # samples a segment inside the search (the result is sc
 SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
 EQUALISE_ROUNDS = 3      # start: each segment scaled to its own limit, this many times
 NEAR = 1.0               # (check, sample) pairs within NEAR x the trust radius of their limit enter the step
-DIFF_STEP = 1e-3         # log-time step of the finite differences
+NEEDS_STEP = 1e-7        # step of the needs' directional derivative along a colour's change of a, j, snap
 _ROOT_ITERATIONS = 60     # of the scale's root finding (Illinois), to _ROOT_TOLERANCE in log k
 _ROOT_TOLERANCE = 1e-7
 _SAFETY = 1.0 + 1e-7     # the returned scale a hair above the root finder's feasible end
@@ -177,31 +183,98 @@ class Constraints:
         return np.exp(hi)
 
 
-def _linearised_constraints(solve, x, v, constraints, near):
-    """Rows v_r + J_r d <= 0 of every (check, sample) within `near` of its limit (v > -near): J = dv/dx by
-    finite differences, BAND segments either side of each perturbed one (2 BAND + 1 solves); returns
-    (J sparse, v_r). Every near sample is a row, not only each segment's peak: the peak moves between samples
-    as the times change, and a programme that sees only the peaks steps into the samples it does not see."""
+def _linearised_constraints(system, points, x, constraints, near):
+    """Rows v_r + J_r d <= 0 of every (check, sample) within `near` of its limit (v > -near), with J = dv/dx
+    from one banded LU of the spline's system (_coefficient_directions) and the needs' directional derivative
+    along each colour's exact change of acceleration, jerk and snap; returns (J sparse, v_r). Every near sample
+    is a row, not only each segment's peak: the peak moves between samples as the times change, and a programme
+    that sees only the peaks steps into the samples it does not see."""
     from scipy.sparse import csr_matrix
 
     m = x.size
+    T = np.exp(x)
+    width = min(2 * BAND + 1, m)
+    directions = np.zeros((width, m))
+    for color in range(width):
+        directions[color, color::2 * BAND + 1] = 1.0
+    (a, j, snap), moved_by = _derivative_directions(system, points, T, directions, constraints.s)
+    v = constraints.violations(a, j, snap)
     active = v > -near
     segment = np.nonzero(active)[1]          # the segment of each row
     row = np.arange(segment.size)
-    width = 2 * BAND + 1
     rows, cols, vals = [], [], []
-    for color in range(min(width, m)):
-        xp = x.copy()
-        xp[color::width] += DIFF_STEP
-        dv = (constraints.sample_violations(solve(np.exp(xp)))[active] - v[active]) / DIFF_STEP
-        # the perturbed segment within BAND of each row's segment: the one congruent to color modulo width
-        moved = segment + (color - segment + BAND) % width - BAND
+    for color in range(width):
+        da, dj, ds = moved_by[color]
+        dv = (constraints.violations(a + NEEDS_STEP * da, j + NEEDS_STEP * dj, snap + NEEDS_STEP * ds)[active]
+              - v[active]) / NEEDS_STEP
+        # the perturbed segment within BAND of each row's segment: the one congruent to color modulo 2 BAND + 1
+        moved = segment + (color - segment + BAND) % (2 * BAND + 1) - BAND
         keep = (moved >= 0) & (moved < m)
         rows.append(row[keep])
         cols.append(moved[keep])
         vals.append(dv[keep])
     J = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(segment.size, m))
     return J, v[active]
+
+
+def _derivative_directions(system, points, T, directions, s):
+    """Acceleration, jerk and snap (m, 3, S) of the spline with times T, and their derivatives along each row
+    of `directions` (D, m) in x = log T: D triples (m, 3, S).
+
+    The normalised-time coefficients y solve A(T) y = b (solver.System; b does not depend on T; the only
+    T-dependent entries are the continuity rows' (T_k+1 / T_k)^p, with d/dx of them p (T_k+1 / T_k)^p
+    (dx_k+1 - dx_k)), so dy = -A^-1 (dA y): one banded LU (LAPACK gbtrf) for y and every direction (gbtrs).
+    In normalised time p^(q)(T s) = T^-q P^(q)(s), so d p^(q) = T^-q dP^(q) - q dx p^(q)."""
+    from scipy.linalg.lapack import dgbtrf, dgbtrs
+    from scipy.sparse import csr_matrix
+
+    rows, cols, vals = system.triplets(T)
+    n_rows, lower, upper = 2 * system.r * system.m, system.lower, system.upper
+    ab = np.zeros((2 * lower + upper + 1, n_rows))
+    ab[lower + system._band_rows, cols] = vals
+    lu, pivots, info = dgbtrf(ab, lower, upper)
+    if info != 0:
+        raise ValueError(f'the spline system is singular at these times (LAPACK gbtrf info {info})')
+    b = system.rhs(np.asarray(points, dtype=float)[:, :3])
+    y, _ = dgbtrs(lu, lower, upper, b, pivots)
+    k = system.joint[system.scaled]
+    slope = vals[system.scaled] * system.power[system.scaled]          # d val / d(x_k+1 - x_k)
+    dA = slope[None, :] * (directions[:, k + 1] - directions[:, k])    # (D, scaled)
+    r_rows, r_cols = rows[system.scaled], cols[system.scaled]
+    n_dir = directions.shape[0]
+    gather = csr_matrix((np.ones(r_rows.size), (r_rows, np.arange(r_rows.size))), shape=(n_rows, r_rows.size))
+    rhs = gather @ (-dA.T[:, :, None] * y[r_cols][:, None, :]).reshape(r_rows.size, n_dir * 3)
+    dy, _ = dgbtrs(lu, lower, upper, rhs, pivots)
+    n = 2 * system.r
+    s = np.asarray(s, dtype=float)
+    y = y.reshape(system.m, n, 3)
+    dy = dy.reshape(system.m, n, n_dir, 3)
+    values, moved = [], [[] for _ in range(n_dir)]
+    for q in (2, 3, 4):
+        if q >= n:
+            basis = np.zeros((n, s.size))
+        else:
+            basis = np.zeros((n, s.size))
+            basis[q:] = derivative_factors(n, q)[:, None] * s[None, :] ** np.arange(n - q)[:, None]
+        scale = T[:, None, None] ** -q
+        value = np.einsum('mka,ks->mas', y, basis) * scale
+        change = np.einsum('mkda,ks->dmas', dy, basis) * scale[None]
+        values.append(value)
+        for d in range(n_dir):
+            moved[d].append(change[d] - q * directions[d][:, None, None] * value)
+    return tuple(values), moved
+
+
+def _row_spans(J):
+    """Each row's first and last column of a CSR matrix (m and -1 for a row without entries, which then fits
+    every window). reduceat's last row runs to the end of the array, so each ends in a sentinel that neither
+    reduction picks."""
+    m = J.shape[1]
+    empty = np.diff(J.indptr) == 0
+    starts = J.indptr[:-1]
+    first = np.where(empty, m, np.minimum.reduceat(np.append(J.indices, m), starts))
+    last = np.where(empty, -1, np.maximum.reduceat(np.append(J.indices, -1), starts))
+    return first, last
 
 
 def _lp_step(T, J, g, trust):
@@ -218,11 +291,7 @@ def _lp_step(T, J, g, trust):
     if m <= LP_BLOCK + 2 * LP_OVERLAP:
         res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
         return res.x if res.status == 0 else None
-    rows = np.repeat(np.arange(J.shape[0]), np.diff(J.indptr))
-    first = np.full(J.shape[0], m)
-    last = np.full(J.shape[0], -1)
-    np.minimum.at(first, rows, J.indices)
-    np.maximum.at(last, rows, J.indices)
+    first, last = _row_spans(J)
     d = np.zeros(m)
     for start in range(0, m, LP_BLOCK):
         stop = min(start + LP_BLOCK, m)
@@ -260,14 +329,13 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
             T = T * constraints.segment_scales(trajectory)
     T = best
     trust = FIRST_TRUST
-    v = constraints.sample_violations(solve(T))
     J = None
     for iteration in range(MAX_ITERATIONS):
         if trust < MIN_TRUST:
             break
         near = min(NEAR * trust, 1.0)
         if J is None:   # kept while steps from the same point are refused
-            J, g = _linearised_constraints(solve, np.log(T), v, constraints, near)
+            J, g = _linearised_constraints(system, points, np.log(T), constraints, near)
         # a row that no step inside the box can reach (g_r + trust |J_r|_1 <= 0) cannot bind: left out
         rows = g + trust * np.asarray(abs(J).sum(axis=1)).ravel() > 0.0
         d = _lp_step(T, J[rows], g[rows], trust)
@@ -278,18 +346,14 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
         if predicted < STALL_GAIN * T.sum():
             break
         shape = T * np.exp(d)
-        trajectory = solve(shape)
-        k = constraints.feasible_scale(trajectory)
-        candidate = shape * k
+        candidate = shape * constraints.feasible_scale(solve(shape))
         actual = T.sum() - candidate.sum()
         if log is not None:
             log(f'fastest: step {iteration}: trust {trust:.3g}, {T.sum():.4f} s -> {candidate.sum():.4f} s '
                 f'(predicted {T.sum() - predicted:.4f} s)')
         ratio = actual / predicted
-        if ratio > 0.0:   # the plan with times k shape is the shape's, its derivatives divided by k^2, k^3, k^4
+        if ratio > 0.0:
             T, J = candidate, None
-            a, j, snap = constraints.derivatives(trajectory)
-            v = constraints.violations(a / k ** 2, j / k ** 3, snap / k ** 4)
         # the usual trust-region update on how well the linear model predicted the gain
         step = float(np.abs(d).max())
         if ratio < 0.25:

@@ -132,3 +132,42 @@ def test_sqrt_and_the_other_allocations_are_unchanged(crazyflie):
     lengths = timing.segment_lengths(result.points)
     assert result.trajectory.duration_s == pytest.approx(lengths.sum() / mission.options.speed_mps)
     assert dataclasses.replace(mission.options).margin == 0.1
+
+
+def test_the_analytic_jacobian_matches_finite_differences_of_full_solves(crazyflie):
+    """dv/d(log T) from one factorisation of the spline's system against central differences, each a new solve
+    at perturbed times (5 segments: every segment its own colour, so the whole Jacobian is compared)."""
+    from quad_trajectory import fastest, solver
+    from quad_trajectory.polynomial import PiecewisePolynomial
+
+    points = np.array([[0, 0, 1, 0], [1.0, 0.3, 1.2, 0], [1.8, 1.2, 1.0, 0], [1.2, 2.0, 1.4, 0], [0.2, 2.4, 1.1, 0],
+                       [-0.6, 1.5, 1.0, 0]])
+    system = solver.System(len(points) - 1, solver.ORDERS['minsnap'], 'continuity')
+    constraints = fastest.Constraints(crazyflie, 0.1, fastest.LOOP_SAMPLES)
+    T = 0.9 * timing.sqrt_allocation(points, 1.0)
+
+    def violations(T):
+        return constraints.sample_violations(PiecewisePolynomial(T, system.solve(T, points, banded=True)))
+
+    J, g = fastest._linearised_constraints(system, points, np.log(T), constraints, near=1.0)
+    v = violations(T)
+    active = v > -1.0
+    np.testing.assert_allclose(g, v[active], rtol=1e-9, atol=1e-12)
+    step = 1e-5
+    numeric = np.column_stack([
+        (violations(T * np.exp(step * e)) - violations(T * np.exp(-step * e)))[active] / (2 * step)
+        for e in np.eye(T.size)])
+    assert J.shape == numeric.shape and np.abs(numeric).max() > 0.1
+    np.testing.assert_allclose(J.toarray(), numeric, rtol=0, atol=1e-5 * np.abs(numeric).max())
+
+
+def test_row_spans_of_the_lp_windows():
+    """First and last column of each row, empty rows included, and the last row not reading past its end."""
+    from scipy.sparse import csr_matrix
+
+    from quad_trajectory import fastest
+
+    dense = np.array([[0, 1.0, 2, 0, 0], [0, 0, 0, 0, 0], [0, 0, 0, 3, 4], [0, 0, 0, 0, 0], [0, 0, 5, 6, 0]])
+    first, last = fastest._row_spans(csr_matrix(dense))
+    np.testing.assert_array_equal(first, [1, 5, 3, 5, 2])
+    np.testing.assert_array_equal(last, [2, -1, 4, -1, 3])
