@@ -8,7 +8,7 @@ import threading
 import time
 
 import pytest
-from bridge_graph import SetpointPublisher, tapped_graph
+from bridge_graph import SetpointPublisher, free_udp_port, running_graph, tapped_graph
 from geometry_msgs.msg import PoseStamped
 from std_srvs.srv import SetBool
 
@@ -128,4 +128,33 @@ def test_vehicle_param_check_reads_the_emulators_external_vision_parameters(grap
             assert not result.success and UNSET[flavour] in result.message, result.message
     finally:
         setpoints.stop()
+        poses.stop()
+
+
+def test_px4_without_gps_or_pose_refuses_to_arm_and_the_bridge_says_why_then_arms_once_the_pose_streams(tmp_path):
+    """PX4 on the ground with its GPS off and external vision on has no position until a pose arrives: the bridge's
+    `arm` is refused with the autopilot's own reason (its STATUSTEXTs, joined from their chunks), not a bare result
+    code; with the pose streaming it arms."""
+    with running_graph(tmp_path) as (procs, observer):
+        port = free_udp_port()
+        ev = [a for value in EV_PARAMS['px4'] for a in ('--param', value)]
+        procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=(0.0, 0.0, 0.0),
+                      extra=(*VEHICLE_ARGS['px4'], *ev, '--hover-throttle', str(HOVER)))
+        procs.bridge(f'udpin:127.0.0.1:{port}', hover_throttle=HOVER, external_pose_enabled=True,
+                     vehicle_params='ignore')
+        observer.wait_for(lambda: observer.link()[1].get('autopilot') in ('px4', 'PX4'),
+                          f'the link up with the PX4 vehicle ({observer.link()})')
+        _arm_refused_then_accepted(observer)
+
+
+def _arm_refused_then_accepted(observer):
+    result = observer.call('arm', SetBool.Request(data=True))
+    assert not result.success, result.message
+    assert 'Preflight Fail: No valid local position estimate' in result.message, result.message
+    assert 'Arming denied: Resolve system health failures first' in result.message, result.message   # 2 chunks
+    poses = PosePublisher(observer)
+    try:
+        observer.wait_for(lambda: observer.status(STATUS)[0] == 'forwarding', 'the external pose status forwarding')
+        observer.wait_for(lambda: observer.call('arm', SetBool.Request(data=True)).success, 'arming accepted')
+    finally:
         poses.stop()

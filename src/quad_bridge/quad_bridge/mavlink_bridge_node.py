@@ -126,6 +126,8 @@ PARAMS = [
 ]
 OFFBOARD_MIN_STREAM_HZ = 5.0  # on the wire over the pre-stream before asking PX4 for OFFBOARD (it needs > 2 Hz)
 SUPERVISOR_PERIOD_S = 0.05
+STATUSTEXT_WAIT_S = 0.5    # a refused command waits this long (wall) for the vehicle to say why (STATUSTEXT)
+
 
 def _validate(values):
     reason = check_fcu_url(values['fcu_url'])
@@ -477,10 +479,15 @@ class MavlinkBridge(Node):
             return False
         return True
 
-    @staticmethod
-    def _answer(response, what, result):
+    def _answer(self, response, what, result, sent_ns):
+        """The service's answer to a command sent at sent_ns (wall); refused, with what the vehicle said since in
+        its STATUSTEXTs (the autopilots give the reason there, beside the COMMAND_ACK)."""
         response.success = result == mavlink.MAV_RESULT_ACCEPTED
         response.message = f'{what}: {result_name(result)}'
+        if not response.success and result is not None:
+            said = self.vehicle.texts.wait_since(sent_ns, STATUSTEXT_WAIT_S)
+            if said:
+                response.message += ': the vehicle says ' + ' / '.join(f'"{t}"' for t in said)
         return response
 
     @staticmethod
@@ -503,10 +510,11 @@ class MavlinkBridge(Node):
             if flying_ours:  # any node of the domain may call this service (docs/bridge.md, who can command)
                 return self._refuse(response, 'disarm refused: the vehicle is flying our setpoints; call land '
                                               'first (a disarm in the air drops it)')
+        sent_ns = time.time_ns()
         result = self.client.command_long(self.vehicle.status.system, self.params['target_component'],
                                           mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1.0 if request.data else 0.0],
                                           self.params['command_timeout_s'])
-        return self._answer(response, 'arm' if request.data else 'disarm', result)
+        return self._answer(response, 'arm' if request.data else 'disarm', result, sent_ns)
 
     def srv_offboard(self, request, response):
         if not self._ready(response):
@@ -521,7 +529,8 @@ class MavlinkBridge(Node):
                 response.success, response.message = True, f'vehicle in {current}: nothing commanded'
                 return response
             mode = backend.hold_mode('hold')
-            return self._answer(response, f'mode {mode}', self.set_mode(mode))
+            sent_ns = time.time_ns()
+            return self._answer(response, f'mode {mode}', self.set_mode(mode), sent_ns)
         check = self.param_check
         if check is None or self.params['vehicle_params'] != 'ignore':
             # read again: the vehicle's values now, not connect's (MPC_THR_HOVER may have been set on the vehicle since)
@@ -543,6 +552,7 @@ class MavlinkBridge(Node):
             refusal = self._prestream()
             if refusal:
                 return self._refuse(response, refusal)
+        sent_ns = time.time_ns()
         result = self.set_mode(target)
         with self.vehicle.lock:
             self.vehicle.handover.acknowledged(result == mavlink.MAV_RESULT_ACCEPTED, result_name(result),
@@ -550,7 +560,7 @@ class MavlinkBridge(Node):
         self.update_engaged()
         self.streamer.kick()
         self.publish_diagnostics()
-        return self._answer(response, f'mode {target}', result)
+        return self._answer(response, f'mode {target}', result, sent_ns)
 
     def _prestream(self) -> str:
         """Setpoints on the wire for PRESTREAM_S before the switch (quad_bridge.handover); the reason to refuse
@@ -575,7 +585,8 @@ class MavlinkBridge(Node):
             self.vehicle.handover.end('land')
         self.update_engaged()
         mode = self.vehicle.status.backend.land_mode
-        return self._answer(response, f'mode {mode}', self.set_mode(mode))
+        sent_ns = time.time_ns()
+        return self._answer(response, f'mode {mode}', self.set_mode(mode), sent_ns)
 
     # --- vehicle -> ROS (receive thread: decodes and publishes itself, never waits on the executor) ----
 

@@ -190,5 +190,8 @@ class TelemetryPublisher:
             with self.vehicle.lock:
                 self.vehicle.status.rtt_ms = (arrival_ns - msg.ts1) / 1e6
 
-    def on_statustext(self, msg, stamp_ns):
-        self.log.info(f'vehicle: {msg.text}')
+    def on_statustext(self, msg, arrival_ns):
+        text = self.vehicle.texts.add(arrival_ns, msg.severity, msg.text, getattr(msg, 'id', 0),
+                                      getattr(msg, 'chunk_seq', 0))
+        if text is not None:   # once per text, its chunks joined
+            self.log.info(f'vehicle: {text}')

@@ -6,6 +6,7 @@ import threading
 from dataclasses import dataclass, field
 
 from quad_bridge.handover import Handover
+from quad_bridge.statustext import StatusTexts
 
 
 @dataclass
@@ -25,6 +26,7 @@ class Vehicle:
     def __init__(self, confirm_timeout_s: float = 3.0):
         self.lock = threading.RLock()
         self.status = VehicleStatus()
+        self.texts = StatusTexts()         # the vehicle's STATUSTEXTs (the receive thread adds, services read)
         self.handover = Handover(confirm_timeout_s)
         self.confirm_timeout_s = confirm_timeout_s
         self.commanded = None        # the mode we last commanded, until a heartbeat shows it
