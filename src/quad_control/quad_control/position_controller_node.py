@@ -123,8 +123,8 @@ class PositionControllerNode(Node):
         self.last_error = ''
         self.tick_times_ns = deque(maxlen=4096)
         self.odom_age_ns = [0, 0]     # (sum, count) of tick - odometry stamp since the last diagnostics
-        self.node_counts = dict.fromkeys(('odom_timeouts', 'nonfinite_odom', 'future_odom', 'rejected_trajectories'),
-                                         0)
+        self.node_counts = dict.fromkeys(('odom_timeouts', 'nonfinite_odom', 'future_odom', 'old_poses',
+                                          'rejected_trajectories'), 0)
         self.last_future_odom = ''  # 'stamp s > clock s' of the last odometry refused as from the future
         c = contract
         # lockstep: as deep as the simulator's paced topics, so its followers (the recorder) lose no setpoint
@@ -132,14 +132,15 @@ class PositionControllerNode(Node):
         self.cmd_pub = self.create_publisher(Imu, c.SETPOINT, pace(c.SETPOINT))
         self.ref_pub = self.create_publisher(MultiDOFJointTrajectory, c.REFERENCE, pace(c.REFERENCE))
         self.diag_pub = self.create_publisher(DiagnosticArray, c.DIAGNOSTICS, c.qos(c.DIAGNOSTICS))
-        if self.params['state_source'] == 'external_pose':   # motion capture: the filter makes the state
+        # the state's subscription: odometry, or motion capture's pose (the filter makes the state)
+        if self.params['state_source'] == 'external_pose':
             self.pose_filter = PoseStateFilter(self.params['pose_position_noise_m'],
                                                self.params['pose_acceleration_mps2'], self.params['odom_timeout_s'])
-            self.odom_sub = self.create_subscription(PoseStamped, c.EXTERNAL_POSE, self._on_odom,
+            self.state_sub = self.create_subscription(PoseStamped, c.EXTERNAL_POSE, self._on_odom,
                                                      c.qos(c.EXTERNAL_POSE), raw=True)
         else:
             self.pose_filter = None
-            self.odom_sub = self.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM), raw=True)
+            self.state_sub = self.create_subscription(Odometry, c.ODOM, self._on_odom, c.qos(c.ODOM), raw=True)
         self.engaged_sub = self.create_subscription(Bool, c.ENGAGED, self._on_engaged, c.qos(c.ENGAGED)) \
             if self.params['wait_for_engagement'] else None
         self._setpoint_packer = cdr.SetpointPacker()
@@ -176,7 +177,7 @@ class PositionControllerNode(Node):
             self._clock_subs = (len(subscriptions), [s for s in subscriptions if s.topic_name == contract.CLOCK])
         clock = self._clock_subs[1]
         engaged = [self.engaged_sub] if self.engaged_sub is not None else []
-        return clock + engaged + [self.odom_sub, self.trajectory_sub], [self.timer], [self.trajectory_ready]
+        return clock + engaged + [self.state_sub, self.trajectory_sub], [self.timer], [self.trajectory_ready]
 
     def destroy_node(self):
         self.trajectory_decoder.close()
@@ -198,25 +199,28 @@ class PositionControllerNode(Node):
 
     # --- inputs ---------------------------------------------------------------------------------
 
-    def _state_of(self, raw: bytes):
-        """(stamp ns, State) of a serialized odom (quad_common.cdr: the tick's critical path), or of an external pose
-        through the pose filter (state_source external_pose)."""
-        if self.pose_filter is None:
-            return cdr.odometry_to_state(raw)
+    def _pose_of(self, raw: bytes):
+        """(stamp ns, ENU position, FLU -> ENU attitude) of a serialized external pose; ValueError when not finite."""
         msg = deserialize_message(raw, PoseStamped)
         p, q = msg.pose.position, msg.pose.orientation
         position, quaternion, _ = mocap_frames.to_enu(self.params['external_pose_frame'], (p.x, p.y, p.z),
                                                       (q.x, q.y, q.z, q.w))
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        return stamp_ns, self.pose_filter.update(stamp_ns, position, quaternion)
+        if not np.isfinite(position).all():
+            raise ValueError(f'pose position {position.tolist()}')
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, position, quaternion
 
     def _on_odom(self, raw: bytes):
-        """The state's message (odom, or external/pose with state_source external_pose)."""
+        """The state's message: odom, serialized (quad_common.cdr: the tick's critical path), or external/pose
+        (state_source external_pose), made a state by the pose filter once it passed the checks below."""
+        pose = None
         try:
-            stamp_ns, state = self._state_of(raw)
-            if not state.is_finite():
-                raise ValueError(f'position {state.position.tolist()}, velocity {state.velocity.tolist()}, '
-                                 f'body rates {state.body_rates.tolist()}')
+            if self.pose_filter is None:
+                stamp_ns, state = cdr.odometry_to_state(raw)
+                if not state.is_finite():
+                    raise ValueError(f'position {state.position.tolist()}, velocity {state.velocity.tolist()}, '
+                                     f'body rates {state.body_rates.tolist()}')
+            else:
+                stamp_ns, *pose = self._pose_of(raw)
         except ValueError as exc:
             self.node_counts['nonfinite_odom'] += 1
             first = self.odom_fault is None
@@ -231,6 +235,12 @@ class PositionControllerNode(Node):
             self.get_logger().warn(f'odom refused: {self.last_future_odom} (ahead of this node\'s clock); '
                                    f'{self.node_counts["future_odom"]} so far', throttle_duration_sec=1.0)
             return
+        if pose is not None:
+            last_ns = self.pose_filter.stamp_ns
+            if last_ns is not None and stamp_ns <= last_ns:   # a repeated or reordered frame: the newer one stands
+                self.node_counts['old_poses'] += 1
+                return
+            state = self.pose_filter.update(stamp_ns, *pose)
         if self.odom_fault is not None:
             self.get_logger().info('odom finite again: control resumes')
             self.odom_fault = None
@@ -247,7 +257,7 @@ class PositionControllerNode(Node):
         """Odometry that arrived but was not yet taken (this process was not scheduled, or the executor ran the
         tick first): taken now, so staleness means none arrived, not none handled yet. True if any was."""
         taken = False
-        while (msg := self.odom_sub.handle.take_message(self.odom_sub.msg_type, self.odom_sub.raw)) is not None:
+        while (msg := self.state_sub.handle.take_message(self.state_sub.msg_type, self.state_sub.raw)) is not None:
             self._on_odom(msg[0])
             taken = True
         return taken

@@ -235,9 +235,9 @@ def test_odometry_waiting_in_the_subscription_is_not_stale(graph):
     node.odom_received_ns -= 1_000_000_000          # ... for a second, as far as its odometry age goes
     graph.publish_odom(0.0, z=0.9)
     waiting = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, graph.ctx.handle)
-    waiting.add_subscription(node.odom_sub.handle)
+    waiting.add_subscription(node.state_sub.handle)
     waiting.wait(int(TIMEOUT_S * 1e9))               # the odometry is in the node's subscription, not yet taken
-    assert node.odom_sub.handle.pointer in waiting.get_ready_entities('subscription')
+    assert node.state_sub.handle.pointer in waiting.get_ready_entities('subscription')
     n = len(graph.setpoints)
     node._on_tick()                                  # the timer runs first
     assert node.counts['odom_timeouts'] == 0 and node.loop.odom[1].position[2] == 0.9
@@ -445,13 +445,16 @@ def test_state_source_external_pose_flies_from_motion_capture_with_a_filtered_ve
     assert graph.odom_pub.get_subscription_count() == 0      # odometry is not its state
     graph.traj_pub.publish(_hover_trajectory(1.0))
     graph.spin_until(lambda: graph.node.trajectory is not None, 'trajectory')
-    for k in range(50):   # ENU x = 0.5 t at 1 m height: Y-up (x, y, z) = (x_enu, z_enu, -y_enu)
-        t_s = 1.0 + 0.01 * k
+    def pose(t_s):   # ENU x = 0.5 t at 1 m height: Y-up (x, y, z) = (x_enu, z_enu, -y_enu)
         msg = PoseStamped()
         msg.header.stamp = conv.s_to_stamp(t_s)
         msg.pose.position.x, msg.pose.position.y = 0.5 * t_s, 1.0
         msg.pose.orientation.w = 1.0
-        pose_pub.publish(msg)
+        return msg
+
+    for k in range(50):
+        t_s = 1.0 + 0.01 * k
+        pose_pub.publish(pose(t_s))
         graph.publish_clock(t_s)
         graph.spin_until(lambda t_s=t_s: graph.setpoints_at(t_s), f'setpoint at {t_s:.2f}')
     stamp_ns, state = graph.node.loop.odom
@@ -463,3 +466,13 @@ def test_state_source_external_pose_flies_from_motion_capture_with_a_filtered_ve
     tilt_x = 2.0 * (sp.orientation.w * sp.orientation.y + sp.orientation.x * sp.orientation.z)
     assert tilt_x < 0.0
     assert graph.node.counts['nonfinite_odom'] == 0
+    # a pose from the future is refused without entering the filter, and a repeated one is counted and dropped:
+    # the next pose in time still flies
+    pose_pub.publish(pose(100.0))
+    graph.spin_until(lambda: graph.node.counts['future_odom'] == 1, 'the future pose refused')
+    pose_pub.publish(pose(1.49))
+    graph.spin_until(lambda: graph.node.counts['old_poses'] == 1, 'the repeated pose dropped')
+    pose_pub.publish(pose(1.50))
+    graph.publish_clock(1.50)
+    graph.spin_until(lambda: graph.setpoints_at(1.50), 'setpoint at 1.50')
+    assert graph.node.loop.odom[0] == 1_500_000_000
