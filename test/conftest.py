@@ -1,4 +1,5 @@
 import pytest
+from vehicle_emu_client import EmulatedVehicle
 
 from quad_common.testing import isolated_domain
 
@@ -8,3 +9,17 @@ def ros_env():
     """Environment for subprocesses of one test graph: its own ROS domain, localhost discovery."""
     with isolated_domain() as (_, env):
         yield env
+
+
+@pytest.fixture
+def vehicles(tmp_path):
+    """start(*args, **kwargs) -> an EmulatedVehicle (vehicle_emu_client) for the test; every one closed after."""
+    started = []
+
+    def start(*args, **kwargs):
+        v = EmulatedVehicle(tmp_path, *args, **kwargs)
+        started.append(v)
+        return v
+    yield start
+    for v in started:
+        v.close()

@@ -7,24 +7,11 @@ import time
 
 import numpy as np
 import pytest
-from vehicle_emu_client import PX4_MODES, EmulatedVehicle, level_q_wxyz
+from vehicle_emu_client import PX4_MODES, level_q_wxyz
 
 ATTITUDE, LOCAL_POSITION_NED, HIGHRES_IMU, SYS_STATUS = 30, 32, 105, 1
 PREARM = 0x10000000
 GUIDED, GUIDED_NOGPS, LOITER = 4, 20, 5
-
-
-@pytest.fixture
-def vehicles(tmp_path):
-    started = []
-
-    def start(*args, **kwargs):
-        v = EmulatedVehicle(tmp_path, *args, **kwargs)
-        started.append(v)
-        return v
-    yield start
-    for v in started:
-        v.close()
 
 
 def _roll_deg(v, since):

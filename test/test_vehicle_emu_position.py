@@ -5,27 +5,11 @@ over real UDP MAVLink from a plain pymavlink ground station."""
 import threading
 import time
 
-import pytest
-from vehicle_emu_client import EmulatedVehicle
-
 ARM, SET_MODE = 400, 176
 ACCEPTED, DENIED, FAILED = 0, 2, 4
 GUIDED = 4
 PREARM = 0x10000000
 POSE_RATE_HZ = 30.0
-
-
-@pytest.fixture
-def vehicles(tmp_path):
-    started = []
-
-    def start(*args, **kwargs):
-        v = EmulatedVehicle(tmp_path, *args, **kwargs)
-        started.append(v)
-        return v
-    yield start
-    for v in started:
-        v.close()
 
 
 class PoseStream:
