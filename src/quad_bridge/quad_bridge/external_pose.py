@@ -26,8 +26,6 @@ import numpy as np
 from quad_bridge import frames
 from quad_common import mocap_frames, rotations
 
-FRAMES, check_frame, to_enu = mocap_frames.FRAMES, mocap_frames.check_frame, mocap_frames.to_enu
-
 
 @dataclasses.dataclass(frozen=True)
 class PoseNed:
@@ -54,7 +52,7 @@ class ExternalPoseConfig:
     jump_margin_m: float = 0.1
 
     def __post_init__(self):
-        check_frame(self.frame)
+        mocap_frames.check_frame(self.frame)
         for name in ('max_rate_hz', 'timeout_s', 'max_age_s', 'max_speed_m_s'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -93,7 +91,7 @@ class ExternalPoseFilter:
         if self.last_age_s > cfg.max_age_s:
             self.fault = f'late: stamp {self.last_age_s * 1e3:.0f} ms old > {cfg.max_age_s * 1e3:.0f} ms'
             return None
-        p, q, v = to_enu(cfg.frame, position, quaternion, velocity)
+        p, q, v = mocap_frames.to_enu(cfg.frame, position, quaternion, velocity)
         if self._last_position is not None:
             dt = max(0.0, (stamp_ns - self._last_stamp_ns) / 1e9)
             step = float(np.linalg.norm(p - self._last_position))

@@ -30,7 +30,7 @@ from quad_bridge.backend import (
     rate_interval_us,
 )
 from quad_bridge.backends import BACKENDS, resolve
-from quad_bridge.external_pose import FRAMES, ExternalPoseConfig, ExternalPoseFilter
+from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter
 from quad_bridge.handover import ACTIVE, PRESTREAM, PRESTREAM_S
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
@@ -39,7 +39,7 @@ from quad_bridge.safety import BRAKE, BREACH, Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
 from quad_bridge.vehicle import Vehicle
-from quad_common import contract, diagnostics
+from quad_common import contract, diagnostics, mocap_frames
 from quad_common.node_main import run_node
 from quad_common.params import Param
 from quad_common.realtime import apply_or_report
@@ -113,7 +113,7 @@ PARAMS = [
           f'forward {contract.EXTERNAL_POSE} / {contract.EXTERNAL_ODOM} to the autopilot\'s estimator (motion '
           'capture); its faults end a hand-over', read_only=True),
     Param('external_pose_frame', 'enu', 'frame of the external pose: enu (ENU world, FLU body) | y_up (motion '
-          'capture Y-up: (x, y, z) -> (x, -z, y) ENU)', choices=FRAMES, read_only=True),
+          'capture Y-up: (x, y, z) -> (x, -z, y) ENU)', choices=mocap_frames.FRAMES, read_only=True),
     Param('external_pose_rate_hz', 30.0, 'external pose forwarded at most at this rate (PX4 EKF2: 30-50 Hz)',
           min=1.0, max=200.0, read_only=True),
     Param('external_pose_timeout_s', 0.5, 'no external pose for this long: fault', min=0.02, max=10.0,

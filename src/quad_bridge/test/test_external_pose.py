@@ -8,8 +8,9 @@ import pytest
 
 from quad_bridge import frames
 from quad_bridge.clock import ClockMapper
-from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter, to_enu
+from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter
 from quad_common import rotations
+from quad_common.mocap_frames import to_enu
 
 MS = 1_000_000
 OFFSET_NS = 5_000 * MS   # local - autopilot
