@@ -34,6 +34,10 @@ def alpha_beta_gains(dt_s: float, position_noise_m: float, acceleration_mps2: fl
     return alpha, 2.0 * (2.0 - alpha) - 4.0 * math.sqrt(1.0 - alpha)
 
 
+class PoseNotNewer(ValueError):
+    """A pose stamped at or before the last one taken (a repeated or reordered frame)."""
+
+
 class PoseStateFilter:
     """Poses (stamp, ENU position, FLU -> ENU attitude) in, State out (module docstring)."""
 
@@ -51,14 +55,14 @@ class PoseStateFilter:
         self.restarts = 0
 
     def update(self, stamp_ns: int, position, quaternion) -> State:
-        """The state at stamp_ns. A pose not newer than the last, or not finite, raises ValueError (nothing
-        changes)."""
+        """The state at stamp_ns. A pose not newer than the last raises PoseNotNewer, one not finite ValueError
+        (nothing changes)."""
         z = np.asarray(position, dtype=float)
         q = rotations.normalize(quaternion)
         if z.shape != (3,) or not np.isfinite(z).all():
             raise ValueError(f'pose position {z.tolist()} is not three finite numbers')
         if self.stamp_ns is not None and stamp_ns <= self.stamp_ns:
-            raise ValueError(f'pose stamp {stamp_ns * 1e-9:.6f} s is not after the last {self.stamp_ns * 1e-9:.6f} s')
+            raise PoseNotNewer(f'pose stamp {stamp_ns * 1e-9:.6f} s is not after the last {self.stamp_ns * 1e-9:.6f} s')
         dt = None if self.stamp_ns is None else (stamp_ns - self.stamp_ns) * 1e-9
         if dt is None or dt > self.max_gap_s:
             self.restarts += dt is not None

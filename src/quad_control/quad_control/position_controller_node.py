@@ -38,7 +38,7 @@ from quad_common.vehicle import load_vehicle
 from quad_control.loop import ControlLoop, Tick
 from quad_control.parameters import NODE_NAME, SPECS, gains_from
 from quad_control.plugins import ControllerRefused, make_controller
-from quad_control.pose_state import PoseStateFilter
+from quad_control.pose_state import PoseNotNewer, PoseStateFilter
 from quad_control.position import Limits
 
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -200,13 +200,11 @@ class PositionControllerNode(Node):
     # --- inputs ---------------------------------------------------------------------------------
 
     def _pose_of(self, raw: bytes):
-        """(stamp ns, ENU position, FLU -> ENU attitude) of a serialized external pose; ValueError when not finite."""
+        """(stamp ns, ENU position, FLU -> ENU attitude) of a serialized external pose."""
         msg = deserialize_message(raw, PoseStamped)
         p, q = msg.pose.position, msg.pose.orientation
         position, quaternion, _ = mocap_frames.to_enu(self.params['external_pose_frame'], (p.x, p.y, p.z),
                                                       (q.x, q.y, q.z, q.w))
-        if not np.isfinite(position).all():
-            raise ValueError(f'pose position {position.tolist()}')
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, position, quaternion
 
     def _on_odom(self, raw: bytes):
@@ -222,11 +220,7 @@ class PositionControllerNode(Node):
             else:
                 stamp_ns, *pose = self._pose_of(raw)
         except ValueError as exc:
-            self.node_counts['nonfinite_odom'] += 1
-            first = self.odom_fault is None
-            self.odom_fault = f'odom refused (non-finite): {exc}'
-            if first:
-                self._fault(self.odom_fault)
+            self._refuse_state(exc)
             return
         now_ns = self.get_clock().now().nanoseconds
         if stamp_ns > now_ns + self._period_ns:
@@ -236,16 +230,27 @@ class PositionControllerNode(Node):
                                    f'{self.node_counts["future_odom"]} so far', throttle_duration_sec=1.0)
             return
         if pose is not None:
-            last_ns = self.pose_filter.stamp_ns
-            if last_ns is not None and stamp_ns <= last_ns:   # a repeated or reordered frame: the newer one stands
+            try:
+                state = self.pose_filter.update(stamp_ns, *pose)
+            except PoseNotNewer:   # a repeated or reordered frame: the newer one stands
                 self.node_counts['old_poses'] += 1
                 return
-            state = self.pose_filter.update(stamp_ns, *pose)
+            except ValueError as exc:
+                self._refuse_state(exc)
+                return
         if self.odom_fault is not None:
             self.get_logger().info('odom finite again: control resumes')
             self.odom_fault = None
         self.odom_received_ns = self.steady.now().nanoseconds
         self._publish(self.loop.set_odometry(stamp_ns, state))
+
+    def _refuse_state(self, exc: ValueError):
+        """A non-finite state: counted, and a fault (no setpoints) until a finite one comes."""
+        self.node_counts['nonfinite_odom'] += 1
+        first = self.odom_fault is None
+        self.odom_fault = f'odom refused (non-finite): {exc}'
+        if first:
+            self._fault(self.odom_fault)
 
     def _on_engaged(self, msg: Bool):
         """vehicle/engaged: the plan's clock runs only while the vehicle flies our setpoints (quad_control.loop)."""

@@ -476,3 +476,12 @@ def test_state_source_external_pose_flies_from_motion_capture_with_a_filtered_ve
     graph.publish_clock(1.50)
     graph.spin_until(lambda: graph.setpoints_at(1.50), 'setpoint at 1.50')
     assert graph.node.loop.odom[0] == 1_500_000_000
+    # a non-finite pose is refused as non-finite odometry is, and leaves the filter as it was
+    bad = pose(1.51)
+    bad.pose.position.x = math.nan
+    pose_pub.publish(bad)
+    graph.spin_until(lambda: graph.node.counts['nonfinite_odom'] == 1, 'the non-finite pose refused')
+    pose_pub.publish(pose(1.51))
+    graph.publish_clock(1.51)
+    graph.spin_until(lambda: graph.setpoints_at(1.51), 'setpoint at 1.51')
+    assert np.isfinite(graph.node.loop.odom[1].velocity).all()
