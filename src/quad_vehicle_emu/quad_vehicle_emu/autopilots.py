@@ -353,9 +353,9 @@ class Px4(Autopilot):
             # a stick mode with no sticks (the emulator has no RC): as PX4 v1.16 SIH flew it with the bridge
             # killed, descending level, nothing holding it horizontally (it drifts)
             return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
-        if self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.RTL') and not self.has_position(now_s):
-            return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
         if self.mode in ('AUTO.LAND', 'AUTO.PRECLAND', 'AUTO.RTL'):
+            if not self.has_position(now_s):   # Descend: level, nothing holding it horizontally
+                return self._idle(state) if landed else self._descend_level(state, self.params['MPC_LAND_SPEED'])
             return self._idle(state) if landed and self.hold_position is not None and landed_s > 0.5 else \
                 self._hold(state, self.params['MPC_LAND_SPEED'])
         if landed:

@@ -143,6 +143,7 @@ class MavlinkVehicle:
         self.t0 = time.monotonic()
         self.wall0_ns = time.time_ns()   # the wall clock at t0 (the test's truth for the boot clock)
         self.log_index = 0
+        self.statustext_id = 0      # the id of the last chunked STATUSTEXT (1..65535)
         self.last_update_s = 0.0
         self._snap = None
 
@@ -410,7 +411,7 @@ class MavlinkVehicle:
         if len(data) <= 50:
             self.mav.statustext_send(6, data, 0, 0)
             return
-        self.statustext_id = getattr(self, 'statustext_id', 0) % 0xFFFF + 1
+        self.statustext_id = self.statustext_id % 0xFFFF + 1
         for seq, start in enumerate(range(0, len(data) + 1, 50)):
             self.mav.statustext_send(6, data[start:start + 50], self.statustext_id, seq)
 
