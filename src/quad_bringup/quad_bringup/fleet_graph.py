@@ -137,11 +137,11 @@ def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted:
 
 def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True,
               rule: Completion | None = None, log=print, timeout_s: float = 600.0, reports: bool = False,
-              figures: bool = False, defer_figures: bool = False) -> tuple[FleetRun, GraphTiming]:
+              figures: bool = False) -> tuple[FleetRun, GraphTiming]:
     """Flies a planned (separation-checked) fleet through the ROS graph; returns its FleetRun (metrics per
     vehicle from the bag, the flown separation and collisions) and the timing. reports: each vehicle's report
-    (metrics.json, report.md, with figures/ if figures; defer_figures: drawn by the run's finish(), so the caller
-    gives the verdict first) under out_dir/vehicles/NAME. Raises RuntimeError naming
+    (metrics.json, report.md; with figures: figures/ drawn when the caller calls the run's finish(), after it gave
+    the verdict) under out_dir/vehicles/NAME. Raises RuntimeError naming
     the process when one exits before the simulator has finished, or timeout_s (wall) passes."""
     run = prepare(plan, out_dir, speed_mps=speed_mps, hosted=hosted)
     timing = GraphTiming()
@@ -158,7 +158,7 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
             timing.processes = run.stop(log=log)
             timing.total_s = time.monotonic() - start
     reports_dir = run.out_dir / 'vehicles' if reports else None
-    return fleet_run(run.bag, plan, rule, reports_dir, figures, defer_figures), timing
+    return fleet_run(run.bag, plan, rule, reports_dir, figures), timing
 
 
 def cpu_s(pid: int) -> float:
@@ -182,9 +182,9 @@ def _stepping_s(log_path: Path, fallback_s: float) -> float:
 
 
 def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_dir=None,
-              figures: bool = False, defer_figures: bool = False) -> FleetRun:
+              figures: bool = False) -> FleetRun:
     """Each vehicle's metrics from the fleet's bag by `rule` (None: each vehicle's own completion rule, as fly
-    scores), and its report under reports_dir/NAME when given; the flown
+    scores), and its report under reports_dir/NAME when given (figures: by the returned run's finish()); the flown
     separation and collisions on a common time base (the first vehicle's odometry stamps: in lockstep every
     vehicle has one at each step)."""
     names = plan.fleet.names
@@ -200,13 +200,11 @@ def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_
             metrics[name] = write_report(bag_dir, Path(reports_dir) / name, extra, rules[name], figures=False,
                                          flight=flight)
     finish = None
-    if reports_dir is not None and figures:
+    if reports_dir is not None and figures:   # drawn by the caller's finish(): the verdict does not wait for them
         jobs = ({Path(reports_dir) / name: flights[name] for name in names},
                 {Path(reports_dir) / name: metrics[name] for name in names})
-        if defer_figures:
-            def finish():
-                draw_reports_figures(*jobs)
-        else:
+
+        def finish():
             draw_reports_figures(*jobs)
     t = flights[names[0]].odom_t
     positions = {n: np.column_stack([np.interp(t, f.odom_t, f.position[:, a]) for a in range(3)])

@@ -50,7 +50,7 @@ class FleetRun:
     wall_s: dict = field(default_factory=dict)   # control, physics, collision, total
     positions: dict = field(default_factory=dict)   # name -> (ticks, 3) flown positions at t_s
     controllers: dict = field(default_factory=dict)  # name -> the controller it flew (pd, pid, se3)
-    finish: Callable | None = None         # draws the vehicles' report figures when they were deferred (fleet_graph)
+    finish: Callable | None = None         # draws the vehicles' report figures (fleet_graph, figures=True)
 
     @property
     def sim_s(self) -> float:

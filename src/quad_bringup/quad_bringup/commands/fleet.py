@@ -118,7 +118,7 @@ def run(args) -> int:
                 raise ValueError('--disturbances is offline only (sim_node takes its profile from sim.yaml)')
             args.out = args.out or default_out_dir(fleet.name)
             result, timing = fly_graph(plan, args.out, speed_mps=args.speed, hosted=not args.process_per_node,
-                                       reports=True, figures=not args.no_figures, defer_figures=True)
+                                       reports=True, figures=not args.no_figures)
             result.wall_s['total'] = timing.flight_s
             result.wall_s['command'] = timing.total_s
         else:
