@@ -108,3 +108,15 @@ def test_every_module_and_launch_file_is_named():
     unnamed = [str(p.relative_to(ROOT)) for p in SOURCES + sorted((ROOT / 'src').glob('*/launch/*.py'))
                if p.name != '__init__.py' and p.name not in named]
     assert not unnamed, f'docs/design.md does not name: {unnamed}'
+
+
+def test_readme_layout_names_every_quad_bringup_module_by_job():
+    """quad_bringup holds five jobs in one package: README's layout row is its map, so it names every module
+    (and every subcommand module) there."""
+    row = next(line for line in (ROOT / 'README.md').read_text().splitlines()
+               if line.startswith('| `src/quad_bringup` |'))
+    named = set(quoted(row))
+    package = ROOT / 'src' / 'quad_bringup' / 'quad_bringup'
+    unnamed = [str(p.relative_to(package)) for p in sorted(package.glob('**/*.py'))
+               if p.name != '__init__.py' and p.stem not in named]
+    assert not unnamed, f"README.md's layout row of src/quad_bringup does not name: {unnamed}"
