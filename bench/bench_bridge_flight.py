@@ -31,19 +31,24 @@ import numpy as np  # noqa: E402
 from bridge_graph import running_graph  # noqa: E402
 from bridge_mission import CONTROL, REAL_PROFILE, VEHICLE_FILE, fly_mission  # noqa: E402
 
-from quad_common.types import AttitudeSetpoint, State  # noqa: E402
+from quad_bringup.harness import DelayLine as HarnessDelayLine  # noqa: E402
+from quad_bringup.harness import Mocap, fly  # noqa: E402
+from quad_common.types import State  # noqa: E402
 from quad_common.vehicle import load_vehicle  # noqa: E402
 from quad_common.yaml_io import load_yaml  # noqa: E402
 from quad_control.loop import ControlLoop  # noqa: E402
 from quad_control.parameters import gains_from, profile_parameters  # noqa: E402
+from quad_control.plugins import make_controller  # noqa: E402
 from quad_control.pose_state import PoseStateFilter  # noqa: E402
-from quad_control.position import Limits, PositionController  # noqa: E402
+from quad_control.position import Limits  # noqa: E402
+from quad_sim.mocap import MocapConfig  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
 from quad_trajectory import planner  # noqa: E402
 from quad_trajectory.mission import SAMPLE_RATE_HZ  # noqa: E402
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.drag import with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import SIH_VELOCITY_NOISE_MPS, Estimate  # noqa: E402
+from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, AutopilotPlant  # noqa: E402
 
 SQUARE = [(0.0, 0.0, 2.0), (3.0, 0.0, 2.0), (3.0, 3.0, 2.0), (0.0, 3.0, 2.0), (0.0, 0.0, 2.0)]
 SPEED_MPS = 0.8
@@ -123,8 +128,9 @@ def score(stamps_s, positions, traj) -> float:
 def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_early_s=None,
                       mocap=None, truth=False) -> float:
     """The PX4 SIH-like emulated chain without processes, MAVLink or a loaded machine: the emulator's own pieces
-    (its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the estimate, the telemetry
-    delay line at 20 ms and 50 Hz) under position_controller's ControlLoop at 100 Hz, the square planned as
+    (quad_vehicle_emu.plant: its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the
+    estimate; the telemetry delay line at 20 ms and 50 Hz) through the flight harness (quad_bringup.harness:
+    position_controller's ControlLoop) at 100 Hz, the square planned as
     trajectory_node plans it; the RMSE of the estimate (what the bag's odometry is) against the plan, over the
     plan plus settle_s. velocity_lag_s: the estimate's velocity that late too (the first SIH-like model).
     options: the emulator's flags it stands for (PX4_SIH_LIKE, or PX4_SIH_BEFORE).
@@ -135,75 +141,63 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
     bridge, lockstep false: a tick controls from the newest odometry, whatever its stamp) and the scoring (score:
     the plan at the stamp, as `quadflight report` does).
     mocap: None, or (noise_m, latency_s, rate_hz): the controller flies from motion capture (position_controller's
-    state_source external_pose: the truth's position + Gaussian noise, delivered latency_s late at rate_hz, through
-    quad_control.pose_state's filter with the profile's pose parameters) instead of the odometry.
+    state_source external_pose: quad_bringup.harness.Mocap, the simulator's stand-in at rate_hz with that noise and
+    latency, through quad_control.pose_state's filter with the profile's pose parameters) instead of the odometry.
     truth: score the truth (where the vehicle is, every 10 ms) against the plan, not the estimate."""
     early_s = None if odom_early_s is None else odom_early_s_checked(odom_early_s)
     values = _profile_values(profile)
     vehicle = load_vehicle(VEHICLE_FILE)
-    loop = ControlLoop(PositionController(values.get('controller', 'pd'), gains_from(values), vehicle,
-                                          Limits.of(vehicle)), 100.0, lockstep=False)
+    loop = ControlLoop(make_controller(values.get('controller', 'pd'), gains_from(values), vehicle, Limits.of(vehicle),
+                                       100.0), 100.0)
     plan = planner.plan(np.array(SQUARE), 0.0, planner.PlanOptions(speed_mps=SPEED_MPS), vehicle=vehicle)
     traj = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
     loop.set_trajectory(int(OFFLINE_HOVER_S * 1e9), traj)
     option = dict(zip(options[::2], options[1::2]))
-    plant, drag = with_linear_drag(emulated_vehicle(VEHICLE_FILE, rate_loop=option.get('--rate-loop', 'default')),
-                                   float(option['--drag-per-s']))
-    sim = Simulator(plant, 500.0, initial_position=SQUARE[0], setpoint_timeout_s=1e6, disturbances=drag)
+    airframe, drag = with_linear_drag(emulated_vehicle(VEHICLE_FILE, rate_loop=option.get('--rate-loop', 'default')),
+                                      float(option['--drag-per-s']))
+    sim = Simulator(airframe, PHYSICS_RATE_HZ, initial_position=SQUARE[0], setpoint_timeout_s=1e6, disturbances=drag)
     sim.armed = True
-    shaper = AttitudeResponse(float(option['--attitude-tau-s']), sim.state.quaternion,
-                             float(option.get('--attitude-dead-time-s', 0.0)))
     noise = [float(v) for v in option.get('--estimator-velocity-noise-mps', '0,0,0').split(',')]
     estimate = Estimate(float(option['--estimator-lag-s']), float(option['--estimator-wander-m']),
                         float(option['--estimator-wander-z-m']), float(option['--estimator-wander-tau-s']), seed,
                         noise, float(option.get('--estimator-velocity-wander-mps', 0.0)),
                         float(option.get('--estimator-velocity-wander-z-mps', 0.0)),
                         float(option.get('--estimator-velocity-wander-tau-s', 3.0)))
-    rp_rates_fed = option.get('--rp-rates-with-attitude', 'fed') == 'fed'   # PX4: mavlink_receiver drops them
-    telemetry, velocities = DelayLine(0.02), DelayLine(velocity_lag_s)
-    seen, samples, truth_samples = None, [], []
+    if velocity_lag_s:
+        estimate = _LateVelocity(estimate, velocity_lag_s)
+    plant = AutopilotPlant(sim, AttitudeResponse(float(option['--attitude-tau-s']), sim.state.quaternion,
+                                                 float(option.get('--attitude-dead-time-s', 0.0))),
+                           estimate, rp_rates_fed=option.get('--rp-rates-with-attitude', 'fed') == 'fed')
     if mocap is not None:
         mocap_noise_m, mocap_latency_s, mocap_rate_hz = mocap
-        frames, rng = DelayLine(mocap_latency_s), np.random.default_rng(seed + 1000)
-        pose_filter = PoseStateFilter(values.get('pose_position_noise_m', 0.001),
-                                      values.get('pose_acceleration_mps2', 2.0), 0.2)
-        frame_every = max(1, round(100.0 / mocap_rate_hz))
+        telemetry = Mocap(MocapConfig(rate_hz=mocap_rate_hz, position_noise_m=mocap_noise_m,
+                                      latency_s=mocap_latency_s),
+                          PoseStateFilter(values.get('pose_position_noise_m', 0.001),
+                                          values.get('pose_acceleration_mps2', 2.0), 0.2), seed)
+    else:   # odometry at 50 Hz, 20 ms late, stamped at its arrival or when measured (early_s before)
+        telemetry = HarnessDelayLine(0.02, 2, stamp_shift_s=0.02 if early_s is None else -early_s)
     end_s = OFFLINE_HOVER_S + traj.duration_s + 3.0
-    for k in range(int(end_s * 100) + 1):
-        t_s = 0.01 * k
-        est = estimate.step(t_s, sim.state)
-        velocities.push(t_s, sim.state.velocity.copy())
-        if velocity_lag_s:
-            old = velocities.read(t_s)
-            est = State(position=est.position, velocity=old[1] if old else est.velocity,
-                        quaternion=est.quaternion, body_rates=est.body_rates)
-        telemetry.push(t_s, est)
-        if mocap is not None:
-            if k % frame_every == 0:
-                frames.push(t_s, (sim.state.position + rng.normal(0.0, mocap_noise_m, 3), sim.state.quaternion))
-            frame = frames.read(t_s)
-            if frame is not None and (seen is None or frame[0] > samples[-1][0]):
-                seen = pose_filter.update(round(frame[0] * 1e9), *frame[1])
-                loop.set_odometry(round(frame[0] * 1e9), seen)
-                samples.append((frame[0], seen.position.copy()))
-        elif k % 2 == 0 and telemetry.read(t_s) is not None:    # odometry at 50 Hz
-            measured_s, seen = telemetry.read(t_s)
-            stamp_s = t_s if early_s is None else measured_s - early_s
-            loop.set_odometry(round(stamp_s * 1e9), seen)
-            samples.append((stamp_s, seen.position.copy()))
-        if seen is None:
-            sp = AttitudeSetpoint(quaternion=sim.state.quaternion, specific_force_mps2=9.81, body_rates=None)
-        else:
-            sp = loop.tick(int(t_s * 1e9)).setpoint
-        rates = sp.body_rates
-        if rates is not None and not rp_rates_fed:
-            rates = np.array([0.0, 0.0, rates[2]])
-        q, w = shaper.step(sp.quaternion, 0.01, rates)
-        sim.set_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=sp.specific_force_mps2, body_rates=w))
-        sim.advance_steps(sim.steps_in(0.01))
-        truth_samples.append((t_s, sim.state.position.copy()))   # where the vehicle is at t_s + 0.01
-    scored = [(t + 0.01, p) for t, p in truth_samples] if truth else samples
+    flown = fly(loop, plant, telemetry, int(end_s * 100) + 1)
+    if truth:
+        t_s, states = flown.track()
+        scored = [(t, s.position) for t, s in zip(t_s[1:], states[1:])]   # where the vehicle is after each period
+    else:
+        scored = [(stamp_ns * 1e-9, state.position) for stamp_ns, state in flown.odometry]
     return score([t for t, _ in scored], [p for _, p in scored], traj)
+
+
+class _LateVelocity:
+    """An Estimate whose velocity is the truth's lag_s ago (the first SIH-like model's estimate)."""
+
+    def __init__(self, estimate, lag_s: float):
+        self.estimate, self.velocities = estimate, DelayLine(lag_s)
+
+    def step(self, now_s, truth: State) -> State:
+        est = self.estimate.step(now_s, truth)
+        self.velocities.push(now_s, truth.velocity.copy())
+        old = self.velocities.read(now_s)
+        return State(position=est.position, velocity=old[1] if old else est.velocity, quaternion=est.quaternion,
+                     body_rates=est.body_rates)
 
 
 def offline_rows() -> list[tuple]:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from quad_bringup.harness import Fresh, SimulatorPlant, fly
 from quad_bringup.metrics import Completion, Flight, compute_metrics
 from quad_common import contract, rotations
 from quad_common.paths import resolve_config
@@ -23,7 +24,7 @@ from quad_control.parameters import gains_from, profile_parameters
 from quad_control.plugins import make_controller
 from quad_control.position import Limits, PositionGains
 from quad_sim.disturbances import load_profile, profile_from_dict
-from quad_sim.simulator import PHYSICS_RATE_HZ, SimulationStopped, Simulator
+from quad_sim.simulator import PHYSICS_RATE_HZ, Simulator
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SAMPLE_RATE_HZ, load_mission, plan_mission
 
 DISTURBANCES_FILE = resolve_config('config/disturbances.yaml')  # installed share, else the checkout
@@ -57,20 +58,6 @@ class OfflineRun:
     setpoints: list = field(default_factory=list)                             # AttitudeSetpoint per tick
     references: list = field(default_factory=list)                            # Reference per tick
     loop: ControlLoop | None = None
-
-
-class _Delay:
-    """The state as seen latency_s (a whole number of periods) late; the first one until then."""
-
-    def __init__(self, latency_s, period_s):
-        self.steps = int(round(latency_s / period_s))
-        self.queue = []
-
-    def __call__(self, state):
-        self.queue.append(state)
-        if len(self.queue) > self.steps + 1:
-            self.queue.pop(0)
-        return self.queue[0]
 
 
 class FlightBag:
@@ -203,53 +190,38 @@ def run_offline(mission_path, options: LoopOptions | None = None) -> OfflineRun:
     loop.set_trajectory(round(options.start_delay_s * 1e9), trajectory)
     arrival_s = options.rule.plan_arrival_s(trajectory)
     end_s = options.time_limit_factor * trajectory.duration_s + 10.0 + options.start_delay_s
-    times, positions, velocities, quaternions, ticks = [], [], [], [], []
-    max_yaw_rate = 0.0
-    stopped = None
-    saturated_ticks = 0
+
+    def done(t_ns, truth):
+        elapsed_s = t_ns * 1e-9 - options.start_delay_s
+        return elapsed_s >= arrival_s and options.rule.done(elapsed_s, truth.position, truth.velocity, trajectory,
+                                                            arrival_s)
+
     bag = FlightBag(options.bag_dir) if options.bag_dir else None
-    delayed = _Delay(options.odom_latency_s, period_ns * 1e-9)
-    for k in range(int(end_s * options.rate_hz) + 1):
-        t_ns = k * period_ns
-        t_s = t_ns * 1e-9
-        truth = sim.state
-        times.append(t_s)
-        positions.append(truth.position)
-        velocities.append(truth.velocity)
-        quaternions.append(truth.quaternion)
-        max_yaw_rate = max(max_yaw_rate, abs(float(truth.body_rates[2])))
-        elapsed_s = t_s - options.start_delay_s
-        if elapsed_s >= arrival_s and options.rule.done(elapsed_s, truth.position, truth.velocity, trajectory,
-                                                        arrival_s):
-            break
-        seen = delayed(sim.odometry_state())
-        loop.tick(t_ns)                           # the tick at t_k waits for its odometry ...
-        tick = loop.set_odometry(t_ns, seen)      # ... stamped t_k, and runs with it
-        if tick is None:
-            stopped = loop.dead or f'no setpoint at t = {t_s:.3f} s'
-            break
-        ticks.append(tick)
-        saturated_ticks += tick.saturation.thrust or tick.saturation.tilt
-        sim.set_setpoint(tick.setpoint)
+
+    def record(t_ns, seen, tick):
+        if bag and tick is not None:
+            bag.write(t_ns * 1e-9, seen[1], tick.setpoint)
+
+    try:
+        flown = fly(loop, SimulatorPlant(sim), Fresh(round(options.odom_latency_s / (period_ns * 1e-9))),
+                    int(end_s * options.rate_hz) + 1, done=done, on_tick=record)
+    finally:
         if bag:
-            bag.write(t_s, seen, tick.setpoint)
-        try:
-            sim.advance(period_ns * 1e-9)
-        except SimulationStopped as exc:
-            stopped = str(exc)
-            break
-    if bag:
-        bag.close()
+            bag.close()
+    ticks = [t for t in flown.ticks if t is not None]
+    truth = flown.truth
     collision = next((e.time_s for e in sim.events if e.kind == 'collision'), None)
-    flight = Flight(odom_t=np.array(times), position=np.array(positions), velocity=np.array(velocities),
-                    euler=rotations.to_euler(np.array(quaternions)), traj_start_s=options.start_delay_s,
+    flight = Flight(odom_t=flown.t_s_array(), position=np.array([s.position for s in truth]),
+                    velocity=np.array([s.velocity for s in truth]),
+                    euler=rotations.to_euler(np.array([s.quaternion for s in truth])),
+                    traj_start_s=options.start_delay_s,
                     trajectory=trajectory,
                     waypoints=plan.waypoints, collision_time_s=collision)
     metrics = compute_metrics(flight, options.rule)
-    metrics['max_yaw_rate_radps'] = max_yaw_rate
+    metrics['max_yaw_rate_radps'] = max((abs(float(s.body_rates[2])) for s in truth), default=0.0)
     metrics['saturated_s'] = sim.saturated_steps * sim.step_s  # physics steps the mixer reduced an axis in
-    metrics['saturated_fraction'] = saturated_ticks / max(len(times) - 1, 1)  # ticks with thrust or tilt clamped
-    if stopped:
-        metrics['stopped'] = stopped
+    metrics['saturated_fraction'] = flown.saturated_ticks() / max(len(truth) - 1, 1)  # thrust or tilt clamped
+    if flown.stopped:
+        metrics['stopped'] = flown.stopped
     return OfflineRun(metrics, np.array([t.t_ns * 1e-9 for t in ticks]), [t.setpoint for t in ticks],
                       [t.reference for t in ticks], loop)

@@ -1,6 +1,6 @@
-"""A fleet's flight without ROS: every vehicle's Simulator and ControlLoop (closed_loop's, as position_controller
-runs it) stepped in lockstep at the controller rate, with vehicle-vehicle collisions (robot radii) reported as
-events like the simulator's obstacle collisions.
+"""A fleet's flight without ROS: every vehicle's Simulator and ControlLoop (the flight harness's ClosedLoop, as
+closed_loop flies one) stepped in lockstep at the controller rate, with vehicle-vehicle collisions (robot radii)
+reported as events like the simulator's obstacle collisions.
 
 Each tick t_k: every vehicle's loop runs with its odometry stamped t_k (closed_loop.run_offline's tick), then every
 simulator advances one controller period (its compiled physics, failsafe, floor and world checks unchanged).
@@ -22,17 +22,16 @@ import numpy as np
 from quad_bringup.closed_loop import (
     SAMPLE_RATE_HZ,
     LoopOptions,
-    _Delay,
     controller_vehicle,
     load_control_profile,
     make_simulator,
 )
+from quad_bringup.harness import ClosedLoop, Fresh, SimulatorPlant
 from quad_bringup.metrics import Flight, compute_metrics
 from quad_common import rotations
 from quad_control.loop import ControlLoop
 from quad_control.plugins import make_controller
 from quad_control.position import Limits, PositionGains
-from quad_sim.simulator import SimulationStopped
 from quad_sim.vehicle_contact import VEHICLE_COLLISION, VehicleContacts
 from quad_trajectory.fleet import Fleet, FleetPlan, load_fleet, plan_fleet
 
@@ -69,7 +68,8 @@ class FleetRun:
 
 
 class _Vehicle:
-    """One fleet vehicle: its simulator, its control loop and what it flew."""
+    """One fleet vehicle: its simulator and its closed loop (quad_bringup.harness.ClosedLoop: closed_loop's
+    lockstep tick, the loop's tick at t_k with the odometry stamped t_k) and what it flew."""
 
     def __init__(self, fv, plan, delay_s, index, options: LoopOptions):
         controller, gains = options.controller, options.gains or PositionGains()
@@ -86,44 +86,38 @@ class _Vehicle:
                                 options.rate_hz, lockstep=True, max_start_step_m=options.max_start_step_m)
         self.loop.set_trajectory(round(delay_s * 1e9), self.trajectory)
         self.arrival_s = options.rule.plan_arrival_s(self.trajectory)
-        self.delayed = _Delay(options.odom_latency_s, 1.0 / options.rate_hz)
-        self.times, self.positions, self.velocities, self.quaternions = [], [], [], []
+        self.closed = ClosedLoop(self.loop, SimulatorPlant(self.sim),
+                                 Fresh(round(options.odom_latency_s * options.rate_hz)))
         self.done_s = None
-        self.stopped = None
-        self.saturated_ticks = 0
 
-    def record(self, t_s):
-        truth = self.sim.state
-        self.times.append(t_s)
-        self.positions.append(truth.position)
-        self.velocities.append(truth.velocity)
-        self.quaternions.append(truth.quaternion)
+    @property
+    def stopped(self) -> str | None:
+        return self.closed.flown.stopped
+
+    def record(self, t_ns):
+        truth = self.closed.record(t_ns)
+        t_s = t_ns * 1e-9
         elapsed = t_s - self.options.start_delay_s
         if self.done_s is None and elapsed >= self.arrival_s and self.options.rule.done(
                 elapsed, truth.position, truth.velocity, self.trajectory, self.arrival_s):
             self.done_s = t_s
 
-    def control(self, t_ns):
-        """closed_loop.run_offline's tick: the loop's tick at t_k runs with the odometry stamped t_k."""
-        seen = self.delayed(self.sim.odometry_state())
-        self.loop.tick(t_ns)
-        tick = self.loop.set_odometry(t_ns, seen)
-        if tick is None:
-            self.stopped = self.loop.dead or f'no setpoint at t = {t_ns * 1e-9:.3f} s'
-            return
-        self.saturated_ticks += tick.saturation.thrust or tick.saturation.tilt
-        self.sim.set_setpoint(tick.setpoint)
+    def positions(self) -> np.ndarray:
+        return np.array([s.position for s in self.closed.flown.truth])
 
     def metrics(self) -> dict:
         collision = next((e.time_s for e in self.sim.events if e.kind in ('collision', VEHICLE_COLLISION)), None)
-        flight = Flight(odom_t=np.array(self.times), position=np.array(self.positions),
-                        velocity=np.array(self.velocities), euler=rotations.to_euler(np.array(self.quaternions)),
+        flown = self.closed.flown
+        truth = flown.truth
+        flight = Flight(odom_t=flown.t_s_array(), position=self.positions(),
+                        velocity=np.array([s.velocity for s in truth]),
+                        euler=rotations.to_euler(np.array([s.quaternion for s in truth])),
                         traj_start_s=self.options.start_delay_s, trajectory=self.trajectory,
                         waypoints=self.plan.waypoints, collision_time_s=collision)
         m = compute_metrics(flight, self.options.rule)
         m['vehicle_collisions'] = sum(e.kind == VEHICLE_COLLISION for e in self.sim.events)
         m['saturated_s'] = self.sim.saturated_steps * self.sim.step_s   # as closed_loop.run_offline reports them
-        m['saturated_fraction'] = self.saturated_ticks / max(len(self.times) - 1, 1)
+        m['saturated_fraction'] = flown.saturated_ticks() / max(len(truth) - 1, 1)
         if self.stopped:
             m['stopped'] = self.stopped
         return m
@@ -160,7 +154,7 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
         t_ns = k * period_ns
         t_s = t_ns * 1e-9
         for v in vehicles:
-            v.record(t_s)
+            v.record(t_ns)
         ticks.append(t_s)
         if all(v.done_s is not None or v.stopped or (v.name in stops and not v.sim.armed) for v in vehicles):
             separations.append(_min_distance(contacts.positions()))
@@ -168,14 +162,11 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
         w0 = time.perf_counter()
         for v in vehicles:
             if not v.stopped and not t_s >= stops.get(v.name, np.inf):
-                v.control(t_ns)
+                v.closed.control(t_ns)
         w1 = time.perf_counter()
         for v in vehicles:
             if not v.stopped:
-                try:
-                    v.sim.advance(period_ns * 1e-9)
-                except SimulationStopped as exc:
-                    v.stopped = str(exc)
+                v.closed.advance(period_ns * 1e-9)
         w2 = time.perf_counter()
         separations.append(contacts.step(t_s, period_ns * 1e-9))
         wall['control'] += w1 - w0
@@ -185,7 +176,7 @@ def fly_fleet(fleet: Fleet | str, options: LoopOptions | None = None, fleet_plan
     events = sorted(((v.name, e) for v in vehicles for e in v.sim.events), key=lambda x: x[1].time_s)
     return FleetRun([v.name for v in vehicles], {v.name: v.metrics() for v in vehicles}, events, contacts.collisions,
                     np.array(ticks), np.array(separations[:len(ticks)]), fleet_plan, wall,
-                    {v.name: np.array(v.positions) for v in vehicles},
+                    {v.name: v.positions() for v in vehicles},
                     {v.name: v.loop.controller.name for v in vehicles})
 
 

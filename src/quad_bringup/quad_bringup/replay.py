@@ -1,12 +1,13 @@
 """A flight's digital twin (no rclpy): the bag's plan flown again in quad_sim on a vehicle model, closed loop
 with the position controller and gains, and the bag's setpoints fed open loop.
 
-Closed loop: the PositionController (quad_control, RATE_HZ) tracks the recorded plan (the bag's `trajectory`)
-on Simulator(vehicle) from the flight's position and yaw at the plan's start, each tick seeing the simulator's
-odometry as old as the flight's controller saw the vehicle's (telemetry_of: the mean age the controller reported,
-else the bag's median record - stamp age plus half its odometry period, the mean wait for the next sample; the
-state that long ago, interpolated between ticks, so a 30 ms age is not rounded to a 10 ms tick; a simulator's
-lockstep bag: fresh every tick, as the offline loop quad_bringup.closed_loop does). Through a vehicle's link the
+Closed loop: through the flight harness (quad_bringup.harness: position_controller's ControlLoop at RATE_HZ with
+the controller and gains) it tracks the recorded plan (the bag's `trajectory`) on Simulator(vehicle) from the
+flight's position and yaw at the plan's start, each tick seeing the simulator's odometry as old as the flight's
+controller saw the vehicle's (telemetry_of: the mean age the controller reported, else the bag's median record -
+stamp age plus half its odometry period, the mean wait for the next sample; harness.FixedAge: the state that long
+ago, interpolated between ticks, so a 30 ms age is not rounded to a 10 ms tick; a simulator's lockstep bag: fresh
+every tick, as the offline loop quad_bringup.closed_loop does). Through a vehicle's link the
 controller at t flies the state of t - age: the vehicle runs ahead of the plan by about that age, so a twin
 with fresh odometry is no twin. Both with the model's aerodynamics (DRAG: the
 drag identify measured; a vehicle file's own coefficients act too). Open loop: the recorded cmd/attitude_thrust
@@ -20,11 +21,12 @@ trace error |p_twin - p_flight| (closed and open loop).
 
 import numpy as np
 
+from quad_bringup.harness import FixedAge, SimulatorPlant, fly
 from quad_bringup.metrics import planned_position
 from quad_common import rotations
-from quad_common.types import AttitudeSetpoint, State
+from quad_common.types import AttitudeSetpoint
 from quad_common.vehicle import load_vehicle
-from quad_control.loop import RATE_HZ
+from quad_control.loop import RATE_HZ, ControlLoop
 from quad_control.plugins import make_controller
 from quad_control.position import Limits, PositionGains
 from quad_sim.disturbances import profile_from_dict
@@ -63,31 +65,21 @@ def telemetry_of(flight, window_s=None) -> tuple[float, float, str]:
             'as the bag shows (record - stamp)')
 
 
-def _state_at(times, states, t_s) -> State:
-    """The state at t_s, interpolated between the ticks' states (the first before them: at rest there)."""
-    j = int(np.searchsorted(times, t_s, side='right'))
-    if j == 0:
-        return states[0]
-    if j == len(times) or t_s <= times[j - 1]:
-        return states[j - 1]
-    a, b = states[j - 1], states[j]
-    w = (t_s - times[j - 1]) / (times[j] - times[j - 1])
-    q = (1 - w) * a.quaternion + w * (b.quaternion if a.quaternion @ b.quaternion >= 0 else -b.quaternion)
-    return State(position=(1 - w) * a.position + w * b.position, velocity=(1 - w) * a.velocity + w * b.velocity,
-                 quaternion=q / np.linalg.norm(q), body_rates=(1 - w) * a.body_rates + w * b.body_rates)
+def _simulator(vehicle, start_p, start_yaw) -> Simulator:
+    return Simulator(vehicle, initial_position=start_p, initial_yaw=start_yaw, setpoint_timeout_s=1e6,
+                     disturbances=DRAG)
 
 
-def _fly(vehicle, start_p, start_yaw, t0_s, end_s, step):
-    """(times, positions) of Simulator(vehicle) from rest at start_p / start_yaw, step(k, t_s, sim) -> setpoint
-    each 1 / RATE_HZ from t0_s to end_s."""
-    sim = Simulator(vehicle, initial_position=start_p, initial_yaw=start_yaw,
-                    setpoint_timeout_s=1e6, disturbances=DRAG)
+def _open_loop(vehicle, start_p, start_yaw, t0_s, end_s, setpoint_at):
+    """(times, positions, stopped) of Simulator(vehicle) from rest at start_p / start_yaw fed setpoint_at(t_s)
+    each 1 / RATE_HZ from t0_s to end_s (no controller: the recorded commands)."""
+    sim = _simulator(vehicle, start_p, start_yaw)
     period_s = 1.0 / RATE_HZ
     times, positions = [t0_s], [sim.state.position]
     stopped = None
     for k in range(int(round((end_s - t0_s) * RATE_HZ))):
         t_s = t0_s + k * period_s
-        sim.set_setpoint(step(k, t_s, sim))
+        sim.set_setpoint(setpoint_at(t_s))
         try:
             sim.advance(period_s)
         except SimulationStopped as exc:
@@ -111,29 +103,25 @@ def replay(flight, vehicle_path, controller: str, gains: PositionGains, telemetr
     end_s = min(t0_s + traj.duration_s, float(flight.odom_t[-1]))
     i0 = int(np.searchsorted(flight.odom_t, t0_s))
     start_p, start_yaw = flight.position[i0], float(flight.euler[i0, 2])
-    control = make_controller(controller, gains, nominal, Limits.of(nominal), RATE_HZ)
-    period_s = 1.0 / RATE_HZ
     age_s, odom_period_s, source = ((*telemetry, 'given') if telemetry is not None
                                     else telemetry_of(flight, (t0_s, end_s)))
     delay_s = age_s + 0.5 * odom_period_s   # a sample arrives age_s late and is flown until the next: its mean age
-    seen_t, seen = [], []
-
-    def closed(k, t_s, sim):
-        seen_t.append(t_s)
-        seen.append(sim.odometry_state())
-        setpoint, _ = control.update(_state_at(seen_t, seen, t_s - delay_s), traj.reference(t_s - t0_s),
-                                     period_s if k else 0.0)
-        return setpoint
-
+    loop = ControlLoop(make_controller(controller, gains, nominal, Limits.of(nominal), RATE_HZ), RATE_HZ)
+    t0_ns = round(t0_s * 1e9)
+    loop.set_trajectory(t0_ns, traj)
+    closed = fly(loop, SimulatorPlant(_simulator(vehicle, start_p, start_yaw)), FixedAge(delay_s),
+                 int(round((end_s - t0_s) * RATE_HZ)), start_ns=t0_ns)
+    t_c, states = closed.track()
+    p_c = np.array([s.position for s in states])
+    stopped_c = closed.stopped
     cmd_q = rotations.from_euler(flight.cmd_euler[:, 0], flight.cmd_euler[:, 1], flight.cmd_euler[:, 2])
 
-    def open_(k, t_s, sim):
+    def recorded(t_s):
         j = max(int(np.searchsorted(flight.cmd_t, t_s + 1e-9, side='right')) - 1, 0)
         return AttitudeSetpoint(quaternion=np.asarray(cmd_q[j]),
                                 specific_force_mps2=float(flight.cmd_specific_force[j]))
 
-    t_c, p_c, stopped_c = _fly(vehicle, start_p, start_yaw, t0_s, end_s, closed)
-    t_o, p_o, stopped_o = _fly(vehicle, start_p, start_yaw, t0_s, min(end_s, t0_s + OPEN_LOOP_S), open_)
+    t_o, p_o, stopped_o = _open_loop(vehicle, start_p, start_yaw, t0_s, min(end_s, t0_s + OPEN_LOOP_S), recorded)
     inside = (flight.odom_t >= t0_s) & (flight.odom_t <= min(end_s, t_c[-1]))
     t = flight.odom_t[inside]
     plan = planned_position(flight, t)

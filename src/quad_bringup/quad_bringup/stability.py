@@ -1,13 +1,13 @@
 """Is a control profile stable on an autopilot's attitude response? The offline check of a profile the bridge flies.
 
-The plant is the emulator's (quad_vehicle_emu.mavlink_vehicle, its main loop step for step): quad_sim's Simulator
-with the autopilot's quaternion attitude loop (quad_vehicle_emu.attitude.emulated_vehicle), behind
-quad_vehicle_emu.attitude.AttitudeResponse with tau = lag - the loop's own lag (tau_for_lag_s: the total roll/pitch
-lag is the requested one), its telemetry read through quad_vehicle_emu.attitude.DelayLine (latency) at the bridge's
-50 Hz and released in ArduPilot's bursts (up to 40 ms apart, as the emulator does), and a hover-thrust error
-(delivered / commanded specific force = 1 + thrust_error: the bridge's hover_throttle vs the vehicle's true one).
-The controller is quad_control's PositionController, the one position_controller's ControlLoop runs, at its rate,
-holding a point from a start offset. No ROS, no sockets: the graph version is test/test_bridge_real_profile.py.
+The plant is the emulator's (quad_vehicle_emu.plant.AutopilotPlant): quad_sim's Simulator with the autopilot's
+quaternion attitude loop (quad_vehicle_emu.attitude.emulated_vehicle), behind quad_vehicle_emu.attitude.AttitudeResponse
+with tau = lag - the loop's own lag (tau_for_lag_s: the total roll/pitch lag is the requested one), its telemetry
+through the harness's DelayLine (latency) at the bridge's 50 Hz and released in ArduPilot's bursts (up to 40 ms
+apart, as the emulator does), and a hover-thrust error (delivered / commanded specific force = 1 + thrust_error: the
+bridge's hover_throttle vs the vehicle's true one). The controller flies through the flight harness
+(quad_bringup.harness: position_controller's ControlLoop at its rate), holding a point from a start offset. No ROS,
+no sockets: the graph version is test/test_bridge_real_profile.py.
 
 Measured on ArduCopter SITL: roll/pitch lag 0.17-0.21 s, ~50 ms of telemetry. A profile is offered
 only with margin: it settles (no sustained oscillation) at MARGIN_LAG x the lag and MARGIN_LATENCY x the latency.
@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from quad_bringup.harness import DelayLine, fly
 from quad_bringup.limits import (  # noqa: F401  (the margin's numbers: in limits, which help pages read)
     MARGIN_LAG,
     MARGIN_LATENCY,
@@ -32,14 +33,15 @@ from quad_bringup.limits import (  # noqa: F401  (the margin's numbers: in limit
     MEASURED_LATENCY_S,
 )
 from quad_common import rotations
-from quad_common.types import AttitudeSetpoint, Reference
+from quad_common.types import Reference
 from quad_common.vehicle import load_vehicle
-from quad_control.loop import RATE_HZ
+from quad_control.loop import RATE_HZ, ControlLoop
 from quad_control.plugins import make_controller
 from quad_control.position import Limits, PositionGains
-from quad_sim.simulator import SimulationStopped, Simulator
-from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle, own_lag_s, tau_for_lag_s
+from quad_sim.simulator import Simulator
+from quad_vehicle_emu.attitude import AttitudeResponse, emulated_vehicle, own_lag_s, tau_for_lag_s
 from quad_vehicle_emu.mavlink_vehicle import DEFAULT_BURST_S
+from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, AutopilotPlant
 
 SETTLED_TILT_DEG = 2.0           # largest tilt over the last quarter of a settled hold
 SETTLED_OSCILLATION_DEG = 0.5    # tilt standard deviation over the last quarter of a settled hold
@@ -121,76 +123,65 @@ class Hold:
                        f'{100 * self.oscillation_m:.2f} cm rms at {self.oscillation_hz:.2f} Hz: {verdict}')
 
 
+class HoldPoint:
+    """A plan that is one point: ControlLoop tracks it as it tracks any plan (duration 0: after its end, the point)."""
+    duration_s = 0.0
+
+    def __init__(self, reference: Reference):
+        self.point = reference
+
+    def reference(self, t_s: float) -> Reference:
+        return self.point
+
+
 def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s: float, latency_s: float,
                       thrust_error: float = 0.0, start_offset_m=(0.5, 0.0, 0.3), duration_s: float = 20.0,
-                      rate_hz: float = RATE_HZ, physics_rate_hz: float = 500.0,
+                      rate_hz: float = RATE_HZ, physics_rate_hz: float = PHYSICS_RATE_HZ,
                       telemetry_rate_hz: float = TELEMETRY_RATE_HZ, burst_s: float = BURST_S, seed: int = 0,
                       initial_yaw_rad: float = 0.0, response: tuple | None = None, rate_loop: str = 'default',
                       dead_time_s: float = 0.0) -> Hold:
     """The controller holds a point from start_offset_m behind the emulator's attitude response (lag_s) and
     telemetry (latency_s) on vehicle_path's plant with thrust_error, facing initial_yaw_rad (the point's yaw is
-    0). Each period, as mavlink_vehicle's loop: the controller sees the newest telemetry at least latency_s old,
-    its attitude goes through the shaping, the physics advances one period, the new state enters the telemetry
-    line (at telemetry_rate_hz: what the bridge asks the vehicle for). Telemetry leaves in bursts up to burst_s
-    apart (uniform, seeded), as the emulated ArduPilot sends it: between bursts the controller sees the last one
-    released. response = (tau_s, dead_time_s): the plant's attitude response is that first order plus dead time
-    (the module) instead of the emulator's; lag_s is then tau_s + dead_time_s (reported only). Otherwise the
-    emulator's plant with its --rate-loop (rate_loop) and --attitude-dead-time-s (dead_time_s, part of lag_s)."""
+    0), through the flight harness (quad_bringup.harness: position_controller's ControlLoop; the point is its plan,
+    no start-step guard) on the emulated autopilot's plant (quad_vehicle_emu.plant). The telemetry samples the
+    state at telemetry_rate_hz (what the bridge asks the vehicle for), latency_s late, released in bursts up to
+    burst_s apart (uniform, seeded), as the emulated ArduPilot sends it. response = (tau_s, dead_time_s): the
+    plant's attitude response is that first order plus dead time (the module) instead of the emulator's; lag_s is
+    then tau_s + dead_time_s (reported only). Otherwise the emulator's plant with its --rate-loop (rate_loop) and
+    --attitude-dead-time-s (dead_time_s, part of lag_s)."""
     nominal = load_vehicle(vehicle_path)    # what the controller is configured with
     extra = {'thrust_error': thrust_error} if thrust_error else {}
+    period_s = 1.0 / rate_hz
     if response is not None:
-        tau_s, dead_s = (float(x) for x in response)
+        tau_s, dead_time_s = (float(x) for x in response)
         plant = load_vehicle(vehicle_path, plant={**extra, 'attitude_loop': {'type': 'lag', 'time_constant_s': tau_s}})
-        lag_s, shaper, dead = tau_s + dead_s, AttitudeResponse(0.0, np.array([0.0, 0.0, 0.0, 1.0])), DelayLine(dead_s)
+        lag_s, shaping_tau_s = tau_s + dead_time_s, 0.0
+        dead_time_s = round(dead_time_s / period_s) * period_s   # the dead time to the nearest period
     else:
         plant = emulated_vehicle(vehicle_path, extra or None, rate_loop=rate_loop)
-        dead = None
+        shaping_tau_s = None
     target = np.array([0.0, 0.0, HOLD_ALTITUDE_M])
     sim = Simulator(plant, physics_rate_hz=physics_rate_hz, initial_position=target + np.asarray(start_offset_m,
                                                                                                  dtype=float),
                     initial_yaw=initial_yaw_rad, setpoint_timeout_s=1e6)
-    if response is None:
-        shaper = AttitudeResponse(tau_for_lag_s(plant, lag_s - dead_time_s), sim.state.quaternion, dead_time_s)
-    telemetry = DelayLine(latency_s)
-    control = make_controller(controller, gains, nominal, Limits.of(nominal), rate_hz)
-    ref = Reference(position=target, velocity=np.zeros(3), acceleration=np.zeros(3), jerk=np.zeros(3), yaw=0.0,
-                    yaw_rate=0.0)
-    period_s = 1.0 / rate_hz
-    steps = sim.steps_in(round(period_s * physics_rate_hz) / physics_rate_hz)
-    telemetry.push(-latency_s, sim.odometry_state())   # at rest there since before the first read
-    every = max(int(round(rate_hz / telemetry_rate_hz)), 1)
-    positions, euler = [], []
-    stopped = None
-    rng = np.random.default_rng(seed)
-    next_burst_s = 0.0
-    for k in range(int(round(duration_s * rate_hz))):
-        t_s = k * period_s
-        if t_s >= next_burst_s:
-            _, seen = telemetry.read(t_s)
-            next_burst_s = t_s + rng.uniform(0.0, burst_s)
-        setpoint, _ = control.update(seen, ref, period_s if k else 0.0)
-        if dead is not None:   # the attitude dead time (the thrust has none in the fit)
-            dead.push(t_s, setpoint)
-            late = dead.read(t_s + 0.5 * period_s)   # the dead time to the nearest period
-            setpoint = AttitudeSetpoint(quaternion=(late[1] if late else setpoint).quaternion,
-                                        specific_force_mps2=setpoint.specific_force_mps2,
-                                        body_rates=(late[1] if late else setpoint).body_rates)
-        q, w = shaper.step(setpoint.quaternion, period_s, setpoint.body_rates)
-        sim.set_setpoint(AttitudeSetpoint(quaternion=q, specific_force_mps2=setpoint.specific_force_mps2,
-                                          body_rates=w))
-        try:
-            sim.advance_steps(steps)
-        except SimulationStopped as exc:
-            stopped = str(exc)
-            break
-        if (k + 1) % every == 0:
-            telemetry.push(t_s + period_s, sim.odometry_state())
-        positions.append(sim.state.position)
-        euler.append(rotations.to_euler(sim.state.quaternion)[:2])
-        if sim.landed or sim.state.position[2] < 1.0:
-            stopped = f'fell to the ground at t = {t_s:.2f} s'
-            break
-    return hold_of(lag_s, latency_s, thrust_error, positions, euler, target, period_s, stopped)
+    if shaping_tau_s is None:
+        shaping_tau_s = tau_for_lag_s(plant, lag_s - dead_time_s)
+    vehicle = AutopilotPlant(sim, AttitudeResponse(shaping_tau_s, sim.state.quaternion, dead_time_s))
+    loop = ControlLoop(make_controller(controller, gains, nominal, Limits.of(nominal), rate_hz), rate_hz)
+    loop.set_trajectory(0, HoldPoint(Reference(position=target, yaw=0.0)))
+    telemetry = DelayLine(latency_s, max(int(round(rate_hz / telemetry_rate_hz)), 1), burst_s, seed,
+                          initial=sim.odometry_state())
+
+    def fell(t_ns, truth):
+        if sim.landed or truth.position[2] < 1.0:
+            return f'fell to the ground at t = {t_ns * 1e-9 - period_s:.2f} s'
+        return None
+
+    flown = fly(loop, vehicle, telemetry, int(round(duration_s * rate_hz)), fault=fell)
+    after = flown.track()[1][1:]     # the state after each period
+    positions = [s.position for s in after]
+    euler = [rotations.to_euler(s.quaternion)[:2] for s in after]
+    return hold_of(lag_s, latency_s, thrust_error, positions, euler, target, period_s, flown.stopped)
 
 
 def hold_of(lag_s, latency_s, thrust_error, positions, euler, target, period_s, stopped=None) -> Hold:
