@@ -21,6 +21,7 @@ more at the position loop's crossover (6 rad/s at 0.27 s), so it refused what ro
 dominant pole) flies with little overshoot at 1.5x its lag.
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -156,7 +157,7 @@ def hold_on_autopilot(vehicle_path, controller: str, gains: PositionGains, lag_s
         tau_s, dead_time_s = (float(x) for x in response)
         plant = load_vehicle(vehicle_path, plant={**extra, 'attitude_loop': {'type': 'lag', 'time_constant_s': tau_s}})
         lag_s, shaping_tau_s = tau_s + dead_time_s, 0.0
-        dead_time_s = round(dead_time_s / period_s) * period_s   # the dead time to the nearest period
+        dead_time_s = max(math.ceil(dead_time_s / period_s - 0.5 - 1e-9), 0) * period_s   # nearest period, a half down
     else:
         plant = emulated_vehicle(vehicle_path, extra or None, rate_loop=rate_loop)
         shaping_tau_s = None
