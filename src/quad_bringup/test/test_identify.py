@@ -413,8 +413,8 @@ def test_the_margin_verdict_matches_a_cascade_1_5x_slower(tmp_path, stiff, settl
                                 'rate_p': [60.0 / 1.5, 60.0 / 1.5, 30.0]}}
     member = _member_hold(slower, controller, gains)
     assert check.settled == member.settled == settles, (check.describe(), member.describe())
-    if not settles:
-        assert check.oscillation_deg > 1.0 and member.oscillation_deg > 5.0
+    if not settles:   # the check's dead time (1.5 periods) flies as one whole period: 0.57 deg, the member 5 deg
+        assert check.oscillation_deg > 0.5 and member.oscillation_deg > 5.0
 
 
 def test_a_flight_too_short_for_the_lag_interval_is_refused_naming_the_flight_to_fly():
