@@ -22,7 +22,7 @@ from quad_control.position import PositionGains
 
 NODES = [  # (module, parameter table, node name, its YAML)
     ('quad_control.parameters', 'SPECS', 'position_controller', 'config/control.yaml'),
-    ('quad_sim.sim_node', 'SPECS', 'sim_node', 'config/sim.yaml'),
+    ('quad_sim.parameters', 'SPECS', 'sim_node', 'config/sim.yaml'),
     ('quad_trajectory.trajectory_node', 'PARAMS', 'trajectory_node', 'config/trajectory.yaml'),
 ]
 
@@ -94,7 +94,7 @@ def test_simulator_defaults_are_sim_nodes():
     """Simulator's keyword defaults of the same name and meaning, the offline loop's and a sweep's are sim_node's;
     one lockstep step is one controller period."""
     from quad_control.parameters import SPECS as CONTROL
-    from quad_sim.sim_node import SPECS
+    from quad_sim.parameters import SPECS
     from quad_sim.simulator import Simulator
     specs = {p.name: p.default for p in SPECS}
     keywords = inspect.signature(Simulator).parameters
