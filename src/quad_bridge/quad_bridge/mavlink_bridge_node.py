@@ -23,6 +23,7 @@ from rclpy.node import Node
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
+from quad_bridge import supervision
 from quad_bridge.backend import (
     MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
     MAV_MODE_FLAG_SAFETY_ARMED,
@@ -267,20 +268,13 @@ class MavlinkBridge(Node):
                 self.vehicle.handover.end(f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)')
             mode, current = self._stale_action_mode(), self.vehicle.mode_now(self.now_s())
         self.update_engaged()
-        obeying = mode is not None
-        action = f'nothing commanded (vehicle in {current or "?"}, not flying our setpoints)'
-        if self.link.state != LinkState.UP:
-            action = (f'nothing can be commanded while the link is {self.link.state} (the vehicle\'s own failsafe '
-                      'acts; the stale action follows when the link returns with it still flying our setpoints)')
-        elif obeying:
-            self.set_mode(mode, wait=False)
-            action = f'commanding {mode} (the vehicle in {current} keeps flying the last setpoint)'
-        what = (f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)' if stale
-                else 'setpoint stream stopped')
-        if stale or obeying:   # one severity per call site: rclpy refuses a site that changes it
-            self.get_logger().error(f'{what}: {action}')
+        report = supervision.quiet_stream(stale, self.params['setpoint_timeout_s'], mode, current, self.link.state)
+        if report.command is not None:
+            self.set_mode(report.command, wait=False)
+        if report.error:   # one severity per call site: rclpy refuses a site that changes it
+            self.get_logger().error(report.message)
         else:
-            self.get_logger().info(f'{what}: {action}')
+            self.get_logger().info(report.message)
         self.publish_diagnostics()
 
     # --- external pose (quad_bridge.external_pose): forwarded to the estimator, a fault ends the hand-over ----
@@ -323,8 +317,9 @@ class MavlinkBridge(Node):
             return
         self.external_pose_faults += 1
         self.update_engaged()
-        if mode is not None and self.link.state == LinkState.UP:
-            self.set_mode(mode, wait=False)
+        command = supervision.hand_over_ended_command(mode, self.link.state)
+        if command is not None:
+            self.set_mode(command, wait=False)
         self.get_logger().error(f'{why}: hand-over ended' + (f', commanding {mode}' if mode else ''))
         self.publish_diagnostics()
 
@@ -333,9 +328,8 @@ class MavlinkBridge(Node):
         (it keeps flying the last one), else None. The mode is the one we commanded while its heartbeat is pending
         (after our own land, nothing but land). Under the vehicle lock."""
         s = self.vehicle.status
-        if s.backend is None or not s.armed or not s.backend.obeys_setpoints(self.vehicle.mode_now(self.now_s())):
-            return None
-        return s.backend.hold_mode(self.params['stale_action'])
+        return supervision.stale_action_mode(s.backend, s.armed, self.vehicle.mode_now(self.now_s()),
+                                             self.params['stale_action'])
 
     def after_link_loss(self):
         """The link is back after a loss that ended a hand-over: a vehicle still armed in a mode that obeys
@@ -663,14 +657,12 @@ class MavlinkBridge(Node):
             phase, target, reason, ended = h.phase, h.target or '', h.reason, h.ended
             telemetry = self.telemetry.info(now)
             check = self.param_check
-        level = {LinkState.UP: diagnostics.OK, LinkState.WAITING: diagnostics.WARN}.get(self.link.state,
-                                                                                        diagnostics.ERROR)
         others, refusal = self.peers.other_vehicles(s.system, now), self.link_refusal()
         udp = self.client.udp_report()   # udpin: the vehicle's address, other senders, send errors
-        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others
-                                        or self.realtime_refused or udp.get('other_senders')):
-            level = diagnostics.WARN
-        level = diagnostics.ERROR if refusal or self.client.signing_problem() else level
+        level = supervision.link_level(
+            self.link.state, bool(telemetry['missing_streams'] or (check and check.problems) or others
+                                  or self.realtime_refused or udp.get('other_senders')),
+            bool(refusal or self.client.signing_problem()))
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
             'target_system': s.system, 'autopilot': s.backend.name if s.backend else '?', 'mode': s.mode,
             'armed': s.armed, 'prearm_ready': '' if s.prearm_ready is None else s.prearm_ready,
@@ -685,8 +677,8 @@ class MavlinkBridge(Node):
             ('on' if self.client.signing else 'off'), 'realtime': self.realtime, **udp})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
-        sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')
-                    else diagnostics.OK)
+        sp_level = supervision.setpoints_level(self.stale_events, self.geofence.breached,
+                                               counts.get('refused_source', 0))
         setpoints = diagnostics.status(f'{NAME}: setpoints', sp_level, reason, {
             'handover': phase, 'target_mode': target, 'handovers_ended': ended,
             'streaming': phase != 'idle' and self.may_stream(), 'rate_hz': f'{st.rate_hz():.1f}',
