@@ -69,7 +69,7 @@ THRUST_FIELDS = {'hover_throttle': 'hover_throttle', 'hover_throttle_tolerance':
 
 @pytest.mark.parametrize('config', sorted(BRIDGE_CHOICES))
 def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
-    from quad_bridge.mavlink_bridge_node import PARAMS
+    from quad_bridge.parameters import PARAMS
     specs = {p.name: p for p in PARAMS}
     values = parameters_of(load_yaml(resolve_config(config)), 'mavlink_bridge')
     assert not set(values) - set(specs), f'{config}: not parameters of mavlink_bridge: {set(values) - set(specs)}'
@@ -83,7 +83,7 @@ def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
 
 def test_bridge_parameters_default_to_the_thrust_config():
     from quad_bridge.backend import ThrustConfig
-    from quad_bridge.mavlink_bridge_node import PARAMS
+    from quad_bridge.parameters import PARAMS
     specs = {p.name: p.default for p in PARAMS}
     config = ThrustConfig()
     assert {name: specs[name] for name in THRUST_FIELDS} == {name: getattr(config, f)
