@@ -39,7 +39,7 @@ from quad_sim import lockstep_policy as policy
 from quad_sim.disturbances import load_profile
 from quad_sim.mocap import MocapConfig
 from quad_sim.parameters import MOCAP_FIELDS, SPECS, fleet_layout
-from quad_sim.sim_vehicle import SimulatedVehicle, stamp_of
+from quad_sim.simulated_vehicle import SimulatedVehicle, stamp_of
 from quad_sim.simulator import SimulationStopped, Simulator
 from quad_sim.vehicle_contact import VehicleContacts
 
