@@ -22,7 +22,7 @@ from quad_control.position import PositionGains
 
 NODES = [  # (module, parameter table, node name, its YAML)
     ('quad_control.parameters', 'SPECS', 'position_controller', 'config/control.yaml'),
-    ('quad_sim.sim_node', 'SPECS', 'sim_node', 'config/sim.yaml'),
+    ('quad_sim.parameters', 'SPECS', 'sim_node', 'config/sim.yaml'),
     ('quad_trajectory.trajectory_node', 'PARAMS', 'trajectory_node', 'config/trajectory.yaml'),
 ]
 
@@ -69,7 +69,7 @@ THRUST_FIELDS = {'hover_throttle': 'hover_throttle', 'hover_throttle_tolerance':
 
 @pytest.mark.parametrize('config', sorted(BRIDGE_CHOICES))
 def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
-    from quad_bridge.mavlink_bridge_node import PARAMS
+    from quad_bridge.parameters import PARAMS
     specs = {p.name: p for p in PARAMS}
     values = parameters_of(load_yaml(resolve_config(config)), 'mavlink_bridge')
     assert not set(values) - set(specs), f'{config}: not parameters of mavlink_bridge: {set(values) - set(specs)}'
@@ -83,7 +83,7 @@ def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
 
 def test_bridge_parameters_default_to_the_thrust_config():
     from quad_bridge.backend import ThrustConfig
-    from quad_bridge.mavlink_bridge_node import PARAMS
+    from quad_bridge.parameters import PARAMS
     specs = {p.name: p.default for p in PARAMS}
     config = ThrustConfig()
     assert {name: specs[name] for name in THRUST_FIELDS} == {name: getattr(config, f)
@@ -94,7 +94,7 @@ def test_simulator_defaults_are_sim_nodes():
     """Simulator's keyword defaults of the same name and meaning, the offline loop's and a sweep's are sim_node's;
     one lockstep step is one controller period."""
     from quad_control.parameters import SPECS as CONTROL
-    from quad_sim.sim_node import SPECS
+    from quad_sim.parameters import SPECS
     from quad_sim.simulator import Simulator
     specs = {p.name: p.default for p in SPECS}
     keywords = inspect.signature(Simulator).parameters

@@ -23,126 +23,40 @@ from rclpy.node import Node
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
+from quad_bridge import supervision
 from quad_bridge.backend import (
     MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
     MAV_MODE_FLAG_SAFETY_ARMED,
     ThrustConfig,
     rate_interval_us,
 )
-from quad_bridge.backends import BACKENDS, resolve
+from quad_bridge.backends import resolve
 from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter
 from quad_bridge.handover import ACTIVE, PRESTREAM, PRESTREAM_S
 from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
-from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, MavlinkClient, check_fcu_url, mavlink, result_name
+from quad_bridge.mavlink_client import MavlinkClient, mavlink, result_name
+from quad_bridge.parameters import PARAMS, validate
 from quad_bridge.peers import LinkPeers
 from quad_bridge.safety import BRAKE, BREACH, Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
 from quad_bridge.vehicle import Vehicle
-from quad_common import contract, diagnostics, mocap_frames
+from quad_common import contract, diagnostics
 from quad_common.node_main import run_node
-from quad_common.params import Param
 from quad_common.realtime import apply_or_report
 from quad_common.ros_params import ParameterSet
 
 NAME = 'mavlink_bridge'
-THRUST = ThrustConfig()   # the defaults of the parameters ThrustConfig holds
-PARAMS = [
-    Param('fcu_url', 'udpin:0.0.0.0:14540', 'pymavlink connection: udpin:/udpout:/tcp:HOST:PORT or serial device',
-          read_only=True),
-    Param('baud', 57600, 'serial baud rate (serial fcu_url only)', min=1200, max=4000000, read_only=True),
-    Param('autopilot', 'auto', f'auto (from HEARTBEAT.autopilot) | {" | ".join(BACKENDS)}',
-          choices=('auto', *BACKENDS), read_only=True),
-    Param('target_system', 0, 'vehicle system id; 0 = the first vehicle heartbeat', min=0, max=255, read_only=True),
-    Param('target_component', 1, 'vehicle component id (autopilot)', min=0, max=255, read_only=True),
-    Param('source_system', 1, 'our MAVLink system id', min=1, max=255, read_only=True),
-    Param('source_component', MAV_COMP_ID_ONBOARD_COMPUTER, 'our MAVLink component id (191 = onboard computer)',
-          min=1, max=255, read_only=True),
-    Param('setpoint_rate_hz', THRUST.setpoint_rate_hz,
-          'keep-alive rate: the newest setpoint is re-sent when none went out for a period',
-          min=2.0, max=1000.0, read_only=True),
-    Param('setpoint_timeout_s', THRUST.setpoint_timeout_s,
-          'nothing on the wire for this long: the stream is stale, stale_action',
-          min=0.02, max=10.0, read_only=True),
-    Param('stale_action', 'land', 'what a stale stream commands: land | hold (ArduPilot always lands)',
-          choices=('land', 'hold')),
-    Param('link_timeout_s', 2.0, 'nothing from the vehicle for this long (as the receive thread read it): link lost',
-          min=0.2, max=30.0),
-    Param('hover_throttle', THRUST.hover_throttle,
-          'normalised thrust that hovers the vehicle (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER)',
-          min=0.05, max=0.95, read_only=True),
-    Param('hover_throttle_tolerance', THRUST.hover_tolerance,
-          'largest |vehicle hover thrust - hover_throttle| offboard accepts',
-          min=0.0, max=0.5, read_only=True),
-    Param('vehicle_params', 'check',
-          'check: refuse offboard when the vehicle\'s parameters contradict ours | adopt: fly with the vehicle\'s '
-          '| ignore: do not read them', choices=('check', 'adopt', 'ignore'), read_only=True),
-    Param('max_tilt_deg', 35.0, 'setpoints tilted further are clamped to this keeping their vertical acceleration',
-          min=1.0, max=85.0),
-    Param('ardupilot_thrust_mode', THRUST.thrust_mode,
-          'thrust (GUID_OPTIONS bit 3 set) | climb_rate (bit 3 clear)',
-          choices=('thrust', 'climb_rate'), read_only=True),
-    Param('ardupilot_speed_up_mps', THRUST.speed_up_mps,
-          'WPNAV_SPEED_UP: climb rate at thrust 1 (climb_rate mode)', min=0.1, max=20.0,
-          read_only=True),
-    Param('ardupilot_speed_down_mps', THRUST.speed_down_mps,
-          'WPNAV_SPEED_DN: descent rate at thrust 0 (climb_rate mode)',
-          min=0.1, max=20.0, read_only=True),
-    Param('climb_rate_lead_s', THRUST.climb_rate_lead_s,
-          'climb_rate mode: v_z command = v_z + lead * (f cos(tilt) - g)', min=0.01, max=5.0,
-          read_only=True),
-    Param('telemetry_rate_hz', 50.0, 'rate requested with MAV_CMD_SET_MESSAGE_INTERVAL for odometry/IMU',
-          min=1.0, max=500.0, read_only=True),
-    Param('stream_grace_s', 3.0, 'a requested telemetry message not seen for this long: fall back, then warn',
-          min=0.5, max=30.0, read_only=True),
-    Param('command_timeout_s', 3.0, 'how long a service waits for COMMAND_ACK (and PARAM_VALUE)', min=0.1, max=30.0),
-    Param('geofence_enabled', False, 'brake before the box geofence_min_m..geofence_max_m (ENU) and land inside it'),
-    Param('geofence_min_m', [-50.0, -50.0, -1.0], 'geofence box lower corner (map, ENU)', length=3),
-    Param('geofence_max_m', [50.0, 50.0, 30.0], 'geofence box upper corner (map, ENU)', length=3),
-    Param('geofence_reaction_s', 0.3, 'geofence: odometry to braking attitude (stopping distance |v| t + |v|^2 / 2a, '
-          'a = g tan(max_tilt_deg))', min=0.0, max=2.0, read_only=True),
-    Param('signing_key_file', '', 'MAVLink 2 signing key file (64 hex chars or a passphrase); empty = unsigned',
-          read_only=True),
-    Param('setpoint_source', 'position_controller',
-          'the only node whose cmd/attitude_thrust is flown (relative: in the bridge\'s namespace); empty = any '
-          'publisher of the domain', read_only=True),
-    Param('realtime_priority', 0,
-          'every thread of the bridge under SCHED_FIFO at this priority (1..99); 0 = off (the ordinary scheduler)',
-          min=0, max=99, read_only=True),
-    Param('external_pose_enabled', False,
-          f'forward {contract.EXTERNAL_POSE} / {contract.EXTERNAL_ODOM} to the autopilot\'s estimator (motion '
-          'capture); its faults end a hand-over', read_only=True),
-    Param('external_pose_frame', 'enu', 'frame of the external pose: enu (ENU world, FLU body) | y_up (motion '
-          'capture Y-up: (x, y, z) -> (x, -z, y) ENU)', choices=mocap_frames.FRAMES, read_only=True),
-    Param('external_pose_rate_hz', 30.0, 'external pose forwarded at most at this rate (PX4 EKF2: 30-50 Hz)',
-          min=1.0, max=200.0, read_only=True),
-    Param('external_pose_timeout_s', 0.5, 'no external pose for this long: fault', min=0.02, max=10.0,
-          read_only=True),
-    Param('external_pose_max_age_s', 0.2, 'an external pose older than this (stamp to arrival): fault (late)',
-          min=0.005, max=5.0, read_only=True),
-    Param('external_pose_max_speed_mps', 10.0, 'a position step beyond speed x dt + external_pose_jump_margin_m '
-          'between samples: fault (jump)', min=0.1, max=100.0, read_only=True),
-    Param('external_pose_jump_margin_m', 0.1, 'see external_pose_max_speed_mps', min=0.0, max=10.0, read_only=True),
-]
 OFFBOARD_MIN_STREAM_HZ = 5.0  # on the wire over the pre-stream before asking PX4 for OFFBOARD (it needs > 2 Hz)
 SUPERVISOR_PERIOD_S = 0.05
 STATUSTEXT_WAIT_S = 0.5    # a refused command waits this long (wall) for the vehicle to say why (STATUSTEXT)
-
-
-def _validate(values):
-    reason = check_fcu_url(values['fcu_url'])
-    if reason:
-        raise ValueError(reason)
-    if any(lo >= hi for lo, hi in zip(values['geofence_min_m'], values['geofence_max_m'])):
-        raise ValueError(f'geofence_min_m = {values["geofence_min_m"]} must be below geofence_max_m = '
-                         f'{values["geofence_max_m"]} on every axis')
 
 
 class MavlinkBridge(Node):
     def __init__(self, **kwargs):
         """kwargs: rclpy Node's (context, namespace, parameter_overrides: a bridge inside a test process)."""
         super().__init__(NAME, **kwargs)
-        self.params = ParameterSet(self, PARAMS, validate=_validate)
+        self.params = ParameterSet(self, PARAMS, validate=validate)
         p = self.params
         key = load_signing_key(p['signing_key_file']) if p['signing_key_file'] else None
         self.config = ThrustConfig(hover_throttle=p['hover_throttle'], hover_tolerance=p['hover_throttle_tolerance'],
@@ -267,20 +181,13 @@ class MavlinkBridge(Node):
                 self.vehicle.handover.end(f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)')
             mode, current = self._stale_action_mode(), self.vehicle.mode_now(self.now_s())
         self.update_engaged()
-        obeying = mode is not None
-        action = f'nothing commanded (vehicle in {current or "?"}, not flying our setpoints)'
-        if self.link.state != LinkState.UP:
-            action = (f'nothing can be commanded while the link is {self.link.state} (the vehicle\'s own failsafe '
-                      'acts; the stale action follows when the link returns with it still flying our setpoints)')
-        elif obeying:
-            self.set_mode(mode, wait=False)
-            action = f'commanding {mode} (the vehicle in {current} keeps flying the last setpoint)'
-        what = (f'setpoints stale (none for {self.params["setpoint_timeout_s"]} s)' if stale
-                else 'setpoint stream stopped')
-        if stale or obeying:   # one severity per call site: rclpy refuses a site that changes it
-            self.get_logger().error(f'{what}: {action}')
+        report = supervision.quiet_stream(stale, self.params['setpoint_timeout_s'], mode, current, self.link.state)
+        if report.command is not None:
+            self.set_mode(report.command, wait=False)
+        if report.error:   # one severity per call site: rclpy refuses a site that changes it
+            self.get_logger().error(report.message)
         else:
-            self.get_logger().info(f'{what}: {action}')
+            self.get_logger().info(report.message)
         self.publish_diagnostics()
 
     # --- external pose (quad_bridge.external_pose): forwarded to the estimator, a fault ends the hand-over ----
@@ -323,8 +230,9 @@ class MavlinkBridge(Node):
             return
         self.external_pose_faults += 1
         self.update_engaged()
-        if mode is not None and self.link.state == LinkState.UP:
-            self.set_mode(mode, wait=False)
+        command = supervision.hand_over_ended_command(mode, self.link.state)
+        if command is not None:
+            self.set_mode(command, wait=False)
         self.get_logger().error(f'{why}: hand-over ended' + (f', commanding {mode}' if mode else ''))
         self.publish_diagnostics()
 
@@ -333,9 +241,8 @@ class MavlinkBridge(Node):
         (it keeps flying the last one), else None. The mode is the one we commanded while its heartbeat is pending
         (after our own land, nothing but land). Under the vehicle lock."""
         s = self.vehicle.status
-        if s.backend is None or not s.armed or not s.backend.obeys_setpoints(self.vehicle.mode_now(self.now_s())):
-            return None
-        return s.backend.hold_mode(self.params['stale_action'])
+        return supervision.stale_action_mode(s.backend, s.armed, self.vehicle.mode_now(self.now_s()),
+                                             self.params['stale_action'])
 
     def after_link_loss(self):
         """The link is back after a loss that ended a hand-over: a vehicle still armed in a mode that obeys
@@ -663,14 +570,12 @@ class MavlinkBridge(Node):
             phase, target, reason, ended = h.phase, h.target or '', h.reason, h.ended
             telemetry = self.telemetry.info(now)
             check = self.param_check
-        level = {LinkState.UP: diagnostics.OK, LinkState.WAITING: diagnostics.WARN}.get(self.link.state,
-                                                                                        diagnostics.ERROR)
         others, refusal = self.peers.other_vehicles(s.system, now), self.link_refusal()
         udp = self.client.udp_report()   # udpin: the vehicle's address, other senders, send errors
-        if level == diagnostics.OK and (telemetry['missing_streams'] or (check and check.problems) or others
-                                        or self.realtime_refused or udp.get('other_senders')):
-            level = diagnostics.WARN
-        level = diagnostics.ERROR if refusal or self.client.signing_problem() else level
+        level = supervision.link_level(
+            self.link.state, bool(telemetry['missing_streams'] or (check and check.problems) or others
+                                  or self.realtime_refused or udp.get('other_senders')),
+            bool(refusal or self.client.signing_problem()))
         link = diagnostics.status(f'{NAME}: link', level, f'link {self.link.state}', {
             'target_system': s.system, 'autopilot': s.backend.name if s.backend else '?', 'mode': s.mode,
             'armed': s.armed, 'prearm_ready': '' if s.prearm_ready is None else s.prearm_ready,
@@ -685,8 +590,8 @@ class MavlinkBridge(Node):
             ('on' if self.client.signing else 'off'), 'realtime': self.realtime, **udp})
         st = self.streamer
         counts = {**self.setpoints.counts(), 'stale_events': self.stale_events}
-        sp_level = (diagnostics.WARN if self.stale_events or self.geofence.breached or counts.get('refused_source')
-                    else diagnostics.OK)
+        sp_level = supervision.setpoints_level(self.stale_events, self.geofence.breached,
+                                               counts.get('refused_source', 0))
         setpoints = diagnostics.status(f'{NAME}: setpoints', sp_level, reason, {
             'handover': phase, 'target_mode': target, 'handovers_ended': ended,
             'streaming': phase != 'idle' and self.may_stream(), 'rate_hz': f'{st.rate_hz():.1f}',

@@ -4,7 +4,7 @@ box that holds every shipped mission with 1 m to spare, and only the position co
 import numpy as np
 import pytest
 
-from quad_bridge.mavlink_bridge_node import PARAMS, _validate
+from quad_bridge.parameters import PARAMS, validate
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.yaml_io import load_yaml
 
@@ -16,7 +16,7 @@ def test_profile_has_the_geofence_on_around_every_mission(profile):
     values = load_yaml(resolve_config(profile))['mavlink_bridge']['ros__parameters']
     defaults = {p.name: p.default for p in PARAMS}
     assert not set(values) - set(defaults), f'not bridge parameters: {set(values) - set(defaults)}'
-    _validate({**defaults, **values})
+    validate({**defaults, **values})
     assert values['geofence_enabled'] is True
     assert values['setpoint_source'] == 'position_controller'
     # SCHED_FIFO above every ordinary process, below the kernel's threaded interrupts (50) that deliver our UDP
