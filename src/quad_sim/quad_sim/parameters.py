@@ -7,7 +7,7 @@ from rclpy.parameter import Parameter
 
 from quad_common import contract
 from quad_common.params import Param
-from quad_sim.simulator import PHYSICS_RATE_HZ
+from quad_sim.simulator import PHYSICS_RATE_HZ, PHYSICS_RATE_RANGE_HZ
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
@@ -16,8 +16,8 @@ SPECS = [
     Param('initial_position', [0.0, 0.0, 1.0], 'start position, map frame (m); hovering unless on the floor',
           length=3, read_only=True),
     Param('initial_yaw', 0.0, 'start yaw (rad)', min=-math.pi, max=math.pi, read_only=True),
-    Param('physics_rate_hz', PHYSICS_RATE_HZ, 'RK4 and onboard autopilot rate (Hz)', min=100.0, max=100000.0,
-          read_only=True),
+    Param('physics_rate_hz', PHYSICS_RATE_HZ, 'RK4 and onboard autopilot rate (Hz)', min=PHYSICS_RATE_RANGE_HZ[0],
+          max=PHYSICS_RATE_RANGE_HZ[1], read_only=True),
     Param('mode', 'lockstep', 'lockstep (deterministic, as fast as the graph) or realtime (paced by rtf)',
           choices=('lockstep', 'realtime'), read_only=True),
     Param('rtf', 1.0, 'realtime mode: simulated seconds per wall second', min=0.01, max=1000.0),
