@@ -400,3 +400,63 @@ def test_a_refused_plan_ends_its_node_with_exit_2(tmp_path, ros_env):
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2, out.stdout + out.stderr
     assert 'needs at least two distinct waypoints' in out.stdout + out.stderr
+
+
+# --- indoor flight: docs/bridge.md "Indoor flight: motion capture", from ros2 launch ------------------------------
+
+INDOOR_WAYPOINTS = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0]]   # from the floor up
+INDOOR_END_M = 0.15          # the plan's last waypoint, reached within this (the real-vehicle profile: docs)
+EXTERNAL_POSE_STATUS = 'mavlink_bridge: external pose'
+
+
+@pytest.mark.parametrize('state_source', ['odom', 'external_pose'])
+def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motion_capture(tmp_path, state_source):
+    """The emulated PX4 with its GPS off and external vision on (test_bridge_external_pose's EV_PARAMS), its
+    motion-capture stand-in (`mavlink_vehicle --mocap-topic external/pose`: the truth, 100 Hz, 1 mm, 10 ms late)
+    and px4.launch.py with external_pose:=enu (state_source:=external_pose: the controller flies from the same
+    pose). The walk-through's calls in order: arm (the autopilot has a position only from the forwarded pose),
+    offboard on the floor (the emulator has no takeoff command: the plan's first leg is the takeoff), the plan
+    flown to its end, land, disarmed."""
+    from launched_params import ParameterReader
+    from std_srvs.srv import Trigger
+    from test_bridge_external_pose import EV_PARAMS
+
+    port = free_udp_port()
+    with _launched(tmp_path) as (start, procs, observer):
+        ev = [a for value in EV_PARAMS['px4'] for a in ('--param', value)]
+        procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=INDOOR_WAYPOINTS[0],
+                      extra=(*VEHICLE_PARAMS['px4'], *ev, '--mocap-topic', 'external/pose'))
+        start(LAUNCH / 'px4.launch.py', mission=str(_mission(tmp_path, INDOOR_WAYPOINTS)),
+              fcu_url=f'udpin:127.0.0.1:{port}', external_pose='enu', state_source=state_source)
+        observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
+        observer.wait_for(lambda: observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding',
+                          f'the bridge forwarding the motion capture ({observer.status(EXTERNAL_POSE_STATUS)})')
+        reader = ParameterReader(observer.context.get_domain_id())
+        try:
+            control = reader.parameters('/position_controller')
+        finally:
+            reader.close()
+        assert (control['state_source'], control['external_pose_frame']) == (state_source, 'enu')
+        observer.wait_for(lambda: observer.call('arm', SetBool.Request(data=True)).success, 'arming accepted')
+        observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+        result = observer.call('offboard', SetBool.Request(data=True))
+        assert result.success, result.message
+        observer.wait_for(lambda: observer.controller()[1].get('mode') == 'hold (trajectory ended)',
+                          f'the end of the plan ({observer.controller()})', WAIT_S + 60.0)
+        end = np.array(INDOOR_WAYPOINTS[-1])
+        observer.wait_for(lambda: np.linalg.norm(np.array(observer.position()) - end) < INDOOR_END_M,
+                          f'the vehicle within {INDOOR_END_M} m of the last waypoint ({observer.position()})')
+        _, values = observer.controller()
+        assert values['refused_start_steps'] == '0' and values['engaged'] == 'True', values
+        assert observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding'   # no pose fault ended the flight
+        with observer.lock:
+            heights = [p[2] for _, p in observer.odom]
+        print(f'indoor, state_source {state_source}: {np.linalg.norm(np.array(observer.position()) - end):.3f} m '
+              f'from the last waypoint, highest {max(heights):.2f} m, pose age '
+              f'{observer.status(EXTERNAL_POSE_STATUS)[1].get("age_ms")} ms')
+        result = observer.call('land', Trigger.Request())
+        assert result.success, result.message
+        observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle landed and disarmed')
+        assert observer.position()[2] < 0.1
+        for name in procs.procs:
+            assert procs.procs[name].poll() is None, procs.log(name)
