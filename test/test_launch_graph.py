@@ -125,6 +125,34 @@ def test_bridge_launch_arguments_reach_their_nodes(autopilot):
         evaluate(LAUNCH / f'{autopilot}.launch.py', hover_throttle='half')
 
 
+@pytest.mark.parametrize('kind', ['px4', 'ardupilot', 'fleet'])
+def test_indoor_launch_arguments_reach_the_bridge_and_the_controller(kind):
+    """external_pose:=enu|y_up: the bridge forwards external/pose in that frame; state_source:=external_pose: the
+    controller flies from it in the same frame; a bad value, or the controller on a pose the bridge does not
+    forward, is refused naming the argument and the value."""
+    def launched(**arguments):
+        nodes = evaluate(LAUNCH / f'{kind}.launch.py', **arguments)
+        return [(graph.NodeSpec(n.name, tuple(n.parameters), (n.namespace or '/')[1:]).merged_parameters(),
+                 graph.NodeSpec(m.name, tuple(m.parameters), (m.namespace or '/')[1:]).merged_parameters())
+                for n, m in zip(nodes, nodes[1:]) if (n.name, m.name) == ('position_controller', 'mavlink_bridge')]
+
+    pairs = launched()
+    assert pairs and all(not b['external_pose_enabled'] and c['state_source'] == 'odom' for c, b in pairs)
+    for frame in ('enu', 'y_up'):
+        for control, bridge in launched(external_pose=frame, state_source='external_pose'):
+            assert bridge['external_pose_enabled'] and bridge['external_pose_frame'] == frame
+            assert control['state_source'] == 'external_pose' and control['external_pose_frame'] == frame
+    for control, bridge in launched(external_pose='y_up'):         # the controller on the autopilot's estimate
+        assert bridge['external_pose_frame'] == 'y_up' and control['state_source'] == 'odom'
+    for arguments, message in ((dict(external_pose='ned'), "external_pose 'ned' refused: must be one of off, enu, "
+                                                           "y_up"),
+                               (dict(state_source='mocap'), "state_source 'mocap' refused"),
+                               (dict(state_source='external_pose'), "state_source 'external_pose' refused with "
+                                                                    "external_pose 'off'")):
+        with pytest.raises(ValueError, match=message):
+            evaluate(LAUNCH / f'{kind}.launch.py', **arguments)
+
+
 def _fleet_file(tmp_path, vehicles, **fleet):
     """A fleet file of px4_quad vehicles on a shared path: vehicles = [(name, {key: value})]."""
     data = {'name': 'fleet', 'vehicle': VEHICLE_FILE, 'robot_radius_m': 0.3, 'waypoints': [[0, 0, 1], [1, 0, 1]],
