@@ -437,24 +437,26 @@ INDOOR_END_M = 0.15          # the plan's last waypoint, reached within this (th
 EXTERNAL_POSE_STATUS = 'mavlink_bridge: external pose'
 
 
-@pytest.mark.parametrize('state_source', ['odom', 'external_pose'])
-def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motion_capture(tmp_path, state_source):
-    """The emulated PX4 with its GPS off and external vision on (test_bridge_external_pose's EV_PARAMS), its
+@pytest.mark.parametrize('autopilot, state_source', [('px4', 'external_pose'), ('ardupilot', 'odom')],
+                         ids=['px4-external_pose', 'ardupilot-odom'])
+def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motion_capture(tmp_path, autopilot,
+                                                                                          state_source):
+    """The emulated autopilot with its GPS off and external vision on (test_bridge_external_pose's EV_PARAMS), its
     motion-capture stand-in (`mavlink_vehicle --mocap-topic external/pose`: the truth, 100 Hz, 1 mm, 10 ms late)
-    and px4.launch.py with external_pose:=enu (state_source:=external_pose: the controller flies from the same
-    pose). The walk-through's calls in order: arm (the autopilot has a position only from the forwarded pose),
-    offboard on the floor (the emulator has no takeoff command: the plan's first leg is the takeoff), the plan
-    flown to its end, land, disarmed."""
+    and <autopilot>.launch.py with external_pose:=enu (state_source:=external_pose: the controller flies from the
+    same pose; odom: from the autopilot's estimate). The walk-through's calls in order: arm (the autopilot has a
+    position only from the forwarded pose), offboard on the floor (the emulator has no takeoff command: the plan's
+    first leg is the takeoff), the plan flown to its end, land, disarmed."""
     from launched_params import ParameterReader
     from std_srvs.srv import Trigger
     from test_bridge_external_pose import EV_PARAMS
 
     port = free_udp_port()
     with _launched(tmp_path) as (start, procs, observer):
-        ev = [a for value in EV_PARAMS['px4'] for a in ('--param', value)]
-        procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=INDOOR_WAYPOINTS[0],
-                      extra=(*VEHICLE_PARAMS['px4'], *ev, '--mocap-topic', 'external/pose'))
-        start(LAUNCH / 'px4.launch.py', mission=str(_mission(tmp_path, INDOOR_WAYPOINTS)),
+        ev = [a for value in EV_PARAMS[autopilot] for a in ('--param', value)]
+        procs.vehicle(autopilot, f'udpout:127.0.0.1:{port}', position=INDOOR_WAYPOINTS[0],
+                      extra=(*VEHICLE_PARAMS[autopilot], *ev, '--mocap-topic', 'external/pose'))
+        start(LAUNCH / f'{autopilot}.launch.py', mission=str(_mission(tmp_path, INDOOR_WAYPOINTS)),
               fcu_url=f'udpin:127.0.0.1:{port}', external_pose='enu', state_source=state_source)
         observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
         observer.wait_for(lambda: observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding',
@@ -479,8 +481,9 @@ def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motio
         assert observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding'   # no pose fault ended the flight
         with observer.lock:
             heights = [p[2] for _, p in observer.odom]
-        print(f'indoor, state_source {state_source}: {np.linalg.norm(np.array(observer.position()) - end):.3f} m '
-              f'from the last waypoint, highest {max(heights):.2f} m, pose age '
+        miss_m = np.linalg.norm(np.array(observer.position()) - end)
+        print(f'indoor, {autopilot}, state_source {state_source}: {miss_m:.3f} m from the last waypoint, highest '
+              f'{max(heights):.2f} m, pose age '
               f'{observer.status(EXTERNAL_POSE_STATUS)[1].get("age_ms")} ms')
         result = observer.call('land', Trigger.Request())
         assert result.success, result.message
