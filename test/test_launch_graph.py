@@ -8,7 +8,10 @@ nodes started as launch_ros starts them: the installed console script, `--ros-ar
   autopilot, `offboard` called 20 s after launch does not dash: the plan starts from where the vehicle is;
 - fleet.launch.py starts each vehicle's three nodes under its namespace with its autopilot, fcu_url and system id,
   and refuses a vehicle without them, shared system ids and a fleet whose plans conflict (test_bridge_fleet.py
-  flies it against three emulated vehicles).
+  flies it against three emulated vehicles);
+- indoors (external_pose, state_source): the bridge forwards the motion capture and the controller flies from it in
+  one frame; against the emulator without GPS and its motion-capture stand-in, the walk-through's calls (arm,
+  offboard, the plan to its end, land) fly.
 """
 
 import ast

@@ -7,6 +7,8 @@ response (quad_vehicle_emu.attitude) and a telemetry delay line; every message's
 boot clock at the sample it carries.
 
     python -m quad_vehicle_emu.mavlink_vehicle --autopilot px4 --url udpout:127.0.0.1:14540
+
+With --mocap-topic it also publishes its truth as a motion-capture system does (quad_vehicle_emu.mocap).
 """
 
 import argparse
