@@ -8,7 +8,10 @@ nodes started as launch_ros starts them: the installed console script, `--ros-ar
   autopilot, `offboard` called 20 s after launch does not dash: the plan starts from where the vehicle is;
 - fleet.launch.py starts each vehicle's three nodes under its namespace with its autopilot, fcu_url and system id,
   and refuses a vehicle without them, shared system ids and a fleet whose plans conflict (test_bridge_fleet.py
-  flies it against three emulated vehicles).
+  flies it against three emulated vehicles);
+- indoors (external_pose, state_source): the bridge forwards the motion capture and the controller flies from it in
+  one frame; against the emulator without GPS and its motion-capture stand-in, the walk-through's calls (arm,
+  offboard, the plan to its end, land) fly.
 """
 
 import ast
@@ -123,6 +126,34 @@ def test_bridge_launch_arguments_reach_their_nodes(autopilot):
     assert defaults['mavlink_bridge']['hover_throttle'] == 0.5     # the bridge config's
     with pytest.raises(ValueError, match="hover_throttle 'half' refused"):
         evaluate(LAUNCH / f'{autopilot}.launch.py', hover_throttle='half')
+
+
+@pytest.mark.parametrize('kind', ['px4', 'ardupilot', 'fleet'])
+def test_indoor_launch_arguments_reach_the_bridge_and_the_controller(kind):
+    """external_pose:=enu|y_up: the bridge forwards external/pose in that frame; state_source:=external_pose: the
+    controller flies from it in the same frame; a bad value, or the controller on a pose the bridge does not
+    forward, is refused naming the argument and the value."""
+    def launched(**arguments):
+        nodes = evaluate(LAUNCH / f'{kind}.launch.py', **arguments)
+        return [(graph.NodeSpec(n.name, tuple(n.parameters), (n.namespace or '/')[1:]).merged_parameters(),
+                 graph.NodeSpec(m.name, tuple(m.parameters), (m.namespace or '/')[1:]).merged_parameters())
+                for n, m in zip(nodes, nodes[1:]) if (n.name, m.name) == ('position_controller', 'mavlink_bridge')]
+
+    pairs = launched()
+    assert pairs and all(not b['external_pose_enabled'] and c['state_source'] == 'odom' for c, b in pairs)
+    for frame in ('enu', 'y_up'):
+        for control, bridge in launched(external_pose=frame, state_source='external_pose'):
+            assert bridge['external_pose_enabled'] and bridge['external_pose_frame'] == frame
+            assert control['state_source'] == 'external_pose' and control['external_pose_frame'] == frame
+    for control, bridge in launched(external_pose='y_up'):         # the controller on the autopilot's estimate
+        assert bridge['external_pose_frame'] == 'y_up' and control['state_source'] == 'odom'
+    for arguments, message in ((dict(external_pose='ned'), "external_pose 'ned' refused: must be one of off, enu, "
+                                                           "y_up"),
+                               (dict(state_source='mocap'), "state_source 'mocap' refused"),
+                               (dict(state_source='external_pose'), "state_source 'external_pose' refused with "
+                                                                    "external_pose 'off'")):
+        with pytest.raises(ValueError, match=message):
+            evaluate(LAUNCH / f'{kind}.launch.py', **arguments)
 
 
 def _fleet_file(tmp_path, vehicles, **fleet):
@@ -400,3 +431,66 @@ def test_a_refused_plan_ends_its_node_with_exit_2(tmp_path, ros_env):
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2, out.stdout + out.stderr
     assert 'needs at least two distinct waypoints' in out.stdout + out.stderr
+
+
+# --- indoor flight: docs/bridge.md "Indoor flight: motion capture", from ros2 launch ------------------------------
+
+INDOOR_WAYPOINTS = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0]]   # from the floor up
+INDOOR_END_M = 0.15          # the plan's last waypoint, reached within this (the real-vehicle profile: docs)
+EXTERNAL_POSE_STATUS = 'mavlink_bridge: external pose'
+
+
+@pytest.mark.parametrize('autopilot, state_source', [('px4', 'external_pose'), ('ardupilot', 'odom')],
+                         ids=['px4-external_pose', 'ardupilot-odom'])
+def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motion_capture(tmp_path, autopilot,
+                                                                                          state_source):
+    """The emulated autopilot with its GPS off and external vision on (test_bridge_external_pose's EV_PARAMS), its
+    motion-capture stand-in (`mavlink_vehicle --mocap-topic external/pose`: the truth, 100 Hz, 1 mm, 10 ms late)
+    and <autopilot>.launch.py with external_pose:=enu (state_source:=external_pose: the controller flies from the
+    same pose; odom: from the autopilot's estimate). The walk-through's calls in order: arm (the autopilot has a
+    position only from the forwarded pose), offboard on the floor (the emulator has no takeoff command: the plan's
+    first leg is the takeoff), the plan flown to its end, land, disarmed."""
+    from launched_params import ParameterReader
+    from std_srvs.srv import Trigger
+    from test_bridge_external_pose import EV_PARAMS
+
+    port = free_udp_port()
+    with _launched(tmp_path) as (start, procs, observer):
+        ev = [a for value in EV_PARAMS[autopilot] for a in ('--param', value)]
+        procs.vehicle(autopilot, f'udpout:127.0.0.1:{port}', position=INDOOR_WAYPOINTS[0],
+                      extra=(*VEHICLE_PARAMS[autopilot], *ev, '--mocap-topic', 'external/pose'))
+        start(LAUNCH / f'{autopilot}.launch.py', mission=str(_mission(tmp_path, INDOOR_WAYPOINTS)),
+              fcu_url=f'udpin:127.0.0.1:{port}', external_pose='enu', state_source=state_source)
+        observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
+        observer.wait_for(lambda: observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding',
+                          f'the bridge forwarding the motion capture ({observer.status(EXTERNAL_POSE_STATUS)})')
+        reader = ParameterReader(observer.context.get_domain_id())
+        try:
+            control = reader.parameters('/position_controller')
+        finally:
+            reader.close()
+        assert (control['state_source'], control['external_pose_frame']) == (state_source, 'enu')
+        observer.wait_for(lambda: observer.call('arm', SetBool.Request(data=True)).success, 'arming accepted')
+        observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+        result = observer.call('offboard', SetBool.Request(data=True))
+        assert result.success, result.message
+        observer.wait_for(lambda: observer.controller()[1].get('mode') == 'hold (trajectory ended)',
+                          f'the end of the plan ({observer.controller()})', WAIT_S + 60.0)
+        end = np.array(INDOOR_WAYPOINTS[-1])
+        observer.wait_for(lambda: np.linalg.norm(np.array(observer.position()) - end) < INDOOR_END_M,
+                          f'the vehicle within {INDOOR_END_M} m of the last waypoint ({observer.position()})')
+        _, values = observer.controller()
+        assert values['refused_start_steps'] == '0' and values['engaged'] == 'True', values
+        assert observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding'   # no pose fault ended the flight
+        with observer.lock:
+            heights = [p[2] for _, p in observer.odom]
+        miss_m = np.linalg.norm(np.array(observer.position()) - end)
+        print(f'indoor, {autopilot}, state_source {state_source}: {miss_m:.3f} m from the last waypoint, highest '
+              f'{max(heights):.2f} m, pose age '
+              f'{observer.status(EXTERNAL_POSE_STATUS)[1].get("age_ms")} ms')
+        result = observer.call('land', Trigger.Request())
+        assert result.success, result.message
+        observer.wait_for(lambda: observer.link()[1].get('armed') == 'False', 'the vehicle landed and disarmed')
+        assert observer.position()[2] < 0.1
+        for name in procs.procs:
+            assert procs.procs[name].poll() is None, procs.log(name)

@@ -34,6 +34,9 @@ DEFAULT_PROFILES = {'se3': 'control_se3.yaml'}
 REAL_VEHICLE_PROFILE = 'control_real.yaml'       # the bridge graphs' default
 REAL_VEHICLE = 'vehicles/px4_quad.yaml'
 AUTOPILOTS = ('px4', 'ardupilot')
+# the bridge graphs' motion capture (docs/bridge.md "Indoor flight"): off, or the frame of external/pose, which the
+# bridge forwards to the autopilot's estimator (external_pose_enabled, external_pose_frame)
+EXTERNAL_POSE_OFF = 'off'
 SIM_MODES = ('lockstep', 'realtime')
 CONFIG_PATH_PARAMETERS = ('vehicle', 'disturbances_file')
 MONITOR = 'fly_monitor'   # fly's flight monitor node (quad_bringup.flight_monitor), a lockstep follower
@@ -263,46 +266,71 @@ def params_file_content(nodes: list[NodeSpec]) -> dict:
 
 def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=None, fcu_url: str = '',
                  hover_throttle: float | None = None, vehicle_params: str = '',
-                 controller: str | None = None) -> list[NodeSpec]:
+                 controller: str | None = None, external_pose: str = EXTERNAL_POSE_OFF,
+                 state_source: str | None = None) -> list[NodeSpec]:
     """A real (or emulated) vehicle: trajectory_node and position_controller on wall-clock time and
     mavlink_bridge from config/bridge_<autopilot>.yaml. The plan runs only while the bridge's hand-over is
     active (vehicle/engaged), so the nodes may start in any order and `offboard` may come at any time.
 
     vehicle: the vehicle file of the planner's limits and the controller (default px4_quad.yaml);
     control_profile: over control.yaml (default control_real.yaml); controller: over the profile's (a user class:
-    docs/plugins.md); fcu_url, hover_throttle, vehicle_params: the bridge's parameters when given."""
+    docs/plugins.md); fcu_url, hover_throttle, vehicle_params: the bridge's parameters when given.
+    external_pose: off, or the frame (enu, y_up) of the motion capture on external/pose that the bridge forwards to
+    the autopilot's estimator; state_source: over the profile's (odom, external_pose: the controller flies from that
+    pose, in the bridge's frame). A controller on external_pose with external_pose off is refused: the autopilot
+    would hold and fail safe on an estimate without the pose the controller flies from."""
+    from quad_common.mocap_frames import FRAMES
+    from quad_control.parameters import STATE_SOURCES
+
     if autopilot not in AUTOPILOTS:
         raise ValueError(f'autopilot {autopilot!r} refused: must be one of {", ".join(AUTOPILOTS)}')
+    if external_pose not in (EXTERNAL_POSE_OFF, *FRAMES):
+        raise ValueError(f'external_pose {external_pose!r} refused: must be one of '
+                         f'{", ".join((EXTERNAL_POSE_OFF, *FRAMES))}')
+    if state_source is not None and state_source not in STATE_SOURCES:
+        raise ValueError(f'state_source {state_source!r} refused: must be one of {", ".join(STATE_SOURCES)}')
     vehicle = str(Path(vehicle).resolve()) if vehicle else config(REAL_VEHICLE)
     profile = str(control_profile) if control_profile else config(REAL_VEHICLE_PROFILE)
     wall = {'use_sim_time': False}
-    bridge = dict(wall)
+    bridge = {**wall, 'external_pose_enabled': external_pose != EXTERNAL_POSE_OFF}
+    if external_pose != EXTERNAL_POSE_OFF:
+        bridge['external_pose_frame'] = external_pose
     for key, value in (('fcu_url', fcu_url), ('hover_throttle', hover_throttle), ('vehicle_params', vehicle_params)):
         if value not in (None, ''):
             bridge[key] = float(value) if key == 'hover_throttle' else str(value)
-    return [
+    control = {**wall, 'lockstep': False, 'wait_for_engagement': True, 'vehicle': vehicle,
+               **({'controller': controller} if controller else {}),
+               **({'state_source': state_source} if state_source else {})}
+    nodes = [
         NodeSpec('trajectory_node', (config(CONFIG_FILES['trajectory_node']),
                                      {**wall, 'mission_file': str(Path(mission_path).resolve()),
                                       'vehicle_file': vehicle})),
-        NodeSpec('position_controller', (config(CONFIG_FILES['position_controller']), profile,
-                                         {**wall, 'lockstep': False, 'wait_for_engagement': True,
-                                          'vehicle': vehicle, **({'controller': controller} if controller else {})})),
+        NodeSpec('position_controller', (config(CONFIG_FILES['position_controller']), profile, control)),
         NodeSpec('mavlink_bridge', (config(CONFIG_FILES['mavlink_bridge'].format(autopilot=autopilot)), bridge)),
     ]
+    if nodes[1].merged_parameters().get('state_source') == 'external_pose':
+        if external_pose == EXTERNAL_POSE_OFF:
+            raise ValueError(f'state_source {"external_pose"!r} refused with external_pose {external_pose!r}: the '
+                             'controller flies from the motion capture the bridge forwards (external_pose:=enu or '
+                             'y_up, its frame)')
+        control['external_pose_frame'] = external_pose    # one frame for the bridge's pose and the controller's
+    return nodes
 
 
 FLEET_BRIDGE_KEYS = ('autopilot', 'fcu_url', 'system_id')   # what each vehicle of a real fleet must have
 
 
 def fleet_bridge_graph(fleet_path, *, control_profile=None, hover_throttle: float | None = None,
-                       vehicle_params: str = '') -> list[NodeSpec]:
+                       vehicle_params: str = '', external_pose: str = EXTERNAL_POSE_OFF,
+                       state_source: str | None = None) -> list[NodeSpec]:
     """A fleet of real (or emulated) vehicles: per vehicle, under its name as namespace, bridge_graph's three
     nodes. trajectory_node flies its plan of the fleet file (`fleet_vehicle`; its start delay and altitude layer
     as the file deconflicts), position_controller its own controller and profile (else control_profile, else
     control_real.yaml), mavlink_bridge its `autopilot`'s config with its `fcu_url` and its MAVLink `system_id` as
     target_system (only that vehicle is commanded and listened to, whoever else is on the link) and as
     source_system (the companion computer of that vehicle). The fleet's plans are checked for separation first
-    (quad_trajectory.fleet.plan_fleet): a conflict is refused as `quadflight plan` refuses it."""
+    (quad_trajectory.fleet.plan_fleet): a conflict is refused as `quadflight plan` refuses it. external_pose,
+    state_source: every vehicle's, as bridge_graph's (each reads external/pose under its namespace)."""
     from quad_trajectory.fleet import load_fleet, plan_fleet
 
     fleet = load_fleet(fleet_path)
@@ -320,7 +348,8 @@ def fleet_bridge_graph(fleet_path, *, control_profile=None, hover_throttle: floa
     for v in fleet.vehicles:
         vehicle = v.mission.vehicle_path or config(REAL_VEHICLE)
         specs = bridge_graph(v.autopilot, path, vehicle=vehicle, control_profile=v.profile_path or control_profile,
-                             fcu_url=v.fcu_url, hover_throttle=hover_throttle, vehicle_params=vehicle_params)
+                             fcu_url=v.fcu_url, hover_throttle=hover_throttle, vehicle_params=vehicle_params,
+                             external_pose=external_pose, state_source=state_source)
         extra = {'trajectory_node': {'fleet_vehicle': v.name},
                  'position_controller': {'controller': v.controller} if v.controller else {},
                  'mavlink_bridge': {'autopilot': v.autopilot, 'target_system': v.system_id,
@@ -340,6 +369,13 @@ SIM_LAUNCH_ARGUMENTS = (
     ('mode', 'lockstep', 'lockstep (as fast as the graph goes) | realtime'),
     ('rtf', '1.0', 'realtime: simulated seconds per wall-clock second'),
 )
+INDOOR_LAUNCH_ARGUMENTS = (
+    ('external_pose', EXTERNAL_POSE_OFF, 'off | enu | y_up: the bridge forwards the motion capture on external/pose '
+                                         'in this frame to the autopilot\'s estimator (docs/bridge.md "Indoor '
+                                         'flight")'),
+    ('state_source', '', 'odom | external_pose: what position_controller flies from (external_pose: the same '
+                         'motion capture, needs external_pose:=enu or y_up); empty: the profile\'s'),
+)
 BRIDGE_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/maze.yaml', 'mission YAML: a path, or one under config/'),
     ('vehicle', REAL_VEHICLE, 'vehicle YAML of the planner\'s limits and the controller'),
@@ -350,6 +386,7 @@ BRIDGE_LAUNCH_ARGUMENTS = (
     ('hover_throttle', '', 'the vehicle\'s hover thrust (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER); empty: '
                            'the bridge config\'s'),
     ('vehicle_params', '', 'check | adopt | ignore the vehicle\'s semantic parameters; empty: the bridge config\'s'),
+    *INDOOR_LAUNCH_ARGUMENTS,
 )
 FLEET_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/fleets/sitl3.yaml', 'fleet YAML whose vehicles have autopilot, fcu_url and system_id: a '
@@ -358,6 +395,7 @@ FLEET_LAUNCH_ARGUMENTS = (
                             'profile; empty: ' + REAL_VEHICLE_PROFILE),
     ('hover_throttle', '', 'every vehicle\'s hover thrust; empty: the bridge configs\''),
     ('vehicle_params', '', 'check | adopt | ignore the vehicles\' semantic parameters; empty: the bridge configs\''),
+    *INDOOR_LAUNCH_ARGUMENTS,
 )
 FLEET_SIM_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/fleets/formation4.yaml', 'fleet YAML: a path, or one under config/'),
@@ -399,10 +437,12 @@ def graph_from_arguments(kind: str, args: dict) -> list[NodeSpec]:
         hover_throttle = float(hover) if hover else None
     except ValueError:
         raise ValueError(f'hover_throttle {hover!r} refused: must be a number') from None
+    indoor = {'external_pose': args['external_pose'], 'state_source': args['state_source'] or None}
     if kind == 'fleet':
         return fleet_bridge_graph(config_path(args['mission']), control_profile=config_path(args['control_profile'])
-                                  or None, hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'])
+                                  or None, hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'],
+                                  **indoor)
     return bridge_graph(kind, config_path(args['mission']), vehicle=config_path(args['vehicle']),
                         control_profile=config_path(args['control_profile']), fcu_url=args['fcu_url'],
                         hover_throttle=hover_throttle, vehicle_params=args['vehicle_params'],
-                        controller=args['controller'] or None)
+                        controller=args['controller'] or None, **indoor)

@@ -31,3 +31,15 @@ def to_enu(frame: str, position, quaternion, velocity=None):
     rotate = rotations.to_matrix(_Q_ENU_YUP)
     q = rotations.multiply(rotations.multiply(_Q_ENU_YUP, quaternion), rotations.conjugate(_Q_ENU_YUP))
     return rotate @ position, q, None if velocity is None else rotate @ np.asarray(velocity, dtype=float)
+
+
+def from_enu(frame: str, position, quaternion):
+    """to_enu's inverse for a pose: world ENU position and attitude FLU -> ENU (x,y,z,w) -> the same in `frame`
+    (a motion-capture stand-in publishing as a Y-up system would: (x, y, z)_ENU -> (x, z, -y)_Yup)."""
+    position = np.asarray(position, dtype=float)
+    quaternion = rotations.normalize(quaternion)
+    if check_frame(frame) == 'enu':
+        return position, quaternion
+    back = rotations.conjugate(_Q_ENU_YUP)
+    q = rotations.multiply(rotations.multiply(back, quaternion), _Q_ENU_YUP)
+    return rotations.to_matrix(back) @ position, q

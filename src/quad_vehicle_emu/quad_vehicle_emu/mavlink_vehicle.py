@@ -7,6 +7,8 @@ response (quad_vehicle_emu.attitude) and a telemetry delay line; every message's
 boot clock at the sample it carries.
 
     python -m quad_vehicle_emu.mavlink_vehicle --autopilot px4 --url udpout:127.0.0.1:14540
+
+With --mocap-topic it also publishes its truth as a motion-capture system does (quad_vehicle_emu.mocap).
 """
 
 import argparse
@@ -146,6 +148,7 @@ class MavlinkVehicle:
         self.statustext_id = 0      # the id of the last chunked STATUSTEXT (1..65535)
         self.last_update_s = 0.0
         self._snap = None
+        self.mocap = mocap_publisher(args, self.wall0_ns)   # None without --mocap-topic
 
     # --- clocks -----------------------------------------------------------------------------------------
 
@@ -168,6 +171,8 @@ class MavlinkVehicle:
             self.control(now)
             lag_steps = int((now - self.sim.time_s) * self.args.physics_rate_hz)
             self.sim.advance_steps(min(max(lag_steps, 0), 5 * steps_per_tick))
+            if self.mocap is not None:   # the truth, as a motion-capture system sees it
+                self.mocap.offer(self.sim.time_s, self.sim.position_m, self.sim.state.quaternion)
             self.estimated = self.estimate.step(now, self.sim.state)
             self.telemetry.push(now, (self.estimated, self.sim.specific_force_body_mps2.copy()))
             self.send_telemetry(now)
@@ -437,6 +442,26 @@ def _param(text):
         raise argparse.ArgumentTypeError(f'--param needs NAME=NUMBER, got {text!r}') from None
 
 
+MOCAP_OPTIONS = ('frame', 'rate_hz', 'position_noise_m', 'attitude_noise_rad', 'latency_s')   # --mocap-<option>
+
+
+def mocap_publisher(args, wall0_ns):
+    """--mocap-topic: the motion-capture stand-in (quad_vehicle_emu.mocap, rclpy imported then), else None; a
+    --mocap-* option without the topic is refused."""
+    given = {k: getattr(args, f'mocap_{k}') for k in MOCAP_OPTIONS if getattr(args, f'mocap_{k}') is not None}
+    if not args.mocap_topic:
+        if given:
+            name = next(iter(given))
+            raise ValueError(f'--mocap-{name.replace("_", "-")} = {given[name]!r} refused: needs --mocap-topic')
+        return None
+    from quad_sim.mocap import MocapConfig
+    from quad_vehicle_emu.mocap import DEFAULTS, MocapPublisher, MocapStandIn
+
+    frame = given.pop('frame', 'enu')
+    config = MocapConfig(**{**DEFAULTS, **given})
+    return MocapPublisher(MocapStandIn(config, frame, wall0_ns, args.loop_rate_hz, args.seed), args.mocap_topic)
+
+
 def build_parser():
     ap = argparse.ArgumentParser(prog='mavlink_vehicle', description=__doc__.split('\n\n')[0])
     ap.add_argument('--autopilot', choices=('px4', 'ardupilot'), default='px4')
@@ -503,6 +528,14 @@ def build_parser():
                     help='SCHED_FIFO priority 1..99 for the emulator (a flight controller has a processor of its '
                          "own: under load the stand-in must not stall where the real one would not); 0: off")
     ap.add_argument('--duration-s', type=float, default=0.0, help='stop after this long (0: run until killed)')
+    ap.add_argument('--mocap-topic', default='',
+                    help='publish the truth as a motion-capture system does (geometry_msgs/PoseStamped stamped at '
+                         'the capture instant; rclpy, ROS_DOMAIN_ID) on this topic, e.g. external/pose; empty: off')
+    ap.add_argument('--mocap-frame', default=None, help='enu (default) | y_up (Motive\'s default world)')
+    ap.add_argument('--mocap-rate-hz', type=float, default=None, help='frames per second, <= --loop-rate-hz (100)')
+    ap.add_argument('--mocap-position-noise-m', type=float, default=None, help='RMS per axis (0.001)')
+    ap.add_argument('--mocap-attitude-noise-rad', type=float, default=None, help='RMS per body axis (0.002)')
+    ap.add_argument('--mocap-latency-s', type=float, default=None, help='capture to publication (0.01)')
     return ap
 
 
@@ -539,6 +572,9 @@ def main(args=None):
         vehicle.run()
     except KeyboardInterrupt:
         pass
+    finally:
+        if vehicle.mocap is not None:
+            vehicle.mocap.close()
     return 0
 
 
