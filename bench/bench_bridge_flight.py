@@ -44,6 +44,7 @@ from quad_trajectory.mission import SAMPLE_RATE_HZ  # noqa: E402
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.drag import with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import SIH_VELOCITY_NOISE_MPS, Estimate  # noqa: E402
+from quad_vehicle_emu.external_vision import VisionClock  # noqa: E402
 
 SQUARE = [(0.0, 0.0, 2.0), (3.0, 0.0, 2.0), (3.0, 3.0, 2.0), (0.0, 3.0, 2.0), (0.0, 0.0, 2.0)]
 SPEED_MPS = 0.8
@@ -121,7 +122,7 @@ def score(stamps_s, positions, traj) -> float:
 
 
 def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_early_s=None,
-                      mocap=None, truth=False) -> float:
+                      mocap=None, truth=False, vision=None) -> float:
     """The PX4 SIH-like emulated chain without processes, MAVLink or a loaded machine: the emulator's own pieces
     (its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the estimate, the telemetry
     delay line at 20 ms and 50 Hz) under position_controller's ControlLoop at 100 Hz, the square planned as
@@ -137,7 +138,11 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
     mocap: None, or (noise_m, latency_s, rate_hz): the controller flies from motion capture (position_controller's
     state_source external_pose: the truth's position + Gaussian noise, delivered latency_s late at rate_hz, through
     quad_control.pose_state's filter with the profile's pose parameters) instead of the odometry.
-    truth: score the truth (where the vehicle is, every 10 ms) against the plan, not the estimate."""
+    truth: score the truth (where the vehicle is, every 10 ms) against the plan, not the estimate.
+    vision: None, or (noise_m, age_s, rate_hz, delay_ms): the autopilot's estimate is fused from a motion-capture
+    pose (the truth's position + Gaussian noise, measured at rate_hz, reaching PX4 age_s later, fused as
+    quad_vehicle_emu.external_vision does with EKF2_EV_DELAY = delay_ms) on every axis; the controller flies the
+    odometry as without it."""
     early_s = None if odom_early_s is None else odom_early_s_checked(odom_early_s)
     values = _profile_values(profile)
     vehicle = load_vehicle(VEHICLE_FILE)
@@ -168,10 +173,23 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
         pose_filter = PoseStateFilter(values.get('pose_position_noise_m', 0.001),
                                       values.get('pose_acceleration_mps2', 2.0), 0.2)
         frame_every = max(1, round(100.0 / mocap_rate_hz))
+    if vision is not None:
+        vision_noise_m, vision_age_s, vision_rate_hz, vision_delay_ms = vision
+        poses, vision_clock = DelayLine(vision_age_s), VisionClock('px4')
+        vision_rng, vision_every = np.random.default_rng(seed + 2000), max(1, round(100.0 / vision_rate_hz))
+        last_pose_s = -1.0
     end_s = OFFLINE_HOVER_S + traj.duration_s + 3.0
     for k in range(int(end_s * 100) + 1):
         t_s = 0.01 * k
-        est = estimate.step(t_s, sim.state)
+        if vision is not None:
+            if k % vision_every == 0:
+                poses.push(t_s, sim.state.position + vision_rng.normal(0.0, vision_noise_m, 3))
+            pose = poses.read(t_s)
+            if pose is not None and pose[0] > last_pose_s:
+                last_pose_s = pose[0]
+                fusion_us = vision_clock.fusion_us(round(pose[0] * 1e6), round(t_s * 1e6), vision_delay_ms)
+                estimate.fuse_vision(pose[1], fusion_us * 1e-6)
+        est = estimate.step(t_s, sim.state, (vision is not None,) * 3)
         velocities.push(t_s, sim.state.velocity.copy())
         if velocity_lag_s:
             old = velocities.read(t_s)
