@@ -48,7 +48,7 @@ from quad_trajectory.mission import SAMPLE_RATE_HZ  # noqa: E402
 from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle  # noqa: E402
 from quad_vehicle_emu.drag import with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import SIH_VELOCITY_NOISE_MPS, Estimate  # noqa: E402
-from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, AutopilotPlant  # noqa: E402
+from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, AutopilotPlant, VisionFeed  # noqa: E402
 
 SQUARE = [(0.0, 0.0, 2.0), (3.0, 0.0, 2.0), (3.0, 3.0, 2.0), (0.0, 3.0, 2.0), (0.0, 0.0, 2.0)]
 SPEED_MPS = 0.8
@@ -126,7 +126,7 @@ def score(stamps_s, positions, traj) -> float:
 
 
 def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_early_s=None,
-                      mocap=None, truth=False) -> float:
+                      mocap=None, truth=False, vision=None) -> float:
     """The PX4 SIH-like emulated chain without processes, MAVLink or a loaded machine: the emulator's own pieces
     (quad_vehicle_emu.plant: its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the
     estimate; the telemetry delay line at 20 ms and 50 Hz) through the flight harness (quad_bringup.harness:
@@ -143,7 +143,11 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
     mocap: None, or (noise_m, latency_s, rate_hz): the controller flies from motion capture (position_controller's
     state_source external_pose: quad_bringup.harness.Mocap, the simulator's stand-in at rate_hz with that noise and
     latency, through quad_control.pose_state's filter with the profile's pose parameters) instead of the odometry.
-    truth: score the truth (where the vehicle is, every 10 ms) against the plan, not the estimate."""
+    truth: score the truth (where the vehicle is, every 10 ms) against the plan, not the estimate.
+    vision: None, or (noise_m, age_s, rate_hz, delay_ms): the autopilot's estimate is fused from a motion-capture
+    pose (quad_vehicle_emu.plant.VisionFeed: the simulator's stand-in at rate_hz with that noise, reaching PX4 age_s
+    later, fused as quad_vehicle_emu.external_vision does with EKF2_EV_DELAY = delay_ms) on every axis; the
+    controller flies the odometry as without it."""
     early_s = None if odom_early_s is None else odom_early_s_checked(odom_early_s)
     values = _profile_values(profile)
     vehicle = load_vehicle(VEHICLE_FILE)
@@ -165,9 +169,15 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
                         float(option.get('--estimator-velocity-wander-tau-s', 3.0)))
     if velocity_lag_s:
         estimate = _LateVelocity(estimate, velocity_lag_s)
+    feed = None
+    if vision is not None:
+        vision_noise_m, vision_age_s, vision_rate_hz, vision_delay_ms = vision
+        feed = VisionFeed('px4', MocapConfig(rate_hz=vision_rate_hz, position_noise_m=vision_noise_m,
+                                             latency_s=vision_age_s), vision_delay_ms, seed)
     plant = AutopilotPlant(sim, AttitudeResponse(float(option['--attitude-tau-s']), sim.state.quaternion,
                                                  float(option.get('--attitude-dead-time-s', 0.0))),
-                           estimate, rp_rates_fed=option.get('--rp-rates-with-attitude', 'fed') == 'fed')
+                           estimate, rp_rates_fed=option.get('--rp-rates-with-attitude', 'fed') == 'fed',
+                           vision=feed)
     if mocap is not None:
         mocap_noise_m, mocap_latency_s, mocap_rate_hz = mocap
         telemetry = Mocap(MocapConfig(rate_hz=mocap_rate_hz, position_noise_m=mocap_noise_m,
@@ -192,8 +202,11 @@ class _LateVelocity:
     def __init__(self, estimate, lag_s: float):
         self.estimate, self.velocities = estimate, DelayLine(lag_s)
 
-    def step(self, now_s, truth: State) -> State:
-        est = self.estimate.step(now_s, truth)
+    def fuse_vision(self, position_enu, fusion_time_s: float):
+        self.estimate.fuse_vision(position_enu, fusion_time_s)
+
+    def step(self, now_s, truth: State, vision_axes=(False, False, False)) -> State:
+        est = self.estimate.step(now_s, truth, vision_axes)
         self.velocities.push(now_s, truth.velocity.copy())
         old = self.velocities.read(now_s)
         return State(position=est.position, velocity=old[1] if old else est.velocity, quaternion=est.quaternion,

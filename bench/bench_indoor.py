@@ -12,6 +12,9 @@ fusing the motion capture can publish (the truth's position and velocity, odomet
 bound for external vision through the autopilot. Motion capture direct: position_controller `state_source:
 external_pose`, the truth's position + 1 mm noise at 100 Hz, 10 ms late (the stand-in's setting), the velocity
 from quad_control.pose_state's filter at the `pose_acceleration_mps2` given (5: the default).
+Autopilot estimate fused from the pose (default emulator only): the estimate quad_vehicle_emu.external_vision
+fuses from the motion-capture pose the bridge forwards (1 mm noise, 30 Hz: external_pose_rate_hz, 10 ms old at
+PX4, EKF2_EV_DELAY 5 ms: with the 5 ms half step EKF2 subtracts itself, the pose's age), odometry as above.
 Goal: <= 5 cm for the real-vehicle default (control_real.yaml)."""
 
 import sys
@@ -34,6 +37,7 @@ PLANTS = {'default emulator': (DEFAULT_EMULATOR, DEFAULT_EMULATOR),
 PROFILES = {'pd (control.yaml)': None, 'control_real.yaml (pid)': chain.REAL_PROFILE,
             'control_se3.yaml (se3)': chain.SE3_PROFILE}
 MOCAP = (0.001, 0.01, 100.0)   # noise m, latency s, rate Hz
+VISION = (0.001, 0.01, 30.0, 5.0)   # noise m, age at the autopilot s, rate Hz, EKF2_EV_DELAY ms
 ACCELERATIONS = (5.0, 20.0)   # pose_acceleration_mps2 flown (5: the default)
 SEEDS = (0, 1)
 
@@ -57,6 +61,12 @@ def main():
                     if gps_like is not truth_estimate else None
                 cells.append(' / '.join(f'{100 * r:.1f}' for r in gps) if gps else 'n/a (no GPS model)')
                 cells.append(f'{100 * chain.fly_chain_offline(profile, 0, options=truth_estimate, truth=True):.1f}')
+                if plant == 'default emulator':
+                    fused = [chain.fly_chain_offline(profile, s, options=truth_estimate, truth=True, vision=VISION)
+                             for s in SEEDS]
+                    cells.append(' / '.join(f'{100 * r:.1f}' for r in fused))
+                else:
+                    cells.append('n/a')
                 for a in ACCELERATIONS:
                     flown = with_pose_acceleration(profile, a, Path(tmp))
                     got = [chain.fly_chain_offline(flown, s, options=truth_estimate, mocap=MOCAP, truth=True)
@@ -67,8 +77,9 @@ def main():
     print('## Indoor flight: the controller on motion capture, the truth against the plan\n')
     print(__doc__.replace('\n', ' ').strip() + '\n')
     print('| plant | control | GPS-like estimate (cm, seeds 0 / 1) | autopilot estimate = truth (cm) | '
+          'autopilot estimate fused from the pose (cm, seeds 0 / 1) | '
           'motion capture direct, pose_acceleration 5: default (cm) | motion capture direct, 20 (cm) |')
-    print('|---|---|---:|---:|---:|---:|')
+    print('|---|---|---:|---:|---:|---:|---:|')
     for row in rows:
         print('| ' + ' | '.join(row) + ' |')
 

@@ -2,7 +2,9 @@
 a tap: forwarded in the autopilot's message at the configured rate, converted to NED; a jump, a late sample and a
 stopped stream are faults in the diagnostics, refuse `offboard`, and end a hand-over with stale_action.
 The bridge's vehicle-parameter check reads the emulator's external vision parameters: set as the
-autopilots' docs say, offboard runs; left at their defaults, it is refused naming the parameter."""
+autopilots' docs say, offboard runs; left at their defaults, it is refused naming the parameter. With them set the
+vehicle's estimate (its odometry, through the bridge) is the pose it was sent, not where it is: a rigid body 1 m
+off, or a Y-up frame declared for an ENU pose, moves the reported position by as much."""
 
 import threading
 import time
@@ -24,10 +26,10 @@ DO_SET_MODE = 176
 class PosePublisher:
     """external/pose at rate_hz from a thread; position and stamp age can be changed while it runs."""
 
-    def __init__(self, observer, rate_hz=100.0):
+    def __init__(self, observer, rate_hz=100.0, position=(1.0, 2.0, 0.5)):
         self.node, self.period_s = observer.node, 1.0 / rate_hz
         self.pub = self.node.create_publisher(PoseStamped, contract.EXTERNAL_POSE, contract.qos(contract.EXTERNAL_POSE))
-        self.position, self.age_s = (1.0, 2.0, 0.5), 0.0
+        self.position, self.age_s = position, 0.0
         self.running = threading.Event()
         self.running.set()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -116,7 +118,7 @@ def test_vehicle_param_check_reads_the_emulators_external_vision_parameters(grap
     procs, observer, start = graph
     args = [a for value in EV_PARAMS[flavour] for a in ('--param', value)] if ev_params_set else []
     start(flavour, vehicle_args=args, vehicle_params='check')
-    poses = PosePublisher(observer)
+    poses = PosePublisher(observer, position=(0.0, 0.0, 1.0))   # where the vehicle is: its estimate follows it
     setpoints = SetpointPublisher(observer, force_mps2=9.81)
     try:
         observer.wait_for(lambda: observer.status(STATUS)[0] == 'forwarding', 'the external pose status forwarding')
@@ -158,3 +160,39 @@ def _arm_refused_then_accepted(observer):
         observer.wait_for(lambda: observer.call('arm', SetBool.Request(data=True)).success, 'arming accepted')
     finally:
         poses.stop()
+
+
+# (autopilot, external_pose_frame, the published pose (ENU, m) of a vehicle standing at TRUTH, the odometry expected)
+TRUTH = (1.0, 2.0, 0.0)
+FUSED_CASES = [('px4', 'enu', (2.0, 2.0, 0.0), (2.0, 2.0, 0.0)),      # the rigid body's origin 1 m off in x
+               ('ardupilot', 'y_up', TRUTH, (1.0, 0.0, 2.0))]          # Y-up: (x, y, z) -> (x, -z, y) ENU
+
+
+def _near(position, expected, tolerance_m):
+    return position is not None and max(abs(a - b) for a, b in zip(position, expected)) < tolerance_m
+
+
+@pytest.mark.parametrize('flavour,frame,pose,expected', FUSED_CASES, ids=[c[1] for c in FUSED_CASES])
+def test_the_vehicles_odometry_is_its_estimate_fused_from_the_pose_not_its_truth(tmp_path, flavour, frame, pose,
+                                                                                    expected):
+    """A vehicle standing (disarmed) at TRUTH with external vision as its position source: before any pose its
+    odometry is where it stands; with the pose streaming the odometry the bridge publishes is the pose as the bridge
+    converted it and the autopilot fused it from the wire, and stays there."""
+    with running_graph(tmp_path) as (procs, observer):
+        port = free_udp_port()
+        ev = [a for value in EV_PARAMS[flavour] for a in ('--param', value)]
+        procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=TRUTH,
+                      extra=(*VEHICLE_ARGS[flavour], *ev, '--hover-throttle', str(HOVER)))
+        procs.bridge(f'udpin:127.0.0.1:{port}', hover_throttle=HOVER, external_pose_enabled=True,
+                     external_pose_frame=frame, vehicle_params='ignore')
+        observer.wait_for(lambda: _near(observer.position(), TRUTH, 0.02), f'odometry at the truth {TRUTH}')
+        poses = PosePublisher(observer, position=pose)
+        try:
+            observer.wait_for(lambda: _near(observer.position(), expected, 0.02),
+                              f'odometry at the fused pose {expected} (now {observer.position()})')
+            since = observer.odom[-1][0]
+            observer.wait_for(lambda: observer.odom[-1][0] > since + 1.0, 'one more second of odometry')
+            held = [p for t, p in list(observer.odom) if t > since]
+            assert all(_near(p, expected, 0.03) for p in held), held[:5]
+        finally:
+            poses.stop()

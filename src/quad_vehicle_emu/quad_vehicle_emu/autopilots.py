@@ -110,6 +110,14 @@ class Autopilot:
     def position_timeout_s(self) -> float:
         raise NotImplementedError
 
+    def vision_axes(self) -> tuple[bool, bool, bool]:
+        """The world axes (x, y, z) whose position estimate comes from the external-vision poses alone."""
+        raise NotImplementedError
+
+    def vision_delay_ms(self) -> float:
+        """The pose's age the estimator assumes (EKF2_EV_DELAY / VISO_DELAY_MS)."""
+        raise NotImplementedError
+
     def has_position(self, now_s) -> bool:
         """The estimator has a horizontal position: GPS aiding on (the emulator's GPS always has a fix), or
         vision aiding on and a pose fused within the estimator's timeout (dead reckoning until then)."""
@@ -225,6 +233,16 @@ class Px4(Autopilot):
 
     def position_timeout_s(self) -> float:
         return PX4_NOAID_TIMEOUT_S
+
+    def vision_axes(self) -> tuple[bool, bool, bool]:
+        """Horizontal: EKF2_EV_CTRL bit 0 with GPS lon/lat off; vertical: EKF2_EV_CTRL bit 1 with EKF2_HGT_REF 3
+        (vision). Where GPS aiding is on, the GPS-like estimate stays (both fused: the GPS dominates outdoors)."""
+        horizontal = self.vision_aiding() and not self.gps_aiding()
+        vertical = bool(int(self.params['EKF2_EV_CTRL']) & 2) and int(self.params['EKF2_HGT_REF']) == 3
+        return horizontal, horizontal, vertical
+
+    def vision_delay_ms(self) -> float:
+        return float(self.params['EKF2_EV_DELAY'])
 
     def can_run(self, mode, now_s) -> bool:
         """Entering OFFBOARD (switch or arm) also needs the stream at > 2 Hz, as the user guide requires. Modes
@@ -406,6 +424,15 @@ class ArduCopter(Autopilot):
 
     def position_timeout_s(self) -> float:
         return COPTER_EXTNAV_TIMEOUT_S
+
+    def vision_axes(self) -> tuple[bool, bool, bool]:
+        """AP_NavEKF_Source: EK3_SRC1_POSXY 6 and EK3_SRC1_POSZ 6 (ExternalNAV) with VISO_TYPE set."""
+        horizontal = self.vision_aiding()
+        vertical = int(self.params['EK3_SRC1_POSZ']) == 6 and int(self.params['VISO_TYPE']) > 0
+        return horizontal, horizontal, vertical
+
+    def vision_delay_ms(self) -> float:
+        return float(self.params['VISO_DELAY_MS'])
 
     @property
     def use_thrust(self) -> bool:

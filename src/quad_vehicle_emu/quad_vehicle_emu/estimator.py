@@ -40,6 +40,11 @@ Gauss-Markov process per world axis stepped as the position's wander. PX4 v1.16 
 flights): 0.1-0.32 m/s RMS horizontally, 0.14-0.19 m/s vertically, almost all below 0.5 Hz, autocorrelation time
 2-5 s; the published velocity is not the published position's derivative (0.2 m/s RMS apart), so the two wander
 independently here.
+
+External vision (`vision_axes`, per world axis): where the autopilot's parameters make the received poses the
+position source, the position on those axes is quad_vehicle_emu.external_vision's fusion of them (the truth now
+plus the correction the last fused pose made), not the truth lagged and wandering: GPS lag and wander do not apply
+there. Velocity, attitude and rates are as above.
 """
 
 import collections
@@ -49,6 +54,7 @@ import numpy as np
 
 from quad_common import rotations
 from quad_common.types import State
+from quad_vehicle_emu.external_vision import VisionFusion
 
 OUTPUT_TAU_S = 0.25   # PX4 EKF2_TAU_POS: the output predictor's position correction time constant
 VELOCITY_TAU_S = 0.25   # PX4 EKF2_TAU_VEL: the output predictor's velocity correction time constant
@@ -60,7 +66,8 @@ SIH_VELOCITY_NOISE_MPS = tuple(a * math.sqrt(SIH_IMU_DT_S * VELOCITY_TAU_S / 2.0
 class Estimate:
     def __init__(self, lag_s: float = 0.0, wander_m: float = 0.0, wander_z_m: float = 0.0, tau_s: float = 60.0,
                  seed: int = 0, velocity_noise_mps=(0.0, 0.0, 0.0), velocity_wander_mps: float = 0.0,
-                 velocity_wander_z_mps: float = 0.0, velocity_wander_tau_s: float = 3.0):
+                 velocity_wander_z_mps: float = 0.0, velocity_wander_tau_s: float = 3.0,
+                 vision_timeout_s: float = 5.0):
         for name, value in (('--estimator-lag-s', lag_s), ('--estimator-wander-m', wander_m),
                             ('--estimator-wander-z-m', wander_z_m)):
             if not (math.isfinite(value) and 0.0 <= value <= 10.0):
@@ -92,9 +99,15 @@ class Estimate:
         self._raw_sigma = self.sigma * math.sqrt((self.tau_s + OUTPUT_TAU_S) / self.tau_s)
         self.last_s = None
         self._history = collections.deque()   # (time s, position) of the truth
+        self.vision = VisionFusion(vision_timeout_s)   # fused external-vision poses (fuse_vision)
 
-    def step(self, now_s: float, truth: State) -> State:
-        """The estimate at now_s, given the truth now (call once per loop tick, times increasing)."""
+    def fuse_vision(self, position_enu, fusion_time_s: float):
+        """A received external-vision pose (world ENU), fused as measured at fusion_time_s (this clock)."""
+        self.vision.fuse(position_enu, fusion_time_s)
+
+    def step(self, now_s: float, truth: State, vision_axes=(False, False, False)) -> State:
+        """The estimate at now_s, given the truth now (call once per loop tick, times increasing); vision_axes:
+        the world ENU axes whose position comes from the fused external-vision poses."""
         if self.last_s is not None and self.sigma.any():
             dt_s = max(now_s - self.last_s, 0.0)
             a = math.exp(-dt_s / self.tau_s)
@@ -113,11 +126,17 @@ class Estimate:
         while len(self._history) > 1 and self._history[1][0] <= now_s - self.lag_s:
             self._history.popleft()
         _, position = self._history[0]
-        if (not self.lag_s and not self.sigma.any() and not self.velocity_sigma.any()
+        vision_axes = np.asarray(vision_axes, dtype=bool).reshape(3)
+        vision_position = self.vision.step(now_s, truth.position, self.velocity_wander)
+        if vision_axes.any():
+            position = np.where(vision_axes, vision_position, position + self.wander)
+        else:
+            position = position + self.wander
+        if (not vision_axes.any() and not self.lag_s and not self.sigma.any() and not self.velocity_sigma.any()
                 and not self.velocity_wander_sigma.any()):
             return truth
         velocity = truth.velocity + self.velocity_wander
         if self.velocity_sigma.any():
             velocity = velocity + rotations.to_matrix(truth.quaternion) @ self.velocity_noise_body
-        return State(position=position + self.wander, velocity=velocity, quaternion=truth.quaternion,
+        return State(position=position, velocity=velocity, quaternion=truth.quaternion,
                      body_rates=truth.body_rates)

@@ -41,6 +41,8 @@ from quad_vehicle_emu.attitude import (  # noqa: E402
 from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
 from quad_vehicle_emu.drag import check_drag, with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import Estimate  # noqa: E402
+from quad_vehicle_emu.external_vision import VisionClock  # noqa: E402
+from quad_vehicle_emu.plant import PHYSICS_RATE_HZ  # noqa: E402
 
 DEFAULT_VEHICLE = 'vehicles/px4_quad.yaml'   # found as every file argument is (quad_common.paths)
 # the autopilot's own MAVLink system id parameter (PX4 mavlink_params.c, ArduCopter Parameters.cpp): read at boot
@@ -112,7 +114,10 @@ class MavlinkVehicle:
         self.estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
                                  args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps,
                                  args.estimator_velocity_wander_mps, args.estimator_velocity_wander_z_mps,
-                                 args.estimator_velocity_wander_tau_s)
+                                 args.estimator_velocity_wander_tau_s,
+                                 vision_timeout_s=self.ap.position_timeout_s())
+        self.vision_clock = VisionClock(self.flavour)   # when a received pose is fused (external_vision)
+        self.vision_refusals = set()                     # reasons a pose was not fused, each printed once
         vehicle, drag = with_linear_drag(emulated_vehicle(parameter_file('--vehicle', args.vehicle),
                                                           rate_loop=args.rate_loop), args.drag_per_s)
         self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
@@ -173,7 +178,7 @@ class MavlinkVehicle:
             self.sim.advance_steps(min(max(lag_steps, 0), 5 * steps_per_tick))
             if self.mocap is not None:   # the truth, as a motion-capture system sees it
                 self.mocap.offer(self.sim.time_s, self.sim.position_m, self.sim.state.quaternion)
-            self.estimated = self.estimate.step(now, self.sim.state)
+            self.estimated = self.estimate.step(now, self.sim.state, self.ap.vision_axes())
             self.telemetry.push(now, (self.estimated, self.sim.specific_force_body_mps2.copy()))
             self.send_telemetry(now)
             self.send_log()
@@ -222,11 +227,14 @@ class MavlinkVehicle:
                 self.flavour == 'ardupilot' or msg.estimator_type in p.PX4_VISUAL_ODOMETRY_ESTIMATORS)):
             # PX4 mavlink_receiver.cpp: VISION_POSITION_ESTIMATE and ODOMETRY from VISION / VIO go to
             # vehicle_visual_odometry (MOCAP elsewhere); ArduPilot GCS_Common.cpp hands both to AP_VisualOdom
-            self.ap.on_external_pose(now)
+            self.on_vision_pose(msg, kind, now)
         elif kind == 'TIMESYNC' and msg.tc1 == 0:
             # both answer with their own boot clock in ns (PX4 src/modules/mavlink/mavlink_timesync.cpp,
             # ArduPilot GCS_Common.cpp handle_timesync: tc1 = now_ns, ts1 echoed)
             self.mav.timesync_send(int(self.boot_s(now) * 1e9), msg.ts1)
+        elif kind == 'TIMESYNC' and self.flavour == 'px4':
+            # the answer to PX4's own request: its offset to the companion's clock (mavlink_timesync.cpp)
+            self.vision_clock.timesync.update(int(self.boot_s(now) * 1e6), msg.tc1, msg.ts1)
         elif kind == 'REQUEST_DATA_STREAM' and self.flavour == 'ardupilot':
             self.on_request_data_stream(msg)
         elif kind == 'PARAM_REQUEST_READ':
@@ -241,6 +249,39 @@ class MavlinkVehicle:
                 self.send_param(name)
         elif kind == 'PARAM_SET':
             self.on_param_set(msg, now)
+
+    def on_vision_pose(self, msg, kind, now):
+        """An external-vision pose to the estimator, as its fields say: position (NED), frame, stamp (fused at
+        the instant quad_vehicle_emu.external_vision.VisionClock gives). ODOMETRY pose frames: PX4
+        mavlink_receiver.cpp handle_message_odometry takes MAV_FRAME_LOCAL_NED and MAV_FRAME_LOCAL_FRD (the FRD
+        frame's heading alignment to EKF2's is not emulated: its axes are taken as north, east, down);
+        VISION_POSITION_ESTIMATE is local NED."""
+        if kind == 'ODOMETRY':
+            if msg.frame_id not in (p.MAV_FRAME_LOCAL_NED, p.MAV_FRAME_LOCAL_FRD):
+                why = f'ODOMETRY frame_id {msg.frame_id} not a local NED / FRD frame: not fused'
+                self._refuse_vision(why, why)
+                return
+            stamp_us = int(msg.time_usec)
+        else:
+            stamp_us = int(msg.usec)
+        position_ned = np.array([msg.x, msg.y, msg.z], dtype=float)
+        if not np.all(np.isfinite(position_ned)):
+            self._refuse_vision(f'{kind} not finite', f'{kind} position {position_ned.tolist()} not finite: not fused')
+            return
+        arrival_us = int(self.boot_s(now) * 1e6)
+        fusion_us = self.vision_clock.fusion_us(stamp_us, arrival_us, self.ap.vision_delay_ms())
+        if fusion_us < 0:   # PX4: before boot (a stamp in another clock once TIMESYNC converged): "too fast"
+            self._refuse_vision(f'{kind} stamp maps before boot', f'{kind} stamp {stamp_us} us maps to {fusion_us} '
+                                'us, before boot: not fused (nor any other in that clock; shown once)')
+            return
+        fusion_s = (fusion_us * 1e-6 - self.args.boot_offset_s) / self.args.clock_rate
+        self.estimate.fuse_vision(ned.enu_to_ned(position_ned), fusion_s)   # the swap NED <-> ENU is its own inverse
+        self.ap.on_external_pose(now)
+
+    def _refuse_vision(self, key, text):
+        if key not in self.vision_refusals:
+            self.vision_refusals.add(key)
+            print(f'mavlink_vehicle: {text}', flush=True)
 
     def on_command(self, msg, now):
         params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
@@ -521,7 +562,7 @@ def build_parser():
     ap.add_argument('--drag-per-s', type=float, default=0.0,
                     help='linear air drag, m/s^2 per m/s on every axis (PX4 SIH: SIH_KDV / SIH_MASS = 1.0); 0: none')
     ap.add_argument('--seed', type=int, default=0)
-    ap.add_argument('--physics-rate-hz', type=float, default=500.0)
+    ap.add_argument('--physics-rate-hz', type=float, default=PHYSICS_RATE_HZ)
     ap.add_argument('--loop-rate-hz', type=float, default=100.0)
     ap.add_argument('--signing-key-file', default='', help='MAVLink 2 signing key; empty: unsigned')
     ap.add_argument('--realtime-priority', type=int, default=0,

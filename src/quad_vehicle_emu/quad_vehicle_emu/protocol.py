@@ -72,6 +72,7 @@ MAV_DATA_STREAM_EXTRA3 = 12
 # MAV_FRAME
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_FRD = 12
+MAV_FRAME_LOCAL_FRD = 20
 MAV_ESTIMATOR_TYPE_AUTOPILOT = 1
 
 # --- PX4 -----------------------------------------------------------------------------------------------

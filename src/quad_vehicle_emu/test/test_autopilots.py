@@ -139,3 +139,16 @@ def test_arducopter_lands_one_second_after_the_ekf_loses_the_position_in_guided(
     assert apm.mode == 'GUIDED'
     apm.update(HOVERING, False, 8.6)
     assert apm.mode == 'LAND' and apm.log[-2][1] == 'EKF Failsafe'
+
+
+@pytest.mark.parametrize('autopilot,params,axes', [
+    (Px4, {}, (False, False, False)),                                          # GPS on: the GPS-like estimate
+    (Px4, {'EKF2_GPS_CTRL': 0, 'EKF2_EV_CTRL': 3, 'EKF2_HGT_REF': 3}, (True, True, True)),
+    (Px4, {'EKF2_GPS_CTRL': 0, 'EKF2_EV_CTRL': 1}, (True, True, False)),      # height from the GPS / baro
+    (ArduCopter, {}, (False, False, False)),
+    (ArduCopter, {'VISO_TYPE': 1, 'EK3_SRC1_POSXY': 6, 'EK3_SRC1_POSZ': 6}, (True, True, True)),
+    (ArduCopter, {'VISO_TYPE': 1, 'EK3_SRC1_POSXY': 6}, (True, True, False)),  # height from the barometer
+    (ArduCopter, {'EK3_SRC1_POSXY': 6, 'EK3_SRC1_POSZ': 6}, (False, False, False)),   # VISO_TYPE 0: no pose
+])
+def test_the_vision_axes_follow_the_position_source_parameters(autopilot, params, axes):
+    assert autopilot(0.5, params).vision_axes() == axes
