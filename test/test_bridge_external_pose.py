@@ -196,3 +196,34 @@ def test_the_vehicles_odometry_is_its_estimate_fused_from_the_pose_not_its_truth
             assert all(_near(p, expected, 0.03) for p in held), held[:5]
         finally:
             poses.stop()
+
+
+@pytest.mark.parametrize('flavour', ['px4', 'ardupilot'])
+def test_the_autopilot_fuses_the_bridge_stamped_pose_at_its_capture_instant_after_timesync_converged(flavour):
+    """The bridge's stamp rule against each autopilot's own handling of time_usec (the emulator's, from their
+    source): PX4 booted 1000 s ago asks TIMESYNC 600 times at 10 Hz (2 ms each way) and the bridge answers with its
+    answer clock; ArduPilot's jitter correction sees poses arrive 10 ms after capture. A pose captured at wall time
+    c and stamped by the bridge is then fused at c in the autopilot's boot clock (less EKF's half step), not 1000 s
+    early (which EKF2 refuses as before boot): PX4 with EKF2_EV_DELAY 0 (the stamp is the capture instant),
+    ArduPilot with VISO_DELAY_MS the pose's age (its correction keeps only the stamps' jitter)."""
+    from quad_bridge.clock import answer_clock_ns
+    from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter
+    from quad_vehicle_emu.external_vision import ARDUPILOT_HALF_EKF_STEP_US, PX4_HALF_EKF_DT_US, VisionClock
+
+    wall0_ns = answer_clock_ns()
+    boot_offset_ns = wall0_ns - 1000 * 10**9          # boot time = wall time - this
+    vision = VisionClock(flavour)
+    if flavour == 'px4':
+        for k in range(600):
+            ask_boot_ns = (wall0_ns - boot_offset_ns) + k * 100_000_000
+            answer_wall_ns = ask_boot_ns + boot_offset_ns + 2_000_000
+            vision.timesync.update((ask_boot_ns + 4_000_000) // 1000, answer_wall_ns, ask_boot_ns)
+        assert vision.timesync.converged
+    poses = ExternalPoseFilter(ExternalPoseConfig(max_rate_hz=200.0))
+    half_step_us = PX4_HALF_EKF_DT_US if flavour == 'px4' else ARDUPILOT_HALF_EKF_STEP_US
+    for k in range(200):   # 100 Hz captures, 10 ms to the autopilot
+        capture_ns = wall0_ns + 60 * 10**9 + k * 10_000_000
+        pose = poses.offer([0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0], None, capture_ns, capture_ns + 5_000_000)
+        arrival_boot_us = (capture_ns + 10_000_000 - boot_offset_ns) // 1000
+        fused_us = vision.fusion_us(pose.time_us, arrival_boot_us, 0.0 if flavour == 'px4' else 10.0)
+    assert abs(fused_us + half_step_us - (capture_ns - boot_offset_ns) // 1000) < 1_000   # 1 ms

@@ -31,6 +31,7 @@ import collections
 import math
 import statistics
 import threading
+import time
 
 import numpy as np
 
@@ -217,16 +218,6 @@ class ClockMapper:
                 return None
             return _at(line, line[0] if remote_us is None else int(remote_us) * 1000)
 
-    def to_remote_us(self, local_ns: int) -> int | None:
-        """Autopilot time (us) of local time local_ns, the inverse of the line: local = r + offset(r), so
-        r = (local - offset_ref + drift r_ref) / (1 + drift); None before any sample."""
-        with self._lock:
-            line = self._chosen()
-            if line is None:
-                return None
-            r_ref, off_ref, drift = line[:3]
-            return int(round((int(local_ns) - off_ref + drift * r_ref) / (1.0 + drift))) // 1000
-
     def to_local_ns(self, remote_us: int, arrival_ns: int, stream=None) -> int:
         """Local time of a message stamped remote_us, never after its arrival and never before the stamp of an
         earlier-measured message of the same stream (an offset update must not put odometry out of order). Per
@@ -269,3 +260,10 @@ class ClockMapper:
 def _at(line, remote_ns: int) -> int:
     r_ref, off_ref, drift = line[:3]
     return off_ref + int(round(drift * (remote_ns - r_ref)))
+
+
+def answer_clock_ns() -> int:
+    """The clock the bridge answers the vehicle's TIMESYNC requests with, and so the clock of the times it sends
+    (an external pose's time_usec): the system clock, ROS time when use_sim_time is false. PX4 learns its offset to
+    this clock from the answers (Timesync::update) and maps a companion's time_usec through it."""
+    return time.time_ns()

@@ -3,8 +3,12 @@
 Frames (parameter external_pose_frame): enu or y_up (quad_common.mocap_frames), then converted once to NED/FRD
 by quad_bridge.frames.
 
-Time: the sample's stamp (local ROS time) is mapped into the autopilot's boot time through the bridge's
-ClockMapper (to_remote_us), so the estimator fuses it at the instant it was measured.
+Time: the sample's stamp goes out as it is, in us: local ROS time, the system clock, which is the clock the bridge
+answers the vehicle's TIMESYNC requests with (quad_bridge.clock.answer_clock_ns). PX4 maps a companion's time_usec
+through the offset it learns from those answers once its filter has converged (Timesync::sync_stamp; the arrival
+time until then), so the estimator fuses the pose at the instant it was measured; ArduPilot's JitterCorrection
+keeps only the stamps' jitter, whatever their clock. A stamp in the autopilot's own boot time would map before
+PX4's boot once its TIMESYNC converged, and EKF2 would stop fusing the pose.
 
 Rate: a sample goes out when its stamp reaches the due time, which then advances by 1 / max_rate_hz (from the
 sample's stamp after a gap): a faster stream is thinned to max_rate_hz on average, not to the next multiple of its
@@ -65,9 +69,8 @@ class ExternalPoseFilter:
     """Decides, per sample, forward / drop (rate) / reject (fault), and keeps what diagnostics report. Thread-safe:
     samples arrive on the executor's thread, the supervisor checks the timeout."""
 
-    def __init__(self, config: ExternalPoseConfig, clock):
+    def __init__(self, config: ExternalPoseConfig):
         self.config = config
-        self.clock = clock          # quad_bridge.clock.ClockMapper (to_remote_us)
         self.fault = None           # the newest fault, one line, or None
         self.forwarded = 0
         self.dropped_rate = 0
@@ -104,10 +107,7 @@ class ExternalPoseFilter:
         if self._next_due_ns is not None and stamp_ns < self._next_due_ns:
             self.dropped_rate += 1
             return None
-        time_us = self.clock.to_remote_us(stamp_ns)
-        if time_us is None:
-            self.fault = 'no autopilot time yet: the clock mapping has no sample'
-            return None
+        time_us = int(stamp_ns) // 1000   # the TIMESYNC answers' clock (module docstring)
         self.fault = None
         self._next_due_ns = (stamp_ns if self._next_due_ns is None else max(self._next_due_ns, stamp_ns - period_ns)) \
             + period_ns

@@ -99,8 +99,7 @@ class MavlinkBridge(Node):
             self.external_pose = ExternalPoseFilter(ExternalPoseConfig(
                 frame=p['external_pose_frame'], max_rate_hz=p['external_pose_rate_hz'],
                 timeout_s=p['external_pose_timeout_s'], max_age_s=p['external_pose_max_age_s'],
-                max_speed_m_s=p['external_pose_max_speed_mps'], jump_margin_m=p['external_pose_jump_margin_m']),
-                self.telemetry.clock)
+                max_speed_m_s=p['external_pose_max_speed_mps'], jump_margin_m=p['external_pose_jump_margin_m']))
             # A node and thread of its own: the services' executor waits in offboard's pre-stream (a second), and
             # the pose must reach the autopilot meanwhile (it timed out there when it shared that executor).
             name = f'{self.get_name()}_external_pose'

@@ -10,7 +10,7 @@ from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import BatteryState, Imu
 
-from quad_bridge.clock import ClockMapper
+from quad_bridge.clock import ClockMapper, answer_clock_ns
 from quad_bridge.streams import StreamSelector
 from quad_bridge.telemetry import (
     attitude_enu,
@@ -184,7 +184,7 @@ class TelemetryPublisher:
 
     def on_timesync(self, msg, arrival_ns):
         if msg.tc1 == 0:  # a request from the vehicle: answer it
-            self.client.send('timesync', time.time_ns(), msg.ts1)
+            self.client.send('timesync', answer_clock_ns(), msg.ts1)
         elif msg.ts1 == self.timesync_ts1:
             self.clock.timesync(msg.ts1, msg.tc1, arrival_ns)
             with self.vehicle.lock:

@@ -1,4 +1,5 @@
-"""External pose: frame conversion, autopilot time, rate limit, faults (timeout, jump, late)."""
+"""External pose: frame conversion, its time (the TIMESYNC answers' clock), rate limit, faults (timeout, jump,
+late)."""
 
 import dataclasses
 import math
@@ -7,25 +8,15 @@ import numpy as np
 import pytest
 
 from quad_bridge import frames
-from quad_bridge.clock import ClockMapper
 from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter
 from quad_common import rotations
 from quad_common.mocap_frames import to_enu
 
 MS = 1_000_000
-OFFSET_NS = 5_000 * MS   # local - autopilot
-
-
-def _clock():
-    clock = ClockMapper()
-    for k in range(20):   # autopilot messages, 1 ms transport delay
-        remote_us = 1_000_000 + k * 50_000
-        clock.observe(remote_us, remote_us * 1000 + OFFSET_NS + MS)
-    return clock
 
 
 def _filter(**kw):
-    return ExternalPoseFilter(ExternalPoseConfig(**kw), _clock())
+    return ExternalPoseFilter(ExternalPoseConfig(**kw))
 
 
 def test_enu_is_converted_to_ned_frd_by_frames():
@@ -60,12 +51,11 @@ def test_bad_frame_names_it():
         ExternalPoseConfig(frame='z_up')
 
 
-def test_stamp_is_mapped_to_autopilot_time():
-    f = _filter()
-    t = 7_000 * MS
-    out = f.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + 10 * MS)
-    # the filter's line carries the smallest delay (1 ms): autopilot time = local - offset - 1 ms
-    assert abs(out.time_us - (t - OFFSET_NS - MS) // 1000) <= 1
+def test_the_stamp_goes_out_in_the_clock_the_bridge_answers_timesync_with():
+    """Local ROS time in us, not the autopilot's boot time: PX4 maps it through its TIMESYNC offset to our answers."""
+    t = 1_765_000_000_123_456_789   # a wall-clock stamp (ns)
+    out = _filter().offer([0, 0, 0], [0, 0, 0, 1], None, t, t + 10 * MS)
+    assert out.time_us == t // 1000
 
 
 def test_rate_limited_to_max_rate():
@@ -108,12 +98,6 @@ def test_timeout_when_the_stream_stops():
     f.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + MS)
     assert f.check_timeout(t + 400 * MS) is None
     assert f.check_timeout(t + 600 * MS).startswith('timeout: no sample for 0.60 s')
-
-
-def test_no_autopilot_time_is_a_fault():
-    f = ExternalPoseFilter(ExternalPoseConfig(), ClockMapper())
-    assert f.offer([0, 0, 0], [0, 0, 0, 1], None, 7_000 * MS, 7_001 * MS) is None
-    assert f.fault.startswith('no autopilot time')
 
 
 def _wire(backend, pose):
