@@ -2,7 +2,6 @@
 setpoints go out. Times are plain seconds from a monotonic clock passed in by the caller."""
 
 import collections
-import hashlib
 import threading
 
 MAV_AUTOPILOT_INVALID = 8
@@ -220,19 +219,3 @@ class RateMeter:
     def _trim(self, now_s):
         while self._times and self._times[0] < now_s - self.window_s:
             self._times.popleft()
-
-
-def load_signing_key(path: str) -> bytes:
-    """32-byte MAVLink 2 signing key from a file: 64 hex characters, else the SHA-256 of the file's text
-    (MAVProxy's `signing setup PASSPHRASE` convention)."""
-    with open(path, 'rb') as f:
-        data = f.read().strip()
-    if not data:
-        raise ValueError(f'signing_key_file {path!r} is empty')
-    try:
-        key = bytes.fromhex(data.decode('ascii'))
-        if len(key) == 32:
-            return key
-    except (ValueError, UnicodeDecodeError):
-        pass
-    return hashlib.sha256(data).digest()

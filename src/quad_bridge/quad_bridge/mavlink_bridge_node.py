@@ -32,19 +32,20 @@ from quad_bridge.backend import (
 )
 from quad_bridge.backends import resolve
 from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter
+from quad_bridge.geofence import BRAKE, BREACH, Geofence
 from quad_bridge.handover import ACTIVE, PRESTREAM, PRESTREAM_S
-from quad_bridge.link import LinkState, is_vehicle_heartbeat, load_signing_key
+from quad_bridge.link import LinkState, is_vehicle_heartbeat
 from quad_bridge.mavlink_client import MavlinkClient, mavlink, result_name
 from quad_bridge.parameters import PARAMS, validate
 from quad_bridge.peers import LinkPeers
-from quad_bridge.safety import BRAKE, BREACH, Geofence
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
-from quad_bridge.vehicle import Vehicle
+from quad_bridge.vehicle_state import Vehicle
 from quad_common import contract, diagnostics
 from quad_common.node_main import run_node
 from quad_common.realtime import apply_or_report
 from quad_common.ros_params import ParameterSet
+from quad_common.signing_key import load_signing_key
 
 NAME = 'mavlink_bridge'
 OFFBOARD_MIN_STREAM_HZ = 5.0  # on the wire over the pre-stream before asking PX4 for OFFBOARD (it needs > 2 Hz)
@@ -301,7 +302,7 @@ class MavlinkBridge(Node):
 
     def set_mode(self, name, wait=True):
         """DO_SET_MODE `name`; the bridge takes the vehicle to be in it from now until a heartbeat shows it (or the
-        vehicle refuses it): quad_bridge.vehicle.Vehicle.mode_now. wait: return the ACK's result (None: none
+        vehicle refuses it): quad_bridge.vehicle_state.Vehicle.mode_now. wait: return the ACK's result (None: none
         within command_timeout_s)."""
         s = self.vehicle.status
         main, sub = s.backend.mode_params(name)
@@ -543,7 +544,7 @@ class MavlinkBridge(Node):
             threading.Thread(target=self.on_connect, name='on-connect', daemon=True).start()
 
     def on_state(self, state):
-        """Every odometry state: the geofence (quad_bridge.safety: braking setpoints before the wall, then land)."""
+        """Every odometry state: the geofence (quad_bridge.geofence: braking setpoints before the wall, then land)."""
         if not self.geofence.enabled:
             return
         action = self.geofence.update(state.position, state.velocity, self.vehicle.status.armed, bool(self.engaged),

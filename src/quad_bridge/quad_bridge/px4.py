@@ -15,7 +15,7 @@ import numpy as np
 
 from quad_bridge.backend import Backend, ParamCheck, StreamGroup, ThrustConfig
 from quad_bridge.frames import to_mavlink_quaternion
-from quad_bridge.streamer import FIRST_RESEND_PERIODS
+from quad_bridge.setpoint_stream import FIRST_RESEND_PERIODS
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
 MAV_AUTOPILOT_PX4 = 12

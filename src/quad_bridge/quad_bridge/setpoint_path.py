@@ -1,6 +1,6 @@
 """The setpoint half of mavlink_bridge (rclpy): `cmd/attitude_thrust` through a node and a thread of its own
 (services waiting for an ACK never delay a setpoint, a setpoint never waits for them), checked, and put on the
-wire at once by quad_bridge.streamer when the hand-over allows it.
+wire at once by quad_bridge.setpoint_stream when the hand-over allows it.
 
 The thread waits on a wait set of its own (the subscription and a wake-up guard condition), bounded by the
 keep-alive's next deadline, and runs the keep-alive itself (SetpointStreamer.tick): one thread and one wake-up
@@ -20,7 +20,7 @@ from quad_bridge import frames
 from quad_bridge.mavlink_client import mavlink
 from quad_bridge.setpoint import setpoint_from_cdr
 from quad_bridge.setpoint_source import SetpointSource, fully_qualified
-from quad_bridge.streamer import SetpointStreamer
+from quad_bridge.setpoint_stream import SetpointStreamer
 from quad_common import contract
 
 # DDS keeps this many setpoints for us while the interpreter is busy elsewhere (its reader thread is not held by
@@ -139,7 +139,7 @@ class SetpointPath:
 
     def send(self, sp):
         """One SET_ATTITUDE_TARGET (NED/FRD, the backend's thrust semantics); while the geofence brakes, its
-        braking setpoint for the newest state instead (quad_bridge.safety)."""
+        braking setpoint for the newest state instead (quad_bridge.geofence)."""
         vehicle, geofence = self.bridge.vehicle, self.bridge.geofence
         with vehicle.lock:
             s = vehicle.status

@@ -15,7 +15,8 @@ from quad_common import diagnostics
 
 def stale_action_mode(backend, armed: bool, mode: str | None, stale_action: str) -> str | None:
     """The mode stale_action commands (backend.hold_mode) when the vehicle is armed in `mode` (the one the bridge
-    takes it to be in: quad_bridge.vehicle.Vehicle.mode_now) and that mode obeys SET_ATTITUDE_TARGET; else None."""
+    takes it to be in: quad_bridge.vehicle_state.Vehicle.mode_now) and that mode obeys SET_ATTITUDE_TARGET; else
+    None."""
     if backend is None or not armed or not backend.obeys_setpoints(mode):
         return None
     return backend.hold_mode(stale_action)

@@ -1,6 +1,6 @@
 """The telemetry half of mavlink_bridge (rclpy): runs in the MAVLink receive thread, decodes the vehicle's
 messages and publishes `odom`, `imu` and `battery` stamped with the autopilot's own time, without ever waiting
-for the node's executors. Which messages are used: quad_bridge.streams; time mapping: quad_bridge.clock."""
+for the node's executors. Which messages are used: quad_bridge.telemetry_streams; time mapping: quad_bridge.clock."""
 
 import time
 from collections import deque
@@ -11,7 +11,6 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import BatteryState, Imu
 
 from quad_bridge.clock import ClockMapper, answer_clock_ns
-from quad_bridge.streams import StreamSelector
 from quad_bridge.telemetry import (
     attitude_enu,
     body_velocity,
@@ -21,6 +20,7 @@ from quad_bridge.telemetry import (
     state_from_odometry,
     time_us,
 )
+from quad_bridge.telemetry_streams import StreamSelector
 from quad_common import cdr, contract
 from quad_common.types import State
 

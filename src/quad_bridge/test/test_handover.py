@@ -2,7 +2,7 @@
 
 from quad_bridge import handover as ho
 from quad_bridge.px4 import Px4
-from quad_bridge.vehicle import Vehicle
+from quad_bridge.vehicle_state import Vehicle
 
 
 def _px4_active():

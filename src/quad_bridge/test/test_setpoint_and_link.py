@@ -6,9 +6,10 @@ import re
 import numpy as np
 import pytest
 
-from quad_bridge.link import LinkState, RateMeter, is_vehicle_heartbeat, load_signing_key
+from quad_bridge.link import LinkState, RateMeter, is_vehicle_heartbeat
 from quad_bridge.setpoint import check_setpoint, clamp_tilt, tilt_rad
 from quad_common import rotations
+from quad_common.signing_key import load_signing_key
 from quad_common.types import AttitudeSetpoint
 
 

@@ -10,8 +10,8 @@ import pytest
 from quad_bridge.backend import StreamGroup
 from quad_bridge.clock import SWITCH_PERSIST_S, ClockMapper
 from quad_bridge.setpoint import check_setpoint
-from quad_bridge.streamer import SetpointStreamer
-from quad_bridge.streams import StreamSelector
+from quad_bridge.setpoint_stream import SetpointStreamer
+from quad_bridge.telemetry_streams import StreamSelector
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint
 

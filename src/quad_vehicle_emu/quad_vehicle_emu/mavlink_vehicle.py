@@ -12,7 +12,6 @@ With --mocap-topic it also publishes its truth as a motion-capture system does (
 """
 
 import argparse
-import hashlib
 import math
 import os
 import random
@@ -27,6 +26,7 @@ from pymavlink import mavutil  # noqa: E402
 from quad_common import rotations  # noqa: E402
 from quad_common.paths import parameter_file  # noqa: E402
 from quad_common.realtime import apply_or_report  # noqa: E402
+from quad_common.signing_key import load_signing_key  # noqa: E402
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
 from quad_vehicle_emu import ned  # noqa: E402
@@ -53,21 +53,6 @@ EARTH_RADIUS_M = 6378137.0
 # up to 40 ms apart (mean wait E[T^2] / 2E[T] = 40 / 3 ms), 48 ms on average
 DEFAULT_LATENCY_S = {'px4': 0.02, 'ardupilot': 0.035}
 DEFAULT_BURST_S = {'px4': 0.0, 'ardupilot': 0.04}      # ArduPilot SITL telemetry arrived 0.5-65 ms apart
-
-
-def load_signing_key(path: str) -> bytes:
-    """32-byte MAVLink 2 key: 64 hex characters, else SHA-256 of the text (MAVProxy `signing setup` convention)."""
-    with open(path, 'rb') as f:
-        data = f.read().strip()
-    if not data:
-        raise ValueError(f'signing key file {path!r} is empty')
-    try:
-        key = bytes.fromhex(data.decode('ascii'))
-        if len(key) == 32:
-            return key
-    except (ValueError, UnicodeDecodeError):
-        pass
-    return hashlib.sha256(data).digest()
 
 
 class Streams:

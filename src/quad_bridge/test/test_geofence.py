@@ -1,11 +1,11 @@
-"""The geofence core (quad_bridge.safety): the stopping point, braking before the wall, the braking setpoint."""
+"""The geofence core (quad_bridge.geofence): the stopping point, braking before the wall, the braking setpoint."""
 
 import math
 
 import numpy as np
 import pytest
 
-from quad_bridge.safety import (
+from quad_bridge.geofence import (
     BRAKE,
     BREACH,
     STOPPED_MPS,
