@@ -23,7 +23,7 @@ from quad_control.position import PositionGains
 NODES = [  # (module, parameter table, node name, its YAML)
     ('quad_control.parameters', 'SPECS', 'position_controller', 'config/control.yaml'),
     ('quad_sim.parameters', 'SPECS', 'sim_node', 'config/sim.yaml'),
-    ('quad_trajectory.trajectory_node', 'PARAMS', 'trajectory_node', 'config/trajectory.yaml'),
+    ('quad_trajectory.trajectory_node', 'SPECS', 'trajectory_node', 'config/trajectory.yaml'),
 ]
 
 
@@ -69,8 +69,8 @@ THRUST_FIELDS = {'hover_throttle': 'hover_throttle', 'hover_throttle_tolerance':
 
 @pytest.mark.parametrize('config', sorted(BRIDGE_CHOICES))
 def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
-    from quad_bridge.parameters import PARAMS
-    specs = {p.name: p for p in PARAMS}
+    from quad_bridge.parameters import SPECS
+    specs = {p.name: p for p in SPECS}
     values = parameters_of(load_yaml(resolve_config(config)), 'mavlink_bridge')
     assert not set(values) - set(specs), f'{config}: not parameters of mavlink_bridge: {set(values) - set(specs)}'
     for name, value in values.items():
@@ -83,8 +83,8 @@ def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
 
 def test_bridge_parameters_default_to_the_thrust_config():
     from quad_bridge.backend import ThrustConfig
-    from quad_bridge.parameters import PARAMS
-    specs = {p.name: p.default for p in PARAMS}
+    from quad_bridge.parameters import SPECS
+    specs = {p.name: p.default for p in SPECS}
     config = ThrustConfig()
     assert {name: specs[name] for name in THRUST_FIELDS} == {name: getattr(config, f)
                                                             for name, f in THRUST_FIELDS.items()}
@@ -108,8 +108,8 @@ def test_simulator_defaults_are_sim_nodes():
 
 def test_offline_loop_and_sweeps_default_to_the_nodes():
     from quad_control.parameters import SPECS as CONTROL
-    from quad_trajectory.trajectory_node import PARAMS
-    assert closed_loop.SAMPLE_RATE_HZ == {p.name: p.default for p in PARAMS}['sample_rate_hz']
+    from quad_trajectory.trajectory_node import SPECS
+    assert closed_loop.SAMPLE_RATE_HZ == {p.name: p.default for p in SPECS}['sample_rate_hz']
     control = {p.name: p.default for p in CONTROL}
     loop = runs.loop_defaults()
     options = LoopOptions()

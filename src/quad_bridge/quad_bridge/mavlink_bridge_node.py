@@ -36,7 +36,7 @@ from quad_bridge.geofence import BRAKE, BREACH, Geofence
 from quad_bridge.handover import ACTIVE, PRESTREAM, PRESTREAM_S
 from quad_bridge.link import LinkState, is_vehicle_heartbeat
 from quad_bridge.mavlink_client import MavlinkClient, mavlink, result_name
-from quad_bridge.parameters import PARAMS, validate
+from quad_bridge.parameters import SPECS, validate
 from quad_bridge.peers import LinkPeers
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
@@ -57,7 +57,7 @@ class MavlinkBridge(Node):
     def __init__(self, **kwargs):
         """kwargs: rclpy Node's (context, namespace, parameter_overrides: a bridge inside a test process)."""
         super().__init__(NAME, **kwargs)
-        self.params = ParameterSet(self, PARAMS, validate=validate)
+        self.params = ParameterSet(self, SPECS, validate=validate)
         p = self.params
         key = load_signing_key(p['signing_key_file']) if p['signing_key_file'] else None
         self.config = ThrustConfig(hover_throttle=p['hover_throttle'], hover_tolerance=p['hover_throttle_tolerance'],

@@ -8,7 +8,7 @@ from quad_common import contract, mocap_frames
 from quad_common.params import Param
 
 THRUST = ThrustConfig()   # the defaults of the parameters ThrustConfig holds
-PARAMS = [
+SPECS = [
     Param('fcu_url', 'udpin:0.0.0.0:14540', 'pymavlink connection: udpin:/udpout:/tcp:HOST:PORT or serial device',
           read_only=True),
     Param('baud', 57600, 'serial baud rate (serial fcu_url only)', min=1200, max=4000000, read_only=True),

@@ -4,7 +4,7 @@ box that holds every shipped mission with 1 m to spare, and only the position co
 import numpy as np
 import pytest
 
-from quad_bridge.parameters import PARAMS, validate
+from quad_bridge.parameters import SPECS, validate
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.yaml_io import load_yaml
 
@@ -14,7 +14,7 @@ PROFILES = ['config/bridge_px4.yaml', 'config/bridge_ardupilot.yaml']
 @pytest.mark.parametrize('profile', PROFILES)
 def test_profile_has_the_geofence_on_around_every_mission(profile):
     values = load_yaml(resolve_config(profile))['mavlink_bridge']['ros__parameters']
-    defaults = {p.name: p.default for p in PARAMS}
+    defaults = {p.name: p.default for p in SPECS}
     assert not set(values) - set(defaults), f'not bridge parameters: {set(values) - set(defaults)}'
     validate({**defaults, **values})
     assert values['geofence_enabled'] is True

@@ -49,7 +49,7 @@ def _clock_ns(data: bytes) -> int:
     sec, nanosec = struct.unpack_from('<iI' if data[1] == 1 else '>iI', data, 4)
     return sec * 1_000_000_000 + nanosec
 
-PARAMS = [
+SPECS = [
     Param('output_dir', '', 'bag directory to create (must not exist yet)', read_only=True),
     Param('topics', list(DEFAULT_TOPICS), 'topics to record (relative names resolve in the node namespace)',
           read_only=True),
@@ -72,7 +72,7 @@ def message_class(msgtype: str):
 class RecorderNode(Node):
     def __init__(self, **kwargs):
         super().__init__('recorder', **kwargs)
-        self.params = ParameterSet(self, PARAMS)
+        self.params = ParameterSet(self, SPECS)
         if not self.params['output_dir']:
             raise ValueError('output_dir = \'\' refused: give the bag directory to create')
         self.bag = BagRecorder(self.params['output_dir'])

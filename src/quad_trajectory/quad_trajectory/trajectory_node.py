@@ -34,7 +34,7 @@ from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, SAMPLE_RATE_HZ, SEED_C
 PATH_RATE_HZ = 20.0   # trajectory/path and the marker line: for viewing, not for control
 DIAG_NAME = 'trajectory_node: trajectory'
 
-PARAMS = [
+SPECS = [
     Param('mission_file', '', 'mission YAML (docs/missions.md); when set, its waypoints, options, vehicle and world '
           'are used and the planning parameters below are ignored, except speed_mps', read_only=True),
     Param('fleet_vehicle', '', 'with a fleet mission_file (docs/missions.md "Fleets"): the vehicle whose plan this '
@@ -73,7 +73,7 @@ PARAMS = [
 class TrajectoryNode(Node):
     def __init__(self, **kwargs):
         super().__init__('trajectory_node', **kwargs)
-        self.params = ParameterSet(self, PARAMS, validate=self._check, on_change=self._replan_current)
+        self.params = ParameterSet(self, SPECS, validate=self._check, on_change=self._replan_current)
         self.fleet_delay_s = 0.0   # a fleet vehicle's own start delay (after deconfliction)
         self.mission = self._load_mission() if self.params['mission_file'] else None
         if self.mission:   # vehicle_file, when given, sets the limits over the mission's vehicle
