@@ -60,13 +60,6 @@ BRIDGE_CHOICES = {
     'config/bridge_ardupilot.yaml': {'fcu_url', 'autopilot', 'geofence_enabled', 'geofence_min_m', 'geofence_max_m',
                                      'realtime_priority'},
 }
-# mavlink_bridge parameter -> the ThrustConfig field it sets
-THRUST_FIELDS = {'hover_throttle': 'hover_throttle', 'hover_throttle_tolerance': 'hover_tolerance',
-                 'ardupilot_thrust_mode': 'thrust_mode', 'ardupilot_speed_up_mps': 'speed_up_mps',
-                 'ardupilot_speed_down_mps': 'speed_down_mps', 'climb_rate_lead_s': 'climb_rate_lead_s',
-                 'setpoint_rate_hz': 'setpoint_rate_hz', 'setpoint_timeout_s': 'setpoint_timeout_s'}
-
-
 @pytest.mark.parametrize('config', sorted(BRIDGE_CHOICES))
 def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
     from quad_bridge.parameters import SPECS
@@ -81,13 +74,15 @@ def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
                                                  f'{specs[name].default!r} (or state it in BRIDGE_CHOICES)'
 
 
-def test_bridge_parameters_default_to_the_thrust_config():
-    from quad_bridge.backend import ThrustConfig
+def test_bridge_parameters_default_to_the_bridge_config():
+    """BridgeConfig's fields are mavlink_bridge's parameters of the same name (angle_boost apart: read from the
+    vehicle), and the parameters default to them."""
+    from quad_bridge.backend import BridgeConfig
     from quad_bridge.parameters import SPECS
     specs = {p.name: p.default for p in SPECS}
-    config = ThrustConfig()
-    assert {name: specs[name] for name in THRUST_FIELDS} == {name: getattr(config, f)
-                                                            for name, f in THRUST_FIELDS.items()}
+    fields = {f.name: f.default for f in dataclasses.fields(BridgeConfig) if f.name != 'angle_boost'}
+    assert set(fields) <= set(specs), sorted(set(fields) - set(specs))
+    assert fields == {name: specs[name] for name in fields}
 
 
 def test_simulator_defaults_are_sim_nodes():

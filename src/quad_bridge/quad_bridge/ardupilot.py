@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from quad_bridge.backend import MAV_SYS_STATUS_PREARM_CHECK as PREARM
-from quad_bridge.backend import Backend, ParamCheck, StreamGroup, ThrustConfig, tilt_cos
+from quad_bridge.backend import Backend, BridgeConfig, ParamCheck, StreamGroup, tilt_cos
 from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
@@ -97,14 +97,14 @@ class ArduPilot(Backend):
             return None  # ARMING_CHECK = 0: no verdict
         return bool(health & PREARM)
 
-    def thrust(self, sp: AttitudeSetpoint, config: ThrustConfig, vertical_velocity_mps=0.0):
+    def thrust(self, sp: AttitudeSetpoint, config: BridgeConfig, vertical_velocity_mps=0.0):
         """Thrust mode: T = hover * f * cos(tilt) / g, which the vehicle's angle boost multiplies by 1/cos(tilt)
         back to hover * f / g (without boost: T = hover * f / g). Climb-rate mode: the climb rate the commanded
         vertical acceleration reaches after climb_rate_lead_s, as 0.5 +- 0.5 rate / WPNAV_SPEED_UP/DN."""
-        if config.thrust_mode == 'climb_rate':
+        if config.ardupilot_thrust_mode == 'climb_rate':
             rate = climb_rate_command(sp.specific_force_mps2, sp.quaternion, vertical_velocity_mps,
                                       config.climb_rate_lead_s)
-            return climb_rate_to_thrust(rate, config.speed_up_mps, config.speed_down_mps)
+            return climb_rate_to_thrust(rate, config.ardupilot_speed_up_mps, config.ardupilot_speed_down_mps)
         c = max(tilt_cos(sp.quaternion), ANGLE_BOOST_COS_MIN) if config.angle_boost else 1.0
         return float(np.clip(config.hover_throttle * sp.specific_force_mps2 * c / GRAVITY_MPS2, 0.0, 1.0))
 
@@ -116,21 +116,23 @@ class ArduPilot(Backend):
         problems, notes = [], []
         options = int(values['GUID_OPTIONS'])
         vehicle_mode = 'thrust' if options & GUID_OPTIONS_THRUST_BIT else 'climb_rate'
-        if vehicle_mode != config.thrust_mode:
+        if vehicle_mode != config.ardupilot_thrust_mode:
             if adopt:
-                notes.append(f'ardupilot_thrust_mode {config.thrust_mode} -> {vehicle_mode} (GUID_OPTIONS = {options})')
-                config = replace(config, thrust_mode=vehicle_mode)
+                notes.append(f'ardupilot_thrust_mode {config.ardupilot_thrust_mode} -> {vehicle_mode} '
+                             f'(GUID_OPTIONS = {options})')
+                config = replace(config, ardupilot_thrust_mode=vehicle_mode)
             else:
                 meaning = 'thrust' if vehicle_mode == 'thrust' else 'a climb rate'
                 problems.append(f'GUID_OPTIONS = {options} (bit 3 {"set" if options & 8 else "clear"}: the thrust '
-                                f'field is {meaning}) contradicts ardupilot_thrust_mode = {config.thrust_mode}: '
-                                f'set GUID_OPTIONS {"|" if config.thrust_mode == "thrust" else "&~"}= 8 or '
+                                f'field is {meaning}) contradicts ardupilot_thrust_mode = '
+                                f'{config.ardupilot_thrust_mode}: '
+                                f'set GUID_OPTIONS {"|" if config.ardupilot_thrust_mode == "thrust" else "&~"}= 8 or '
                                 f'ardupilot_thrust_mode: {vehicle_mode}')
         boost = bool(values['ATC_ANGLE_BOOST'])
         if boost != config.angle_boost:
             notes.append(f'ATC_ANGLE_BOOST = {int(boost)}: thrust sent {"with" if boost else "without"} cos(tilt)')
             config = replace(config, angle_boost=boost)
-        if config.thrust_mode == 'thrust':
+        if config.ardupilot_thrust_mode == 'thrust':
             config = self._hover('MOT_THST_HOVER', values, config, adopt, problems, notes)
         return ParamCheck(tuple(problems), tuple(notes), config)
 

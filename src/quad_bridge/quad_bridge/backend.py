@@ -22,19 +22,19 @@ MAV_SYS_STATUS_PREARM_CHECK = 0x10000000  # common.xml MAV_SYS_STATUS_SENSOR: "p
 
 
 @dataclass(frozen=True)
-class ThrustConfig:
+class BridgeConfig:
     """What the bridge is configured with (and, with vehicle_params: adopt, what it takes from the vehicle)."""
 
     hover_throttle: float = 0.5
-    hover_tolerance: float = 0.03          # |vehicle hover thrust - hover_throttle| allowed
-    thrust_mode: str = 'thrust'            # ArduPilot only: thrust | climb_rate (GUID_OPTIONS bit 3)
+    hover_throttle_tolerance: float = 0.03          # |vehicle hover thrust - hover_throttle| allowed
+    ardupilot_thrust_mode: str = 'thrust'          # ArduPilot only: thrust | climb_rate (GUID_OPTIONS bit 3)
     angle_boost: bool = True               # ArduPilot only: ATC_ANGLE_BOOST (1/cos(tilt) applied by the vehicle)
-    speed_up_mps: float = 2.5
-    speed_down_mps: float = 1.5
+    ardupilot_speed_up_mps: float = 2.5
+    ardupilot_speed_down_mps: float = 1.5
     climb_rate_lead_s: float = 0.5
     setpoint_rate_hz: float = 50.0
     setpoint_timeout_s: float = 0.5
-    external_pose: bool = False            # an external pose (motion capture) is forwarded to the estimator
+    external_pose_enabled: bool = False          # an external pose (motion capture) is forwarded to the estimator
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,7 @@ class ParamCheck:
 
     problems: tuple = ()      # contradictions: `offboard` is refused with these
     notes: tuple = ()         # worth saying, not a refusal
-    config: ThrustConfig | None = None  # the configuration to fly with (adopted values applied)
+    config: BridgeConfig | None = None  # the configuration to fly with (adopted values applied)
 
 
 def tilt_cos(quaternion) -> float:
@@ -109,15 +109,15 @@ class Backend:
         return bool(health & MAV_SYS_STATUS_PREARM_CHECK)
 
     # --- thrust ---------------------------------------------------------------------------------
-    def thrust(self, sp: AttitudeSetpoint, config: ThrustConfig, vertical_velocity_mps: float = 0.0) -> float:
+    def thrust(self, sp: AttitudeSetpoint, config: BridgeConfig, vertical_velocity_mps: float = 0.0) -> float:
         """The SET_ATTITUDE_TARGET thrust field for a setpoint (ENU quaternion, specific force)."""
         raise NotImplementedError
 
-    def specific_force(self, thrust: float, config: ThrustConfig, quaternion) -> float:
+    def specific_force(self, thrust: float, config: BridgeConfig, quaternion) -> float:
         """What the vehicle makes of a thrust field (thrust semantics only): the inverse of thrust()."""
         raise NotImplementedError
 
-    def max_specific_force(self, config: ThrustConfig) -> float:
+    def max_specific_force(self, config: BridgeConfig) -> float:
         """The specific force of a full thrust field (1) at level attitude."""
         return GRAVITY_MPS2 / config.hover_throttle
 
@@ -125,7 +125,7 @@ class Backend:
     def decode_param(self, value: float, param_type: int) -> float:
         return float(value)
 
-    def check_params(self, values: dict, config: ThrustConfig, policy: str) -> ParamCheck:
+    def check_params(self, values: dict, config: BridgeConfig, policy: str) -> ParamCheck:
         """Compare the vehicle's semantic parameters with `config`. policy: check (contradictions refuse
         offboard) | adopt (take the vehicle's values) | ignore (trust the configuration, say so)."""
         missing = [n for n in self.param_names(config) if n not in values]
@@ -137,14 +137,14 @@ class Backend:
                                         '(no PARAM_VALUE); set vehicle_params: ignore to fly on the configuration',),
                               config=config)
         check = self._check(values, config, policy == 'adopt')
-        if not config.external_pose:
+        if not config.external_pose_enabled:
             return check
         problems, notes = self._check_external_pose(values)
         return replace(check, problems=check.problems + problems, notes=check.notes + notes)
 
-    def param_names(self, config: ThrustConfig) -> tuple:
+    def param_names(self, config: BridgeConfig) -> tuple:
         """The vehicle parameters read on connect for this configuration."""
-        return self.semantic_params + (self.external_pose_params if config.external_pose else ())
+        return self.semantic_params + (self.external_pose_params if config.external_pose_enabled else ())
 
     def _check(self, values, config, adopt) -> ParamCheck:
         return ParamCheck(config=config)
@@ -160,9 +160,9 @@ class Backend:
         if adopt:
             notes.append(f'hover_throttle {config.hover_throttle:.3f} -> {param} {vehicle:.3f} (adopted)')
             return replace(config, hover_throttle=float(np.clip(vehicle, 0.05, 0.95)))
-        if abs(vehicle - config.hover_throttle) > config.hover_tolerance:
+        if abs(vehicle - config.hover_throttle) > config.hover_throttle_tolerance:
             problems.append(f'{param} = {vehicle:.3f} on the vehicle but hover_throttle = {config.hover_throttle:.3f} '
-                            f'(tolerance {config.hover_tolerance}): set hover_throttle to {vehicle:.3f}')
+                            f'(tolerance {config.hover_throttle_tolerance}): set hover_throttle to {vehicle:.3f}')
         return config
 
 

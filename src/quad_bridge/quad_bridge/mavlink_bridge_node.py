@@ -8,6 +8,7 @@ ardupilot); a supervisor thread for the link, heartbeats, stream fall-backs and 
 the node's own single-threaded executor.
 """
 
+import dataclasses
 import math
 import sys
 import threading
@@ -27,7 +28,7 @@ from quad_bridge import supervision
 from quad_bridge.backend import (
     MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
     MAV_MODE_FLAG_SAFETY_ARMED,
-    ThrustConfig,
+    BridgeConfig,
     rate_interval_us,
 )
 from quad_bridge.backends import resolve
@@ -60,12 +61,8 @@ class MavlinkBridge(Node):
         self.params = ParameterSet(self, SPECS, validate=validate)
         p = self.params
         key = load_signing_key(p['signing_key_file']) if p['signing_key_file'] else None
-        self.config = ThrustConfig(hover_throttle=p['hover_throttle'], hover_tolerance=p['hover_throttle_tolerance'],
-                                   thrust_mode=p['ardupilot_thrust_mode'], speed_up_mps=p['ardupilot_speed_up_mps'],
-                                   speed_down_mps=p['ardupilot_speed_down_mps'],
-                                   climb_rate_lead_s=p['climb_rate_lead_s'], setpoint_rate_hz=p['setpoint_rate_hz'],
-                                   setpoint_timeout_s=p['setpoint_timeout_s'],
-                                   external_pose=p['external_pose_enabled'])
+        # the parameters BridgeConfig holds, by their own names
+        self.config = BridgeConfig(**{f.name: p[f.name] for f in dataclasses.fields(BridgeConfig) if f.name in p})
         self.flying_config = self.config   # after the vehicle's parameters were checked / adopted
         self.param_check = None
         self.param_read_lock = threading.Lock()

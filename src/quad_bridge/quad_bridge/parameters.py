@@ -1,13 +1,13 @@
-"""mavlink_bridge's parameters without ROS: the table the node declares (defaults from ThrustConfig) and the
+"""mavlink_bridge's parameters without ROS: the table the node declares (defaults from BridgeConfig) and the
 rules between its values (the fcu_url's form, the geofence box)."""
 
-from quad_bridge.backend import ThrustConfig
+from quad_bridge.backend import BridgeConfig
 from quad_bridge.backends import BACKENDS
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, check_fcu_url
 from quad_common import contract, mocap_frames
 from quad_common.params import Param
 
-THRUST = ThrustConfig()   # the defaults of the parameters ThrustConfig holds
+DEFAULTS = BridgeConfig()   # the defaults of the parameters BridgeConfig holds (of the same names)
 SPECS = [
     Param('fcu_url', 'udpin:0.0.0.0:14540', 'pymavlink connection: udpin:/udpout:/tcp:HOST:PORT or serial device',
           read_only=True),
@@ -19,20 +19,20 @@ SPECS = [
     Param('source_system', 1, 'our MAVLink system id', min=1, max=255, read_only=True),
     Param('source_component', MAV_COMP_ID_ONBOARD_COMPUTER, 'our MAVLink component id (191 = onboard computer)',
           min=1, max=255, read_only=True),
-    Param('setpoint_rate_hz', THRUST.setpoint_rate_hz,
+    Param('setpoint_rate_hz', DEFAULTS.setpoint_rate_hz,
           'keep-alive rate: the newest setpoint is re-sent when none went out for a period',
           min=2.0, max=1000.0, read_only=True),
-    Param('setpoint_timeout_s', THRUST.setpoint_timeout_s,
+    Param('setpoint_timeout_s', DEFAULTS.setpoint_timeout_s,
           'nothing on the wire for this long: the stream is stale, stale_action',
           min=0.02, max=10.0, read_only=True),
     Param('stale_action', 'land', 'what a stale stream commands: land | hold (ArduPilot always lands)',
           choices=('land', 'hold')),
     Param('link_timeout_s', 2.0, 'nothing from the vehicle for this long (as the receive thread read it): link lost',
           min=0.2, max=30.0),
-    Param('hover_throttle', THRUST.hover_throttle,
+    Param('hover_throttle', DEFAULTS.hover_throttle,
           'normalised thrust that hovers the vehicle (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER)',
           min=0.05, max=0.95, read_only=True),
-    Param('hover_throttle_tolerance', THRUST.hover_tolerance,
+    Param('hover_throttle_tolerance', DEFAULTS.hover_throttle_tolerance,
           'largest |vehicle hover thrust - hover_throttle| offboard accepts',
           min=0.0, max=0.5, read_only=True),
     Param('vehicle_params', 'check',
@@ -40,16 +40,16 @@ SPECS = [
           '| ignore: do not read them', choices=('check', 'adopt', 'ignore'), read_only=True),
     Param('max_tilt_deg', 35.0, 'setpoints tilted further are clamped to this keeping their vertical acceleration',
           min=1.0, max=85.0),
-    Param('ardupilot_thrust_mode', THRUST.thrust_mode,
+    Param('ardupilot_thrust_mode', DEFAULTS.ardupilot_thrust_mode,
           'thrust (GUID_OPTIONS bit 3 set) | climb_rate (bit 3 clear)',
           choices=('thrust', 'climb_rate'), read_only=True),
-    Param('ardupilot_speed_up_mps', THRUST.speed_up_mps,
+    Param('ardupilot_speed_up_mps', DEFAULTS.ardupilot_speed_up_mps,
           'WPNAV_SPEED_UP: climb rate at thrust 1 (climb_rate mode)', min=0.1, max=20.0,
           read_only=True),
-    Param('ardupilot_speed_down_mps', THRUST.speed_down_mps,
+    Param('ardupilot_speed_down_mps', DEFAULTS.ardupilot_speed_down_mps,
           'WPNAV_SPEED_DN: descent rate at thrust 0 (climb_rate mode)',
           min=0.1, max=20.0, read_only=True),
-    Param('climb_rate_lead_s', THRUST.climb_rate_lead_s,
+    Param('climb_rate_lead_s', DEFAULTS.climb_rate_lead_s,
           'climb_rate mode: v_z command = v_z + lead * (f cos(tilt) - g)', min=0.01, max=5.0,
           read_only=True),
     Param('telemetry_rate_hz', 50.0, 'rate requested with MAV_CMD_SET_MESSAGE_INTERVAL for odometry/IMU',

@@ -13,7 +13,7 @@ import struct
 
 import numpy as np
 
-from quad_bridge.backend import Backend, ParamCheck, StreamGroup, ThrustConfig
+from quad_bridge.backend import Backend, BridgeConfig, ParamCheck, StreamGroup
 from quad_bridge.frames import to_mavlink_quaternion
 from quad_bridge.setpoint_stream import FIRST_RESEND_PERIODS
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
@@ -92,7 +92,7 @@ class Px4(Backend):
                     'switch to POSCTL or AUTO.LOITER first, arm, then call offboard')
         return None
 
-    def thrust(self, sp: AttitudeSetpoint, config: ThrustConfig, vertical_velocity_mps=0.0):
+    def thrust(self, sp: AttitudeSetpoint, config: BridgeConfig, vertical_velocity_mps=0.0):
         """T = hover_throttle * f / g, clipped to [0, 1]."""
         return min(max(float(config.hover_throttle * sp.specific_force_mps2 / GRAVITY_MPS2), 0.0), 1.0)
 

@@ -8,7 +8,7 @@ import pytest
 
 from quad_bridge import ardupilot, px4
 from quad_bridge.backend import MAV_SYS_STATUS_PREARM_CHECK as PREARM
-from quad_bridge.backend import ThrustConfig
+from quad_bridge.backend import BridgeConfig
 from quad_bridge.backends import BACKENDS, backend_for, resolve
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint
@@ -72,7 +72,7 @@ def test_prearm_bits_as_each_autopilot_sets_them():
 
 
 def test_px4_thrust_is_hover_throttle_at_g_and_clipped():
-    cfg = ThrustConfig(hover_throttle=0.45)
+    cfg = BridgeConfig(hover_throttle=0.45)
     assert PX4.thrust(AttitudeSetpoint(specific_force_mps2=G), cfg) == pytest.approx(0.45)
     assert PX4.thrust(AttitudeSetpoint(specific_force_mps2=100.0), cfg) == 1.0
     assert PX4.specific_force(0.45, cfg, None) == pytest.approx(G)
@@ -81,11 +81,11 @@ def test_px4_thrust_is_hover_throttle_at_g_and_clipped():
 def test_ardupilot_thrust_is_not_boosted_twice_and_follows_angle_boost():
     q = rotations.from_euler(math.radians(30.0), 0.0, 0.0)
     f = G / math.cos(math.radians(30.0))       # level flight at 30 deg bank
-    cfg = ThrustConfig(hover_throttle=0.5)
+    cfg = BridgeConfig(hover_throttle=0.5)
     thrust = APM.thrust(AttitudeSetpoint(quaternion=q, specific_force_mps2=f), cfg)
     assert thrust == pytest.approx(0.5)        # the vehicle boosts 0.5 by 1/cos(30) itself
     assert APM.specific_force(thrust, cfg, q) == pytest.approx(f)
-    no_boost = ThrustConfig(hover_throttle=0.5, angle_boost=False)
+    no_boost = BridgeConfig(hover_throttle=0.5, angle_boost=False)
     assert APM.thrust(AttitudeSetpoint(quaternion=q, specific_force_mps2=f), no_boost) == pytest.approx(0.5 * f / G)
 
 
@@ -96,7 +96,7 @@ def test_ardupilot_climb_rate_semantics():
     for rate in (-1.5, -0.3, 0.0, 0.7, 2.5):
         assert ardupilot.thrust_to_climb_rate(ardupilot.climb_rate_to_thrust(rate, 2.5, 1.5), 2.5, 1.5) == \
             pytest.approx(rate)
-    cfg = ThrustConfig(thrust_mode='climb_rate', climb_rate_lead_s=0.5)
+    cfg = BridgeConfig(ardupilot_thrust_mode='climb_rate', climb_rate_lead_s=0.5)
     level = AttitudeSetpoint(quaternion=rotations.from_yaw(0.3), specific_force_mps2=G + 1.0)
     assert APM.thrust(level, cfg, vertical_velocity_mps=0.0) == pytest.approx(0.5 + 0.5 * 0.5 / 2.5)
 
@@ -106,18 +106,18 @@ def _apm_params(options=8, hover=0.5, boost=1):
 
 
 def test_ardupilot_guid_options_bit_3_must_match_the_thrust_mode():
-    cfg = ThrustConfig(hover_throttle=0.5, thrust_mode='thrust')
+    cfg = BridgeConfig(hover_throttle=0.5, ardupilot_thrust_mode='thrust')
     assert APM.check_params(_apm_params(8), cfg, 'check').problems == ()
     problems = APM.check_params(_apm_params(0), cfg, 'check').problems
     assert len(problems) == 1 and 'GUID_OPTIONS = 0' in problems[0] and 'climb rate' in problems[0]
     adopted = APM.check_params(_apm_params(0), cfg, 'adopt')
-    assert adopted.problems == () and adopted.config.thrust_mode == 'climb_rate'
-    climb = ThrustConfig(thrust_mode='climb_rate')
+    assert adopted.problems == () and adopted.config.ardupilot_thrust_mode == 'climb_rate'
+    climb = BridgeConfig(ardupilot_thrust_mode='climb_rate')
     assert 'GUID_OPTIONS = 8' in APM.check_params(_apm_params(8), climb, 'check').problems[0]
 
 
 def test_hover_thrust_mismatch_beyond_the_tolerance_is_refused():
-    cfg = ThrustConfig(hover_throttle=0.5, hover_tolerance=0.03)
+    cfg = BridgeConfig(hover_throttle=0.5, hover_throttle_tolerance=0.03)
     assert APM.check_params(_apm_params(hover=0.52), cfg, 'check').problems == ()
     problem = APM.check_params(_apm_params(hover=0.367), cfg, 'check').problems[0]
     assert 'MOT_THST_HOVER = 0.367' in problem and 'hover_throttle = 0.500' in problem
@@ -127,26 +127,26 @@ def test_hover_thrust_mismatch_beyond_the_tolerance_is_refused():
 
 
 def test_angle_boost_off_is_taken_into_the_thrust_encoding():
-    check = APM.check_params(_apm_params(boost=0), ThrustConfig(), 'check')
+    check = APM.check_params(_apm_params(boost=0), BridgeConfig(), 'check')
     assert check.problems == () and check.config.angle_boost is False and 'ATC_ANGLE_BOOST = 0' in check.notes[0]
 
 
 def test_px4_offboard_loss_time_against_the_keep_alive():
-    cfg = ThrustConfig(hover_throttle=0.5, setpoint_rate_hz=2.0, setpoint_timeout_s=0.5)
+    cfg = BridgeConfig(hover_throttle=0.5, setpoint_rate_hz=2.0, setpoint_timeout_s=0.5)
     assert 'COM_OF_LOSS_T = 0.40' in PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.4}, cfg,
                                                       'check').problems[0]
     # the wire's longest gap is 1.5 periods (the keep-alive's first re-send): 0.75 s at 2 Hz
     assert 'longest gap 0.75 s' in PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.7}, cfg,
                                                     'check').problems[0]
     assert PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.8}, cfg, 'check').problems == ()
-    ok = PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.3}, ThrustConfig(setpoint_timeout_s=0.5), 'check')
+    ok = PX4.check_params({'MPC_THR_HOVER': 0.5, 'COM_OF_LOSS_T': 0.3}, BridgeConfig(setpoint_timeout_s=0.5), 'check')
     assert ok.problems == () and 'acts before' in ok.notes[0]
 
 
 def test_unread_parameters_refuse_unless_ignored():
-    check = PX4.check_params({'MPC_THR_HOVER': 0.5}, ThrustConfig(), 'check')
+    check = PX4.check_params({'MPC_THR_HOVER': 0.5}, BridgeConfig(), 'check')
     assert 'COM_OF_LOSS_T not read' in check.problems[0]
-    assert PX4.check_params({}, ThrustConfig(), 'ignore').problems == ()
+    assert PX4.check_params({}, BridgeConfig(), 'ignore').problems == ()
 
 
 def test_px4_integer_parameters_are_bytewise():

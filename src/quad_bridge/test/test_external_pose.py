@@ -158,18 +158,18 @@ AP_OK = {'GUID_OPTIONS': 8, 'ATC_ANGLE_BOOST': 1, 'MOT_THST_HOVER': 0.5, 'VISO_T
 
 @pytest.mark.parametrize('policy', ['check', 'adopt'])
 def test_px4_external_vision_parameters_are_checked_with_an_external_pose(policy):
-    from quad_bridge.backend import ThrustConfig
+    from quad_bridge.backend import BridgeConfig
     from quad_bridge.px4 import Px4
-    config = ThrustConfig(external_pose=True)
+    config = BridgeConfig(external_pose_enabled=True)
     assert set(Px4().param_names(config)) >= {'EKF2_EV_CTRL', 'EKF2_HGT_REF', 'EKF2_GPS_CTRL', 'EKF2_EV_DELAY'}
-    assert not set(Px4().param_names(ThrustConfig())) & {'EKF2_EV_CTRL'}
+    assert not set(Px4().param_names(BridgeConfig())) & {'EKF2_EV_CTRL'}
     ok = Px4().check_params(PX4_OK, config, policy)
     assert ok.problems == () and any('EKF2_EV_DELAY = 10 ms' in n for n in ok.notes)
     bad = Px4().check_params({**PX4_OK, 'EKF2_EV_CTRL': 0, 'EKF2_HGT_REF': 0, 'EKF2_GPS_CTRL': 7}, config, policy)
     assert [p.split(' =')[0] for p in bad.problems] == ['EKF2_EV_CTRL', 'EKF2_HGT_REF']
     assert 'EKF2_EV_CTRL = 3' in bad.problems[0]
     assert any(n.startswith('EKF2_GPS_CTRL = 7') for n in bad.notes)
-    assert Px4().check_params({**PX4_OK, 'EKF2_EV_CTRL': 0}, ThrustConfig(), policy).problems == ()
+    assert Px4().check_params({**PX4_OK, 'EKF2_EV_CTRL': 0}, BridgeConfig(), policy).problems == ()
     missing = dict(PX4_OK)
     del missing['EKF2_HGT_REF']
     assert 'EKF2_HGT_REF' in Px4().check_params(missing, config, policy).problems[0]
@@ -177,8 +177,8 @@ def test_px4_external_vision_parameters_are_checked_with_an_external_pose(policy
 
 def test_ardupilot_external_vision_parameters_are_checked_with_an_external_pose():
     from quad_bridge.ardupilot import ArduPilot
-    from quad_bridge.backend import ThrustConfig
-    config = ThrustConfig(external_pose=True)
+    from quad_bridge.backend import BridgeConfig
+    config = BridgeConfig(external_pose_enabled=True)
     assert ArduPilot().check_params(AP_OK, config, 'check').problems == ()
     bad = ArduPilot().check_params({**AP_OK, 'VISO_TYPE': 0, 'EK3_SRC1_POSXY': 3, 'EK3_SRC1_VELXY': 3,
                                     'EK3_SRC1_POSZ': 1, 'EK3_SRC1_YAW': 0}, config, 'check')
