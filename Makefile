@@ -51,8 +51,12 @@ test-packages: $(BUILD_STAMP)
 	    --pytest-args -q -p no:cacheprovider
 	$(COLCON) test-result --test-result-base build --verbose
 
+# The graph tests mostly wait on flights in real time and on DDS, not on the CPU: more workers than cores.
+# loadgroup: a file's tests that share a module-scoped fixture stay on one worker (test/conftest.py).
+GRAPH_WORKERS ?= 4
 test-graph: $(BUILD_STAMP)
-	source install/setup.bash && $(PY) -m pytest -q -p no:cacheprovider --durations=15 test
+	source install/setup.bash && $(PY) -m pytest -q -p no:cacheprovider -n $(GRAPH_WORKERS) --dist loadgroup \
+	    --durations=15 test
 
 fly: $(VENV_STAMP)
 	./quadflight fly $(MISSION)

@@ -1,6 +1,7 @@
 """Peer libraries measured beside ours (rotorpy, minsnap-trajectories) live in their own venv,
 .bench-venv, made on first use, so they never enter the project's environment."""
 
+import fcntl
 import os
 import subprocess
 import sys
@@ -15,11 +16,13 @@ def peer_python() -> str:
     """Path of the peers' python, installing them the first time."""
     python = os.path.join(PEER_VENV, 'bin', 'python')
     stamp = os.path.join(PEER_VENV, '.installed')
-    if not os.path.exists(stamp) or os.path.getmtime(stamp) < os.path.getmtime(PEER_CONSTRAINTS):
-        print(f'bench: installing {", ".join(PEERS)} into {PEER_VENV}', file=sys.stderr)
-        subprocess.run([sys.executable, '-m', 'venv', '--clear', PEER_VENV], check=True)
-        subprocess.run([python, '-m', 'pip', 'install', '--quiet', '-c', PEER_CONSTRAINTS, *PEERS], check=True)
-        open(stamp, 'w').close()
+    with open(PEER_VENV + '.lock', 'w') as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)   # one installer at a time (parallel test workers); the others wait
+        if not os.path.exists(stamp) or os.path.getmtime(stamp) < os.path.getmtime(PEER_CONSTRAINTS):
+            print(f'bench: installing {", ".join(PEERS)} into {PEER_VENV}', file=sys.stderr)
+            subprocess.run([sys.executable, '-m', 'venv', '--clear', PEER_VENV], check=True)
+            subprocess.run([python, '-m', 'pip', 'install', '--quiet', '-c', PEER_CONSTRAINTS, *PEERS], check=True)
+            open(stamp, 'w').close()
     return python
 
 

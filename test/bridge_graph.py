@@ -1,6 +1,7 @@
 """Helpers of the bridge graph tests: processes on loopback ports, and an in-process observer node."""
 
 import collections
+import fcntl
 import itertools
 import math
 import os
@@ -8,6 +9,7 @@ import select
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from contextlib import contextmanager
@@ -37,10 +39,52 @@ BRIDGE_DEFAULTS = {}  # parameters every bridge of the graph tests gets unless a
 _GRAPHS = itertools.count()
 
 
+# Ports the tests hand to a process that binds them later (a bridge's udpin, an emulator's tcpin). They lie below
+# Fast DDS's (7400 + 250 * domain) and below the kernel's ephemeral range (ip_local_port_range, 32768 and up), so no
+# socket gets one unless it names it: a port bound to 0 and closed again could be any process's ephemeral port
+# before the test's process binds it. Test processes share them through lock files, held until the process exits.
+TEST_PORTS = range(6100, 7400)
+_PORT_LOCK_DIR = Path(tempfile.gettempdir()) / 'quadflight-test-ports'
+_EPHEMERAL_RANGE = Path('/proc/sys/net/ipv4/ip_local_port_range')
+_held_ports = []
+
+
+def _check_test_ports_outside_ephemeral():
+    if _EPHEMERAL_RANGE.is_file():
+        low, high = map(int, _EPHEMERAL_RANGE.read_text().split())
+        if low <= TEST_PORTS[-1] and TEST_PORTS[0] <= high:
+            raise RuntimeError(f'ip_local_port_range {low}-{high} overlaps the test ports '
+                               f'{TEST_PORTS[0]}-{TEST_PORTS[-1]} (bridge_graph.TEST_PORTS)')
+
+
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(('127.0.0.1', 0))
-        return s.getsockname()[1]
+    """A loopback port of TEST_PORTS that no other test process has claimed (its lock file, kept until this process
+    exits) and that no UDP or TCP socket holds now: for a UDP link, and for vehicle_emu_client's tcpin too."""
+    _check_test_ports_outside_ephemeral()
+    _PORT_LOCK_DIR.mkdir(exist_ok=True)
+    start = os.getpid() * 37 % len(TEST_PORTS)
+    for i in range(len(TEST_PORTS)):
+        port = TEST_PORTS[(start + i) % len(TEST_PORTS)]
+        lock = open(_PORT_LOCK_DIR / f'{port}.lock', 'w')
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            lock.close()
+            continue
+        if all(_bindable(port, kind) for kind in (socket.SOCK_DGRAM, socket.SOCK_STREAM)):
+            _held_ports.append(lock)
+            return port
+        lock.close()
+    raise RuntimeError(f'no free test port in {TEST_PORTS[0]}-{TEST_PORTS[-1]}: too many test processes running')
+
+
+def _bindable(port, kind) -> bool:
+    with socket.socket(socket.AF_INET, kind) as s:
+        try:
+            s.bind(('127.0.0.1', port))
+        except OSError:
+            return False
+    return True
 
 
 def python_env(env, src_root: Path | None = None):

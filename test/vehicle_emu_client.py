@@ -3,7 +3,6 @@ checked against pymavlink's reading of MAVLink and the numbers the autopilots' s
 
 import math
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -15,12 +14,6 @@ from pymavlink import mavutil  # noqa: E402
 
 WAIT_S = 60.0
 PX4_MODES = {'OFFBOARD': 6 << 16, 'POSCTL': 3 << 16, 'AUTO.LOITER': 4 << 16 | 3 << 24, 'AUTO.LAND': 4 << 16 | 6 << 24}
-
-
-def free_tcp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(('127.0.0.1', 0))
-        return s.getsockname()[1]
 
 
 def level_q_wxyz(roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0):
@@ -37,29 +30,33 @@ class EmulatedVehicle:
     arrival time (monotonic)."""
 
     def __init__(self, log_dir, flavour, *extra, tcp=False, position=(0.0, 0.0, 1.0)):
-        port = free_tcp_port() if tcp else free_udp_port()
+        port = free_udp_port()
         url = f'tcpin:127.0.0.1:{port}' if tcp else f'udpout:127.0.0.1:{port}'
         self.log_path = log_dir / f'vehicle_{flavour}.log'
+        self.lock = threading.Lock()
+        self.send_lock = threading.Lock()
+        self.messages = []
+        self.running = True
+        self.conn = self.reader = self.stream_thread = None
+        self.stream_stop = threading.Event()
+        if not tcp:   # listening before the emulator sends
+            self.conn = mavutil.mavlink_connection(f'udpin:127.0.0.1:{port}', source_system=255,
+                                                   source_component=190)
         self.proc = subprocess.Popen(
             [sys.executable, '-m', 'quad_vehicle_emu.mavlink_vehicle', '--autopilot', flavour, '--url', url,
              '--vehicle', VEHICLE_FILE, '--initial-position', ','.join(map(str, position)),
              *EMULATOR_SCHEDULING, *extra],
             env=python_env(dict(os.environ)), stdout=open(self.log_path, 'w'), stderr=subprocess.STDOUT,
             cwd=str(ROOT))
-        self.lock = threading.Lock()
-        self.send_lock = threading.Lock()
-        self.messages = []
-        self.running = True
-        if tcp:
-            self.conn = self._connect_tcp(port)
-        else:
-            self.conn = mavutil.mavlink_connection(f'udpin:127.0.0.1:{port}', source_system=255,
-                                                   source_component=190)
-        self.reader = threading.Thread(target=self._read, daemon=True)
-        self.reader.start()
-        self.stream_thread = None
-        self.stream_stop = threading.Event()
-        self.wait_for(lambda: self.last('HEARTBEAT'), 'the first HEARTBEAT', 90.0)
+        try:   # a vehicle that never speaks is ended here: the test's fixture only closes what it was given
+            if tcp:
+                self.conn = self._connect_tcp(port)
+            self.reader = threading.Thread(target=self._read, daemon=True)
+            self.reader.start()
+            self.wait_for(lambda: self.last('HEARTBEAT'), 'the first HEARTBEAT', 90.0)
+        except BaseException:
+            self.close()
+            raise
 
     def _connect_tcp(self, port):
         deadline = time.monotonic() + 90.0
@@ -85,14 +82,16 @@ class EmulatedVehicle:
     def close(self):
         self.stop_stream()
         self.running = False
-        self.reader.join(timeout=2)
+        if self.reader is not None:
+            self.reader.join(timeout=2)
         self.proc.terminate()
         try:
             self.proc.wait(timeout=20)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
-        self.conn.close()
+        if self.conn is not None:
+            self.conn.close()
 
     # --- reading --------------------------------------------------------------------------------------
 
