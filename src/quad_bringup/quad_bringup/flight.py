@@ -213,10 +213,10 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
              'outcome': reason.reason}
     if fault is not None:
         extra['fault'] = fault
-    published = monitor.published.get('steps')
+    published = (monitor.published_stamp_ns, monitor.published['steps']) if 'steps' in monitor.published else None
     try:
         flight = load_flight(run_dir / 'bag')
-        metrics = write_report(run_dir / 'bag', run_dir, extra, options.rule, published_steps=published,
+        metrics = write_report(run_dir / 'bag', run_dir, extra, options.rule, published=published,
                                figures=False, flight=flight)
     except (ValueError, FileNotFoundError) as exc:
         if figure_worker:

@@ -103,7 +103,8 @@ class FlightMonitor:
     def __init__(self, domain_id: int, judge: FlightJudge):
         self.judge = judge
         self.recorded = {}  # topic -> messages in the bag, from the recorder's status on diagnostics
-        self.published = {}  # the simulator's `sim_node: published` values (steps, future_setpoints_refused)
+        self.published = {}  # the simulator's newest `sim_node: published` values (steps, future_setpoints_refused)
+        self.published_stamp_ns = -1   # its stamp (sim time): the bag is checked up to it
         self.sim_events = {}  # diagnostics name -> (level, message, values) of the simulator's newest statuses
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id,
@@ -135,8 +136,10 @@ class FlightMonitor:
             elif st.name.startswith(contract.SIM_STATUS.format('')):
                 values = {kv.key: kv.value for kv in st.values}
                 self.sim_events[st.name] = (level_of(st), st.message, values)
-                if st.name == contract.SIM_PUBLISHED:
+                stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                if st.name == contract.SIM_PUBLISHED and stamp_ns >= self.published_stamp_ns:
                     self.published = {k: int(v) for k, v in values.items()}
+                    self.published_stamp_ns = stamp_ns
             if st.name == contract.CONTROLLER_STATUS and level_of(st) == ERROR[0] and \
                     st.message.startswith(CONTROLLER_FAILED):
                 self.judge.on_controller_failed(st.message)

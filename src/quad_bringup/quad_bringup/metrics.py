@@ -121,14 +121,15 @@ GAP_FACTOR = 1.5  # an odometry interval longer than this many typical periods i
 
 # --- metrics -------------------------------------------------------------------------------------
 
-def record_check(flight: Flight, published_steps: int | None = None) -> dict:
+def record_check(flight: Flight, published: tuple | None = None) -> dict:
     """The bag against the simulator's own count (module docstring): steps published, distinct stamps recorded
-    up to the count's stamp, what is missing, and the odometry gaps."""
+    up to the count's stamp, what is missing, and the odometry gaps. published: (stamp ns, steps) of a
+    `sim_node: published` the caller saw (fly's monitor); the newer of it and the bag's newest counts (a count
+    is checked up to its own stamp: one a loaded monitor received late is not held against steps after it)."""
     odom = np.unique(flight.odom_stamps_ns)
     clock = np.unique(flight.clock_stamps_ns)
-    upto = None  # with fly's final count: everything the simulator published
-    if published_steps is None and flight.sim_published is not None:
-        upto, published_steps = flight.sim_published
+    counts = [c for c in (published, flight.sim_published) if c is not None]
+    upto, published_steps = max(counts, key=lambda c: c[0]) if counts else (None, None)
     check = {'steps_published': published_steps}
     for name, stamps in (('odom', odom), ('/clock', clock)):
         recorded = int(np.count_nonzero(stamps <= upto)) if upto is not None else int(len(stamps))
@@ -190,7 +191,7 @@ def completion_time(flight: Flight, rule: Completion) -> float | None:
     return float(flight.odom_t[np.argmax(done)]) if np.any(done) else None
 
 
-def compute_metrics(flight: Flight, rule: Completion = Completion(), published_steps: int | None = None) -> dict:
+def compute_metrics(flight: Flight, rule: Completion = Completion(), published: tuple | None = None) -> dict:
     if flight.trajectory is None:
         raise ValueError('bag has no trajectory message (topic trajectory): nothing to compare the flight with')
     t0 = flight.traj_start_s
@@ -239,7 +240,7 @@ def compute_metrics(flight: Flight, rule: Completion = Completion(), published_s
         'completion_rule': rule.describe(),
         'scored_window': {'start_s': 0.0, 'end_s': t_end - t0, 'ends_at': ends_at,
                           'bag_end_s': float(flight.odom_t[-1]) - t0},
-        'record': record_check(flight, published_steps),
+        'record': record_check(flight, published),
         'bag_truncated': flight.truncated,
     }
     return metrics

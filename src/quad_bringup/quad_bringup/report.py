@@ -252,16 +252,17 @@ def truncation_summary(truncated: dict) -> str:
 
 
 def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion | None = None,
-                 published_steps: int | None = None, figures: bool = True, flight: Flight | None = None) -> dict:
+                 published: tuple | None = None, figures: bool = True, flight: Flight | None = None) -> dict:
     """metrics.json, report.md and (figures=True) figures/*.png for the bag; returns the metrics written.
-    published_steps: the simulator's final step count, when the caller has it (fly), else the bag's newest.
+    published: (stamp ns, steps) of the simulator's newest count the caller saw (fly's monitor); the bag's newest
+    too (metrics.record_check).
     flight: the bag's Flight if the caller has loaded it already (load_flight)."""
     rule = rule or Completion()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     flight = load_flight(bag_dir) if flight is None else flight
     metrics = dict(extra or {})
-    metrics.update(compute_metrics(flight, rule, published_steps))
+    metrics.update(compute_metrics(flight, rule, published))
     metrics = _json_safe(metrics)
     drawn = draw_figures(flight, out_dir) if figures else []
     write_markdown(metrics, out_dir, drawn)

@@ -353,3 +353,21 @@ def test_the_figure_worker_whose_fly_is_gone_ends_without_a_traceback(tmp_path):
     _, err = worker.communicate(json.dumps({'bag': str(tmp_path / 'nobag'), 'out': str(tmp_path)}) + '\n',
                                 timeout=120)
     assert 'Traceback' not in err and 'BrokenPipeError' not in err, err
+
+
+def test_the_record_check_counts_the_newest_sim_count_up_to_its_own_stamp():
+    """fly's monitor may hold an older `sim_node: published` than the bag (received late on a loaded machine): the
+    newer of the two counts, checked up to its own stamp; a count newer than what was recorded shows as missing."""
+    from quad_bringup.metrics import Flight, record_check
+    stamps = np.arange(1, 11, dtype=np.int64) * 10_000_000          # 10 steps recorded, 10 ms apart
+    flight = Flight(odom_t=stamps * 1e-9, position=np.zeros((10, 3)), velocity=np.zeros((10, 3)),
+                    euler=np.zeros((10, 3)), odom_stamps_ns=stamps, clock_stamps_ns=stamps,
+                    sim_published=(int(stamps[-1]), 10))
+    stale = record_check(flight, (int(stamps[3]), 4))               # the monitor's older count: the bag's wins
+    assert stale['steps_published'] == stale['odom_recorded'] == stale['/clock_recorded'] == 10
+    assert stale['complete']
+    older_bag = Flight(**{**flight.__dict__, 'sim_published': (int(stamps[3]), 4)})
+    upto = record_check(older_bag)                                   # only the bag's older count: up to its stamp
+    assert upto['steps_published'] == upto['odom_recorded'] == 4 and upto['complete']
+    newer = record_check(flight, (int(stamps[-1]) + 20_000_000, 12))  # the simulator published 2 steps more
+    assert newer['missing'] == {'odom': 2, '/clock': 2} and not newer['complete']
