@@ -1,7 +1,9 @@
 """Indoor flight through the graph: the 3 m square at 0.8 m/s on the emulated PX4 and ArduPilot (quad_vehicle_emu at
-its defaults, `python -m quad_vehicle_emu.mavlink_vehicle`) flown as test/bridge_mission.py's fly_mission flies it:
-real MAVLink over UDP, real DDS, the processes mavlink_bridge, position_controller with config/control_real.yaml
-over control.yaml (the real-vehicle default), trajectory_node and the recorder, on a machine other work shares.
+its defaults, `python -m quad_vehicle_emu.mavlink_vehicle`) through the graph
+(test/bridge_graph.py's processes: real MAVLink over UDP, real DDS; mavlink_bridge, position_controller with
+config/control_real.yaml over control.yaml, the real-vehicle default, trajectory_node, the recorder) on a machine
+other work shares: the vehicle on the floor, armed, `offboard`, a plan up to the square's first corner (an autopilot
+without GPS has no position before the pose streams), then the square, the plan recorded and scored.
 Each autopilot with its GPS off and external vision on (PX4: EKF2_EV_CTRL 3, EKF2_HGT_REF 3, EKF2_GPS_CTRL 0,
 EKF2_EV_DELAY 0 as docs/bridge.md sets it; ArduPilot: VISO_TYPE 1, EK3_SRC1_POSXY/VELXY/POSZ/YAW 6), the emulator's
 motion-capture stand-in publishing its truth on external/pose (`--mocap-topic external/pose`: 100 Hz, 1 mm RMS
@@ -101,34 +103,39 @@ def fly_cell(flavour: str, vision: bool, controller: dict) -> tuple[float, float
         extra = ['--mocap-topic', f'{procs.namespace}/{contract.EXTERNAL_POSE}']   # in the graph's namespace
         for value in EXTERNAL_VISION[flavour] if vision else ():
             extra += ['--param', value]
-        floor = (SQUARE[0][0], SQUARE[0][1], 0.0)
-        start_vehicle_graph(procs, flavour, free_udp_port(), position=floor, vehicle_extra=tuple(extra),
-                            controller_files=(CONTROL, REAL_PROFILE), bridge={'external_pose_enabled': vision},
-                            controller=controller)
-        if vision:
-            observer.wait_for(lambda: observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding',
-                              f'the bridge forwarding the pose ({observer.status(EXTERNAL_POSE_STATUS)})')
-        observer.wait_for(lambda: observer.call('arm', SetBool.Request(data=True)).success, 'arming accepted')
-        observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
-        observer.wait_for(lambda: observer.references, 'the controller to hold position')
-        result = observer.call('offboard', SetBool.Request(data=True))
-        assert result.success, result.message
-        plan_flown(observer, trajectory_node(procs, observer, [floor, SQUARE[0]]), SQUARE[0], 'the take-off')
-        procs.stop('trajectory')
-        load_start = os.getloadavg()[0]
-        bag = out_dir / 'bag'
-        procs.start('recorder', ['-m', 'quad_bringup.recorder_node', *ros_arguments(str(bag), list(DEFAULT_TOPICS))])
-        traj = trajectory_node(procs, observer, SQUARE)
-        plan_flown(observer, traj, SQUARE[-1], 'the square')
-        settle_end_s = observer.odom[-1][0] + SETTLE_S + 1.0
-        observer.wait_for(lambda: observer.odom[-1][0] > settle_end_s, 'the settle time')
-        assert observer.link()[1].get('mode') == OFFBOARD_MODE[flavour], f'the hand-over ended: {observer.link()}'
-        assert observer.controller()[1].get('refused_start_steps') == '0', observer.controller()
-        load_end = os.getloadavg()[0]
-        procs.stop('recorder')   # SIGTERM: the recorder closes the bag
-        result = observer.call('land', Trigger.Request())
-        assert result.success, result.message
-        metrics, _ = report(bag, out_dir / 'report', procs.env)
+        try:
+            floor = (SQUARE[0][0], SQUARE[0][1], 0.0)
+            start_vehicle_graph(procs, flavour, free_udp_port(), position=floor, vehicle_extra=tuple(extra),
+                                controller_files=(CONTROL, REAL_PROFILE), bridge={'external_pose_enabled': vision},
+                                controller=controller)
+            if vision:
+                observer.wait_for(lambda: observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding',
+                                  f'the bridge forwarding the pose ({observer.status(EXTERNAL_POSE_STATUS)})')
+            observer.wait_for(lambda: observer.call('arm', SetBool.Request(data=True)).success, 'arming accepted')
+            observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+            observer.wait_for(lambda: observer.references, 'the controller to hold position')
+            result = observer.call('offboard', SetBool.Request(data=True))
+            assert result.success, result.message
+            plan_flown(observer, trajectory_node(procs, observer, [floor, SQUARE[0]]), SQUARE[0], 'the take-off')
+            procs.stop('trajectory')
+            load_start = os.getloadavg()[0]
+            bag = out_dir / 'bag'
+            procs.start('recorder', ['-m', 'quad_bringup.recorder_node',
+                                     *ros_arguments(str(bag), list(DEFAULT_TOPICS))])
+            traj = trajectory_node(procs, observer, SQUARE)
+            plan_flown(observer, traj, SQUARE[-1], 'the square')
+            settle_end_s = observer.odom[-1][0] + SETTLE_S + 1.0
+            observer.wait_for(lambda: observer.odom[-1][0] > settle_end_s, 'the settle time')
+            assert observer.link()[1].get('mode') == OFFBOARD_MODE[flavour], f'the hand-over ended: {observer.link()}'
+            assert observer.controller()[1].get('refused_start_steps') == '0', observer.controller()
+            load_end = os.getloadavg()[0]
+            procs.stop('recorder')   # SIGTERM: the recorder closes the bag
+            result = observer.call('land', Trigger.Request())
+            assert result.success, result.message
+            metrics, _ = report(bag, out_dir / 'report', procs.env)
+        except AssertionError as exc:   # why the hand-over ended, from the bridge's log
+            ended = [line for line in procs.log('bridge').splitlines() if 'hand-over ended' in line]
+            raise AssertionError(f'{exc}' + (f'; {ended[0].split("]: ")[-1]}' if ended else '')) from exc
         return truth_rmse_m(bag), metrics['rmse_m'], load_start, load_end
 
 
@@ -141,12 +148,11 @@ def main():
                 try:
                     got.append(fly_cell(flavour, vision, controller))
                 except AssertionError as exc:   # a flight that did not end as planned: a cell, not a crash
-                    print(f'{flavour} {label}: {exc}', file=sys.stderr)
-                    got.append(None)
+                    got.append(str(exc).split('; ')[-1])
                 print(f'{flavour} {label}: {got[-1]}', file=sys.stderr)
-            flown = [g for g in got if g is not None]
-            failed = len(got) - len(flown)
-            note = f' ({failed} of {len(got)} not flown to the end)' if failed else ''
+            flown = [g for g in got if not isinstance(g, str)]
+            failed = [g for g in got if isinstance(g, str)]
+            note = f' ({len(failed)} of {len(got)} not flown to the end: {"; ".join(failed)})' if failed else ''
             rows.append((f'quad_vehicle_emu {flavour}', label,
                          ' / '.join(f'{100 * g[0]:.1f}' for g in flown) + note,
                          ' / '.join(f'{100 * g[1]:.1f}' for g in flown),
