@@ -62,7 +62,7 @@ class MavlinkBridge(Node):
         p = self.params
         key = load_signing_key(p['signing_key_file']) if p['signing_key_file'] else None
         # the parameters BridgeConfig holds, by their own names
-        self.config = BridgeConfig(**{f.name: p[f.name] for f in dataclasses.fields(BridgeConfig) if f.name in p})
+        self.config = BridgeConfig(**{f.name: p[f.name] for f in dataclasses.fields(BridgeConfig) if f.name in p.values})
         self.flying_config = self.config   # after the vehicle's parameters were checked / adopted
         self.param_check = None
         self.param_read_lock = threading.Lock()
