@@ -19,7 +19,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
@@ -62,7 +62,8 @@ class MavlinkBridge(Node):
         p = self.params
         key = load_signing_key(p['signing_key_file']) if p['signing_key_file'] else None
         # the parameters BridgeConfig holds, by their own names
-        self.config = BridgeConfig(**{f.name: p[f.name] for f in dataclasses.fields(BridgeConfig) if f.name in p.values})
+        self.config = BridgeConfig(**{f.name: p[f.name] for f in dataclasses.fields(BridgeConfig)
+                                      if f.name in p.values})
         self.flying_config = self.config   # after the vehicle's parameters were checked / adopted
         self.param_check = None
         self.param_read_lock = threading.Lock()
@@ -191,7 +192,10 @@ class MavlinkBridge(Node):
 
     def _spin_external_pose(self):
         while not self.stopping.is_set() and self.context.ok():
-            self.external_pose_executor.spin_once(timeout_sec=0.1)
+            try:
+                self.external_pose_executor.spin_once(timeout_sec=0.1)
+            except (ExternalShutdownException, ShutdownException):
+                return   # a stop signal shut the context down: destroy_node ends the rest
 
     def on_external_pose(self, msg):
         p, q = msg.pose.position, msg.pose.orientation
