@@ -28,8 +28,8 @@ sys.path.insert(0, str(ROOT / 'bench'))
 
 import numpy as np  # noqa: E402
 from bench_bridge_flight import SPEED_MPS, SQUARE  # noqa: E402
-from bridge_graph import OFFBOARD_MODE, VEHICLE_FILE, WAIT_S, free_udp_port, running_graph, start_vehicle_graph  # noqa: E402
-from bridge_mission import CONTROL, REAL_PROFILE, report  # noqa: E402
+from bridge_graph import OFFBOARD_MODE, WAIT_S, free_udp_port, running_graph, start_vehicle_graph  # noqa: E402
+from bridge_mission import CONTROL, REAL_PROFILE, plan_waypoints, report  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 from quad_bringup.commands.record import ros_arguments  # noqa: E402
@@ -74,17 +74,6 @@ def truth_rmse_m(bag: Path) -> float:
     return float(np.sqrt(np.mean(err ** 2)))
 
 
-def trajectory_node(procs, observer, waypoints):
-    """trajectory_node flying `waypoints` (ENU, m) at SPEED_MPS after 1 s; returns once its plan is heard."""
-    observer._trajectory_raw = None   # the new plan, not the one before
-    flat = ','.join(str(float(c)) for wp in waypoints for c in wp)
-    procs.start('trajectory', ['-m', 'quad_trajectory.trajectory_node', '--ros-args', '-p', f'waypoints:=[{flat}]',
-                               '-p', f'speed_mps:={SPEED_MPS}', '-p', 'start_delay_s:=1.0',
-                               '-p', f'vehicle_file:={VEHICLE_FILE}'])
-    observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
-    return observer.trajectory
-
-
 def plan_flown(observer, traj, hover, what):
     """Waits for the controller to hold at the plan's end and the odometry within HOVER_M of `hover`."""
     end_s = stamp_to_s(traj.header.stamp) + stamp_to_s(traj.points[-1].time_from_start)
@@ -116,13 +105,14 @@ def fly_cell(flavour: str, vision: bool, controller: dict) -> tuple[float, float
             observer.wait_for(lambda: observer.references, 'the controller to hold position')
             result = observer.call('offboard', SetBool.Request(data=True))
             assert result.success, result.message
-            plan_flown(observer, trajectory_node(procs, observer, [floor, SQUARE[0]]), SQUARE[0], 'the take-off')
+            plan_flown(observer, plan_waypoints(procs, observer, [floor, SQUARE[0]], SPEED_MPS), SQUARE[0],
+                       'the take-off')
             procs.stop('trajectory')
             load_start = os.getloadavg()[0]
             bag = out_dir / 'bag'
             procs.start('recorder', ['-m', 'quad_bringup.recorder_node',
                                      *ros_arguments(str(bag), list(DEFAULT_TOPICS))])
-            traj = trajectory_node(procs, observer, SQUARE)
+            traj = plan_waypoints(procs, observer, SQUARE, SPEED_MPS)
             plan_flown(observer, traj, SQUARE[-1], 'the square')
             settle_end_s = observer.odom[-1][0] + SETTLE_S + 1.0
             observer.wait_for(lambda: observer.odom[-1][0] > settle_end_s, 'the settle time')

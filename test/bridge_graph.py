@@ -359,6 +359,10 @@ class Observer:
     def _on_traj(self, raw):
         self._trajectory_raw = raw   # decoded when asked for: a 10,000-point plan costs ~1 s of Python
 
+    def forget_trajectory(self):
+        """The next `trajectory` read is None until a new plan arrives."""
+        self._trajectory_raw = None
+
     @property
     def trajectory(self):
         """The latest `trajectory` (MultiDOFJointTrajectory), or None."""

@@ -30,6 +30,18 @@ class MissionFlight:
     bag: Path
 
 
+def plan_waypoints(procs, observer, waypoints, speed_mps: float):
+    """trajectory_node planning `waypoints` (ENU, m) at speed_mps, started 1 s after it is published; returns that
+    plan once the observer hears it (not one heard before)."""
+    observer.forget_trajectory()
+    flat = ','.join(str(float(c)) for wp in waypoints for c in wp)
+    procs.start('trajectory', ['-m', 'quad_trajectory.trajectory_node', '--ros-args', '-p', f'waypoints:=[{flat}]',
+                               '-p', f'speed_mps:={speed_mps}', '-p', 'start_delay_s:=1.0',
+                               '-p', f'vehicle_file:={VEHICLE_FILE}'])
+    observer.wait_for(lambda: observer.trajectory is not None, 'the trajectory')
+    return observer.trajectory
+
+
 def fly_mission(procs, observer, out_dir: Path, flavour: str, waypoints, speed_mps: float,
                 profile: str | None = REAL_PROFILE, vehicle_extra=(), bridge_params=None, controller_params=None,
                 wait_s: float = 180.0) -> MissionFlight:
@@ -44,12 +56,7 @@ def fly_mission(procs, observer, out_dir: Path, flavour: str, waypoints, speed_m
     procs.start('recorder', ['-m', 'quad_bringup.recorder_node', *ros_arguments(str(bag), list(DEFAULT_TOPICS))])
     enter_offboard(observer, flavour)
     mode = OFFBOARD_MODE[flavour]
-    flat = ','.join(str(float(c)) for wp in waypoints for c in wp)
-    procs.start('trajectory', ['-m', 'quad_trajectory.trajectory_node', '--ros-args', '-p', f'waypoints:=[{flat}]',
-                               '-p', f'speed_mps:={speed_mps}', '-p', 'start_delay_s:=1.0',
-                               '-p', f'vehicle_file:={VEHICLE_FILE}'])
-    observer.wait_for(lambda: observer.trajectory is not None, 'the trajectory')
-    traj = observer.trajectory
+    traj = plan_waypoints(procs, observer, waypoints, speed_mps)
     settle_s = Completion.for_vehicle(load_vehicle(VEHICLE_FILE)).settle_s
     end_s = stamp_to_s(traj.header.stamp) + stamp_to_s(traj.points[-1].time_from_start) + settle_s + 1.0
     observer.wait_for(lambda: observer.odom and observer.odom[-1][0] > end_s, 'the plan end plus settle', wait_s)
