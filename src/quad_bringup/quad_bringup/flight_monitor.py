@@ -136,10 +136,11 @@ class FlightMonitor:
             elif st.name.startswith(contract.SIM_STATUS.format('')):
                 values = {kv.key: kv.value for kv in st.values}
                 self.sim_events[st.name] = (level_of(st), st.message, values)
-                stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                if st.name == contract.SIM_PUBLISHED and stamp_ns >= self.published_stamp_ns:
-                    self.published = {k: int(v) for k, v in values.items()}
-                    self.published_stamp_ns = stamp_ns
+                if st.name == contract.SIM_PUBLISHED:
+                    stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                    if stamp_ns >= self.published_stamp_ns:   # the newest count (they may arrive out of order)
+                        self.published = {k: int(v) for k, v in values.items()}
+                        self.published_stamp_ns = stamp_ns
             if st.name == contract.CONTROLLER_STATUS and level_of(st) == ERROR[0] and \
                     st.message.startswith(CONTROLLER_FAILED):
                 self.judge.on_controller_failed(st.message)
