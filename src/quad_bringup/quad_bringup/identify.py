@@ -326,14 +326,24 @@ def quality_refusal(result: dict) -> str | None:
     return None
 
 
+def drag_measured(drag: dict) -> bool:
+    """identify_drag's drag is taken where its 95 % interval lies above 0 (else the flight did not show one)."""
+    return drag['rotor_drag_xy_ci95'][0] > 0
+
+
 def profile(result: dict, base: dict | None = None) -> dict:
     """A position_controller params file: `base` (a control profile's content, without a top-level
     `identification` block that older versions wrote: rcl refuses any key beside a node's ros__parameters)
-    with the identified attitude_lead_s and thrust_scale."""
+    with the identified attitude_lead_s and thrust_scale, and drag_feedforward_per_s = the drag measured
+    (result['drag'], where its 95 % interval lies above 0; else 0: none measured)."""
     out = {k: v for k, v in (base or {}).items() if k != 'identification'}
     params = dict(out.get('position_controller', {}).get('ros__parameters', {}))
     params['attitude_lead_s'] = round(float(result['attitude_lead_s']), 4)
     params['thrust_scale'] = round(float(result['thrust_scale']), 4)
+    drag = result.get('drag')
+    if drag is not None:
+        params['drag_feedforward_per_s'] = round(float(drag['deceleration_per_mps_at_hover']), 3) \
+            if drag_measured(drag) else 0.0
     out['position_controller'] = {'ros__parameters': params}
     return out
 
@@ -357,7 +367,7 @@ def vehicle_model(result: dict, vehicle_path) -> dict:
     data['thrust_error'] = round(float(result['thrust_scale']) - 1.0, 4)
     drag = result.get('drag')
     if drag is not None:
-        measured = drag['rotor_drag_xy_ci95'][0] > 0
+        measured = drag_measured(drag)
         data['aerodynamics'] = {'body_drag': [0.0, 0.0, 0.0],
                                 'rotor_drag_xy': float(f'{drag["rotor_drag_xy"]:.4g}') if measured else 0.0,
                                 'rotor_drag_z': 0.0}

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from quad_bringup.closed_loop import LoopOptions, fly_offline
-from quad_bringup.identify import identify, quality_refusal, read_identification
+from quad_bringup.identify import identify, profile, quality_refusal, read_identification
 from quad_bringup.report import load_flight
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.vehicle import load_vehicle
@@ -75,6 +75,7 @@ def test_cli_writes_a_profile_the_controller_flies(tmp_path, lag_bag):
     params = written['position_controller']['ros__parameters']
     assert params['controller'] == 'pid' and params['attitude_lead_s'] == pytest.approx(0.15, rel=0.15)
     assert params['thrust_scale'] == pytest.approx(1.0, abs=0.01)
+    assert params['drag_feedforward_per_s'] == 0.0   # the simulator flew it without drag: none measured
     assert params['kp_x'] == yaml.safe_load(resolve_config('config/control_real.yaml').read_text())[
         'position_controller']['ros__parameters']['kp_x']
     facts = read_identification(out.read_text())
@@ -306,6 +307,19 @@ def test_a_fit_at_the_edge_of_its_search_range_is_refused_saying_what_to_fly(tmp
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and 'the roll fit (lag 0.005 s = tau 0.005 s + dead time 0.000 s) sits at the edge' in \
         lines[0] and '--controller pd' in lines[0]
+
+
+def test_the_profile_feeds_forward_the_drag_measured_and_none_that_is_not():
+    base = {'position_controller': {'ros__parameters': {'controller': 'pid', 'drag_feedforward_per_s': 0.7}}}
+    result = {'attitude_lead_s': 0.25, 'thrust_scale': 1.02,
+              'drag': {'rotor_drag_xy': 1e-4, 'rotor_drag_xy_ci95': (8e-5, 1.2e-4),
+                       'deceleration_per_mps_at_hover': 0.9512}}
+    params = profile(result, base)['position_controller']['ros__parameters']
+    assert params['drag_feedforward_per_s'] == 0.951 and params['controller'] == 'pid'
+    unsure = {**result, 'drag': {**result['drag'], 'rotor_drag_xy_ci95': (-1e-5, 2e-4)}}
+    assert profile(unsure, base)['position_controller']['ros__parameters']['drag_feedforward_per_s'] == 0.0
+    no_drag = {k: v for k, v in result.items() if k != 'drag'}   # the base's value stays
+    assert profile(no_drag, base)['position_controller']['ros__parameters']['drag_feedforward_per_s'] == 0.7
 
 
 def test_a_collapsed_interval_is_refused(feedforward_bag):

@@ -36,6 +36,7 @@ from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, Reference, State
 from quad_control.plugins import ControllerFailed
 from quad_control.position import PositionController, Saturation
+from quad_control.velocity_blend import VelocityBlend
 
 RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's default
 ENGAGE_DELAY_S = 1.0       # position_controller engage_delay_s
@@ -75,7 +76,9 @@ class ControlLoop:
                  wait_for_trajectory: bool = False, max_start_step_m: float = math.inf, engaged: bool = True,
                  engage_delay_s: float = ENGAGE_DELAY_S, on_fault=None, on_event=None):
         """on_fault(reason): called with a one-line reason when a tick produces no setpoint or a plan is refused;
-        on_event(line): an engagement, a pause or a re-based plan (informational)."""
+        on_event(line): an engagement, a pause or a re-based plan (informational). The odometry's velocity is
+        blended with its position's derivative as the controller's gains.velocity_from_position_s say at the
+        time (quad_control.velocity_blend)."""
         self.controller = controller
         self.rate_hz = float(rate_hz)
         self.lockstep = lockstep
@@ -95,12 +98,14 @@ class ControlLoop:
         self.last_start_step_m = None  # distance vehicle -> plan at the last plan start (taken or refused)
         self.dead = None             # why the controller failed (module docstring); None while it lives
         self.counts = dict.fromkeys(COUNTS, 0)
+        self.velocity_blend = VelocityBlend()
 
     # --- inputs -------------------------------------------------------------------------------------
 
     def set_odometry(self, stamp_ns: int, state: State) -> Tick | None:
         """A finite odometry; in lockstep it may run the pending tick (returned)."""
-        self.odom = (stamp_ns, state)
+        tau_s = getattr(getattr(self.controller, 'gains', None), 'velocity_from_position_s', 0.0)
+        self.odom = (stamp_ns, self.velocity_blend(stamp_ns, state, tau_s))
         return self.run_pending()
 
     def set_trajectory(self, start_ns: int, trajectory, received_ns: int | None = None) -> Tick | None:

@@ -52,6 +52,13 @@ SPECS = [
           'identify); the thrust command is divided by it; 1 = the seed', min=0.5, max=2.0),
     Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '
           'external acceleration (drag, wind) subtracted from a_des; 0 = off (the seed)', min=0.0, max=10.0),
+    Param('drag_feedforward_per_s', SEED.drag_feedforward_per_s, 'linear air drag of the vehicle (1/s: drag '
+          'deceleration per m/s; quadflight identify measures it): the plan\'s drag D * reference velocity is added '
+          'to the feed-forward; 0 = off (the seed)', min=0.0, max=10.0),
+    Param('velocity_from_position_s', SEED.velocity_from_position_s, 'the velocity the controller flies follows '
+          'the odometry\'s own position (its derivative) below 1 / (2 pi tau) and its velocity above (a '
+          'complementary filter, quad_control.velocity_blend): an autopilot estimate whose velocity wanders apart '
+          'from its position (PX4 EKF2); 0 = the odometry\'s velocity (the seed)', min=0.0, max=10.0),
     Param('state_source', 'odom', 'the state the controller flies from: odom (the vehicle\'s estimate: the simulator, '
           'the bridge) or external_pose (motion capture on external/pose: velocity by quad_control.pose_state\'s '
           'alpha-beta filter)', choices=STATE_SOURCES, read_only=True),
@@ -82,7 +89,11 @@ def gains_from(values: dict) -> PositionGains:
                          attitude_lead_s=float(values.get('attitude_lead_s', seed.attitude_lead_s)),
                          disturbance_time_constant_s=float(values.get('disturbance_time_constant_s',
                                                                       seed.disturbance_time_constant_s)),
-                         thrust_scale=float(values.get('thrust_scale', seed.thrust_scale)))
+                         thrust_scale=float(values.get('thrust_scale', seed.thrust_scale)),
+                         drag_feedforward_per_s=float(values.get('drag_feedforward_per_s',
+                                                                 seed.drag_feedforward_per_s)),
+                         velocity_from_position_s=float(values.get('velocity_from_position_s',
+                                                                   seed.velocity_from_position_s)))
 
 
 def profile_parameters(content: dict) -> dict:

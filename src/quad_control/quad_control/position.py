@@ -48,6 +48,9 @@ class PositionGains:
     # Speed extensions (all off by default, so the defaults are the seed's controller; docs "Tuning for speed"):
     attitude_lead_s: float = 0.0                # attitude from a_des + lead * jerk_T (thrust from a_des)
     disturbance_time_constant_s: float = 0.0    # > 0: subtract the observed external acceleration (filtered)
+    drag_feedforward_per_s: float = 0.0         # linear air drag D (1/s): a_des += D v_T, the drag the plan meets
+    velocity_from_position_s: float = 0.0       # > 0: the odometry's velocity follows its position's derivative
+    #                                             below 1 / (2 pi tau) (quad_control.velocity_blend, in ControlLoop)
     thrust_scale: float = 1.0                   # delivered / commanded specific force of the vehicle (quadflight
     #                                             identify); the command is divided by it
 
@@ -93,10 +96,14 @@ def check_finite(state: State, ref: Reference):
 
 
 def desired_acceleration(state: State, ref: Reference, gains: PositionGains, integral_m_s=None) -> np.ndarray:
-    """Eq. 1 (plus ki * integral of the position error for pid)."""
+    """Eq. 1 (plus ki * integral of the position error for pid), with the plan's drag D v_T in the feed-forward:
+    a vehicle in linear air drag (-D v) needs a_T + D v_T to follow the plan, from the plan alone (outside the
+    feedback loop, so it adds no lag to it)."""
     acc = gains.kp * (ref.position - state.position) + gains.kd * (ref.velocity - state.velocity)
     if gains.use_feedforward:
         acc = acc + ref.acceleration
+        if gains.drag_feedforward_per_s:
+            acc = acc + gains.drag_feedforward_per_s * np.asarray(ref.velocity, dtype=float)
     if integral_m_s is not None:
         acc = acc + gains.ki * integral_m_s
     return acc

@@ -267,6 +267,22 @@ def test_attitude_lead_tilts_by_lead_times_jerk_and_leaves_thrust(law):
     assert led.specific_force_mps2 == pytest.approx(plain.specific_force_mps2, abs=1e-12)
 
 
+@pytest.mark.parametrize('law', ['pd', 'pid', 'se3'])
+def test_drag_feedforward_adds_drag_times_the_plan_velocity_and_only_with_feedforward(law):
+    """On the plan (no error), a_des = a_T + D v_T: a command identical to one asking for that acceleration."""
+    v_t = np.array([0.8, -0.4, 0.2])
+    state = _state(velocity=v_t)
+    fed = PositionController(law, replace(SEED, drag_feedforward_per_s=1.0), VEHICLE).update(
+        state, _ref(velocity=v_t), 0.01)[0]
+    asked = PositionController(law, SEED, VEHICLE).update(state, _ref(velocity=v_t, acceleration=1.0 * v_t), 0.01)[0]
+    assert np.allclose(fed.quaternion, asked.quaternion, atol=1e-12)
+    assert fed.specific_force_mps2 == pytest.approx(asked.specific_force_mps2, abs=1e-12)
+    off = replace(SEED, drag_feedforward_per_s=1.0, use_feedforward=False)
+    plain = replace(SEED, use_feedforward=False)
+    assert np.allclose(PositionController(law, off, VEHICLE).update(state, _ref(velocity=v_t), 0.01)[0].quaternion,
+                       PositionController(law, plain, VEHICLE).update(state, _ref(velocity=v_t), 0.01)[0].quaternion)
+
+
 def test_disturbance_observer_converges_to_a_constant_external_acceleration():
     """A level vehicle at hover thrust whose velocity grows by d dt per step: the observer estimates d (first
     order, time constant tau), and the command then asks for -d on top of eq. 1."""
