@@ -12,6 +12,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from quad_common import node_start
 from quad_common.lifeline import bind_to_parent
+from quad_common.realtime import freeze_startup_heap
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -48,6 +49,7 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
         executor = make_executor(node) if make_executor else SingleThreadedExecutor()
         for each in node if isinstance(node, list) else [node]:
             executor.add_node(each)
+        freeze_startup_heap()   # no full collection of the start-up heap while flying
         spin(node, executor) if spin else executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -3,6 +3,8 @@ names the parameter, the value and how to grant it; 0 touches nothing."""
 
 import errno
 import os
+import subprocess
+import sys
 
 import pytest
 
@@ -74,3 +76,25 @@ def test_a_node_told_no_says_so_as_an_error_and_runs_on():
     assert refused and said.startswith('refused: realtime_priority = 20: SCHED_FIFO refused')
     assert errors == [said.removeprefix('refused: ')]
     assert apply_or_report(0, errors.append) == ('off (SCHED_OTHER)', False) and len(errors) == 1
+
+
+FREEZE_PROBE = '''
+import gc, sys
+from quad_common.realtime import freeze_startup_heap
+garbage = [[i] for i in range(50_000)]                 # start-up objects that stay alive
+cycle = []; cycle.append(cycle); del cycle              # start-up garbage: collected before the freeze
+frozen = freeze_startup_heap()
+scanned = []
+gc.callbacks.append(lambda phase, info: scanned.append(len(gc.get_objects(2))) if phase == 'start' else None)
+gc.collect()
+print(frozen, scanned[0])
+'''
+
+
+def test_the_start_up_heap_is_frozen_so_a_full_collection_scans_only_what_came_after():
+    """A full collection holds the interpreter lock, stopping every thread (a bridge's setpoints, a pose on its way)
+    for as long as it scans: after the freeze it no longer scans the start-up heap."""
+    done = subprocess.run([sys.executable, '-c', FREEZE_PROBE], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    frozen, scanned = done.stdout.split()
+    assert int(frozen) > 50_000 and int(scanned) < 1_000

@@ -25,7 +25,7 @@ from pymavlink import mavutil  # noqa: E402
 
 from quad_common import rotations  # noqa: E402
 from quad_common.paths import parameter_file  # noqa: E402
-from quad_common.realtime import apply_or_report  # noqa: E402
+from quad_common.realtime import apply_or_report, freeze_startup_heap  # noqa: E402
 from quad_common.signing_key import load_signing_key  # noqa: E402
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
@@ -594,6 +594,7 @@ def main(args=None):
     print(f'mavlink_vehicle: scheduling {scheduling}', flush=True)
     print(f'mavlink_vehicle: boot clock = {args.boot_offset_s} s + {args.clock_rate} x (wall clock - '
           f'{vehicle.wall0_ns} ns)', flush=True)
+    freeze_startup_heap()   # no full collection of the start-up heap while it flies (an autopilot does not pause)
     try:
         vehicle.run()
     except KeyboardInterrupt:
