@@ -6,7 +6,7 @@ a subscriber node of its own with its own thread, which also runs the keep-alive
 state machine and vehicle status under one lock (vehicle, handover); the autopilot backend (px4, ardupilot); the
 commands to the vehicle (commands); the supervisor thread for the link, heartbeats, stream fall-backs and what
 ends a hand-over (supervision); the arm / offboard / land services on the node's own single-threaded executor
-(services); the diagnostics (bridge_diagnostics).
+(services); what each message read does (receive); the diagnostics (bridge_diagnostics).
 """
 
 import sys
@@ -22,16 +22,15 @@ from rclpy.node import Node
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
-from quad_bridge.backend import MAV_MODE_FLAG_SAFETY_ARMED
-from quad_bridge.backends import resolve
 from quad_bridge.bridge_diagnostics import external_pose_status, link_status, setpoints_status
 from quad_bridge.commands import VehicleCommander
 from quad_bridge.external_pose import ExternalPoseFilter
 from quad_bridge.geofence import Geofence
-from quad_bridge.link import LinkState, is_vehicle_heartbeat
+from quad_bridge.link import LinkState
 from quad_bridge.mavlink_client import MavlinkClient
 from quad_bridge.parameters import NAME, SPECS, bridge_config, external_pose_config, validate
 from quad_bridge.peers import LinkPeers
+from quad_bridge.receive import Receiver
 from quad_bridge.services import BridgeServices
 from quad_bridge.setpoint_path import SetpointPath
 from quad_bridge.supervision import Supervisor
@@ -62,6 +61,7 @@ class MavlinkBridge(Node):
         self.t0 = time.monotonic()
         self.supervisor = Supervisor(self)
         self.bridge_services = BridgeServices(self)
+        self.receiver = Receiver(self)   # the receive thread's: never waits on the executor
         self.stopping = threading.Event()
         self.diag_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.qos(contract.DIAGNOSTICS))
         self.engaged_pub = self.create_publisher(Bool, contract.ENGAGED, contract.qos(contract.ENGAGED))
@@ -72,7 +72,7 @@ class MavlinkBridge(Node):
         self.create_service(SetBool, 'offboard', self.srv_offboard)
         self.create_service(Trigger, 'land', self.srv_land)
 
-        self.client = MavlinkClient(p['fcu_url'], p['source_system'], p['source_component'], self.on_mavlink,
+        self.client = MavlinkClient(p['fcu_url'], p['source_system'], p['source_component'], self.receiver.on_mavlink,
                                     baud=p['baud'], signing_key=key, decode=('HEARTBEAT', *HANDLERS))
         self.commander = VehicleCommander(self.client, self.vehicle, p, bridge_config(p.values), self.log, self.now_s)
         self.telemetry = TelemetryPublisher(self, self.vehicle, self.client, self.supervisor.on_state,
@@ -105,20 +105,20 @@ class MavlinkBridge(Node):
         if self.external_pose is not None:
             self.external_pose_thread.start()
         self.supervisor_thread.start()
-        self.get_logger().info(f'{NAME}: {p["fcu_url"]}, autopilot {p["autopilot"]}, keep-alive '
-                               f'{p["setpoint_rate_hz"]} Hz, scheduling {self.realtime}')
+        self.log.info(f'{NAME}: {p["fcu_url"]}, autopilot {p["autopilot"]}, keep-alive '
+                      f'{p["setpoint_rate_hz"]} Hz, scheduling {self.realtime}')
 
     def apply_realtime(self, priority) -> tuple[str, bool]:
         """realtime_priority: every thread there is now (the executor's, Fast DDS's) under SCHED_FIFO; the
         receive, setpoint and supervisor threads started after it, and Fast DDS's later ones, inherit it.
         Refused by the system: an error naming the parameter and how to grant it, kept in the link's
         diagnostics (`realtime`, level WARN), and the bridge runs on under the ordinary scheduler."""
-        return apply_or_report(priority, self.get_logger().error)
+        return apply_or_report(priority, self.log.error)
 
     def now_s(self) -> float:
         return time.monotonic() - self.t0
 
-    # --- setpoint path (quad_bridge.setpoint_path): may it stream, what a quiet wire commands ----------
+    # --- may setpoints go out (quad_bridge.setpoint_path asks), vehicle/engaged ----------------------
 
     def may_stream(self) -> bool:
         return (self.link.state == LinkState.UP and not self.geofence.breached and self.vehicle.may_stream()
@@ -141,7 +141,7 @@ class MavlinkBridge(Node):
                 self.engaged = engaged
                 self.engaged_pub.publish(Bool(data=engaged))
                 if engaged or self.vehicle.handover.ended:
-                    self.get_logger().info(f'vehicle/engaged: {str(engaged).lower()}')
+                    self.log.info(f'vehicle/engaged: {str(engaged).lower()}')
 
     # --- external pose (quad_bridge.external_pose): forwarded to the estimator, a fault ends the hand-over ----
 
@@ -188,55 +188,6 @@ class MavlinkBridge(Node):
     def srv_land(self, request, response):
         response.success, response.message = self.bridge_services.land()
         return response
-
-    # --- vehicle -> ROS (receive thread: decodes and publishes itself, never waits on the executor) ----
-
-    def on_mavlink(self, msg):
-        """Every message read (a quad_bridge.mavlink_client.Counted where the kind is not decoded)."""
-        now, system, component, seq = self.now_s(), msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq()
-        ours = system == self.vehicle.status.system
-        if ours and component == self.params['target_component']:
-            self.link.message(now, seq)
-        heartbeat = msg.get_type() == 'HEARTBEAT'
-        self.peers.seen(system, component, seq, now, heartbeat and is_vehicle_heartbeat(msg.type, msg.autopilot))
-        if heartbeat:
-            self.on_heartbeat(msg)
-        elif ours:  # only our vehicle's telemetry is used
-            self.telemetry.handle(msg, now)
-
-    def on_heartbeat(self, msg):
-        s = self.vehicle.status
-        if not is_vehicle_heartbeat(msg.type, msg.autopilot):
-            return
-        with self.vehicle.lock:
-            if s.system is None:
-                s.system = msg.get_srcSystem()
-            if msg.get_srcSystem() != s.system or msg.get_srcComponent() != self.params['target_component']:
-                return
-            self.client.answer_only(s.system, msg.get_srcComponent())   # a udpin link answers only its address
-            if s.backend is None:
-                try:
-                    s.backend = resolve(self.params['autopilot'], msg.autopilot)
-                except ValueError as exc:
-                    self.get_logger().error(str(exc), throttle_duration_sec=5.0)
-                    return
-                self.telemetry.start(s.backend)
-            change, ended = self.vehicle.heartbeat(msg.custom_mode, bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED),
-                                                   self.now_s())
-        event = self.link.heartbeat(self.now_s())
-        if change:
-            self.get_logger().info(f'vehicle mode {change}')
-        self.update_engaged()   # engaged once a heartbeat shows the mode we asked for
-        if ended:
-            self.get_logger().warn(ended)
-            self.publish_diagnostics()
-        if event == 'reconnected':
-            self.supervisor.after_link_loss()
-        if event:
-            self.get_logger().info(f'vehicle {s.system} {event}: {s.backend.name}, mode {s.mode}')
-            self.telemetry.link_up()
-            threading.Thread(target=self.commander.connect, args=(self.telemetry.streams,), name='on-connect',
-                             daemon=True).start()
 
     # --- diagnostics -------------------------------------------------------------------------------
 
