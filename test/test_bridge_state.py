@@ -84,10 +84,10 @@ def test_the_quiet_stream_report_logs_at_either_severity_from_one_bridge(tmp_pat
     with running_graph(tmp_path) as (procs, observer):
         with bridge_in_this_process(observer, observer.node.get_namespace(),
                                     f'udpin:127.0.0.1:{free_udp_port()}') as bridge:
-            bridge.on_stream_quiet(0.6, 0.1)    # the wire went quiet, setpoints fresh, nothing obeys: info
-            bridge.on_stream_quiet(0.6, 0.6)    # the setpoints stopped: error
-            bridge.on_stream_quiet(0.6, 0.1)
-            assert bridge.stale_events == 1
+            bridge.supervisor.on_stream_quiet(0.6, 0.1)    # the wire went quiet, setpoints fresh, nothing obeys: info
+            bridge.supervisor.on_stream_quiet(0.6, 0.6)    # the setpoints stopped: error
+            bridge.supervisor.on_stream_quiet(0.6, 0.1)
+            assert bridge.supervisor.stale_events == 1
 
 
 @pytest.mark.parametrize('stale_action', ['hold', 'land'])

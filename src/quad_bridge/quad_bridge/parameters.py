@@ -1,12 +1,16 @@
-"""mavlink_bridge's parameters without ROS: the table the node declares (defaults from BridgeConfig) and the
-rules between its values (the fcu_url's form, the geofence box)."""
+"""mavlink_bridge's parameters without ROS: the table the node declares (defaults from BridgeConfig), the rules
+between its values (the fcu_url's form, the geofence box) and the configurations built from them."""
+
+import dataclasses
 
 from quad_bridge.backend import BridgeConfig
 from quad_bridge.backends import BACKENDS
+from quad_bridge.external_pose import ExternalPoseConfig
 from quad_bridge.mavlink_client import MAV_COMP_ID_ONBOARD_COMPUTER, check_fcu_url
 from quad_common import contract, mocap_frames
 from quad_common.params import Param
 
+NAME = 'mavlink_bridge'      # the node's name
 DEFAULTS = BridgeConfig()   # the defaults of the parameters BridgeConfig holds (of the same names)
 SPECS = [
     Param('fcu_url', 'udpin:0.0.0.0:14540', 'pymavlink connection: udpin:/udpout:/tcp:HOST:PORT or serial device',
@@ -95,3 +99,16 @@ def validate(values):
     if any(lo >= hi for lo, hi in zip(values['geofence_min_m'], values['geofence_max_m'])):
         raise ValueError(f'geofence_min_m = {values["geofence_min_m"]} must be below geofence_max_m = '
                          f'{values["geofence_max_m"]} on every axis')
+
+
+def bridge_config(values) -> BridgeConfig:
+    """The BridgeConfig of the parameter values (a mapping by name): its fields are the parameters of their names."""
+    return BridgeConfig(**{f.name: values[f.name] for f in dataclasses.fields(BridgeConfig) if f.name in values})
+
+
+def external_pose_config(values) -> ExternalPoseConfig:
+    """The external pose filter's configuration from the external_pose_* parameter values."""
+    return ExternalPoseConfig(
+        frame=values['external_pose_frame'], max_rate_hz=values['external_pose_rate_hz'],
+        timeout_s=values['external_pose_timeout_s'], max_age_s=values['external_pose_max_age_s'],
+        max_speed_m_s=values['external_pose_max_speed_mps'], jump_margin_m=values['external_pose_jump_margin_m'])

@@ -33,7 +33,7 @@ ATTITUDE_RATES_IGNORE = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
 
 class SetpointPath:
     def __init__(self, bridge, may_stream, on_quiet):
-        """bridge: the MavlinkBridge (params, vehicle, client, flying_config, now_s); may_stream() -> bool;
+        """bridge: the MavlinkBridge (params, vehicle, client, commander.flying_config, now_s); may_stream() -> bool;
         on_quiet(wire_age_s, input_age_s): see SetpointStreamer."""
         self.bridge, self.params, self.log = bridge, bridge.params, bridge.get_logger()
         self.counts_lock = threading.Lock()
@@ -120,7 +120,7 @@ class SetpointPath:
         vehicle = self.bridge.vehicle
         with vehicle.lock:
             backend = vehicle.status.backend
-        f_max = backend.max_specific_force(self.bridge.flying_config) if backend else math.inf
+        f_max = backend.max_specific_force(self.bridge.commander.flying_config) if backend else math.inf
         try:
             sp, clamped, kept = setpoint_from_cdr(raw, math.radians(self.params['max_tilt_deg']), f_max)
         except ValueError as exc:
@@ -146,7 +146,7 @@ class SetpointPath:
             if geofence.braking and s.state is not None:
                 sp = geofence.braking_setpoint(s.state)
             vz = s.state.velocity[2] if s.state is not None else 0.0
-            system, thrust = s.system, s.backend.thrust(sp, self.bridge.flying_config, vz)
+            system, thrust = s.system, s.backend.thrust(sp, self.bridge.commander.flying_config, vz)
         if sp.body_rates is None:
             mask, rates = ATTITUDE_RATES_IGNORE, (0.0, 0.0, 0.0)
         else:
