@@ -347,7 +347,8 @@ def _lp_step(T, J, g, trust):
     trust]: slacks y = H - A d and multipliers z (both > 0), residuals r_p = A d + y - H, r_d = T + A^T z.
     J is banded (BandRows), so each Newton system A^T diag(z / y) A dd = -r_d - A^T ((z r_p - r_c) / y) is a
     banded Cholesky of bandwidth 2 BAND, O(m BAND^2) however many rows. Stops when the residuals and the gap
-    y.z are below LP_TOLERANCE of the problem's scale."""
+    y.z are below LP_TOLERANCE of the problem's scale; None at once when a row lies beyond the box's reach,
+    or when the gap grows DIVERGED-fold (rows that contradict each other: the multipliers grow unbounded)."""
     from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 
     rows, m = J.shape
@@ -362,7 +363,7 @@ def _lp_step(T, J, g, trust):
     def a_transpose_dot(z):
         return csr_t @ z[:rows] - z[rows:rows + m] + z[rows + m:]
 
-    def newton(factor, w, r_dual, r_primal, r_comp):
+    def newton(factor, r_dual, r_primal, r_comp):
         """(dd, dy, dz) of the Newton step with complementarity residual r_comp (of y z)."""
         dd = cho_solve_banded((factor, False), -r_dual - a_transpose_dot((z * r_primal - r_comp) / y),
                               check_finite=False)
@@ -394,18 +395,18 @@ def _lp_step(T, J, g, trust):
         except LinAlgError:
             return None
         # predictor: the affine step; its gap sets the centring target sigma mu with sigma = (gap_affine / gap)^3
-        dd, dy, dz = newton(factor, w, r_dual, r_primal, y * z)
+        dd, dy, dz = newton(factor, r_dual, r_primal, y * z)
         primal, dual = _longest(y, dy), _longest(z, dz)
         target = (float(np.sum((y + primal * dy) * (z + dual * dz))) / gap) ** 3 * gap / y.size
         # corrector: centred, with the predictor's second-order term
-        dd, dy, dz = newton(factor, w, r_dual, r_primal, y * z + dy * dz - target)
+        dd, dy, dz = newton(factor, r_dual, r_primal, y * z + dy * dz - target)
         primal, dual = 0.995 * _longest(y, dy), 0.995 * _longest(z, dz)
         d, y, z = d + primal * dd, y + primal * dy, z + dual * dz
     return None
 
 
 def _longest(x, dx):
-    """The longest step a <= 1 along dx that keeps x > 0 >= 0: x + a dx >= 0 for a <= x_i / -dx_i."""
+    """The longest step a <= 1 along dx that keeps x (> 0) non-negative: a <= x_i / -dx_i where dx_i < 0."""
     shrink = float(np.max(-dx / x))
     return 1.0 if shrink <= 1.0 else 1.0 / shrink
 
