@@ -6,13 +6,13 @@ thrust, tilt + attitude lag x tilt rate) against the vehicle's limits less `marg
 an upper limit times 1 - margin, a lower one raised by margin x its range). The result is scaled to pass them
 at feasibility.py's own 32 samples a segment, the check `quadflight plan` and `fly` run before flight.
 
-Method: a trust-region sequential linear programme in x = log T, every iterate made exactly feasible by
-uniform scaling.
+Method: a trust-region sequential linear programme in x = log T, judged by uniform scaling.
 - Uniform scaling is exact (planner._limit_times): times k T give p(t / k), so acceleration, jerk and snap at
   a segment's samples divide by k^2, k^3, k^4 without a new solve. `feasible_scale` finds the smallest k with
   every sample inside the limits: each need falls monotonically towards its hover value as k grows, so a
   bracket is found from k = 1 outwards and the root (Illinois regula falsi in log k) only over the samples that
-  fail at the bracket's low end.
+  fail at the bracket's low end. The tilt check is left out: tilt + lag x tilt rate >= tilt under the same
+  limit, so attitude_lag passing implies it.
 - Start: the sqrt shape, then EQUALISE_ROUNDS rounds of T_i <- T_i k_i with k_i the scale that makes segment i
   alone just feasible (its neighbours' coupling ignored; a vectorised bisection for all segments at once); the
   shortest of these, scaled, starts the search.
@@ -25,22 +25,29 @@ uniform scaling.
   directional difference of step NEEDS_STEP, without a new solve. A change of T_j moves the spline mostly near
   segment j (a joint's influence decays geometrically along a minimum-derivative spline), so dv/dx is taken
   banded: BAND segments either side, every (2 BAND + 1)-th segment moved at once in one direction (2 BAND + 1
-  directions). The linear programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample)
-  within NEAR x the trust radius of its limit (less the rows no step inside the box reaches,
-  v_r + trust |J_r|_1 <= 0), |d_j| <= trust radius (HiGHS), gives the step; the new shape is scaled to the
-  limits again and kept when its total time is shorter; the trust radius follows how well the programme
-  predicted the gain.
-  A plan longer than LP_BLOCK + 2 LP_OVERLAP segments solves the programme in overlapping windows (_lp_step).
+  directions), each row of J held as its 2 BAND + 1 entries (BandRows). The linear programme
+  min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust radius of its
+  limit (less the rows no step inside the box reaches, v_r + trust |J_r|_1 <= 0), |d_j| <= trust radius,
+  gives the step (_lp_step: an interior-point method whose Newton systems J^T W J are banded, so a step costs
+  O(rows) at any length of plan; scipy's HiGHS took 2.8x as long on the same programmes at 100 segments and
+  3.9x at 1000). The new shape, scaled to the limits, is compared with the best so
+  far; when shorter, it is kept scaled as the best and unscaled as the next iterate: its samples just outside
+  the limits enter the next programme with v_r > 0 and are pulled back by its step, where scaling the whole
+  plan for one overshoot would throw most of the step away (on 100 segments 35.5 s against 36.3 s when every
+  iterate was scaled). An iterate that no step within the radius pulls back (the programme has no solution)
+  gives way to the best. The trust radius follows how well the programme predicted the gain.
   BAND = 5 matters: with 3, the directions alias the influence of segments 4 away (about 20 % error in the
   Jacobian) and the search stalls 2-3 % short of the optimum on slalom_dense.
   Every near sample is a row, not only each segment's peak: the peak moves between samples as the times
-  change, and a programme that sees only the peaks steps into the samples it does not see.
+  change, and a programme that sees only the peaks (or only each local peak and its neighbours) steps into
+  the samples it does not see.
 - Stop: after MAX_ITERATIONS steps, when the radius falls below MIN_TRUST, or when the programme predicts
   less than STALL_GAIN of the total time.
 The search samples LOOP_SAMPLES points a segment (fewer rows in each programme), the result is then scaled to
-pass at feasibility.py's 32. Cost per step: one banded LU with 2 BAND + 2 right-hand sides, 2 BAND + 2 need
-evaluations, one solve and scale for the new shape, one LP. Measured against a brute-force
-reference (scipy SLSQP over all times, every sample a constraint, several starts) in bench/bench_fastest.py.
+pass at feasibility.py's 32. Cost per step: one banded LU with 2 BAND + 2 right-hand sides, one need
+evaluation over the 2 BAND + 1 directions at once, one solve and scale for the new shape, one programme of
+about a dozen banded Cholesky factorisations. Measured against a brute-force reference (scipy SLSQP over all
+times, every sample a constraint, several starts) in bench/bench_fastest.py.
 
 Short first and last legs: a leg from rest to cruise asks for a spike of acceleration when it is given the
 same time as its neighbours (the sqrt profile on long_100: 3.9 m/s^2 against 0.2 mid-flight). Here that spike
@@ -53,16 +60,18 @@ from quad_trajectory import feasibility, solver, timing
 from quad_trajectory.polynomial import PiecewisePolynomial, derivative_factors
 
 BAND = 5                 # segments either side in the banded Jacobian
-LP_BLOCK, LP_OVERLAP = 150, 25   # a long plan's step: blocks of 150 segments, each with 25 either side
+LP_ITERATIONS = 60       # of the step's interior-point method
+LP_TOLERANCE = 1e-6      # its residuals and duality gap, relative to the problem's scale
+DIVERGED = 1e8           # a gap this many times its start: the programme has no solution
 MAX_ITERATIONS = 20
 MIN_TRUST = 2e-3         # log-time trust radius below which the search stops
 FIRST_TRUST = 0.3
 GROW, SHRINK = 2.0, 0.4
 GROW_RATIO = 0.75        # a full step whose gain was at least this fraction of the predicted one grows the radius
-STALL_GAIN = 2e-4        # a step predicted to gain less than this fraction of the time ends the search
+STALL_GAIN = 1e-3        # a step predicted to gain less than this fraction of the time ends the search
 LOOP_SAMPLES = 10        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
 SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
-EQUALISE_ROUNDS = 3      # start: each segment scaled to its own limit, this many times
+EQUALISE_ROUNDS = 1      # start: each segment scaled to its own limit, this many times
 NEAR = 1.0               # (check, sample) pairs within NEAR x the trust radius of their limit enter the step
 NEEDS_STEP = 1e-7        # step of the needs' directional derivative along a colour's change of a, j, snap
 _ROOT_ITERATIONS = 60     # of the scale's root finding (Illinois), to _ROOT_TOLERANCE in log k
@@ -77,6 +86,8 @@ class Constraints:
     def __init__(self, vehicle, margin=DEFAULT_MARGIN, samples_per_segment=feasibility.SAMPLES_PER_SEGMENT):
         self.vehicle = vehicle
         self.limits = feasibility.margined_limits(vehicle, margin)
+        # tilt + lag x tilt rate >= tilt under the same limit: attitude_lag passing implies tilt passes
+        del self.limits['tilt']
         rotor_range = vehicle.k_eta * (vehicle.rotor_speed_max_radps ** 2 - vehicle.rotor_speed_min_radps ** 2)
         self._range = {'thrust_min': vehicle.thrust_max_n - vehicle.thrust_min_n, 'rotor_thrust_min': rotor_range}
         self.s = np.linspace(0.0, 1.0, samples_per_segment)
@@ -183,43 +194,57 @@ class Constraints:
         return np.exp(hi)
 
 
-def _linearised_constraints(system, points, x, constraints, near):
+def _linearised_constraints(system, points, x, constraints, near, derivatives=None):
     """Rows v_r + J_r d <= 0 of every (check, sample) within `near` of its limit (v > -near), with J = dv/dx
-    from one banded LU of the spline's system (_coefficient_directions) and the needs' directional derivative
-    along each colour's exact change of acceleration, jerk and snap; returns (J sparse, v_r). Every near sample
-    is a row, not only each segment's peak: the peak moves between samples as the times change, and a programme
-    that sees only the peaks steps into the samples it does not see."""
-    from scipy.sparse import csr_matrix
-
+    from one banded LU of the spline's system (_derivative_directions, or `derivatives` when given) and the
+    needs' directional derivative along each colour's exact change of acceleration, jerk and snap; returns
+    (J as BandRows, v_r). Every near sample is a row, not only each segment's peak: the peak moves between
+    samples as the times change, and a programme that sees only the peaks steps into the samples it does not
+    see."""
     m = x.size
-    T = np.exp(x)
-    width = min(2 * BAND + 1, m)
-    directions = np.zeros((width, m))
-    for color in range(width):
-        directions[color, color::2 * BAND + 1] = 1.0
-    (a, j, snap), moved_by = _derivative_directions(system, points, T, directions, constraints.s)
+    width = 2 * BAND + 1
+    colours = min(width, m)
+    if derivatives is None:
+        derivatives = _derivative_directions(system, points, np.exp(x), _colours(m), constraints.s)
+    (a, j, snap), (da, dj, ds) = derivatives
     v = constraints.violations(a, j, snap)
     active = v > -near
     segment = np.nonzero(active)[1]          # the segment of each row
-    row = np.arange(segment.size)
-    rows, cols, vals = [], [], []
-    for color in range(width):
-        da, dj, ds = moved_by[color]
-        dv = (constraints.violations(a + NEEDS_STEP * da, j + NEEDS_STEP * dj, snap + NEEDS_STEP * ds)[active]
-              - v[active]) / NEEDS_STEP
-        # the perturbed segment within BAND of each row's segment: the one congruent to color modulo 2 BAND + 1
-        moved = segment + (color - segment + BAND) % (2 * BAND + 1) - BAND
-        keep = (moved >= 0) & (moved < m)
-        rows.append(row[keep])
-        cols.append(moved[keep])
-        vals.append(dv[keep])
-    J = csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(segment.size, m))
-    return J, v[active]
+    # every colour's perturbed needs in one evaluation: (checks, colours x m, S)
+    moved = constraints.violations(*(np.concatenate(value[None] + NEEDS_STEP * change)
+                                     for value, change in ((a, da), (j, dj), (snap, ds))))
+    moved = moved.reshape(v.shape[0], colours, m, -1)
+    dv = (moved.transpose(1, 0, 2, 3)[:, active] - v[active]) / NEEDS_STEP       # (colours, rows)
+    # the perturbed segment within BAND of each row's segment is the one congruent to the colour modulo
+    # 2 BAND + 1: column segment - BAND + (colour - segment + BAND) mod (2 BAND + 1) of the row's band
+    band = np.zeros((segment.size, width))
+    rows = np.arange(segment.size)
+    for colour in range(colours):
+        band[rows, (colour - segment + BAND) % width] = dv[colour]
+    inside = segment[:, None] - BAND + np.arange(width)
+    band[(inside < 0) | (inside >= m)] = 0.0
+    return BandRows(band, segment, m), v[active]
+
+
+def _colours(m):
+    """The 2 BAND + 1 directions (fewer for a shorter plan) in x: colour c moves every segment c mod 2 BAND + 1."""
+    width = 2 * BAND + 1
+    directions = np.zeros((min(width, m), m))
+    for colour in range(directions.shape[0]):
+        directions[colour, colour::width] = 1.0
+    return directions
+
+
+def _scaled_derivatives(derivatives, k):
+    """_derivative_directions' output at times k T from that at T: A depends on the times' ratios only, so y
+    and dy/dx are the same, and derivative q (its value and its changes) divides by k^q."""
+    (values, changes) = derivatives
+    return (tuple(v / k ** q for v, q in zip(values, (2, 3, 4))), tuple(c / k ** q for c, q in zip(changes, (2, 3, 4))))
 
 
 def _derivative_directions(system, points, T, directions, s):
     """Acceleration, jerk and snap (m, 3, S) of the spline with times T, and their derivatives along each row
-    of `directions` (D, m) in x = log T: D triples (m, 3, S).
+    of `directions` (D, m) in x = log T: three arrays (D, m, 3, S).
 
     The normalised-time coefficients y solve A(T) y = b (solver.System; b does not depend on T; the only
     T-dependent entries are the continuity rows' (T_k+1 / T_k)^p, with d/dx of them p (T_k+1 / T_k)^p
@@ -237,19 +262,24 @@ def _derivative_directions(system, points, T, directions, s):
         raise ValueError(f'the spline system is singular at these times (LAPACK gbtrf info {info})')
     b = system.rhs(np.asarray(points, dtype=float)[:, :3])
     y, _ = dgbtrs(lu, lower, upper, b, pivots)
-    k = system.joint[system.scaled]
-    slope = vals[system.scaled] * system.power[system.scaled]          # d val / d(x_k+1 - x_k)
-    dA = slope[None, :] * (directions[:, k + 1] - directions[:, k])    # (D, scaled)
-    r_rows, r_cols = rows[system.scaled], cols[system.scaled]
+    # every scaled entry of a continuity row belongs to that row's joint k, so dA y = u_r (dx_k+1 - dx_k) with
+    # u = S y, S the entries' d val / d(x_k+1 - x_k) = p val
+    scaled = system.scaled
+    slope = csr_matrix((vals[scaled] * system.power[scaled], (rows[scaled], cols[scaled])), shape=(n_rows, n_rows))
+    u = slope @ y
+    joint_rows, first = np.unique(rows[scaled], return_index=True)
+    k = system.joint[scaled][first]
     n_dir = directions.shape[0]
-    gather = csr_matrix((np.ones(r_rows.size), (r_rows, np.arange(r_rows.size))), shape=(n_rows, r_rows.size))
-    rhs = gather @ (-dA.T[:, :, None] * y[r_cols][:, None, :]).reshape(r_rows.size, n_dir * 3)
-    dy, _ = dgbtrs(lu, lower, upper, rhs, pivots)
+    rhs = np.zeros((n_rows, n_dir, 3))
+    rhs[joint_rows] = -(directions[:, k + 1] - directions[:, k]).T[:, :, None] * u[joint_rows][:, None, :]
+    dy, _ = dgbtrs(lu, lower, upper, rhs.reshape(n_rows, n_dir * 3), pivots)
     n = 2 * system.r
     s = np.asarray(s, dtype=float)
     y = y.reshape(system.m, n, 3)
     dy = dy.reshape(system.m, n, n_dir, 3)
-    values, moved = [], [[] for _ in range(n_dir)]
+    values, changes = [], []
+    y_rows = y.transpose(0, 2, 1)                 # (m, 3, n): a matrix product with each derivative's basis
+    dy_rows = dy.transpose(2, 0, 3, 1)            # (D, m, 3, n)
     for q in (2, 3, 4):
         if q >= n:
             basis = np.zeros((n, s.size))
@@ -257,52 +287,128 @@ def _derivative_directions(system, points, T, directions, s):
             basis = np.zeros((n, s.size))
             basis[q:] = derivative_factors(n, q)[:, None] * s[None, :] ** np.arange(n - q)[:, None]
         scale = T[:, None, None] ** -q
-        value = np.einsum('mka,ks->mas', y, basis) * scale
-        change = np.einsum('mkda,ks->dmas', dy, basis) * scale[None]
+        value = (y_rows @ basis) * scale
+        change = (dy_rows @ basis) * scale[None]
         values.append(value)
-        for d in range(n_dir):
-            moved[d].append(change[d] - q * directions[d][:, None, None] * value)
-    return tuple(values), moved
+        changes.append(change - q * directions[:, :, None, None] * value[None])
+    return tuple(values), tuple(changes)
 
 
-def _row_spans(J):
-    """Each row's first and last column of a CSR matrix (m and -1 for a row without entries, which then fits
-    every window). reduceat's last row runs to the end of the array, so each ends in a sentinel that neither
-    reduction picks."""
-    m = J.shape[1]
-    empty = np.diff(J.indptr) == 0
-    starts = J.indptr[:-1]
-    first = np.where(empty, m, np.minimum.reduceat(np.append(J.indices, m), starts))
-    last = np.where(empty, -1, np.maximum.reduceat(np.append(J.indices, -1), starts))
-    return first, last
+class BandRows:
+    """A sparse matrix whose row r is nonzero only in the 2 BAND + 1 columns segment_r - BAND ..
+    segment_r + BAND: band (R, 2 BAND + 1) holds them (0 where a column falls outside 0..m-1). Products by
+    CSR, and the normal matrix J^T diag(w) J in LAPACK's upper banded storage (bandwidth 2 BAND) as one sparse
+    product with w."""
+
+    def __init__(self, band, segment, m):
+        self.band, self.segment, self.m = band, segment, m
+        self._columns = np.clip(segment[:, None] - BAND + np.arange(band.shape[1]), 0, m - 1)
+
+    @property
+    def shape(self):
+        return self.band.shape[0], self.m
+
+    def __getitem__(self, rows):
+        return BandRows(self.band[rows], self.segment[rows], self.m)
+
+    def toarray(self):
+        return self.csr().toarray()
+
+    def abs_row_sums(self):
+        return np.abs(self.band).sum(axis=1)
+
+    def csr(self):
+        """J as CSR: every row its 2 BAND + 1 entries (those outside 0..m-1 are 0 at a clipped column)."""
+        from scipy.sparse import csr_matrix
+
+        rows, width = self.band.shape
+        return csr_matrix((self.band.ravel(), self._columns.ravel(), np.arange(0, rows * width + 1, width)),
+                          shape=self.shape)
+
+    def normal_operator(self):
+        """S with S w = J^T diag(w) J in upper banded storage (2 BAND + 1, m), flattened: entry
+        N[c, c + k] = sum_r w_r J_rc J_r(c+k) sits at ab[2 BAND - k, c + k] (scipy's cholesky_banded).
+        Built as the CSR of S^T (row r: the products of row r's pairs of entries; a pair reaching outside
+        0..m-1 holds a 0 of the band, at a clipped index), used transposed."""
+        from scipy.sparse import csr_matrix
+
+        rows, width = self.band.shape
+        p, k = np.nonzero(np.arange(width)[:, None] + np.arange(width)[None, :] < width)   # column pairs (p, p + k)
+        offset = (width - 1 - k) * self.m - BAND + p + k
+        flat = np.clip(self.segment[:, None] + offset[None, :], 0, width * self.m - 1)
+        return csr_matrix(((self.band[:, p] * self.band[:, p + k]).ravel(), flat.ravel(),
+                           np.arange(0, rows * p.size + 1, p.size)), shape=(rows, width * self.m)).T
 
 
 def _lp_step(T, J, g, trust):
-    """The step d: min sum_j T_j d_j s.t. g + J d <= 0, |d_j| <= trust (HiGHS), or None if it fails.
+    """The step d: min sum_j T_j d_j s.t. g + J d <= 0, |d_j| <= trust, or None when no such d is found.
 
-    J is banded, so a long plan is cut into blocks of LP_BLOCK segments, each solved with LP_OVERLAP segments
-    either side (rows entirely inside that window, the rest of d held at 0) and keeping its own block's part:
-    the cost stays linear in the segments where one programme over all of them grows faster. d = 0 is feasible
-    in every window (the current plan is), so each has a solution; the joined step is then judged like any other.
-    """
-    from scipy.optimize import linprog
+    Mehrotra's predictor-corrector interior-point method on A d <= H with A = [J; -I; I], H = [-g; trust;
+    trust]: slacks y = H - A d and multipliers z (both > 0), residuals r_p = A d + y - H, r_d = T + A^T z.
+    J is banded (BandRows), so each Newton system A^T diag(z / y) A dd = -r_d - A^T ((z r_p - r_c) / y) is a
+    banded Cholesky of bandwidth 2 BAND, O(m BAND^2) however many rows. Stops when the residuals and the gap
+    y.z are below LP_TOLERANCE of the problem's scale; None at once when a row lies beyond the box's reach,
+    or when the gap grows DIVERGED-fold (rows that contradict each other: the multipliers grow unbounded)."""
+    from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 
-    m = T.size
-    if m <= LP_BLOCK + 2 * LP_OVERLAP:
-        res = linprog(T, A_ub=J, b_ub=-g, bounds=(-trust, trust), method='highs', options={'presolve': False})
-        return res.x if res.status == 0 else None
-    first, last = _row_spans(J)
+    rows, m = J.shape
+    if np.any(g - trust * J.abs_row_sums() > 0.0):     # a row that no d in the box brings inside
+        return None
+    csr, normal = J.csr(), J.normal_operator()
+    csr_t = csr.T
+
+    def a_dot(d):
+        return np.concatenate([csr @ d, -d, d])
+
+    def a_transpose_dot(z):
+        return csr_t @ z[:rows] - z[rows:rows + m] + z[rows + m:]
+
+    def newton(factor, r_dual, r_primal, r_comp):
+        """(dd, dy, dz) of the Newton step with complementarity residual r_comp (of y z)."""
+        dd = cho_solve_banded((factor, False), -r_dual - a_transpose_dot((z * r_primal - r_comp) / y),
+                              check_finite=False)
+        dy = -r_primal - a_dot(dd)
+        return dd, dy, (-r_comp - z * dy) / y
+
+    H = np.concatenate([-g, np.full(2 * m, trust)])
+    cost_scale = float(np.abs(T).max())
     d = np.zeros(m)
-    for start in range(0, m, LP_BLOCK):
-        stop = min(start + LP_BLOCK, m)
-        lo, hi = max(0, start - LP_OVERLAP), min(m, stop + LP_OVERLAP)
-        inside = np.nonzero((first >= lo) & (last < hi))[0]
-        res = linprog(T[lo:hi], A_ub=J[inside][:, lo:hi], b_ub=-g[inside], bounds=(-trust, trust), method='highs',
-                      options={'presolve': False})
-        if res.status != 0:
+    y = np.maximum(H, 0.0) + 0.1 * trust + 1e-3
+    z = np.concatenate([np.zeros(rows), np.maximum(T, 0.0), np.maximum(-T, 0.0)]) + 0.1 * cost_scale
+    primal_scale, dual_scale = 1.0 + float(np.abs(H).max()), 1.0 + cost_scale
+    start_gap = None
+    for _ in range(LP_ITERATIONS):
+        r_dual = T + a_transpose_dot(z)
+        r_primal = a_dot(d) + y - H
+        gap = float(np.sum(y * z))     # sums, not BLAS dots: OpenBLAS threads a long dot (CPU for nothing)
+        start_gap = start_gap or gap
+        if not gap < DIVERGED * start_gap:     # the multipliers grow without bound: no d meets every row
             return None
-        d[start:stop] = res.x[start - lo:stop - lo]
-    return d
+        if (np.abs(r_primal).max() <= LP_TOLERANCE * primal_scale and np.abs(r_dual).max() <= LP_TOLERANCE * dual_scale
+                and gap <= LP_TOLERANCE * (1.0 + abs(float(np.sum(T * d))))):
+            return d
+        w = z / y
+        ab = (normal @ w[:rows]).reshape(2 * BAND + 1, m)
+        ab[-1] += w[rows:rows + m] + w[rows + m:]
+        try:
+            factor = cholesky_banded(ab, lower=False, check_finite=False)
+        except LinAlgError:
+            return None
+        # predictor: the affine step; its gap sets the centring target sigma mu with sigma = (gap_affine / gap)^3
+        dd, dy, dz = newton(factor, r_dual, r_primal, y * z)
+        primal, dual = _longest(y, dy), _longest(z, dz)
+        target = (float(np.sum((y + primal * dy) * (z + dual * dz))) / gap) ** 3 * gap / y.size
+        # corrector: centred, with the predictor's second-order term
+        dd, dy, dz = newton(factor, r_dual, r_primal, y * z + dy * dz - target)
+        primal, dual = 0.995 * _longest(y, dy), 0.995 * _longest(z, dz)
+        d, y, z = d + primal * dd, y + primal * dy, z + dual * dz
+    return None
+
+
+def _longest(x, dx):
+    """The longest step a <= 1 along dx that keeps x (> 0) non-negative: a <= x_i / -dx_i where dx_i < 0."""
+    shrink = float(np.max(-dx / x))
+    return 1.0 if shrink <= 1.0 else 1.0 / shrink
 
 
 def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=DEFAULT_MARGIN, start_shapes=None,
@@ -327,38 +433,48 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
             if best is None or candidate.sum() < best.sum():
                 best = candidate
             T = T * constraints.segment_scales(trajectory)
+    # the iterate T may sit slightly outside the limits (a step is kept for its scaled total, and the next
+    # programme pulls its rows back inside); best is the shortest plan scaled to them so far, merit its total
     T = best
+    merit = float(best.sum())
     trust = FIRST_TRUST
-    J = None
+    J = derivatives = None
     for iteration in range(MAX_ITERATIONS):
         if trust < MIN_TRUST:
             break
         near = min(NEAR * trust, 1.0)
         if J is None:   # kept while steps from the same point are refused
-            J, g = _linearised_constraints(system, points, np.log(T), constraints, near)
+            if derivatives is None:
+                derivatives = _derivative_directions(system, points, T, _colours(T.size), constraints.s)
+            J, g = _linearised_constraints(system, points, np.log(T), constraints, near, derivatives)
         # a row that no step inside the box can reach (g_r + trust |J_r|_1 <= 0) cannot bind: left out
-        rows = g + trust * np.asarray(abs(J).sum(axis=1)).ravel() > 0.0
+        rows = g + trust * J.abs_row_sums() > 0.0
         d = _lp_step(T, J[rows], g[rows], trust)
         if d is None:
-            trust *= SHRINK
+            if T is not best:      # no step within the radius pulls this iterate inside: back to the best
+                derivatives = _scaled_derivatives(derivatives, merit / float(T.sum()))   # best is T scaled
+                T, J = best, None
+            else:
+                trust *= SHRINK
             continue
-        predicted = -float(T @ d)        # the time the linearised step saves
-        if predicted < STALL_GAIN * T.sum():
+        predicted = merit - float(T @ (1.0 + d))        # the time the linearised step saves
+        if predicted < STALL_GAIN * merit:
             break
         shape = T * np.exp(d)
         candidate = shape * constraints.feasible_scale(solve(shape))
-        actual = T.sum() - candidate.sum()
+        actual = merit - float(candidate.sum())
         if log is not None:
-            log(f'fastest: step {iteration}: trust {trust:.3g}, {T.sum():.4f} s -> {candidate.sum():.4f} s '
-                f'(predicted {T.sum() - predicted:.4f} s)')
+            log(f'fastest: step {iteration}: trust {trust:.3g}, {merit:.4f} s -> {candidate.sum():.4f} s '
+                f'(predicted {merit - predicted:.4f} s)')
         ratio = actual / predicted
-        if ratio > 0.0:
-            T, J = candidate, None
         # the usual trust-region update on how well the linear model predicted the gain
         step = float(np.abs(d).max())
         if ratio < 0.25:
             trust = SHRINK * step
         elif ratio > GROW_RATIO and step > 0.99 * trust:
             trust = min(GROW * trust, 1.0)
+        if ratio > 0.0:
+            T, J, derivatives, best, merit = shape, None, None, candidate, float(candidate.sum())
+    T = best
     # the search samples LOOP_SAMPLES points a segment; the plan is checked (and flown) at feasibility.py's
     return T * Constraints(vehicle, margin).feasible_scale(solve(T))

@@ -161,13 +161,77 @@ def test_the_analytic_jacobian_matches_finite_differences_of_full_solves(crazyfl
     np.testing.assert_allclose(J.toarray(), numeric, rtol=0, atol=1e-5 * np.abs(numeric).max())
 
 
-def test_row_spans_of_the_lp_windows():
-    """First and last column of each row, empty rows included, and the last row not reading past its end."""
-    from scipy.sparse import csr_matrix
+def test_the_derivatives_at_uniformly_scaled_times_are_the_scaled_derivatives(crazyflie):
+    """The search falls back to its best plan, the iterate scaled by k: the spline's system depends on the
+    times' ratios only, so the derivatives there (and their changes along every direction) are those at the
+    iterate divided by k^q, without a new factorisation."""
+    from quad_trajectory import fastest, solver
+
+    points = np.array([[0, 0, 1, 0], [1.0, 0.3, 1.2, 0], [1.8, 1.2, 1.0, 0], [1.2, 2.0, 1.4, 0], [0.2, 2.4, 1.1, 0]])
+    system = solver.System(len(points) - 1, solver.ORDERS['minsnap'], 'continuity')
+    T = timing.sqrt_allocation(points, 1.0)
+    s = np.linspace(0.0, 1.0, 7)
+    at = fastest._derivative_directions(system, points, T, fastest._colours(T.size), s)
+    there = fastest._derivative_directions(system, points, 1.7 * T, fastest._colours(T.size), s)
+    for ours, direct in zip(fastest._scaled_derivatives(at, 1.7), there):
+        for a, b in zip(ours, direct):
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * np.abs(b).max())
+
+
+def _random_band_rows(rng, rows, m):
+    from quad_trajectory import fastest
+
+    segment = rng.integers(0, m, rows)
+    band = rng.normal(size=(rows, 2 * fastest.BAND + 1))
+    columns = segment[:, None] - fastest.BAND + np.arange(2 * fastest.BAND + 1)
+    band[(columns < 0) | (columns >= m)] = 0.0
+    return fastest.BandRows(band, segment, m), columns, band
+
+
+def test_band_rows_products_and_normal_matrix_match_the_dense_matrix():
+    """BandRows (each row nonzero only within BAND of its segment) against the dense matrix written out here,
+    the first and last segments' rows included (their bands reach outside the plan)."""
+    from quad_trajectory import fastest
+
+    rng = np.random.default_rng(3)
+    m = 14
+    J, columns, band = _random_band_rows(rng, 60, m)
+    dense = np.zeros((60, m))
+    for r in range(60):
+        for c, value in zip(columns[r], band[r]):
+            if 0 <= c < m:
+                dense[r, c] = value
+    np.testing.assert_allclose(J.toarray(), dense, atol=0)
+    d, y, w = rng.normal(size=m), rng.normal(size=60), rng.uniform(0.1, 2.0, 60)
+    np.testing.assert_allclose(J.csr() @ d, dense @ d, rtol=1e-12)
+    np.testing.assert_allclose(J.csr().T @ y, dense.T @ y, rtol=1e-12)
+    np.testing.assert_allclose(J.abs_row_sums(), np.abs(dense).sum(axis=1), rtol=1e-12)
+    normal = dense.T @ (w[:, None] * dense)
+    ab = (J.normal_operator() @ w).reshape(2 * fastest.BAND + 1, m)
+    for k in range(2 * fastest.BAND + 1):        # upper banded storage: ab[2 BAND - k, c + k] = N[c, c + k]
+        np.testing.assert_allclose(ab[2 * fastest.BAND - k, k:], np.diagonal(normal, k), rtol=1e-12, atol=1e-12)
+
+
+def test_the_interior_point_step_solves_the_programme_and_refuses_an_impossible_one():
+    """The step's programme (min T.d s.t. g + J d <= 0, |d| <= trust) against scipy's HiGHS on the same
+    rows, from a point inside (g < 0) and from one outside that the box can bring back (some g > 0)."""
+    from scipy.optimize import linprog
 
     from quad_trajectory import fastest
 
-    dense = np.array([[0, 1.0, 2, 0, 0], [0, 0, 0, 0, 0], [0, 0, 0, 3, 4], [0, 0, 0, 0, 0], [0, 0, 5, 6, 0]])
-    first, last = fastest._row_spans(csr_matrix(dense))
-    np.testing.assert_array_equal(first, [1, 5, 3, 5, 2])
-    np.testing.assert_array_equal(last, [2, -1, 4, -1, 3])
+    rng = np.random.default_rng(5)
+    m = 40
+    J, _, _ = _random_band_rows(rng, 300, m)
+    T = rng.uniform(0.2, 1.5, m)
+    for g in (-rng.uniform(0.01, 0.5, 300), rng.uniform(-0.5, 0.02, 300)):
+        d = fastest._lp_step(T, J, g, 0.1)
+        highs = linprog(T, A_ub=J.toarray(), b_ub=-g, bounds=(-0.1, 0.1), method='highs')
+        assert highs.status == 0 and d is not None
+        assert float(T @ d) == pytest.approx(highs.fun, rel=1e-5, abs=1e-7)
+        assert (g + J.csr() @ d).max() < 1e-6 and np.abs(d).max() <= 0.1 + 1e-9
+    # a row past its limit that no step inside the box reaches, and a pair of rows that contradict each other
+    g = -np.ones(300)
+    g[7] = 0.2 * np.abs(J.band[7]).sum()
+    assert fastest._lp_step(T, J, g, 0.1) is None
+    two = fastest.BandRows(np.vstack([J.band[0], -J.band[0]]), J.segment[[0, 0]], m)
+    assert fastest._lp_step(T, two, np.array([0.05, 0.05]) * np.abs(J.band[0]).sum(), 0.1) is None
