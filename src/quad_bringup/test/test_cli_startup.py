@@ -77,11 +77,13 @@ OPTION_REFUSALS = {
     'arm-bad-timeout': ('arm', '--timeout-s', '-1'),
     'land-off': ('land', '--off'),
 }
-# numpy, nothing heavier: refused for what a mission file holds (the mission's own checks), or by a module that
-# imports numpy at its top (tune's)
+# numpy, nothing heavier: refused for what an input file holds (the mission's or the disturbance profile's own
+# checks), or by a module that imports numpy at its top (tune's)
 NUMPY_ONLY_REFUSALS = {
     'plan-bad-waypoint': (('plan', 'bad.yaml'), "waypoints[1] = [1.0, 0.0, 'up']"),
     'fly-bad-waypoint': (('fly', 'bad.yaml'), "waypoints[1] = [1.0, 0.0, 'up']"),
+    'fly-bad-disturbances': (('fly', 'm.yaml', '--disturbances', 'nope'), "disturbances = 'nope': no such profile"),
+    'fleet-not-a-fleet': (('fleet', 'm.yaml'), 'not a fleet mission'),
     'tune-missing-spec': (('tune', 'missing.yaml'), 'tune refused: spec missing.yaml: file not found'),
 }
 
@@ -115,7 +117,7 @@ def test_an_option_or_missing_file_refusal_imports_nothing_heavy(inputs, argv):
 
 
 @pytest.mark.parametrize(('argv', 'said'), NUMPY_ONLY_REFUSALS.values(), ids=NUMPY_ONLY_REFUSALS.keys())
-def test_a_mission_content_refusal_imports_numpy_only(inputs, argv, said):
+def test_a_file_content_refusal_imports_numpy_only(inputs, argv, said):
     before = sorted(inputs.iterdir())
     code, lines, modules = refused(inputs, *argv)
     assert code == 2 and len(lines) == 1 and said in lines[0], lines
