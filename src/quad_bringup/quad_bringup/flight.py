@@ -45,7 +45,6 @@ from quad_bringup.flight_options import (
 from quad_common import contract
 from quad_common.domains import isolated_domain
 from quad_common.params import parameters_of
-from quad_control.parameters import NODE_NAME as CONTROLLER_NODE
 
 EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -158,10 +157,11 @@ def _fly(options: FlightOptions, log) -> FlightResult:
 
 def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock, log) -> FlightResult:
     """_fly once the run directory is this fly's."""
-    # here, not at the top: a refusal before start-up does not wait for rclpy, rosbags and the report's imports
+    # here, not at the top: a refusal before start-up does not wait for numpy, rclpy, rosbags and the report's imports
     from quad_bringup.recorder import DEFAULT_TOPICS
     from quad_bringup.report import load_flight, record_summary, write_report
     from quad_common.domain_probe import foreign_nodes
+    from quad_control.parameters import NODE_NAME as CONTROLLER_NODE
 
     clock.mark('validated, run directory made')
     if plan_overrides(options):

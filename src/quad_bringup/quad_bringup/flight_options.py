@@ -11,9 +11,9 @@ from pathlib import Path
 import yaml
 
 from quad_bringup import graph
+from quad_bringup.completion import Completion
 from quad_bringup.inputs import check_inputs
 from quad_bringup.limits import refusal
-from quad_bringup.metrics import Completion
 from quad_common.paths import REPO_ROOT
 from quad_common.yaml_io import load_yaml
 from quad_trajectory.timing import ALLOCATIONS as TIME_ALLOCATIONS
@@ -51,17 +51,12 @@ class FlightOptions:
 def validate(options: FlightOptions):
     """Loads and plans the mission with quad_trajectory (so a bad one is refused before anything starts).
 
-    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem.
+    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem. The checks that need no numpy
+    (option values, files that are not there) come first: such a refusal imports no controller and no planner.
     """
-    from quad_control.plugins import refusal as controller_refusal
-    from quad_trajectory import mission as mission_module
-
     if options.time_allocation is not None and options.time_allocation not in TIME_ALLOCATIONS:
         raise MissionRefused(f'--time-allocation {options.time_allocation!r} refused: must be one of '
                              f'{", ".join(TIME_ALLOCATIONS)}')
-    if (reason := controller_refusal(options.controller)) is not None:
-        name = options.controller
-        raise MissionRefused(reason.replace(f'controller = {name!r}', f'--controller {name!r}', 1))
     for key, value in OPTION_VALUES(options):
         if reason := refusal(key, value):
             raise MissionRefused(reason)
@@ -71,6 +66,11 @@ def validate(options: FlightOptions):
     for name, value in (('--vehicle', options.vehicle), ('--control-profile', options.control_profile)):
         if value is not None and not Path(value).is_file():
             raise MissionRefused(f'{name} {value}: no such file')
+    from quad_control.plugins import refusal as controller_refusal
+
+    if (reason := controller_refusal(options.controller)) is not None:
+        name = options.controller
+        raise MissionRefused(reason.replace(f'controller = {name!r}', f'--controller {name!r}', 1))
     try:
         check_inputs(options)   # the control profile, the disturbance profile
     except ValueError as exc:
@@ -83,6 +83,8 @@ def validate(options: FlightOptions):
             raise MissionRefused(f'--plant {options.plant!r} refused: {exc}') from None
         if options.plant not in family:
             raise MissionRefused(f'--plant {options.plant!r} refused: must be one of {", ".join(family)}')
+    from quad_trajectory import mission as mission_module
+
     try:
         mission = mission_module.load_mission(path)
         mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))

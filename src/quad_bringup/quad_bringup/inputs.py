@@ -1,7 +1,8 @@
 """fly's input files checked before anything starts: the control profile (quad_bringup.profiles) and the
 disturbance profile name in the file sim_node will read it from (config/disturbances.yaml, or the
 `disturbances_file` a sweep writes for its spec's profiles), which the graph's nodes would otherwise refuse only
-after the start (a run directory and an empty bag left, or the defaults flown with exit 0)."""
+after the start (a run directory and an empty bag left, or the defaults flown with exit 0); and a bag that is not
+there, which every bag reader refuses first (pure Python: a command says it before importing the readers)."""
 
 
 def check_inputs(options):
@@ -33,3 +34,11 @@ def same_file(a, b) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return a.resolve() == b.resolve()
+
+
+def check_bag_dir(bag_dir):
+    """Raises FileNotFoundError when bag_dir is not a directory (a rosbag2 bag is one)."""
+    import os
+
+    if not os.path.isdir(bag_dir):
+        raise FileNotFoundError(f'bag {bag_dir}: no such directory')

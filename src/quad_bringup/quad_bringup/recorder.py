@@ -266,9 +266,10 @@ def _write_metadata(bag_dir: Path, mcap: Path):
 def open_bag_reader(bag_dir) -> tuple[Reader, Repair | None]:
     """(an opened rosbags Reader, None), or for a bag left by a killed recorder (a reader of its repaired copy,
     the Repair saying where it was cut and where the copy is). The input is never modified."""
+    from quad_bringup.inputs import check_bag_dir
+
     bag_dir = Path(bag_dir)
-    if not bag_dir.is_dir():
-        raise FileNotFoundError(f'bag {bag_dir}: no such directory')
+    check_bag_dir(bag_dir)
     repair = None
     if needs_repair(bag_dir):
         repair = repaired_copy(bag_dir)

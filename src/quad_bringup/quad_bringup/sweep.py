@@ -4,6 +4,8 @@ disturbances x seeds, as a grid or a random sample of it (docs/quad_bringup.md "
 Output directory: runs.jsonl (one row per run, appended as each finishes: the resume key and the source of the
 other files), runs.csv (the same rows flat), summary.csv/.md (per configuration over its seeds: median, p95 and
 worst RMSE, failures) and figures/ (RMSE distribution per controller, error vs wind speed).
+
+numpy is imported by the functions that use it: a spec refused for its file says so without it.
 """
 
 import csv
@@ -12,7 +14,6 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from quad_bringup import runs
@@ -28,6 +29,8 @@ def load_spec(path) -> dict:
         spec = load_yaml(path)
     except (OSError, yaml.YAMLError) as exc:
         raise SpecError(f'spec {path}: {exc}') from None
+    except ValueError as exc:   # load_yaml's: it names the file (not there, not YAML, not a mapping)
+        raise SpecError(f'spec {exc}') from None
     if not isinstance(spec, dict):
         raise SpecError(f'spec {path}: must be a mapping (missions, controllers, vehicles, disturbances, seeds)')
     return spec
@@ -66,6 +69,8 @@ def expand(spec: dict, mode: str = 'offline', where: str = 'spec') -> list[dict]
         seed = spec.get('seed', 0)
         if not isinstance(seed, int) or isinstance(seed, bool):
             raise SpecError(f'seed = {seed!r} must be an integer')
+        import numpy as np
+
         rng = np.random.default_rng(seed)
         grid = [grid[i] for i in sorted(rng.choice(len(grid), size=min(n, len(grid)), replace=False))]
     elif sample != 'grid':
@@ -164,6 +169,8 @@ def _worker_failure(params, exc) -> dict:
 # --- summary and figures --------------------------------------------------------------------------------------
 
 def _stats(values):
+    import numpy as np
+
     values = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
     if not len(values):
         return None, None, None
@@ -228,6 +235,7 @@ def draw_figures(out_dir, rows: list[dict]) -> list[Path]:
     """figures/rmse_by_controller.png (box per controller over every run; failures counted in the label) and
     figures/error_vs_wind.png (RMSE against |wind| per controller)."""
     import matplotlib
+    import numpy as np
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 

@@ -3,6 +3,7 @@ no scipy, matplotlib or numba (each costs seconds on a loaded machine), and the 
 all. A behaviour, not a timing: each page is drawn in a fresh interpreter and its sys.modules read."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -47,3 +48,78 @@ def test_a_fly_refused_before_start_up_imports_no_ros_client_and_no_bag_library(
     they come with the start-up of the graph."""
     modules = imported_by(*argv)
     assert not modules & {'rclpy', 'matplotlib', 'numba', 'rosbags'}, sorted(modules & {'rclpy', 'rosbags'})
+
+
+REFUSAL_PROBE = """
+import json, sys
+from quad_bringup import cli
+code = cli.main(sys.argv[1:])
+print(json.dumps({'code': code, 'modules': sorted(sys.modules)}), file=sys.stderr)
+"""
+MISSION = 'name: tiny\nwaypoints:\n  - [0.0, 0.0, 1.0]\n  - [1.0, 0.0, 1.0]\n'
+BAD_WAYPOINT = 'name: tiny\nwaypoints:\n  - [0.0, 0.0, 1.0]\n  - [1.0, 0.0, up]\n'
+# refused on the command line or for a file that is not there: nothing heavy, numpy included
+OPTION_REFUSALS = {
+    'plan-missing-file': ('plan', 'missing.yaml'),
+    'plan-bad-speed': ('plan', 'm.yaml', '--speed', '-1'),
+    'plan-csv-without-out': ('plan', 'm.yaml', '--csv', '10'),
+    'fly-missing-file': ('fly', 'missing.yaml'),
+    'fly-bad-speed': ('fly', 'm.yaml', '--speed', '-1'),
+    'fly-missing-vehicle': ('fly', 'm.yaml', '--vehicle', 'missing.yaml'),
+    'fleet-missing-file': ('fleet', 'missing.yaml'),
+    'report-missing-bag': ('report', 'no_bag'),
+    'report-bad-settle': ('report', 'no_bag', '--settle', '-1'),
+    'identify-missing-bag': ('identify', 'no_bag'),
+    'identify-bad-latency': ('identify', 'no_bag', '--latency-s', '5'),
+    'replay-no-model': ('replay', 'no_bag'),
+    'replay-missing-bag': ('replay', 'no_bag', '--vehicle', 'm.yaml'),
+    'sweep-missing-spec': ('sweep', 'missing.yaml'),
+    'arm-bad-timeout': ('arm', '--timeout-s', '-1'),
+    'land-off': ('land', '--off'),
+}
+# numpy, nothing heavier: refused for what an input file holds (the mission's or the disturbance profile's own
+# checks), or by a module that imports numpy at its top (tune's)
+NUMPY_ONLY_REFUSALS = {
+    'plan-bad-waypoint': (('plan', 'bad.yaml'), "waypoints[1] = [1.0, 0.0, 'up']"),
+    'fly-bad-waypoint': (('fly', 'bad.yaml'), "waypoints[1] = [1.0, 0.0, 'up']"),
+    'fly-bad-disturbances': (('fly', 'm.yaml', '--disturbances', 'nope'), "disturbances = 'nope': no such profile"),
+    'fleet-not-a-fleet': (('fleet', 'm.yaml'), 'not a fleet mission'),
+    'tune-missing-spec': (('tune', 'missing.yaml'), 'tune refused: spec missing.yaml: file not found'),
+}
+
+
+def refused(tmp_path, *argv) -> tuple[int, list[str], set[str]]:
+    """(exit code, stderr lines, top-level modules imported) of `quadflight ARGV` in a fresh interpreter."""
+    env = {k: v for k, v in os.environ.items() if k != 'ROS_DOMAIN_ID'}
+    done = subprocess.run([sys.executable, '-c', REFUSAL_PROBE, *argv], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path, env=env)
+    lines = done.stderr.strip().splitlines()
+    assert lines, done.stdout
+    result = json.loads(lines[-1])
+    return result['code'], lines[:-1], {name.partition('.')[0] for name in result['modules']}
+
+
+@pytest.fixture
+def inputs(tmp_path):
+    (tmp_path / 'm.yaml').write_text(MISSION)
+    (tmp_path / 'bad.yaml').write_text(BAD_WAYPOINT)
+    return tmp_path
+
+
+@pytest.mark.parametrize('argv', OPTION_REFUSALS.values(), ids=OPTION_REFUSALS.keys())
+def test_an_option_or_missing_file_refusal_imports_nothing_heavy(inputs, argv):
+    """Checked before numpy, scipy, rclpy, matplotlib and rosbags are imported: one line, exit 2, nothing left."""
+    before = sorted(inputs.iterdir())
+    code, lines, modules = refused(inputs, *argv)
+    assert code == 2 and len(lines) == 1, lines
+    assert not modules & set(HEAVY + ('numpy', 'rosbags')), sorted(modules & set(HEAVY + ('numpy', 'rosbags')))
+    assert sorted(inputs.iterdir()) == before
+
+
+@pytest.mark.parametrize(('argv', 'said'), NUMPY_ONLY_REFUSALS.values(), ids=NUMPY_ONLY_REFUSALS.keys())
+def test_a_file_content_refusal_imports_numpy_only(inputs, argv, said):
+    before = sorted(inputs.iterdir())
+    code, lines, modules = refused(inputs, *argv)
+    assert code == 2 and len(lines) == 1 and said in lines[0], lines
+    assert not modules & set(HEAVY + ('rosbags',)), sorted(modules & set(HEAVY + ('rosbags',)))
+    assert sorted(inputs.iterdir()) == before

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_common.yaml_io import load_yaml
-from quad_sim.rigid_body import Aerodynamics
 
 NOISE_KEYS = ('position_std_m', 'velocity_std_mps', 'attitude_std_rad', 'body_rates_std_radps')
 PROFILE_KEYS = ('body_drag', 'rotor_drag', 'wind_mps', 'gusts', 'odom_noise', 'odom_latency_s')
@@ -47,8 +46,8 @@ class DisturbanceProfile:
     def has_odom_noise(self) -> bool:
         return any(v > 0 for v in self.odom_noise.values())
 
-    def aerodynamics(self, vehicle) -> Aerodynamics:
-        """The vehicle's drag coefficients for the effects this profile switches on."""
+    def aerodynamics(self, vehicle):
+        """The vehicle's drag coefficients for the effects this profile switches on (a rigid_body.Aerodynamics)."""
         return vehicle_aerodynamics(vehicle, body=self.body_drag, rotor=self.rotor_drag)
 
 
@@ -103,8 +102,11 @@ def load_profile(path, name: str) -> DisturbanceProfile:
     return profile_from_dict(profiles[name], name)
 
 
-def vehicle_aerodynamics(vehicle, body=True, rotor=True) -> Aerodynamics:
-    """Drag coefficients from the vehicle file's `aerodynamics:` section (zero where absent)."""
+def vehicle_aerodynamics(vehicle, body=True, rotor=True):
+    """Drag coefficients from the vehicle file's `aerodynamics:` section (zero where absent), a
+    rigid_body.Aerodynamics (imported here: fly checks a profile's name and fields without the compiled dynamics)."""
+    from quad_sim.rigid_body import Aerodynamics
+
     aero = vehicle.extra.get('aerodynamics') or {}
     where = f'{vehicle.name}: aerodynamics'
     body_drag = _nonneg(aero.get('body_drag', [0.0, 0.0, 0.0]), f'{where}.body_drag', 3)

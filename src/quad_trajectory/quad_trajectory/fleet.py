@@ -21,6 +21,7 @@ from quad_common import contract
 from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos
 from quad_trajectory import separation
 from quad_trajectory.mission import Mission, mission_from_dict, plan_mission
+from quad_trajectory.mission_kind import is_fleet, is_fleet_file  # noqa: F401  (re-exported)
 
 FLEET_KEYS = frozenset({'name', 'vehicles', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m',
                         'separation', 'autopilot'})
@@ -73,18 +74,6 @@ class Fleet:
     @property
     def names(self) -> list:
         return [v.name for v in self.vehicles]
-
-
-def is_fleet(data) -> bool:
-    return isinstance(data, dict) and 'vehicles' in data
-
-
-def is_fleet_file(path) -> bool:
-    """True for a YAML mapping with a `vehicles` key (a fleet); False for anything else (left to load_mission)."""
-    try:
-        return is_fleet(load_yaml(os.fspath(path)))
-    except ValueError:
-        return False
 
 
 def _number(where, value, minimum=0.0, integer=False):

@@ -10,6 +10,7 @@ and fleet.png (the paths from above and the fleet's minimum separation over time
 """
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -93,15 +94,19 @@ def write_figure(run, path):
 
 
 def run(args) -> int:
-    import numpy as np
-
-    from quad_bringup.closed_loop import LoopOptions
-    from quad_bringup.commands.fleet_plan import feasible, summary_lines
-    from quad_bringup.fleet_loop import fly_fleet
     from quad_bringup.flight import EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED
-    from quad_trajectory.fleet import load_fleet, plan_fleet
+    from quad_common.yaml_io import load_yaml
     try:
-        fleet = load_fleet(args.mission)
+        data = load_yaml(os.fspath(args.mission))   # a file that is not there: said before the planner is imported
+        from quad_trajectory.fleet import fleet_from_dict, plan_fleet
+
+        fleet = fleet_from_dict(data, os.fspath(args.mission))   # before the simulator and the loop are imported
+        import numpy as np
+
+        from quad_bringup.closed_loop import LoopOptions
+        from quad_bringup.commands.fleet_plan import feasible, summary_lines
+        from quad_bringup.fleet_loop import fly_fleet
+
         overrides = {'time_allocation': args.time_allocation} if args.time_allocation else {}
         plan = plan_fleet(fleet, speed_mps=args.speed, **overrides)
         print('\n'.join(summary_lines(plan)))

@@ -73,7 +73,7 @@ def run_fleet(args) -> int:
 def run(args) -> int:
     from quad_bringup.flight import fly
     from quad_common.paths import resolve_config
-    from quad_trajectory.fleet import is_fleet_file
+    from quad_trajectory.mission_kind import is_fleet_file
 
     try:   # config/missions/... from any working directory, as the README writes it
         args.mission = resolve_config(args.mission)

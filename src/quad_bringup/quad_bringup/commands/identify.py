@@ -108,11 +108,8 @@ def print_fits(result: dict):
 
 
 def run(args) -> int:
-    from rosbags.rosbag2 import ReaderError
-
-    from quad_bringup.identify import model_text, profile_text, quality_refusal, vehicle_model
+    from quad_bringup.inputs import check_bag_dir
     from quad_bringup.limits import MARGIN_LAG, MARGIN_LATENCY, refusal
-    from quad_control.parameters import profile_parameters
 
     bag = Path(args.bag)
     out = args.out or bag.resolve().with_name(bag.resolve().name + '_profile.yaml')
@@ -120,9 +117,19 @@ def run(args) -> int:
     inputs = [('bag', bag), ('--base', args.base), ('--vehicle', args.vehicle)]
     reason = (refusal('latency_s', args.latency_s) if args.latency_s is not None else None) or out_refusal(
         out, inputs) or out_refusal(model_out, inputs + [('--out', out)])
+    if not reason:
+        try:
+            check_bag_dir(bag)   # before the readers and the fits are imported (seconds)
+        except OSError as exc:
+            reason = f'{bag}: {exc}'
     if reason:
         print(f'quadflight identify: {reason}', file=sys.stderr)
         return 2
+    from rosbags.rosbag2 import ReaderError
+
+    from quad_bringup.identify import model_text, profile_text, quality_refusal, vehicle_model
+    from quad_control.parameters import profile_parameters
+
     try:
         checked = check_bag(bag, args.base, args.vehicle, args.latency_s, quality_first=True)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:

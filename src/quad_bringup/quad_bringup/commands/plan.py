@@ -62,9 +62,7 @@ def refuse_overwriting_inputs(outputs, inputs) -> str | None:
 def run(args) -> int:
     from quad_bringup.limits import csv_refusal, refusal
     from quad_common.yaml_io import load_yaml
-    from quad_trajectory.fleet import is_fleet
-    from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
-    from quad_trajectory.planner import allocation_lines
+    from quad_trajectory.mission_kind import is_fleet
 
     if args.csv is not None and args.out is None:
         print('quadflight plan: --csv needs --out (the CSV goes next to it)', file=sys.stderr)
@@ -83,6 +81,9 @@ def run(args) -> int:
         if is_fleet(data):   # a `vehicles:` list: docs/missions.md "Fleets"
             from quad_bringup.commands import fleet_plan
             return fleet_plan.run(args, data)
+        from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
+        from quad_trajectory.planner import allocation_lines
+
         mission = mission_from_dict(data, os.fspath(args.mission))
         reason = refuse_overwriting_inputs([('--out', args.out), ('--csv (next to --out)', csv_path)],
                                            [('mission\'s vehicle file', mission.vehicle_path),

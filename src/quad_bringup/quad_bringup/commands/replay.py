@@ -5,8 +5,6 @@ gains, and its setpoints open loop; prints the RMSEs and writes a figure."""
 import sys
 from pathlib import Path
 
-from rosbags.rosbag2 import ReaderError
-
 from quad_common.paths import input_path
 
 DEFAULT_PROFILE = 'config/control.yaml'
@@ -23,19 +21,33 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from quad_bringup.closed_loop import load_control_profile
-    from quad_bringup.replay import RMSE_GOAL, replay, write_figure
-    from quad_bringup.report import load_flight
+    from quad_bringup.inputs import check_bag_dir
     from quad_common.paths import resolve_config
+
     bag = Path(args.bag).resolve()
     vehicle = args.vehicle or bag.with_name(bag.name + '_vehicle.yaml')
     figure = args.figure or bag.with_name(bag.name + '_replay.png')
+    reason = None
+    if args.vehicle is None and not Path(vehicle).is_file():
+        reason = (f'no vehicle model beside it ({vehicle.name}): quadflight identify {args.bag} writes it, or give '
+                  '--vehicle MODEL.yaml')
+    elif not Path(vehicle).is_file():
+        reason = f'--vehicle {vehicle}: no such file'
+    else:
+        try:
+            check_bag_dir(bag)
+        except OSError as exc:
+            reason = str(exc)
+    if reason:   # before the bag's readers, the simulator and the controller are imported
+        print(f'quadflight replay: {args.bag}: {reason}', file=sys.stderr)
+        return 2
+    from rosbags.rosbag2 import ReaderError
+
+    from quad_bringup.closed_loop import load_control_profile
+    from quad_bringup.replay import RMSE_GOAL, replay, write_figure
+    from quad_bringup.report import load_flight
+
     try:
-        if args.vehicle is None and not Path(vehicle).is_file():
-            raise ValueError(f'no vehicle model beside it ({vehicle.name}): quadflight identify {args.bag} writes '
-                             'it, or give --vehicle MODEL.yaml')
-        if not Path(vehicle).is_file():
-            raise ValueError(f'--vehicle {vehicle}: no such file')
         controller, gains = load_control_profile(args.control_profile or resolve_config(DEFAULT_PROFILE))
         result = replay(load_flight(bag), vehicle, controller, gains)
     except (OSError, ValueError, ReaderError) as exc:

@@ -21,7 +21,7 @@ def add_arguments(parser):
 
 def add_completion_arguments(parser):
     """The completion rule's options (report and fly): each overrides the vehicle's `completion:`."""
-    from quad_bringup.metrics import Completion
+    from quad_bringup.completion import Completion
 
     d = Completion()
     parser.add_argument('--position-tolerance', type=float, metavar='M',
@@ -45,27 +45,30 @@ def default_out(bag: Path) -> Path:
 
 
 def run(args) -> int:
-    from rosbags.rosbag2 import ReaderError
-
-    from quad_bringup.recorder import needs_repair, repaired_copy
-    from quad_bringup.report import Completion, metrics_table, truncation_summary, write_report
+    from quad_bringup.completion import Completion
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else default_out(bag)
     try:
-        from quad_common.vehicle import load_vehicle
+        vehicle = None
+        if args.vehicle:   # quad_common.vehicle imports numpy: only for a vehicle file
+            from quad_common.vehicle import load_vehicle
 
-        rule = Completion.for_vehicle(load_vehicle(args.vehicle) if args.vehicle else None,
-                                      **completion_overrides(args))
+            vehicle = load_vehicle(args.vehicle)
+        rule = Completion.for_vehicle(vehicle, **completion_overrides(args))
     except ValueError as exc:
         print(f'quadflight report: {exc}', file=sys.stderr)
         return 2
-    if bag.is_dir() and needs_repair(bag):  # said first: it holds even if the bag then proves unusable
-        try:
-            print(truncation_summary(repaired_copy(bag).as_dict()), flush=True)
-        except (OSError, ValueError) as exc:
-            print(f'quadflight report: {exc}', file=sys.stderr)
-            return 2
+    if bag.is_dir():   # the bag's readers (rosbags, numpy) only for a bag that is there
+        from quad_bringup.recorder import needs_repair, repaired_copy
+        from quad_bringup.report import truncation_summary
+
+        if needs_repair(bag):  # said first: it holds even if the bag then proves unusable
+            try:
+                print(truncation_summary(repaired_copy(bag).as_dict()), flush=True)
+            except (OSError, ValueError) as exc:
+                print(f'quadflight report: {exc}', file=sys.stderr)
+                return 2
     if not bag.exists():
         print(f'quadflight report: {bag}: no such directory', file=sys.stderr)
         return 2
@@ -87,6 +90,10 @@ def run(args) -> int:
     except OSError as exc:
         print(f'quadflight report: --out {out}: cannot create it ({exc.strerror or exc})', file=sys.stderr)
         return 2
+    from rosbags.rosbag2 import ReaderError
+
+    from quad_bringup.report import metrics_table, write_report
+
     try:
         metrics = write_report(bag, out, extra, rule)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:

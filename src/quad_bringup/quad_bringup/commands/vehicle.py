@@ -26,23 +26,21 @@ def run(args) -> int:
 
     command = args.command
     service, kind, _ = SERVICES[command]
-    from rclpy.validate_namespace import validate_namespace
+    reason = domain_refusal(os.environ)
+    if not reason and not (0.0 < args.timeout_s <= 600.0):
+        reason = f'--timeout-s {args.timeout_s:g} refused: must be > 0 and <= 600 s'
+    if not reason and args.off and kind != 'SetBool':
+        reason = f'--off refused: {command} has no off'
+    if not reason:   # rclpy's rule (rclpy imported: after the checks that need none)
+        from rclpy.validate_namespace import validate_namespace
 
-    reason = domain_refusal(os.environ) or ros_name_refusal(
-        '--namespace', args.namespace, lambda ns: validate_namespace('/' + ns.lstrip('/')))
+        reason = ros_name_refusal('--namespace', args.namespace, lambda ns: validate_namespace('/' + ns.lstrip('/')))
     if reason:
         print(f'quadflight {command}: {reason}', file=sys.stderr)
         return 2
     import rclpy
     from std_srvs.srv import SetBool, Trigger
 
-    if not (0.0 < args.timeout_s <= 600.0):
-        print(f'quadflight {command}: --timeout-s {args.timeout_s:g} refused: must be > 0 and <= 600 s',
-              file=sys.stderr)
-        return 2
-    if args.off and kind != 'SetBool':
-        print(f'quadflight {command}: --off refused: {command} has no off', file=sys.stderr)
-        return 2
     srv_type = SetBool if kind == 'SetBool' else Trigger
     context = rclpy.Context()
     rclpy.init(context=context)
