@@ -29,6 +29,14 @@ def poses_to_path(positions, yaw, stamp, frame_id) -> Path:
     return msg
 
 
+def stamp_all(msg, stamp):
+    """Every header stamp of a message built unstamped (a trajectory, a Path and its poses, a MarkerArray)."""
+    if hasattr(msg, 'header'):
+        msg.header.stamp = stamp
+    for part in (*getattr(msg, 'poses', ()), *getattr(msg, 'markers', ())):
+        part.header.stamp = stamp
+
+
 def path_to_waypoints(msg: Path):
     """(positions (N, 3), yaw (N,) or None). Yaw is None when no pose carries an orientation
     (all quaternions zero, the message default), so the node's yaw setting applies."""

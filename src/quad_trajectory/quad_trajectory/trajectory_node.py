@@ -59,7 +59,8 @@ SPECS = [
     Param('margin', planner.PlanOptions.margin, 'time_allocation fastest: the fraction of each vehicle limit left '
           'unused (tilt, thrust, rotor speed, lag-inclusive tilt)', min=0.0, max=0.9),
     Param('sample_rate_hz', SAMPLE_RATE_HZ, 'rate of the points in `trajectory`', min=100.0, max=10000.0),
-    Param('start_delay_s', 1.0, 'trajectory start = node clock now + this', min=0.0, max=3600.0),
+    Param('start_delay_s', 1.0, 'trajectory start = node clock when the plan is published + this', min=0.0,
+          max=3600.0),
     Param('frame_id', 'map', 'frame of every output'),
     Param('vehicle_file', '', 'vehicle YAML for the limits (over the mission\'s vehicle); empty = the mission\'s, '
           'else config/vehicles/crazyflie.yaml', read_only=True),
@@ -214,16 +215,22 @@ class TrajectoryNode(Node):
             self.last_status = diagnostics.status(DIAG_NAME, diagnostics.WARN, 'planned; waiting for /clock')
             return
         frame = self.params['frame_id']
+        traj = result.trajectory
+        view = traj.evaluate(traj.sample_times(PATH_RATE_HZ))
+        # the messages are built first (a 10,000-point plan takes a while on a busy machine), then stamped, so the
+        # plan starts start_delay_s after it goes out, not after it was planned
+        unstamped = rclpy.time.Time().to_msg()
+        messages_out = [
+            (self.traj_pub, sampled_to_msg(traj.to_sampled(self.params['sample_rate_hz']), unstamped, frame)),
+            (self.path_pub, messages.poses_to_path(view[:, :3], view[:, 3], unstamped, frame)),
+            (self.waypoints_pub, messages.poses_to_path(result.waypoints, result.yaw, unstamped, frame)),
+            (self.markers_pub, messages.plan_markers(result.waypoints, result.world, view[:, :3], unstamped, frame))]
         now = rclpy.time.Time(nanoseconds=self._now_ns(), clock_type=self.get_clock().clock_type)
         delay_s = self.params['start_delay_s'] + self.fleet_delay_s
         start = (now + Duration(nanoseconds=int(delay_s * 1e9))).to_msg()
-        traj = result.trajectory
-        self.traj_pub.publish(sampled_to_msg(traj.to_sampled(self.params['sample_rate_hz']), start, frame))
-        t_view = traj.sample_times(PATH_RATE_HZ)
-        view = traj.evaluate(t_view)
-        self.path_pub.publish(messages.poses_to_path(view[:, :3], view[:, 3], start, frame))
-        self.waypoints_pub.publish(messages.poses_to_path(result.waypoints, result.yaw, start, frame))
-        self.markers_pub.publish(messages.plan_markers(result.waypoints, result.world, view[:, :3], start, frame))
+        for publisher, msg in messages_out:
+            messages.stamp_all(msg, start)
+            publisher.publish(msg)
         s = result.summary()
         self.get_logger().info(
             f'planned {s["segments"]} segments through {s["waypoints"]} waypoints: {s["time_planned_s"]:.2f} s, '

@@ -21,6 +21,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from quad_common import diagnostics
 from quad_common.conversions import msg_to_sampled, stamp_to_s
 from quad_common.testing import ProbeGraph, isolated_domain, probe_graph
+from quad_trajectory import trajectory_node
 from quad_trajectory.mission import DEFAULT_MISSION_PATH, load_mission, plan_mission
 from quad_trajectory.trajectory_node import TrajectoryNode
 
@@ -207,3 +208,26 @@ def test_with_sim_time_the_plan_waits_for_the_first_clock(graph):
     msg = graph.wait_for('trajectory')
     assert stamp_to_s(msg.header.stamp) == pytest.approx(6.0)
     assert node.unpublished is None and node.clock_wait is None
+
+
+def test_the_plan_starts_start_delay_after_it_is_published_however_long_its_message_took(graph, monkeypatch):
+    """On a busy machine building a long plan's message took seconds; a plan stamped before that arrived already
+    started (the controller then joins it mid-way). Here building it takes 1.5 s, the delay is 2 s."""
+    build = trajectory_node.sampled_to_msg
+
+    def slow_build(*args, **kwargs):
+        time.sleep(1.5)   # stands for a starved process, not a synchronisation
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(trajectory_node, 'sampled_to_msg', slow_build)
+    arrivals = []
+    graph.probe.create_subscription(MultiDOFJointTrajectory, 'trajectory',
+                                    lambda m: arrivals.append((time.time(), m)), LATCHED)
+    graph.start(waypoints=FLAT, start_delay_s=2.0)
+    graph.spin_until(lambda: arrivals, 'the trajectory')
+    received_s, msg = arrivals[0]
+    start_s, _ = msg_to_sampled(msg)
+    assert start_s - received_s > 1.5, f'the plan starts {start_s - received_s:.3f} s after it arrived'
+    path, markers = graph.wait_for('trajectory/path'), graph.wait_for('trajectory/markers')
+    assert {(p.header.stamp.sec, p.header.stamp.nanosec) for p in [path, *path.poses, *markers.markers]} == \
+        {(msg.header.stamp.sec, msg.header.stamp.nanosec)}
