@@ -71,7 +71,7 @@ def ros_name_refusal(option: str, name: str, validate) -> str | None:
         validate(name)
     except Exception as exc:   # rclpy's InvalidNamespaceException / InvalidTopicNameException: a caret diagram
         reason = str(exc).splitlines()[0].rstrip(':').partition(': ')[2] or str(exc).splitlines()[0]
-        return f'{option} {name!r} refused: {reason}'
+        return f'{option} {name!r} refused: {reason.split(", at /")[0]}'   # not rcl's source location
     return None
 
 

@@ -301,6 +301,9 @@ def test_ros_names_and_domain_are_refused_in_one_line_before_anything_starts(cap
     code, _, err = _main(capsys, 'record', '--out', out, 'not a topic!')
     assert code == 2 and err.startswith("quadflight record: topic 'not a topic!' refused: topic name must not")
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+    code, _, err = _main(capsys, 'record', '--out', out, 'bad//topic')   # refused only where rcl resolves it
+    assert (code, err) == (2, "quadflight record: topic 'bad//topic' refused: topic name must not contain repeated "
+                              "'/'\n") and not out.exists()
     code, _, err = _main(capsys, 'arm', '--namespace', 'bad ns!', '--timeout-s', '1')
     assert code == 2 and err.startswith("quadflight arm: --namespace 'bad ns!' refused: namespace must not")
     assert len(err.strip().splitlines()) == 1

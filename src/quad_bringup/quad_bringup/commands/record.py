@@ -21,12 +21,16 @@ def run(args) -> int:
     import os
     import sys
 
-    from rclpy.validate_topic_name import validate_topic_name
+    from rclpy.expand_topic_name import expand_topic_name
+    from rclpy.validate_full_topic_name import validate_full_topic_name
 
     from quad_bringup.limits import domain_refusal, ros_name_refusal
 
+    def valid(topic):   # as the recorder's subscription resolves it (rcl refuses e.g. a repeated '/' only there)
+        validate_full_topic_name(expand_topic_name(topic, 'recorder', '/'))
+
     reason = domain_refusal(os.environ) or next(
-        (r for t in args.topics if (r := ros_name_refusal('topic', t, validate_topic_name))), None)
+        (r for t in args.topics if (r := ros_name_refusal('topic', t, valid))), None)
     if reason:   # before the recorder makes --out
         print(f'quadflight record: {reason}', file=sys.stderr)
         return 2
