@@ -27,17 +27,15 @@ class VelocityBlend:
     def __call__(self, stamp_ns: int, state: State, time_constant_s: float) -> State:
         """The state with its velocity blended at tau = time_constant_s (>= 0); an odometry not newer than the
         previous one leaves c as it is."""
-        position, velocity = np.asarray(state.position, dtype=float), np.asarray(state.velocity, dtype=float)
-        newer = self.previous is None or stamp_ns > self.previous[0]
-        if not time_constant_s:
-            self.correction_mps = np.zeros(3)
-        elif newer and self.previous is not None:
-            dt_s = (stamp_ns - self.previous[0]) * 1e-9
-            derivative = (position - self.previous[1]) / dt_s
-            self.correction_mps = self.correction_mps + dt_s / (time_constant_s + dt_s) * (
-                derivative - 0.5 * (velocity + self.previous[2]) - self.correction_mps)
-        if newer:
-            self.previous = (stamp_ns, position.copy(), velocity.copy())
-        if not time_constant_s:
+        if not time_constant_s:   # off: nothing kept, nothing computed on the odometry's path
+            self.previous, self.correction_mps = None, np.zeros(3)
             return state
+        position, velocity = np.asarray(state.position, dtype=float), np.asarray(state.velocity, dtype=float)
+        if self.previous is None or stamp_ns > self.previous[0]:
+            if self.previous is not None:
+                dt_s = (stamp_ns - self.previous[0]) * 1e-9
+                derivative = (position - self.previous[1]) / dt_s
+                self.correction_mps = self.correction_mps + dt_s / (time_constant_s + dt_s) * (
+                    derivative - 0.5 * (velocity + self.previous[2]) - self.correction_mps)
+            self.previous = (stamp_ns, position.copy(), velocity.copy())
         return replace(state, velocity=velocity + self.correction_mps)
