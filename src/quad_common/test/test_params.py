@@ -60,6 +60,9 @@ def test_isolated_domain_gives_children_the_fast_announcing_discovery_profile(mo
     ns = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
     announce = ET.parse(FASTDDS_PROFILE).find('.//p:discovery_config/p:leaseAnnouncement', ns)
     assert int(announce.find('p:sec', ns).text) + int(announce.find('p:nanosec', ns).text) * 1e-9 == 0.2
+    writer = ET.parse(FASTDDS_PROFILE).find('.//p:data_writer[@is_default_profile="true"]', ns)
+    heartbeat = writer.find('p:times/p:heartbeatPeriod', ns)   # a lost sample's recovery (default 3 s)
+    assert int(heartbeat.find('p:sec', ns).text) + int(heartbeat.find('p:nanosec', ns).text) * 1e-9 == 0.05
     with isolated_domain() as (domain, env):
         assert env['ROS_DOMAIN_ID'] == str(domain) and env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
         assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == env['FASTDDS_DEFAULT_PROFILES_FILE'] == FASTDDS_PROFILE
