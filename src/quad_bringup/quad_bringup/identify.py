@@ -16,9 +16,10 @@ measured state), simulated or flown on a real vehicle through the bridge:
   of noisy odometry): dv_z + g dt = k integral(f R_33 dt). The hover thrust is g / k (m/s^2 of commanded
   specific force), the equivalent mass error 1 / k - 1.
 
-Confidence: each estimate is repeated on BLOCKS contiguous parts of the flight; the 95 % interval is the
-whole-flight estimate +- t(0.975, n - 1) s / sqrt(n) over the n parts that had enough excitation (errors in
-neighbouring samples are correlated, so the residuals of one fit would understate it).
+Confidence: each estimate is repeated on BLOCKS contiguous parts of the flight (the lag's: of the span where its
+command moves, see _parts); the 95 % interval is the whole-flight estimate +- t(0.975, n - 1) s / sqrt(n) over the
+n parts that had enough excitation (errors in neighbouring samples are correlated, so the residuals of one fit would
+understate it).
 
 Fits that cannot be right are refused too (quality_refusal): tau at an edge of TAU_RANGE_S or the dead time at
 MAX_DELAY_S (the true lag lies outside what was searched: e.g. the se3 controller's body rates fed forward on a PX4-like
@@ -43,7 +44,9 @@ DT_S = 0.01                  # resampling period (odometry comes at 100 Hz in th
 MAX_DELAY_S = 0.3
 TAU_RANGE_S = (0.005, 2.0)   # the first order's search range (fit_fopdt's bounds)
 BLOCKS = 6
-MIN_PART_S = 1.0             # a part of the lag's interval lasts this long at least
+MIN_PART_S = 2.0             # a part of the lag's interval lasts this long at least: in 1.5 s parts of an emulated
+#   PX4 square one pitch part fitted tau at its 2 s bound (interval -1.2-1.6 s); 2 s parts fit 0.16-0.21 s there
+MIN_LAG_PARTS = 3            # excited parts the lag's interval needs: over 2, t(0.975, 1) = 12.7 makes it useless
 MIN_EXCITATION_RAD = np.deg2rad(0.5)   # command standard deviation a block needs to be fitted
 MIN_BLOCK_EXCITATION_RAD = np.deg2rad(0.75)   # ... and each part of the interval: a part of hover before the
 #   plan or of legs along the other axis fits noise (an emulated PX4 square at 1 m/s: a pitch part of 0.53 deg fit
@@ -76,7 +79,9 @@ class AxisFit:
     lag_ci95_s: tuple         # (low, high)
     bandwidth_hz: float       # 1 / (2 pi tau)
     fit_r2: float             # 1 - RSS / variance of y
-    blocks: int
+    blocks: int               # parts fitted for the interval (those with MIN_BLOCK_EXCITATION_RAD of command)
+    parts: int                # parts the span where the command moves was cut into (_parts)
+    moving_s: float           # that span: first to last sample of the command off its median
 
 
 @dataclass
@@ -200,15 +205,23 @@ def _airborne(flight, t0, t1):
     return t0, t1
 
 
-def _parts(u, y):
-    """The window in parts of 1 / BLOCKS of it, the first starting where the command first moves
-    (MIN_BLOCK_EXCITATION_RAD off its median): a hover before the plan, as long as the user waited, would otherwise
-    make a part that is hover with a little motion at its end, whose fit is a guess (0.28 s where the rest fit
-    0.17-0.19 s)."""
-    n = len(u) // BLOCKS
+def _moving(u):
+    """(first, end) sample indices of the span where the command moves: from the first to the last sample
+    MIN_BLOCK_EXCITATION_RAD or more off its median (the hover attitude where the flight hovers long); (0, 0) where
+    it never does."""
     away = np.flatnonzero(np.abs(u - np.median(u)) >= MIN_BLOCK_EXCITATION_RAD)
-    first = int(away[0]) if len(away) else 0
-    return [(u[k:k + n], y[k:k + n]) for k in range(first, len(u) - n + 1, n)] if n else []
+    return (int(away[0]), int(away[-1]) + 1) if len(away) else (0, 0)
+
+
+def _parts(u, y):
+    """The span where the command moves (_moving) in BLOCKS equal parts, or in as many as leave each MIN_PART_S:
+    hover before or after the plan, however long the user waited, is in no part and changes neither their number nor
+    their length (a part of hover with a little motion at its end fits a guess: 0.28 s where the rest fit 0.17-0.19
+    s; parts cut from the whole window grow with the hover until too few of them move)."""
+    first, end = _moving(u)
+    count = min(BLOCKS, (end - first) // int(round(MIN_PART_S / DT_S)))
+    edges = np.linspace(first, end, count + 1).round().astype(int)
+    return [(u[a:b], y[a:b]) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def identify_attitude(flight, axis: int) -> AxisFit:
@@ -220,14 +233,18 @@ def identify_attitude(flight, axis: int) -> AxisFit:
         raise ValueError(f'the commanded {name} varies by {np.degrees(np.std(u)):.2f} deg (std); identification '
                          f'needs at least {np.degrees(MIN_EXCITATION_RAD):.1f} deg: fly a mission that moves')
     tau, delay, gain, _, rss = fit_fopdt(u, y)
-    parts = []
-    for uu, yy in _parts(u, y):
-        if np.std(uu) >= MIN_BLOCK_EXCITATION_RAD and len(uu) * DT_S >= MIN_PART_S:
+    cut = _parts(u, y)
+    lags = []
+    for uu, yy in cut:
+        if np.std(uu) >= MIN_BLOCK_EXCITATION_RAD:
             b_tau, b_delay, *_ = fit_fopdt(uu, yy)
-            parts.append(b_tau + b_delay)
+            lags.append(b_tau + b_delay)
     lag = tau + delay
-    return AxisFit(axis=name, tau_s=tau, delay_s=delay, gain=gain, lag_s=lag, lag_ci95_s=_interval(lag, parts),
-                   bandwidth_hz=1.0 / (2 * np.pi * tau), fit_r2=1.0 - rss / (len(y) * np.var(y)), blocks=len(parts))
+    first, end = _moving(u)
+    return AxisFit(axis=name, tau_s=tau, delay_s=delay, gain=gain, lag_s=lag,
+                   lag_ci95_s=_interval(lag, lags) if len(lags) >= MIN_LAG_PARTS else (float('nan'), float('nan')),
+                   bandwidth_hz=1.0 / (2 * np.pi * tau), fit_r2=1.0 - rss / (len(y) * np.var(y)), blocks=len(lags),
+                   parts=len(cut), moving_s=(end - first) * DT_S)
 
 
 def identify_thrust(flight) -> ThrustFit:
@@ -304,14 +321,14 @@ def quality_refusal(result: dict) -> str | None:
     interval too wide to trust, a thrust scale the controller cannot take), or None when they hold."""
     for axis in ('roll', 'pitch'):
         a = result[axis]
-        if a['blocks'] < 2:   # no interval: too short or too gentle a flight (a 4 s maze at 2 m/s: 0 parts)
-            flown_s = result.get('window', {}).get('duration_s')
-            if flown_s is not None and flown_s < BLOCKS * MIN_PART_S:
-                return (f'the flight is too short to measure the {axis} lag: {flown_s:.1f} s flown, its {BLOCKS} '
-                        f'parts need {MIN_PART_S:g} s each ({BLOCKS * MIN_PART_S:g} s): {EXCITE_LAG}')
-            return (f'the flight is too gentle to measure the {axis} lag: {a["blocks"]} of its {BLOCKS} parts '
-                    f'command {np.rad2deg(MIN_BLOCK_EXCITATION_RAD):.2f} deg or more of {axis} (std), 2 are needed: '
-                    f'{EXCITE_LAG}')
+        if a['blocks'] < MIN_LAG_PARTS:   # no interval: too short or too gentle a flight (the 4 s maze at 2 m/s)
+            if a['moving_s'] < MIN_LAG_PARTS * MIN_PART_S:
+                return (f'the flight is too short to measure the {axis} lag: its {axis} command moves for '
+                        f'{a["moving_s"]:.1f} s, the interval needs {MIN_LAG_PARTS} parts of {MIN_PART_S:g} s '
+                        f'({MIN_LAG_PARTS * MIN_PART_S:g} s): {EXCITE_LAG}')
+            return (f'the flight is too gentle to measure the {axis} lag: {a["blocks"]} of the {a["parts"]} parts of '
+                    f'its {a["moving_s"]:.1f} s of {axis} motion command {np.rad2deg(MIN_BLOCK_EXCITATION_RAD):.2f} '
+                    f'deg or more of {axis} (std), {MIN_LAG_PARTS} are needed: {EXCITE_LAG}')
         low, high = a['lag_ci95_s']
         if a['tau_s'] <= TAU_RANGE_S[0] * (1 + EDGE_REL) or a['tau_s'] >= TAU_RANGE_S[1] * (1 - EDGE_REL) \
                 or a['delay_s'] >= MAX_DELAY_S - 0.5 * DT_S:
@@ -319,7 +336,7 @@ def quality_refusal(result: dict) -> str | None:
                     f'{a["delay_s"]:.3f} s) sits at the edge of its search range (tau {TAU_RANGE_S[0]}-'
                     f'{TAU_RANGE_S[1]} s, dead time up to {MAX_DELAY_S} s): the flight does not show the lag: '
                     f'{EXCITE_LAG}')
-        if a['blocks'] >= 2 and high - low < MIN_LAG_CI_S:
+        if high - low < MIN_LAG_CI_S:
             return (f'the {axis} lag {a["lag_s"]:.3f} s has a collapsed 95 % interval {low:.4f}-{high:.4f} s over '
                     f'{a["blocks"]} parts (every part fitted the same bound): {EXCITE_LAG}')
         if not a['fit_r2'] >= MIN_FIT_R2:

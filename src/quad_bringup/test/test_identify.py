@@ -431,26 +431,54 @@ def test_the_margin_verdict_matches_a_cascade_1_5x_slower(tmp_path, stiff, settl
         assert check.oscillation_deg > 0.5 and member.oscillation_deg > 5.0
 
 
-def test_a_flight_too_short_for_the_lag_interval_is_refused_naming_the_flight_to_fly():
-    """The README's 4 s maze at 2 m/s: a good fit but no part for its interval (each needs 1 s)."""
-    axis = {'tau_s': 0.09, 'delay_s': 0.0, 'lag_s': 0.09, 'lag_ci95_s': [float('nan')] * 2, 'blocks': 0,
-            'fit_r2': 1.0}
-    result = {'roll': axis, 'pitch': axis, 'thrust': {'thrust_scale': 1.0, 'thrust_scale_ci95': [0.999, 1.001]},
-              'window': {'duration_s': 5.6}}
+def test_a_flight_too_short_for_the_lag_interval_is_refused_naming_the_flight_to_fly(tmp_path):
+    """The README's 4 s maze at 2 m/s: a good fit, but its command moves for less than the interval's 3 parts of
+    2 s."""
+    bag = tmp_path / 'maze-2mps'
+    fly_offline(MAZE, LoopOptions(speed_mps=2.0, bag_dir=bag))
+    result = identify(load_flight(bag))
+    assert result['roll']['fit_r2'] > 0.99 and result['roll']['blocks'] < 3
     reason = quality_refusal(result)
-    assert reason.startswith('the flight is too short to measure the roll lag: 5.6 s flown, its 6 parts need 1 s')
+    assert reason.startswith('the flight is too short to measure the roll lag: its roll command moves for '), reason
+    assert 'the interval needs 3 parts of 2 s (6 s)' in reason
     assert reason.endswith('quadflight fly config/missions/figure8.yaml --controller pd') and 'nan' not in reason
 
 
-def test_the_lag_parts_start_where_the_command_moves_however_long_the_hover_before_it():
+def test_a_flight_whose_parts_barely_move_is_refused_as_too_gentle():
+    axis = {'tau_s': 0.09, 'delay_s': 0.0, 'lag_s': 0.09, 'lag_ci95_s': [float('nan')] * 2, 'blocks': 2,
+            'parts': 6, 'moving_s': 20.0, 'fit_r2': 1.0}
+    result = {'roll': axis, 'pitch': axis, 'thrust': {'thrust_scale': 1.0, 'thrust_scale_ci95': [0.999, 1.001]}}
+    reason = quality_refusal(result)
+    assert reason.startswith('the flight is too gentle to measure the roll lag: 2 of the 6 parts of its 20.0 s of '
+                             'roll motion command 0.75 deg or more of roll (std), 3 are needed: '), reason
+
+
+def test_the_lag_parts_cut_where_the_command_moves_however_long_the_hover_around_it():
     """A part that is mostly hover with a little motion at its end fits a guess (on an emulated PX4 flight under
-    load, 0.28 s where the rest fit 0.17-0.19 s, and identify refused a right 0.183 s): the parts begin at the first
-    commanded motion, so a hover before the plan, as long as the user waited, changes none of them."""
+    load, 0.28 s where the rest fit 0.17-0.19 s, and identify refused a right 0.183 s), and parts cut from the whole
+    window grow with the hover until too few move: the parts cut the span where the command moves, so a hover before
+    or after the plan, as long as the user waited, changes none of them."""
     from quad_bringup import identify as idf
-    motion = np.deg2rad(5.0) * np.cos(np.linspace(0.0, 12 * np.pi, 1200))   # moving from its first sample
-    for hover in (0, 300, 700):
-        u = np.concatenate([np.zeros(hover), motion, np.zeros(400)])
+    motion = np.deg2rad(5.0) * np.cos(np.linspace(0.0, 12 * np.pi, 1200))   # moving from its first to last sample
+    expected = np.split(motion, idf.BLOCKS)                                  # 12 s: 6 parts of 2 s
+    for before, after in ((0, 0), (300, 400), (7000, 0), (0, 7000)):
+        u = np.concatenate([np.zeros(before), motion, np.zeros(after)])
         parts = idf._parts(u, u)
-        n = len(u) // idf.BLOCKS
-        assert parts and all(len(p) == n and np.std(p) > 0 for p, _ in parts[:-1])
-        assert np.array_equal(parts[0][0], motion[:n]), hover
+        assert len(parts) == len(expected), (before, after)
+        assert all(np.array_equal(p, e) for (p, _), e in zip(parts, expected)), (before, after)
+    short = idf._parts(np.concatenate([np.zeros(3000), motion[:700]]), np.zeros(3700))   # 7 s: 3 parts of 2.33 s
+    assert [len(p) for p, _ in short] == [233, 234, 233]
+
+
+def test_a_long_hover_before_the_plan_changes_neither_the_lag_nor_its_interval(tmp_path):
+    """The same maze flown after 5 s and after 60 s of hover: parts cut from the whole window grew with the hover
+    (1/6 of a 68 s window is longer than the maze's 7.7 s of motion) and identify refused the longer one."""
+    fits = {}
+    for hover_s in (5.0, 60.0):
+        bag = tmp_path / f'hover{hover_s:g}'
+        fly_offline(MAZE, LoopOptions(speed_mps=1.0, plant='autopilot_lag', start_delay_s=hover_s, bag_dir=bag))
+        result = identify(load_flight(bag))
+        assert result['window']['duration_s'] > hover_s and quality_refusal(result) is None, quality_refusal(result)
+        fits[hover_s] = [x for a in ('roll', 'pitch') for x in (result[a]['lag_s'], *result[a]['lag_ci95_s'])]
+        assert result['roll']['blocks'] >= 3 and result['pitch']['blocks'] >= 3
+    assert fits[5.0] == pytest.approx(fits[60.0], abs=1e-4), fits   # 0.1 ms: the flights differ by 2 us
