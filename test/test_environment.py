@@ -73,3 +73,41 @@ def test_make_test_runs_every_suite_and_sums_up(tmp_path):
     assert done.returncode != 0
     assert (tmp_path / 'ran').exists()                     # the suite after the failing one ran
     assert done.stdout.strip().splitlines()[-1] == '=== summary: 2 suites, probe-fail failed'
+
+
+SHARED_FIXTURE_TESTS = textwrap.dedent('''
+    import os
+    import pytest
+
+    @pytest.fixture(scope='module')
+    def shared():
+        with open(os.environ['SETUPS_LOG'], 'a') as log:
+            log.write('setup\\n')
+
+    @pytest.mark.parametrize('n', range(4))
+    def test_shares(shared, n):
+        with open(os.environ['SETUPS_LOG'], 'a') as log:
+            log.write(f"shared {os.environ['PYTEST_XDIST_WORKER']}\\n")
+
+    @pytest.mark.parametrize('n', range(4))
+    def test_alone(n):
+        pass
+''')
+
+
+def test_loadgroup_runs_a_files_shared_fixture_once(tmp_path):
+    """test-graph's --dist loadgroup (xdist_groups, through conftest): a file's tests that share a module fixture run
+    on one worker, which sets it up once; a pytest or pytest-xdist that loses the group fails here."""
+    import os
+    from pathlib import Path
+    (tmp_path / 'conftest.py').write_text('from xdist_groups import pytest_collection_modifyitems  # noqa: F401\n')
+    (tmp_path / 'test_shared_fixture.py').write_text(SHARED_FIXTURE_TESTS)
+    log = tmp_path / 'setups.log'
+    env = dict(os.environ, SETUPS_LOG=str(log),
+               PYTHONPATH=os.pathsep.join([str(Path(__file__).parent), os.environ.get('PYTHONPATH', '')]))
+    done = subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', '-n', '2',
+                           '--dist', 'loadgroup', '--rootdir', str(tmp_path), str(tmp_path)],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    lines = log.read_text().splitlines()
+    assert lines.count('setup') == 1 and len(set(line for line in lines if line != 'setup')) == 1, lines

@@ -37,10 +37,18 @@ def identify_cli(*args):
                           capture_output=True, text=True, cwd=REPO_ROOT)
 
 
-def test_the_profile_identify_accepts_settles_on_rotorpy_at_the_margin(flown):
+@pytest.fixture(scope='module')
+def identified(flown):
+    """identify on the flight with control_se3 and the Crazyflie file: (run, profile, vehicle model). One run for
+    the tests that read its profile, its model or its output: the same bag and arguments give the same files."""
     tmp, bag = flown
-    out = tmp / 'se3_identified.yaml'
-    done = identify_cli(bag, '--base', SE3, '--vehicle', CRAZYFLIE, '--out', out)
+    out, model = tmp / 'se3_identified.yaml', tmp / 'rotorpy_vehicle.yaml'
+    return identify_cli(bag, '--base', SE3, '--vehicle', CRAZYFLIE, '--out', out, '--model-out', model), out, model
+
+
+def test_the_profile_identify_accepts_settles_on_rotorpy_at_the_margin(flown, identified):
+    tmp, _ = flown
+    done, out, _ = identified
     assert done.returncode == 0, done.stderr            # a 0.1 s latency guess refused it (28 deg rms)
     assert 'telemetry latency 0.000 s, 100 Hz, bursts up to 0.000 s' in done.stdout   # the bag's, not ArduCopter's
     written = yaml.safe_load(out.read_text())['position_controller']['ros__parameters']
@@ -68,12 +76,11 @@ def test_a_profile_the_check_refuses_oscillates_on_rotorpy_at_the_margin(flown):
     assert bench_transfer.rotorpy_hold(lead, tmp, 1.0, 'refused-1x').settled   # stable, without margin
 
 
-def test_fly_accepts_the_vehicle_model_identified_on_rotorpy(flown, ros_env):
+def test_fly_accepts_the_vehicle_model_identified_on_rotorpy(flown, identified, ros_env):
     """identify -> vehicle YAML -> `quadflight fly --vehicle` through the node graph."""
     import json
-    tmp, bag = flown
-    model = tmp / 'rotorpy_vehicle.yaml'
-    done = identify_cli(bag, '--base', SE3, '--vehicle', CRAZYFLIE, '--out', tmp / 'p.yaml', '--model-out', model)
+    tmp, _ = flown
+    done, profile, model = identified
     assert done.returncode == 0, done.stderr
     assert yaml.safe_load(model.read_text())['attitude_loop'] == {
         'type': 'lag', 'time_constant_s': pytest.approx(bench_transfer.ROTORPY_LAG_S, rel=0.05)}
@@ -84,21 +91,20 @@ def test_fly_accepts_the_vehicle_model_identified_on_rotorpy(flown, ros_env):
                        '  time_allocation: sqrt\n')
     run_dir = tmp / 'run'
     flew = subprocess.run([str(REPO_ROOT / 'quadflight'), 'fly', str(mission), '--vehicle', str(model),
-                           '--control-profile', str(tmp / 'p.yaml'), '--out', str(run_dir), '--quiet'],
+                           '--control-profile', str(profile), '--out', str(run_dir), '--quiet'],
                           env=ros_env, capture_output=True, text=True, timeout=540)
     assert flew.returncode == 0, flew.stdout + flew.stderr
     metrics = json.loads((run_dir / 'metrics.json').read_text())
     assert metrics['completed'] and metrics['rmse_m'] < 0.05
 
 
-def test_replay_twin_of_the_rotorpy_flight_within_20_percent(flown):
+def test_replay_twin_of_the_rotorpy_flight_within_20_percent(flown, identified):
     """identify's model (its lag, thrust and rotor drag) flies the recorded plan again with control_se3: its RMSE
     within 20 % of rotorpy's flight and its trace within 30 % of the flight's error of the flight's trace (the
     nominal Crazyflie file, eq. 6 lagging 0.1 s, is 3x further off: no twin)."""
     tmp, bag = flown
-    model = tmp / 'replay_vehicle.yaml'
-    assert identify_cli(bag, '--base', SE3, '--vehicle', CRAZYFLIE, '--out', tmp / 'r.yaml',
-                        '--model-out', model).returncode == 0
+    done, _, model = identified
+    assert done.returncode == 0, done.stderr
 
     def replay(vehicle, figure):
         done = subprocess.run([sys.executable, '-m', 'quad_bringup.cli', 'replay', str(bag), '--vehicle', str(vehicle),
