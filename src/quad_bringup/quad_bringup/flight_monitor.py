@@ -67,7 +67,7 @@ class FlightJudge:
         if self.trajectory is None or self.verdict is not None:
             return
         elapsed = t_s - self.start_s
-        desired = self.trajectory.evaluate(elapsed, order=0)[0][:3]
+        desired = self.trajectory.reference(elapsed).position   # one time: not evaluate's array set-up
         self.error_m = float(np.linalg.norm(position - desired))
         if not (np.all(np.isfinite(position)) and self.error_m <= self.divergence_m):
             self.verdict = Verdict(False, f'diverged at t = {elapsed:.2f} s: position error {self.error_m:.3f} m '
@@ -157,7 +157,7 @@ class FlightMonitor:
 
     def spin_once(self, timeout_s=0.1):
         self.executor.spin_once(timeout_sec=timeout_s)
-        self.ack.flush()
+        self.ack.flush_if_due()
 
     def close(self):
         self.executor.shutdown()
