@@ -191,14 +191,28 @@ FIGURES = [
 ]
 
 
+FOLDER = 'figures'   # a run's figures: RUN/figures/*.png (report.md links them)
+# Titles at the top of their axes (matplotlib's default, 'axes.titley' None, measures every axis's tick labels
+# again to lift a title above top ticks or an offset text these figures do not have: ~10 % of the drawing).
+STYLE = {'axes.titley': 1.0}
+# zlib level 1: the PNG encoding is ~3x faster than PIL's default 6 for ~8 % larger files
+PNG = {'compress_level': 1}
+
+
+def draw_run(flight, run_dir) -> list[Path]:
+    """A run's figures: run_dir/FOLDER/*.png."""
+    return draw_all(flight, Path(run_dir) / FOLDER)
+
+
 def draw_all(flight, out_dir) -> list[Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    return [draw(flight, out_dir / name) for name, draw in FIGURES]
+    with matplotlib.rc_context(STYLE):
+        return [draw(flight, out_dir / name) for name, draw in FIGURES]
 
 
 def _save(fig, path, margins: dict) -> Path:
     fig.subplots_adjust(**margins)
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=90, pil_kwargs=PNG)
     plt.close(fig)
     return Path(path)
