@@ -63,9 +63,11 @@ def finish_figures(worker: FigureWorker, flight, run_dir: Path, metrics: dict, m
 
 
 def main():
-    import matplotlib  # noqa: F401 (the import is the point: it overlaps the flight)
+    # the imports are the point: they overlap the flight; the report module (rosbags, the ROS messages) only for a
+    # bag to load here, as a pickled Flight needs quad_bringup.metrics alone
+    import matplotlib  # noqa: F401
 
-    from quad_bringup import report, report_figures  # noqa: F401
+    from quad_bringup import metrics, report_figures  # noqa: F401
     line = sys.stdin.readline()
     if not line.strip():
         return 0  # fly ended before a bag: nothing to draw
@@ -76,8 +78,10 @@ def main():
             with open(request['flight'], 'rb') as f:
                 flight = pickle.load(f)
         else:
+            from quad_bringup import report
+
             flight = report.load_flight(request['bag'])
-        figures = [str(Path(f).relative_to(out)) for f in report.draw_figures(flight, out)]
+        figures = [str(Path(f).relative_to(out)) for f in report_figures.draw_run(flight, out)]
         answer = {'figures': figures}
     except Exception as exc:  # any failure is an answer, not a traceback on fly's terminal
         answer = {'error': f'{type(exc).__name__}: {exc}'}

@@ -39,7 +39,6 @@ from quad_common.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
 DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends with a pass this long that takes nothing sent before it
-ACK_FLUSH_S = 0.05  # wall time: the newest odometry is acknowledged at least this often (a stopping simulator)
 ODOM = 'odom'
 CLOCK = contract.CLOCK
 
@@ -102,7 +101,7 @@ class RecorderNode(Node):
         self.status_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
                                                 contract.qos(contract.DIAGNOSTICS))
         self.create_timer(STATUS_PERIOD_S, self.publish_status, clock=steady)
-        self.ack_timer = self.create_timer(ACK_FLUSH_S, self.ack.flush, clock=steady)
+        self.ack_timer = self.create_timer(lockstep.ACK_FLUSH_S, self.ack.flush, clock=steady)
         if self._pending:
             self.create_timer(0.5, self._discover,
                               clock=rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME))

@@ -273,7 +273,7 @@ def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion |
 def draw_figures(flight: Flight, out_dir) -> list:
     from quad_bringup import report_figures
 
-    return report_figures.draw_all(flight, Path(out_dir) / 'figures')
+    return report_figures.draw_run(flight, out_dir)
 
 
 def write_markdown(metrics: dict, out_dir, figures: list):

@@ -22,6 +22,7 @@ from quad_bringup.report import (
     metrics_table,
     write_report,
 )
+from quad_bringup.report_figures import FIGURES
 
 L_M, T_S, DELAY_S, T0_S, RATE_HZ = 2.0, 4.0, 0.5, 10.0, 100
 MISSED_WAYPOINT = (1.0, 0.03, 1.0)  # 3 cm beside the straight path
@@ -371,3 +372,22 @@ def test_the_record_check_counts_the_newest_sim_count_up_to_its_own_stamp():
     assert upto['steps_published'] == upto['odom_recorded'] == 4 and upto['complete']
     newer = record_check(flight, (int(stamps[-1]) + 20_000_000, 12))  # the simulator published 2 steps more
     assert newer['missing'] == {'odom': 2, '/clock': 2} and not newer['complete']
+
+
+def test_the_figure_worker_draws_a_pickled_flight_without_the_bag_reader(tmp_path):
+    """fly hands the worker the Flight it has loaded: the worker imports matplotlib and the figures, not the report
+    module's bag reader (rosbags) or the ROS messages, and draws every figure."""
+    import json
+    import pickle
+    import subprocess
+    import sys
+
+    with open(tmp_path / 'flight.pickle', 'wb') as f:
+        pickle.dump(load_flight(make_bag(tmp_path / 'bag')), f)
+    done = subprocess.run([sys.executable, '-X', 'importtime', '-m', 'quad_bringup.figure_worker'], text=True,
+                          input=json.dumps({'flight': str(tmp_path / 'flight.pickle'), 'out': str(tmp_path)}) + '\n',
+                          capture_output=True, timeout=300)
+    assert sorted(json.loads(done.stdout)['figures']) == sorted(f'figures/{name}' for name, _ in FIGURES)
+    imported = {line.rsplit('|', 1)[-1].strip() for line in done.stderr.splitlines() if line.startswith('import')}
+    assert not {m for m in imported if m.split('.')[0] in ('rosbags', 'rclpy', 'nav_msgs')}
+    assert 'quad_bringup.report' not in imported

@@ -51,18 +51,24 @@ if 'NUMBA_CACHE_DIR' not in os.environ and os.environ.get('NUMBA_DISABLE_JIT', '
 def _import_numba():
     """numba, imported without `coverage` when no coverage run is active: numba.misc.coverage_support imports
     it if installed (0.3-0.8 s of every node's start on the 2-core machine) only to report compiled lines to a
-    coverage run, and a run already measuring has imported coverage itself."""
+    coverage run, and a run already measuring has imported coverage itself.
+
+    Its array typing (numba.np.arraymath, which loading a cached kernel imports) is imported here too, without
+    scipy's BLAS: it imports scipy.linalg (~0.3 s of the simulator's start) only to choose how a compiled 1-D
+    np.dot runs, and no kernel calls np.dot, np.linalg or `@` (quad_sim's kernels: plain loops over floats).
+    Without it such a dot would be numba's own loop; matrix products and np.linalg import scipy when compiled."""
     import sys
-    hide = 'coverage' not in sys.modules
-    if hide:
-        sys.modules['coverage'] = None  # import coverage -> ImportError inside numba only
+    hidden = [name for name in ('coverage', 'scipy.linalg.cython_blas') if name not in sys.modules]
+    for name in hidden:
+        sys.modules[name] = None  # import NAME -> ImportError inside numba only
     try:
         import numba
+        import numba.np.arraymath  # noqa: F401
     except ImportError:  # pragma: no cover - numba is pinned in requirements.txt
         return None
     finally:
-        if hide:
-            del sys.modules['coverage']
+        for name in hidden:
+            del sys.modules[name]
     return numba
 
 

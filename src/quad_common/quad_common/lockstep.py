@@ -7,6 +7,8 @@ are unacknowledged, and every publisher paced by the lockstep keeps HISTORY_DEPT
 history: a slow follower slows the simulation down instead of losing samples.
 """
 
+import time
+
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
@@ -14,6 +16,8 @@ FOLLOWER_LAG_STEPS = 40
 ACK_EVERY = 10
 HISTORY_DEPTH = 2 * FOLLOWER_LAG_STEPS + 20   # > FOLLOWER_LAG_STEPS + ACK_EVERY + the step in flight
 PACED = QoSProfile(depth=HISTORY_DEPTH, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
+ACK_FLUSH_S = 0.05   # wall time: a follower acknowledges its newest odometry at least this often (a stopping simulator
+# waits for the last step's); more often only costs: each acknowledgement is a publish here and a wake-up there
 ACK = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 assert ACK_EVERY < FOLLOWER_LAG_STEPS  # else the simulator could wait for an ack the follower never sends
 
@@ -30,6 +34,7 @@ class Acknowledger:
         self._pending = 0
         self._held = False
         self.newest_ns = -1
+        self._next_flush_s = 0.0
 
     def hold(self, held: bool):
         """While held, nothing is acknowledged (the simulator waits at the first step): a follower that needs
@@ -42,7 +47,14 @@ class Acknowledger:
         if self._pending >= ACK_EVERY:
             self.flush()
 
+    def flush_if_due(self):
+        """flush() if ACK_FLUSH_S of wall time passed since the last one: a follower that flushes after each spin
+        would acknowledge every step, not every ACK_EVERY-th."""
+        if time.monotonic() >= self._next_flush_s:
+            self.flush()
+
     def flush(self):
+        self._next_flush_s = time.monotonic() + ACK_FLUSH_S
         if self._pending and not self._held:
             self._pending = 0
             msg = Clock()

@@ -239,3 +239,16 @@ def test_failsafe_brakes_and_lands_where_the_setpoints_stopped(crazyflie):
     touchdown = [e for e in sim.events if e.kind == 'touchdown'][0]
     assert math.hypot(*touchdown.position[:2]) < 0.5
     assert math.hypot(*sim.state.position[:2]) < 0.5
+
+
+def test_loading_the_kernels_imports_no_scipy_linalg():
+    """The simulator's start (its import and warm_up, which loads or compiles the kernels) does not import
+    scipy.linalg: numba would import it only to check for a BLAS that no kernel calls (quad_common.compiled)."""
+    import subprocess
+    import sys
+
+    script = ('import sys; from quad_common.vehicle import load_vehicle; from quad_sim.simulator import Simulator; '
+              f'Simulator(load_vehicle({os.path.join(CONFIG, "vehicles", "crazyflie.yaml")!r})).warm_up(); '
+              'print(sorted(m for m in sys.modules if m.startswith("scipy.linalg")))')
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=600, check=True)
+    assert out.stdout.strip() == '[]', out.stdout
