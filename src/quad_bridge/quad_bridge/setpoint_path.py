@@ -86,7 +86,12 @@ class SetpointPath:
 
     def _spin(self):
         context, sub, streamer = self.bridge.context, self.sub, self.streamer
-        wait_set = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, context.handle)
+        try:
+            wait_set = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, context.handle)
+        except Exception:   # a Ctrl-C that shut rclpy down before this thread began: the node is stopping
+            if context.ok() and not self.stopping.is_set():
+                raise
+            return
         delay_s = 0.0
         while not self.stopping.is_set():
             wait_set.clear_entities()

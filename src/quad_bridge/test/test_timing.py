@@ -358,3 +358,25 @@ def test_after_a_stall_every_queued_setpoint_is_taken_oldest_first_and_the_newes
     clock.t += 0.031
     streamer.tick()
     assert sent[-1] == 3 and streamer.keepalives == 1
+
+
+def test_the_setpoint_thread_ends_quietly_when_ctrl_c_shut_rclpy_down_before_it_began():
+    """A second Ctrl-C during start-up can shut the context down before the setpoint thread makes its wait set:
+    the thread ends without a traceback."""
+    import threading
+
+    import rclpy
+    from rclpy.context import Context
+
+    from quad_bridge.setpoint_path import SetpointPath
+
+    context = Context()
+    rclpy.init(context=context)
+    rclpy.shutdown(context=context)
+
+    class Path:
+        bridge = type('Bridge', (), {'context': context})()
+        sub = streamer = None
+        stopping = threading.Event()
+
+    SetpointPath._spin(Path())   # returns: no wait set on a shut context, and no exception
