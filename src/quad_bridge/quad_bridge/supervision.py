@@ -194,8 +194,7 @@ class Supervisor:
             try:
                 self.tick(self.bridge.now_s())
             except Exception as exc:  # never let the supervisor die silently
-                context = getattr(self.bridge, 'context', None)
-                if context is not None and not context.ok():   # rclpy shut down (Ctrl-C): the node is stopping
+                if not self.bridge.context.ok():   # rclpy shut down (Ctrl-C): the node is stopping
                     return
                 self.bridge.log.error(f'supervisor: {exc!r}', throttle_duration_sec=1.0)
 

@@ -80,7 +80,8 @@ def bridge(backend, params=(), client=None, link_up=True, now_s=10.0):
     b = SimpleNamespace(params=p, vehicle=Vehicle(p['command_timeout_s']), link=LinkState(p['link_timeout_s']),
                         peers=LinkPeers(), client=client or Client(), log=Log(), streamer=Streamer(),
                         geofence=Geofence(False, [-50, -50, -1], [50, 50, 30]), external_pose=None, engaged=None,
-                        t0=0.0, engaged_updates=0, diagnostics=0, time=[now_s])
+                        t0=0.0, engaged_updates=0, diagnostics=0, time=[now_s],
+                        context=SimpleNamespace(ok=lambda: True))
     b.now_s = lambda: b.time[0]
     b.vehicle.status.system, b.vehicle.status.backend = 1, backend
     if link_up:

@@ -15,7 +15,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_bringup.graph import MONITOR
 from quad_bringup.metrics import Completion
-from quad_common import cdr, contract, lockstep
+from quad_common import cdr, contract, conversions, lockstep
 from quad_common.diagnostics import ERROR, level_of
 from quad_common.hot_path import HotPathExecutor
 from quad_control.loop import CONTROLLER_FAILED
@@ -124,13 +124,11 @@ class FlightMonitor:
         # the controller's decoder: the plan's arrays straight from its bytes (its ~1,200 points as rclpy message
         # objects, then msg_to_sampled, cost ~0.2 s of fly's start)
         stamp_ns, trajectory = cdr.trajectory_to_sampled(raw)
-        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        self.judge.set_trajectory(sec + nanosec * 1e-9, trajectory)   # as conversions.stamp_to_s
+        self.judge.set_trajectory(conversions.ns_to_s(stamp_ns), trajectory)
 
     def _on_odom(self, raw: bytes):
         stamp_ns, state = cdr.odometry_to_state(raw)
-        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        self.judge.on_odometry(sec + nanosec * 1e-9, state.position, state.velocity)  # as conversions.stamp_to_s
+        self.judge.on_odometry(conversions.ns_to_s(stamp_ns), state.position, state.velocity)
         self.ack.taken(stamp_ns)
 
     def _on_diagnostics(self, msg):

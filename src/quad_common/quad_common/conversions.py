@@ -20,6 +20,12 @@ def stamp_to_s(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+def ns_to_s(stamp_ns: int) -> float:
+    """A stamp in integer nanoseconds (quad_common.cdr's decoders) as stamp_to_s gives it, to the last bit."""
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    return sec + nanosec * 1e-9
+
+
 def s_to_stamp(t_s: float) -> Time:
     ns = int(round(t_s * 1e9))
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
