@@ -1,12 +1,11 @@
 """A 3 m square at 1.0 m/s, 2 m high (the manoeuvre identify asks for), flown as on a real vehicle against
-quad_vehicle_emu (PX4 and ArduPilot, their defaults) through mavlink_bridge with position_controller
-on config/control_real.yaml,
-recorded by the recorder (`quadflight record`'s node), `offboard`, trajectory_node, `land`
-(test/bridge_mission.py, as bench_bridge_flight flies its square); then what a user runs: `quadflight identify BAG
---vehicle px4_quad.yaml --model-out MODEL` and `quadflight replay BAG --vehicle MODEL --control-profile
-control_real.yaml`. The emulator's truth (docs/emulator.md, quad_vehicle_emu.attitude and mavlink_vehicle): roll/pitch
-lag = the quaternion loop's 1 / angle P + the shaping tau, thrust scale 1 (its hover throttle is the bridge's),
-telemetry latency per autopilot (ArduPilot: plus the wait for its next burst, up to 40 ms apart). Goal:
+quad_vehicle_emu (PX4 and ArduPilot, their defaults) through mavlink_bridge with position_controller on
+config/control_real.yaml, recorded by the recorder (`quadflight record`'s node), `offboard`, trajectory_node, `land`
+(quad_bringup.emulated_mission, as bench_bridge_flight flies its square); then what a user runs: `quadflight
+identify BAG --vehicle px4_quad.yaml --model-out MODEL` and `quadflight replay BAG --vehicle MODEL --control-profile
+control_real.yaml`. The emulator's truth (docs/emulator.md, quad_vehicle_emu.attitude and mavlink_vehicle):
+roll/pitch lag = the quaternion loop's 1 / angle P + the shaping tau, thrust scale 1 (its hover throttle is the
+bridge's), telemetry latency per autopilot (ArduPilot: plus the wait for its next burst, up to 40 ms apart). Goal:
 the twin's RMSE within 20 % of the flight's; its trace |twin - flight| under 35 % of the flight's RMSE (TRACE_GOAL)."""
 
 import subprocess
@@ -14,11 +13,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / 'test'))   # the graph helpers the bridge tests use
+from quad_bringup.emulated_graph import VEHICLE_FILE, running_graph
+from quad_bringup.emulated_mission import REAL_PROFILE, fly_mission
 
-from bridge_graph import VEHICLE_FILE, running_graph  # noqa: E402
-from bridge_mission import REAL_PROFILE, fly_mission  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 SQUARE = [(0.0, 0.0, 2.0), (3.0, 0.0, 2.0), (3.0, 3.0, 2.0), (0.0, 3.0, 2.0), (0.0, 0.0, 2.0)]
 SPEED_MPS = 1.0
@@ -32,7 +30,7 @@ MARGIN_PROFILES = {'control_real.yaml (kp 2 / kd 2.5)': {}, 'kp 4 / kd 3': {'kp_
 
 
 def emulator_flight(flavour, out_dir: Path, waypoints=SQUARE, speed_mps=SPEED_MPS):
-    """A bridge flight against the emulated `flavour` (bridge_mission.fly_mission, control_real.yaml): a
+    """A bridge flight against the emulated `flavour` (quad_bringup.emulated_mission.fly_mission, control_real.yaml): a
     MissionFlight whose bag stays under out_dir."""
     with running_graph(out_dir) as (procs, observer):
         return fly_mission(procs, observer, out_dir, flavour, waypoints, speed_mps,
