@@ -1,5 +1,5 @@
 """The bridge graph tests' own instruments, beside the graph harness they share with the benches
-(quad_bringup.emulated_graph, re-exported here): a Tap on the wire between vehicle and bridge, a stand-in
+(quad_bringup.emulated_graph): a Tap on the wire between vehicle and bridge, a stand-in
 controller's SetpointPublisher, the bridge built inside the test process, a tapped graph, and the odometry probe
 process (test/odom_probe.py)."""
 
@@ -15,24 +15,7 @@ from contextlib import contextmanager
 import rclpy
 from rclpy.parameter import Parameter
 
-from quad_bringup.emulated_graph import (  # noqa: F401  (the harness, for the tests that import it from here)
-    EMULATOR_SCHEDULING,
-    OFFBOARD_MODE,
-    ROOT,
-    TEST_PORTS,
-    VEHICLE_FILE,
-    VEHICLE_PARAMS,
-    WAIT_S,
-    Observer,
-    Processes,
-    enter_offboard,
-    free_udp_port,
-    hover_in_offboard,
-    python_env,
-    running_graph,
-    start_vehicle_graph,
-    terminate,
-)
+from quad_bringup.emulated_graph import ROOT, free_udp_port, running_graph
 from quad_common.node_main import close_nodes
 from quad_common.testing import Spinner
 

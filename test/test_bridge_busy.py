@@ -12,20 +12,11 @@ from collections import deque
 
 import numpy as np
 import pytest
-from bridge_graph import (
-    VEHICLE_PARAMS,
-    Tap,
-    bridge_in_this_process,
-    free_udp_port,
-    hover_in_offboard,
-    mavlink,
-    odom_arrivals,
-    running_graph,
-    start_odom_probe,
-)
+from bridge_graph import Tap, bridge_in_this_process, mavlink, odom_arrivals, start_odom_probe
 from rclpy.duration import Duration
 
 from quad_bridge import frames
+from quad_bringup.emulated_graph import VEHICLE_PARAMS, free_udp_port, hover_in_offboard, running_graph
 from quad_common import contract, rotations
 from quad_common import conversions as conv
 from quad_common.conversions import stamp_to_s
