@@ -12,7 +12,7 @@ from quad_common.paths import REPO_ROOT
 
 PEER_VENV = str(REPO_ROOT / '.bench-venv')
 PEERS = ['rotorpy==3.0.0', 'minsnap-trajectories==0.3.0']
-PEER_CONSTRAINTS = str(Path(__file__).with_name('peer_constraints.txt'))   # their dependencies, pinned
+PEER_CONSTRAINTS = str(Path(__file__).resolve().with_name('peer_constraints.txt'))   # their dependencies, pinned
 
 
 def peer_python() -> str:
