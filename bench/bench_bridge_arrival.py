@@ -17,15 +17,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import Imu
+
+from quad_bringup.emulated_graph import Processes, enter_offboard, free_udp_port, running_graph
+from quad_common.conversions import stamp_to_s
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / 'test'))   # the graph helpers the bridge tests use
-
-from bridge_graph import Processes, enter_offboard, free_udp_port, running_graph  # noqa: E402
-from nav_msgs.msg import Odometry  # noqa: E402
-from sensor_msgs.msg import Imu  # noqa: E402
-
-from quad_common.conversions import stamp_to_s  # noqa: E402
 
 BASELINE = 'f5909f4'
 HOVER = (0.0, 0.0, 2.0)

@@ -1,6 +1,6 @@
 """Indoor flight: what the controller flies from, scored where the vehicle really is.
 
-The 3 m square at 0.8 m/s on bench_bridge_flight's offline chain (the emulator's own pieces under
+The 3 m square at 0.8 m/s on the offline chain of quad_bringup.emulated_chain (the emulator's own pieces under
 position_controller's ControlLoop at 100 Hz: its vehicle, the attitude shaping behind the autopilot's loop, the
 estimate, the telemetry delay line; no processes, MAVLink or load), on two plants: the default emulated autopilot
 (0.19 s attitude lag, no drag) and PX4 SIH as fitted to its recorded flights (0.105 s dead time before a 0.05 s
@@ -22,8 +22,10 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_bridge_flight as chain  # noqa: E402
+import bench_bridge_flight as bench_flight  # noqa: E402
 import yaml  # noqa: E402
+
+from quad_bringup import emulated_chain as chain  # noqa: E402
 
 DEFAULT_EMULATOR = ('--attitude-tau-s', '0.036', '--estimator-lag-s', '0', '--estimator-wander-m', '0',
                     '--estimator-wander-z-m', '0', '--estimator-wander-tau-s', '60', '--drag-per-s', '0')
@@ -34,8 +36,8 @@ PERFECT_ESTIMATE = {'--estimator-lag-s': '0', '--estimator-wander-m': '0', '--es
 SIH_TRUTH_ESTIMATE = tuple(x for kv in {**_FITTED, **PERFECT_ESTIMATE}.items() for x in kv)
 PLANTS = {'default emulator': (DEFAULT_EMULATOR, DEFAULT_EMULATOR),
           'PX4 SIH fitted (drag)': (chain.PX4_SIH_FITTED, SIH_TRUTH_ESTIMATE)}
-PROFILES = {'pd (control.yaml)': None, 'control_real.yaml (pid)': chain.REAL_PROFILE,
-            'control_se3.yaml (se3)': chain.SE3_PROFILE}
+PROFILES = {'pd (control.yaml)': None, 'control_real.yaml (pid)': bench_flight.REAL_PROFILE,
+            'control_se3.yaml (se3)': bench_flight.SE3_PROFILE}
 MOCAP = (0.001, 0.01, 100.0)   # noise m, latency s, rate Hz
 VISION = (0.001, 0.01, 30.0, 5.0)   # noise m, age at the autopilot s, rate Hz, EKF2_EV_DELAY ms
 ACCELERATIONS = (5.0, 20.0)   # pose_acceleration_mps2 flown (5: the default)

@@ -1,6 +1,6 @@
 """Indoor flight through the graph: the 3 m square at 0.8 m/s on the emulated PX4 and ArduPilot (quad_vehicle_emu at
 its defaults, `python -m quad_vehicle_emu.mavlink_vehicle`) through the graph
-(test/bridge_graph.py's processes: real MAVLink over UDP, real DDS; mavlink_bridge, position_controller with
+(quad_bringup.emulated_graph's processes: real MAVLink over UDP, real DDS; mavlink_bridge, position_controller with
 config/control_real.yaml over control.yaml, the real-vehicle default, trajectory_node, the recorder) on a machine
 other work shares: the vehicle on the floor, armed, `offboard`, a plan up to the square's first corner (an autopilot
 without GPS has no position before the pose streams), then the square, the plan recorded and scored.
@@ -22,22 +22,20 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+from std_srvs.srv import SetBool, Trigger
+
+from quad_bringup.commands.record import ros_arguments
+from quad_bringup.emulated_chain import SPEED_MPS, SQUARE
+from quad_bringup.emulated_graph import OFFBOARD_MODE, WAIT_S, free_udp_port, running_graph, start_vehicle_graph
+from quad_bringup.emulated_mission import CONTROL, REAL_PROFILE, plan_waypoints, report
+from quad_bringup.metrics import planned_position
+from quad_bringup.recorder import DEFAULT_TOPICS, open_bag_reader, typestore
+from quad_bringup.report import load_flight
+from quad_common import contract
+from quad_common.conversions import stamp_to_s, vec3
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / 'test'))   # the graph helpers the bridge tests use
-sys.path.insert(0, str(ROOT / 'bench'))
-
-import numpy as np  # noqa: E402
-from bench_bridge_flight import SPEED_MPS, SQUARE  # noqa: E402
-from bridge_graph import OFFBOARD_MODE, WAIT_S, free_udp_port, running_graph, start_vehicle_graph  # noqa: E402
-from bridge_mission import CONTROL, REAL_PROFILE, plan_waypoints, report  # noqa: E402
-from std_srvs.srv import SetBool, Trigger  # noqa: E402
-
-from quad_bringup.commands.record import ros_arguments  # noqa: E402
-from quad_bringup.metrics import planned_position  # noqa: E402
-from quad_bringup.recorder import DEFAULT_TOPICS, open_bag_reader, typestore  # noqa: E402
-from quad_bringup.report import load_flight  # noqa: E402
-from quad_common import contract  # noqa: E402
-from quad_common.conversions import stamp_to_s, vec3  # noqa: E402
 
 EXTERNAL_VISION = {'px4': ('EKF2_EV_CTRL=3', 'EKF2_HGT_REF=3', 'EKF2_GPS_CTRL=0', 'EKF2_EV_DELAY=0'),
                    'ardupilot': ('VISO_TYPE=1', 'EK3_SRC1_POSXY=6', 'EK3_SRC1_VELXY=6', 'EK3_SRC1_POSZ=6',

@@ -1,5 +1,5 @@
 """A controller we did not write, flown through quadflight: rotorpy 3.0.0's SE3Control, unchanged from its package
-(the peers' venv, bench/peers.py), as `--controller rotorpy.controllers.quadrotor_control:SE3Control`, beside
+(the peers' venv, quad_bringup.peer_venv), as `--controller rotorpy.controllers.quadrotor_control:SE3Control`, beside
 rotorpy's own Environment.run of the same controller on the same planned trajectory and vehicle parameters; and the
 cost per tick of the plugin path. Prints one markdown section.
 
@@ -18,19 +18,19 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))] + [str(ROOT / 'bench')]
+sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 
 import numpy as np  # noqa: E402
-from peers import peer_python, run_peer  # noqa: E402
 
 from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile  # noqa: E402
+from quad_bringup.peer_venv import run_peer  # noqa: E402
+from quad_bringup.rotorpy_peer import SE3CONTROL, rotorpy_dir  # noqa: E402
 from quad_common.paths import resolve_config  # noqa: E402
 from quad_common.types import AttitudeSetpoint, Reference, State  # noqa: E402
 from quad_control.plugins import ControllerPlugin, make_controller, vehicle_params  # noqa: E402
 from quad_control.position import Limits  # noqa: E402
 from quad_trajectory.mission import load_mission, plan_mission  # noqa: E402
 
-SE3CONTROL = 'rotorpy.controllers.quadrotor_control:SE3Control'
 MISSIONS = ('config/missions/figure8.yaml', 'config/missions/maze.yaml')
 GRAPH_MISSION = 'config/missions/figure8.yaml'
 
@@ -89,17 +89,6 @@ class TrivialFlightsim:
 
     def update(self, t, state, flat_output):
         return {'cmd_thrust': self.thrust_n, 'cmd_q': HOVER_Q}
-
-
-def rotorpy_dir(tmp: Path) -> Path:
-    """A directory with only the peers' installed rotorpy package in it (and cvxopt, which its MinSnap imports), for
-    PYTHONPATH."""
-    site = Path(subprocess.run([peer_python(), '-c', 'import rotorpy, os; print(os.path.dirname(rotorpy.__path__[0]))'],
-                               capture_output=True, text=True, check=True).stdout.strip())
-    for name in ('rotorpy', 'cvxopt', 'cvxopt.libs'):
-        if (site / name).exists():
-            (tmp / name).symlink_to(site / name)
-    return tmp
 
 
 def plant_params(vehicle) -> dict:

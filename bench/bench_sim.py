@@ -21,7 +21,6 @@ from quad_sim.simulator import Simulator
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MISSION_S = 20.0
-sys.path.insert(0, os.path.join(ROOT, 'bench'))
 
 
 def core_steps_per_s(seconds=4.0):
@@ -108,7 +107,7 @@ print(20.0 / (time.perf_counter() - start))
 
 def rotorpy_rtf():
     try:
-        from peers import run_peer
+        from quad_bringup.peer_venv import run_peer
         return f'{float(run_peer(ROTORPY, timeout_s=200).split()[-1]):.1f}x'
     except Exception as exc:  # the peer is optional: report why it is missing
         return f'n/a ({type(exc).__name__})'

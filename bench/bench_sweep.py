@@ -115,7 +115,7 @@ def rotorpy_flights() -> dict:
         data.append({'t': (traj.times_s - traj.times_s[0]).tolist(), 'p': traj.position.tolist(),
                      'v': traj.velocity.tolist(), 'a': traj.acceleration.tolist()})
     try:
-        from peers import run_peer
+        from quad_bringup.peer_venv import run_peer
 
         with tempfile.NamedTemporaryFile('w', suffix='.json', delete=False) as f:
             json.dump(data, f)

@@ -9,12 +9,12 @@ from pathlib import Path
 
 import rclpy
 from ament_index_python.packages import get_package_prefix
-from bridge_graph import WAIT_S, terminate
 from launch_standin import evaluate
 from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import parameter_value_to_python
 
+from quad_bringup.emulated_graph import WAIT_S, terminate
 from quad_common.testing import isolated_domain
 
 PUSHED = 'uav2'

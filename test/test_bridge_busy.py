@@ -12,18 +12,11 @@ from collections import deque
 
 import numpy as np
 import pytest
-from bridge_graph import (
-    VEHICLE_PARAMS,
-    Tap,
-    bridge_in_this_process,
-    free_udp_port,
-    hover_in_offboard,
-    mavlink,
-    running_graph,
-)
+from bridge_graph import Tap, bridge_in_this_process, mavlink, odom_arrivals, start_odom_probe
 from rclpy.duration import Duration
 
 from quad_bridge import frames
+from quad_bringup.emulated_graph import VEHICLE_PARAMS, free_udp_port, hover_in_offboard, running_graph
 from quad_common import contract, rotations
 from quad_common import conversions as conv
 from quad_common.conversions import stamp_to_s
@@ -94,17 +87,17 @@ def test_odometry_never_pauses_while_the_bridge_executor_is_busy(graph, flavour)
     procs, observer = graph
     port = free_udp_port()
     procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', extra=VEHICLE_PARAMS[flavour])
-    procs.odom_probe()
+    start_odom_probe(procs)
     with bridge_in_this_process(observer, procs.namespace, f'udpin:127.0.0.1:{port}') as bridge:
-        observer.wait_for(lambda: len(procs.odom_arrivals()[0]) >= 50, 'odometry at the probe')
+        observer.wait_for(lambda: len(odom_arrivals(procs)[0]) >= 50, 'odometry at the probe')
         load = ExecutorLoad(bridge)
         done = load.run('compute', 'block')
         start, end = done[0][1], done[-1][2]
-        observer.wait_for(lambda: procs.odom_arrivals()[0][-1] > end + SETTLE_S, 'odometry after the load')
+        observer.wait_for(lambda: odom_arrivals(procs)[0][-1] > end + SETTLE_S, 'odometry after the load')
         published_gap_s = bridge.telemetry.odom_gap_max_s(start)   # in the bridge, from the load on
         gap_max_ms = float(bridge.telemetry.info(bridge.now_s())['odom_gap_max_ms'])   # its diagnostics
     assert [p for p, _, _ in done] == ['compute', 'block'] and all(e - s >= BUSY_S for _, s, e in done)
-    arrival, stamp = procs.odom_arrivals()
+    arrival, stamp = odom_arrivals(procs)
     window = (arrival >= start - SETTLE_S) & (arrival <= end + SETTLE_S)
     a, s = arrival[window], stamp[window]
     # arrival - stamp: the time from the autopilot's measurement to the subscriber. A pause of the bridge delays
@@ -155,7 +148,7 @@ def test_a_big_plan_arriving_in_offboard_stalls_nothing_with_default_timeouts(gr
     arrives. The bridge never goes stale (no LAND), the controller never sees stale odometry, the vehicle holds."""
     procs, observer = graph
     hover_in_offboard(procs, observer, 'ardupilot', free_udp_port(), controller_files=REAL_PROFILE)
-    procs.odom_probe()
+    start_odom_probe(procs)
     assert _values(observer.controller()).get('controller') == 'pid'   # control_real.yaml applied
     hold = _hold_point(observer)
     plan = _hover_plan(hold, observer.node.get_clock().now().to_msg())
@@ -171,7 +164,7 @@ def test_a_big_plan_arriving_in_offboard_stalls_nothing_with_default_timeouts(gr
     with observer.lock:
         flown = np.array([p for t, p in observer.odom if t >= published_s])
     error = np.linalg.norm(flown - hold, axis=1)
-    arrival, stamp = procs.odom_arrivals()
+    arrival, stamp = odom_arrivals(procs)
     arrival, stamp = arrival[stamp >= published_s], stamp[stamp >= published_s]
     timeouts = int(controller['odom_timeouts']) - timeouts_before
     # the vehicle's own pauses (its stamps, autopilot time): the emulator's process starved by a loaded machine

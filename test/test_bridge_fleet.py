@@ -22,7 +22,12 @@ import numpy as np
 import pytest
 import yaml
 from ament_index_python.packages import get_package_prefix
-from bridge_graph import (
+from bridge_graph import mavlink
+from launch_standin import evaluate
+from mavlink_hub import read_record
+
+from quad_bringup import graph
+from quad_bringup.emulated_graph import (
     OFFBOARD_MODE,
     VEHICLE_FILE,
     VEHICLE_PARAMS,
@@ -30,13 +35,8 @@ from bridge_graph import (
     Processes,
     enter_offboard,
     free_udp_port,
-    mavlink,
     terminate,
 )
-from launch_standin import evaluate
-from mavlink_hub import read_record
-
-from quad_bringup import graph
 from quad_common.testing import isolated_domain
 
 ROOT = Path(__file__).resolve().parent.parent

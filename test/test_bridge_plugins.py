@@ -6,8 +6,8 @@ import subprocess
 import sys
 
 import pytest
-from bridge_graph import free_udp_port, hover_in_offboard, python_env, running_graph
 
+from quad_bringup.emulated_graph import free_udp_port, hover_in_offboard, python_env, running_graph
 from quad_common import contract
 from quad_common.paths import REPO_ROOT
 from quad_common.testing import isolated_domain

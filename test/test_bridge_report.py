@@ -4,8 +4,9 @@ scored window ends at completion by the vehicle's own tolerances (px4_quad.yaml:
 end plus its settle time, never in the landing that follows; the report says which, and what it scored."""
 
 import pytest
-from bridge_graph import running_graph
-from bridge_mission import fly_mission, report
+
+from quad_bringup.emulated_graph import running_graph
+from quad_bringup.emulated_mission import fly_mission, report
 
 WAYPOINTS = [(0.0, 0.0, 1.5), (1.5, 0.0, 1.5), (1.5, 1.0, 1.8)]
 SPEED_MPS = 0.5

@@ -1,8 +1,9 @@
-"""`quadflight identify`'s margin check against a plant we did not write: rotorpy 3.0.0's Multirotor (the
-Crazyflie with its own SO(3) PD attitude loop, kp 310 / kd 57: lag kd / kp = 0.184 s, 72 ms motors, rotor drag), in
-the peers' venv (bench/peers.py, installed on first use), flown by our position controller and recorded as a
-rosbag2 bag (bench/bench_transfer.py). The check's verdict at 1.5x the identified response is compared with
-rotorpy's own hold at 1.5x its lag (its PD's poles scaled by 1 / 1.5): accepted settles, refused oscillates."""
+"""`quadflight identify`'s margin check against a plant we did not write: rotorpy 3.0.0's Multirotor (the Crazyflie
+with its own SO(3) PD attitude loop, kp 310 / kd 57: lag kd / kp = 0.184 s, 72 ms motors, rotor drag), in the peers'
+venv (quad_bringup.peer_venv, installed on first use), flown by our position controller and recorded as a rosbag2
+bag (quad_bringup.rotorpy_peer, as bench/bench_transfer.py flies it). The check's verdict at 1.5x the identified
+response is compared with rotorpy's own hold at 1.5x its lag (its PD's poles scaled by 1 / 1.5): accepted settles,
+refused oscillates."""
 
 import subprocess
 import sys
@@ -11,10 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from quad_bringup import rotorpy_peer
 from quad_common.paths import REPO_ROOT, resolve_config
-
-sys.path.insert(0, str(REPO_ROOT / 'bench'))
-import bench_transfer  # noqa: E402
 
 CRAZYFLIE = resolve_config('config/vehicles/crazyflie.yaml')
 SE3 = resolve_config('config/control_se3.yaml')
@@ -28,7 +27,7 @@ def _values(path):
 def flown(tmp_path_factory):
     """A figure8 at 2 m/s on rotorpy with control_se3 (the transfer bench's identification flight)."""
     tmp = tmp_path_factory.mktemp('rotorpy')
-    bag, _, _ = bench_transfer.rotorpy_mission_bag('figure8', _values(SE3), tmp)
+    bag, _, _ = rotorpy_peer.rotorpy_mission_bag('figure8', _values(SE3), tmp)
     return tmp, bag
 
 
@@ -52,9 +51,9 @@ def test_the_profile_identify_accepts_settles_on_rotorpy_at_the_margin(flown, id
     assert done.returncode == 0, done.stderr            # a 0.1 s latency guess refused it (28 deg rms)
     assert 'telemetry latency 0.000 s, 100 Hz, bursts up to 0.000 s' in done.stdout   # the bag's, not ArduCopter's
     written = yaml.safe_load(out.read_text())['position_controller']['ros__parameters']
-    assert written['attitude_lead_s'] == pytest.approx(bench_transfer.ROTORPY_LAG_S, rel=0.05)
+    assert written['attitude_lead_s'] == pytest.approx(rotorpy_peer.ROTORPY_LAG_S, rel=0.05)
     assert written['thrust_scale'] == pytest.approx(1.0, abs=0.01)
-    hold = bench_transfer.rotorpy_hold(written, tmp, 1.5, 'accepted')
+    hold = rotorpy_peer.rotorpy_hold(written, tmp, 1.5, 'accepted')
     assert hold.settled, hold.describe()
     assert hold.oscillation_deg < 0.3 and hold.offset_m < 0.005
 
@@ -70,10 +69,10 @@ def test_a_profile_the_check_refuses_oscillates_on_rotorpy_at_the_margin(flown):
     assert 'does not settle at 0.26' in done.stderr and "telemetry from a simulator's bag" in done.stderr
     oscillation = float(done.stderr.split('oscillation ')[1].split(' deg')[0])
     assert oscillation > 5.0
-    lead = dict(stiff, attitude_lead_s=bench_transfer.ROTORPY_LAG_S)
-    at_margin = bench_transfer.rotorpy_hold(lead, tmp, 1.5, 'refused')
+    lead = dict(stiff, attitude_lead_s=rotorpy_peer.ROTORPY_LAG_S)
+    at_margin = rotorpy_peer.rotorpy_hold(lead, tmp, 1.5, 'refused')
     assert not at_margin.settled and at_margin.oscillation_deg > 5.0, at_margin.describe()
-    assert bench_transfer.rotorpy_hold(lead, tmp, 1.0, 'refused-1x').settled   # stable, without margin
+    assert rotorpy_peer.rotorpy_hold(lead, tmp, 1.0, 'refused-1x').settled   # stable, without margin
 
 
 def test_fly_accepts_the_vehicle_model_identified_on_rotorpy(flown, identified, ros_env):
@@ -83,7 +82,7 @@ def test_fly_accepts_the_vehicle_model_identified_on_rotorpy(flown, identified, 
     done, profile, model = identified
     assert done.returncode == 0, done.stderr
     assert yaml.safe_load(model.read_text())['attitude_loop'] == {
-        'type': 'lag', 'time_constant_s': pytest.approx(bench_transfer.ROTORPY_LAG_S, rel=0.05)}
+        'type': 'lag', 'time_constant_s': pytest.approx(rotorpy_peer.ROTORPY_LAG_S, rel=0.05)}
     mission = tmp / 'short.yaml'
     mission.write_text(f'name: short\nvehicle: {Path(CRAZYFLIE).resolve()}\n'
                        'waypoints: [[0, 0, 1], [0.8, 0.4, 1.2], [1.5, 0, 1]]\nyaw: 0.0\ntrajectory:\n'
@@ -117,7 +116,7 @@ def test_replay_twin_of_the_rotorpy_flight_within_20_percent(flown, identified):
         return [*numbers, done.stdout]
 
     drag = yaml.safe_load(model.read_text())['aerodynamics']
-    assert drag['rotor_drag_xy'] == pytest.approx(bench_transfer.ROTORPY_ROTOR_DRAG, rel=0.05)   # rotorpy's k_d
+    assert drag['rotor_drag_xy'] == pytest.approx(rotorpy_peer.ROTORPY_ROTOR_DRAG, rel=0.05)   # rotorpy's k_d
     flight, twin, trace, out = replay(model, tmp / 'twin.png')
     assert 1.0 < flight < 3.0 and abs(twin / flight - 1) < 0.2, out
     assert trace < 0.3 * flight, out   # the twin's trace follows the flight's, not only its RMSE

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 import yaml
-from bridge_graph import free_udp_port
 from launched_params import PUSHED, launched_parameters, pushed_launch_file
 
 from quad_bringup import graph
+from quad_bringup.emulated_graph import free_udp_port
 
 ROOT = Path(__file__).resolve().parent.parent
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'

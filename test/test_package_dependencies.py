@@ -119,3 +119,35 @@ def test_optional_imports_without_a_key_are_named_in_package_xml(package):
     text = (pkg / 'package.xml').read_text()
     for module in used:
         assert f'optional, no rosdep key: {module}' in text, f'{package}/package.xml does not name {module}'
+
+
+def cross_links(root: Path, importer: str, provider: str) -> list[str]:
+    """Where a file under root/importer/ reaches into root/provider/: an import of a module that lives there (a
+    top-level name of one of its .py files) or a sys.path entry naming that folder. What both need lives in a
+    package (quad_bringup.emulated_graph, emulated_mission, emulated_chain, emulated_twin, peer_venv, rotorpy_peer)."""
+    provided = {p.stem for p in (root / provider).glob('*.py')}
+    found = []
+    for path in sorted((root / importer).rglob('*.py')):
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            else:
+                names = []
+            found += [f'{path.relative_to(root)}:{node.lineno}: imports {n}' for n in names
+                      if n.split('.')[0] in provided]
+            if isinstance(node, ast.stmt) and not isinstance(node, (ast.FunctionDef, ast.ClassDef, ast.With, ast.If,
+                                                                    ast.For, ast.Try, ast.AsyncFunctionDef)):
+                segment = ast.get_source_segment(path.read_text(), node) or ''
+                strings = {c.value.strip('/') for c in ast.walk(node)
+                           if isinstance(c, ast.Constant) and isinstance(c.value, str)}
+                if 'sys.path' in segment and any(s == provider or s.endswith('/' + provider) for s in strings):
+                    found.append(f'{path.relative_to(root)}:{node.lineno}: puts {provider}/ on sys.path')
+    return found
+
+
+@pytest.mark.parametrize('importer, provider', [('bench', 'test'), ('test', 'bench')])
+def test_bench_and_test_do_not_import_each_other(importer, provider):
+    assert cross_links(ROOT, importer, provider) == []

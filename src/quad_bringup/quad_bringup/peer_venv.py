@@ -1,15 +1,18 @@
-"""Peer libraries measured beside ours (rotorpy, minsnap-trajectories) live in their own venv,
-.bench-venv, made on first use, so they never enter the project's environment."""
+"""The peer libraries measured and tested beside ours (rotorpy, minsnap-trajectories) in a venv of their own,
+.bench-venv at the checkout's root, made on first use, so they never enter the project's environment. Not part of a
+flight: used by the benches and by the tests that fly a peer's plant or controller (quad_bringup.rotorpy_peer)."""
 
 import fcntl
 import os
 import subprocess
 import sys
+from pathlib import Path
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PEER_VENV = os.path.join(ROOT, '.bench-venv')
+from quad_common.paths import REPO_ROOT
+
+PEER_VENV = str(REPO_ROOT / '.bench-venv')
 PEERS = ['rotorpy==3.0.0', 'minsnap-trajectories==0.3.0']
-PEER_CONSTRAINTS = os.path.join(ROOT, 'bench', 'peers-constraints.txt')   # their dependencies, pinned
+PEER_CONSTRAINTS = str(Path(__file__).resolve().with_name('peer_constraints.txt'))   # their dependencies, pinned
 
 
 def peer_python() -> str:

@@ -1,35 +1,31 @@
-"""bench_bridge_flight's offline chain: the odometry stamps' bias (fly_chain_offline odom_early_s: a
-clock fallback of the bridge once stamped PX4 SIH's odometry 70-150 ms early). The bias must be range-checked, reach the
-stamps position_controller's loop is given and the stamps the scoring uses, and leave the flight itself alone (under
-the bridge the loop controls from the newest odometry at the node's time, whatever its stamp: docs/emulator.md)."""
+"""The real-vehicle chain flown offline (quad_bringup.emulated_chain): the odometry stamps' bias (fly_chain_offline
+odom_early_s: a clock fallback of the bridge once stamped PX4 SIH's odometry 70-150 ms early). The bias must be
+range-checked, reach the stamps position_controller's loop is given and the stamps the scoring uses, and leave the
+flight itself alone (under the bridge the loop controls from the newest odometry at the node's time, whatever its
+stamp: docs/emulator.md)."""
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / 'bench'))
+from quad_bringup import emulated_chain as chain
 
-import bench_bridge_flight as bench  # noqa: E402
-
-CONTROL_LOOP = bench.ControlLoop
+CONTROL_LOOP = chain.ControlLoop
 
 
-@pytest.mark.parametrize('bad', [-0.01, bench.ODOM_EARLY_MAX_S + 0.01, math.nan, math.inf])
+@pytest.mark.parametrize('bad', [-0.01, chain.ODOM_EARLY_MAX_S + 0.01, math.nan, math.inf])
 def test_odom_early_s_range(bad):
     with pytest.raises(ValueError, match='early'):
-        bench.odom_early_s_checked(bad)
+        chain.odom_early_s_checked(bad)
     with pytest.raises(ValueError, match='early'):   # refused before anything is flown
-        bench.fly_chain_offline(None, 0, odom_early_s=bad)
+        chain.fly_chain_offline(None, 0, odom_early_s=bad)
 
 
 def test_odom_early_s_accepted():
-    assert bench.odom_early_s_checked(0) == 0.0
-    assert bench.odom_early_s_checked('0.11') == pytest.approx(0.11)
-    assert bench.odom_early_s_checked(bench.ODOM_EARLY_MAX_S) == bench.ODOM_EARLY_MAX_S
+    assert chain.odom_early_s_checked(0) == 0.0
+    assert chain.odom_early_s_checked('0.11') == pytest.approx(0.11)
+    assert chain.odom_early_s_checked(chain.ODOM_EARLY_MAX_S) == chain.ODOM_EARLY_MAX_S
 
 
 def _fly_short(monkeypatch, early_s):
@@ -41,17 +37,16 @@ def _fly_short(monkeypatch, early_s):
             given.append((stamp_ns, state.position.copy()))
             return super().set_odometry(stamp_ns, state)
 
-    real_score = bench.score
+    real_score = chain.score
 
-    def spy_score(stamps_s, positions, traj):
+    def spy_score(stamps_s, positions, traj, hover_s):
         scored.append((np.array(stamps_s), np.array(positions)))
-        return real_score(stamps_s, positions, traj)
+        return real_score(stamps_s, positions, traj, hover_s)
 
-    monkeypatch.setattr(bench, 'ControlLoop', SpyLoop)
-    monkeypatch.setattr(bench, 'score', spy_score)
-    monkeypatch.setattr(bench, 'SQUARE', [(0.0, 0.0, 2.0), (1.0, 0.0, 2.0)])
-    monkeypatch.setattr(bench, 'OFFLINE_HOVER_S', 1.0)
-    rmse = bench.fly_chain_offline(None, 0, odom_early_s=early_s)
+    monkeypatch.setattr(chain, 'ControlLoop', SpyLoop)
+    monkeypatch.setattr(chain, 'score', spy_score)
+    rmse = chain.fly_chain_offline(None, 0, odom_early_s=early_s, waypoints=[(0.0, 0.0, 2.0), (1.0, 0.0, 2.0)],
+                                   hover_s=1.0)
     assert len(scored) == 1
     return rmse, given, scored[0]
 

@@ -3,7 +3,8 @@ off, mavlink_bridge, position_controller with a control profile (the launch file
 the recorder (`quadflight record`'s node), `offboard`, trajectory_node with the waypoints, `land` after the plan's
 end plus the vehicle's settle time, the recorder stopped, then `quadflight report BAG --vehicle VEHICLE`.
 
-Used by test_bridge_report.py and bench/bench_bridge_flight.py (the flight table of docs/bridge.md)."""
+Flown through quad_bringup.emulated_graph's processes; used by the bridge report test (test/test_bridge_report.py)
+and the bridge benches (bench/bench_bridge_flight.py: the flight table of docs/bridge.md; bench/bench_twin.py)."""
 
 import json
 import subprocess
@@ -11,9 +12,16 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from bridge_graph import OFFBOARD_MODE, ROOT, VEHICLE_FILE, enter_offboard, free_udp_port, start_vehicle_graph
 from std_srvs.srv import Trigger
 
+from quad_bringup.emulated_graph import (
+    OFFBOARD_MODE,
+    ROOT,
+    VEHICLE_FILE,
+    enter_offboard,
+    free_udp_port,
+    start_vehicle_graph,
+)
 from quad_bringup.metrics import Completion
 from quad_common.conversions import stamp_to_s
 from quad_common.vehicle import load_vehicle
