@@ -69,6 +69,7 @@ FIRST_TRUST = 0.3
 GROW, SHRINK = 2.0, 0.4
 GROW_RATIO = 0.75        # a full step whose gain was at least this fraction of the predicted one grows the radius
 STALL_GAIN = 1e-3        # a step predicted to gain less than this fraction of the time ends the search
+SETTLED_GAIN = 1e-3      # a kept step that gained less than this fraction of the time ends the search
 LOOP_SAMPLES = 10        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
 SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
 EQUALISE_ROUNDS = 1      # start: each segment scaled to its own limit, this many times
@@ -475,6 +476,8 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
             trust = min(GROW * trust, 1.0)
         if ratio > 0.0:
             T, J, derivatives, best, merit = shape, None, None, candidate, float(candidate.sum())
+            if actual < SETTLED_GAIN * merit:
+                break
     T = best
     # the search samples LOOP_SAMPLES points a segment; the plan is checked (and flown) at feasibility.py's
     return T * Constraints(vehicle, margin).feasible_scale(solve(T))
