@@ -165,7 +165,8 @@ class Constraints:
         f0, f1 = f(x0), f(x1)
         side = 0
         for _ in range(_ROOT_ITERATIONS):
-            if x1 - x0 < _ROOT_TOLERANCE:
+            # done when the bracket, or the secant's distance from the feasible end to the root, is below tolerance
+            if x1 - x0 < _ROOT_TOLERANCE or -f1 * (x1 - x0) < _ROOT_TOLERANCE * (f0 - f1):
                 break
             x = x1 - f1 * (x1 - x0) / (f1 - f0) if f1 != f0 else 0.5 * (x0 + x1)
             x = min(max(x, x0 + 0.01 * (x1 - x0)), x1 - 0.01 * (x1 - x0))
@@ -279,8 +280,8 @@ def _derivative_directions(system, points, T, directions, s):
     y = y.reshape(system.m, n, 3)
     dy = dy.reshape(system.m, n, n_dir, 3)
     values, changes = [], []
-    y_rows = y.transpose(0, 2, 1)                 # (m, 3, n): a matrix product with each derivative's basis
-    dy_rows = dy.transpose(2, 0, 3, 1)            # (D, m, 3, n)
+    y_rows = y.transpose(0, 2, 1).reshape(-1, n)            # (m 3, n): one matrix product with each basis
+    dy_rows = dy.transpose(2, 0, 3, 1).reshape(-1, n)       # (D m 3, n)
     for q in (2, 3, 4):
         if q >= n:
             basis = np.zeros((n, s.size))
@@ -288,8 +289,8 @@ def _derivative_directions(system, points, T, directions, s):
             basis = np.zeros((n, s.size))
             basis[q:] = derivative_factors(n, q)[:, None] * s[None, :] ** np.arange(n - q)[:, None]
         scale = T[:, None, None] ** -q
-        value = (y_rows @ basis) * scale
-        change = (dy_rows @ basis) * scale[None]
+        value = (y_rows @ basis).reshape(system.m, 3, s.size) * scale
+        change = (dy_rows @ basis).reshape(n_dir, system.m, 3, s.size) * scale[None]
         values.append(value)
         changes.append(change - q * directions[:, :, None, None] * value[None])
     return tuple(values), tuple(changes)
@@ -350,7 +351,7 @@ def _lp_step(T, J, g, trust):
     banded Cholesky of bandwidth 2 BAND, O(m BAND^2) however many rows. Stops when the residuals and the gap
     y.z are below LP_TOLERANCE of the problem's scale; None at once when a row lies beyond the box's reach,
     or when the gap grows DIVERGED-fold (rows that contradict each other: the multipliers grow unbounded)."""
-    from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+    from scipy.linalg.lapack import dpbtrf, dpbtrs
 
     rows, m = J.shape
     if np.any(g - trust * J.abs_row_sums() > 0.0):     # a row that no d in the box brings inside
@@ -366,8 +367,7 @@ def _lp_step(T, J, g, trust):
 
     def newton(factor, r_dual, r_primal, r_comp):
         """(dd, dy, dz) of the Newton step with complementarity residual r_comp (of y z)."""
-        dd = cho_solve_banded((factor, False), -r_dual - a_transpose_dot((z * r_primal - r_comp) / y),
-                              check_finite=False)
+        dd, _ = dpbtrs(factor, -r_dual - a_transpose_dot((z * r_primal - r_comp) / y), lower=0)
         dy = -r_primal - a_dot(dd)
         return dd, dy, (-r_comp - z * dy) / y
 
@@ -391,9 +391,8 @@ def _lp_step(T, J, g, trust):
         w = z / y
         ab = (normal @ w[:rows]).reshape(2 * BAND + 1, m)
         ab[-1] += w[rows:rows + m] + w[rows + m:]
-        try:
-            factor = cholesky_banded(ab, lower=False, check_finite=False)
-        except LinAlgError:
+        factor, info = dpbtrf(ab, lower=0)
+        if info != 0:
             return None
         # predictor: the affine step; its gap sets the centring target sigma mu with sigma = (gap_affine / gap)^3
         dd, dy, dz = newton(factor, r_dual, r_primal, y * z)
@@ -428,12 +427,13 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
     best = None
     for shape in shapes:
         T = np.asarray(shape, dtype=float)
-        for _ in range(EQUALISE_ROUNDS + 1):
+        for round_ in range(EQUALISE_ROUNDS + 1):
             trajectory = solve(T)
             candidate = T * constraints.feasible_scale(trajectory)
             if best is None or candidate.sum() < best.sum():
                 best = candidate
-            T = T * constraints.segment_scales(trajectory)
+            if round_ < EQUALISE_ROUNDS:
+                T = T * constraints.segment_scales(trajectory)
     # the iterate T may sit slightly outside the limits (a step is kept for its scaled total, and the next
     # programme pulls its rows back inside); best is the shortest plan scaled to them so far, merit its total
     T = best
