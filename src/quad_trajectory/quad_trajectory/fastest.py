@@ -378,9 +378,11 @@ def _lp_step(T, J, g, trust):
     z = np.concatenate([np.zeros(rows), np.maximum(T, 0.0), np.maximum(-T, 0.0)]) + 0.1 * cost_scale
     primal_scale, dual_scale = 1.0 + float(np.abs(H).max()), 1.0 + cost_scale
     start_gap = None
+    # a Newton step meets A dd + dy = -r_p and A^T dz = -r_d exactly, so steps of primal and dual lengths scale
+    # the residuals by (1 - length): they are updated, not recomputed
+    r_dual = T + a_transpose_dot(z)
+    r_primal = a_dot(d) + y - H
     for _ in range(LP_ITERATIONS):
-        r_dual = T + a_transpose_dot(z)
-        r_primal = a_dot(d) + y - H
         gap = float(np.sum(y * z))     # sums, not BLAS dots: OpenBLAS threads a long dot (CPU for nothing)
         start_gap = start_gap or gap
         if not gap < DIVERGED * start_gap:     # the multipliers grow without bound: no d meets every row
@@ -402,6 +404,7 @@ def _lp_step(T, J, g, trust):
         dd, dy, dz = newton(factor, r_dual, r_primal, y * z + dy * dz - target)
         primal, dual = 0.995 * _longest(y, dy), 0.995 * _longest(z, dz)
         d, y, z = d + primal * dd, y + primal * dy, z + dual * dz
+        r_primal, r_dual = (1.0 - primal) * r_primal, (1.0 - dual) * r_dual
     return None
 
 
