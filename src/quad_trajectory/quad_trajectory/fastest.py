@@ -280,8 +280,10 @@ def _derivative_directions(system, points, T, directions, s):
     y = y.reshape(system.m, n, 3)
     dy = dy.reshape(system.m, n, n_dir, 3)
     values, changes = [], []
-    y_rows = y.transpose(0, 2, 1).reshape(-1, n)            # (m 3, n): one matrix product with each basis
-    dy_rows = dy.transpose(2, 0, 3, 1).reshape(-1, n)       # (D m 3, n)
+    # one matrix product with each derivative's basis per direction: (D, m 3, n); a single (D m 3, n) product
+    # is large enough for OpenBLAS to thread, which at 1000 segments cost 2.5x the CPU for the same result
+    y_rows = y.transpose(0, 2, 1).reshape(-1, n)            # (m 3, n)
+    dy_rows = dy.transpose(2, 0, 3, 1).reshape(n_dir, -1, n)
     for q in (2, 3, 4):
         if q >= n:
             basis = np.zeros((n, s.size))
