@@ -213,7 +213,7 @@ def _linearised_constraints(system, points, x, constraints, near, derivatives=No
     active = v > -near
     segment = np.nonzero(active)[1]          # the segment of each row
     # every colour's perturbed needs in one evaluation: (checks, colours x m, S)
-    moved = constraints.violations(*(np.concatenate(value[None] + NEEDS_STEP * change)
+    moved = constraints.violations(*((value[None] + NEEDS_STEP * change).reshape(-1, *value.shape[1:])
                                      for value, change in ((a, da), (j, dj), (snap, ds))))
     moved = moved.reshape(v.shape[0], colours, m, -1)
     dv = (moved.transpose(1, 0, 2, 3)[:, active] - v[active]) / NEEDS_STEP       # (colours, rows)
