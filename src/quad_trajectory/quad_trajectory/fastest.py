@@ -7,42 +7,44 @@ an upper limit times 1 - margin, a lower one raised by margin x its range). The 
 at feasibility.py's own 32 samples a segment, the check `quadflight plan` and `fly` run before flight.
 
 Method: a trust-region sequential linear programme in x = log T, judged by uniform scaling.
-- Uniform scaling is exact (planner._limit_times): times k T give p(t / k), so acceleration, jerk and snap at
-  a segment's samples divide by k^2, k^3, k^4 without a new solve. `feasible_scale` finds the smallest k with
-  every sample inside the limits: each need falls monotonically towards its hover value as k grows, so a
-  bracket is found from k = 1 outwards and the root (Illinois regula falsi in log k) only over the samples that
-  fail at the bracket's low end. The tilt check is left out: tilt + lag x tilt rate >= tilt under the same
-  limit, so attitude_lag passing implies it.
+- Uniform scaling is exact (planner._limit_times): times k T give p(t / k), so acceleration, jerk and snap at a
+  segment's samples divide by k^2, k^3, k^4 without a new solve. `feasible_scale` finds the smallest k with every
+  sample inside the limits: each need falls monotonically towards its hover value as k grows, so a bracket is found
+  from k = 1 outwards and the root (Illinois regula falsi in log k) only over the samples that fail at the bracket's
+  low end, until the bracket or the secant's distance from its feasible end to the root is below tolerance (the
+  feasible end is returned, so the scale errs only on the slow side). The tilt check is left out: tilt + lag x tilt
+  rate >= tilt under the same limit, so attitude_lag passing implies it.
 - Start: the sqrt shape, then EQUALISE_ROUNDS rounds of T_i <- T_i k_i with k_i the scale that makes segment i
   alone just feasible (its neighbours' coupling ignored; a vectorised bisection for all segments at once); the
   shortest of these, scaled, starts the search.
-- Step: the normalised violation of each check at each sample, v (need / limit - 1 above, (limit - need) /
-  range below; <= 0 feasible), and its Jacobian dv/dx. The spline's normalised-time coefficients y solve
-  A(T) y = b (solver.System; b is the points), and only the continuity rows' factors (T_k+1 / T_k)^p depend on
-  T, so dy/dx_j = -A^-1 (dA/dx_j y): one banded LU of A (LAPACK gbtrf) gives y and every direction's dy by
-  back-substitution. Derivative q at the normalised time s is T^-q P^(q)(s), so its change is
-  T^-q dP^(q)(s) - q dx p^(q); the needs (a pointwise function of a, j, snap) change along it by a
-  directional difference of step NEEDS_STEP, without a new solve. A change of T_j moves the spline mostly near
-  segment j (a joint's influence decays geometrically along a minimum-derivative spline), so dv/dx is taken
-  banded: BAND segments either side, every (2 BAND + 1)-th segment moved at once in one direction (2 BAND + 1
-  directions), each row of J held as its 2 BAND + 1 entries (BandRows). The linear programme
-  min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust radius of its
-  limit (less the rows no step inside the box reaches, v_r + trust |J_r|_1 <= 0), |d_j| <= trust radius,
-  gives the step (_lp_step: an interior-point method whose Newton systems J^T W J are banded, so a step costs
-  O(rows) at any length of plan; scipy's HiGHS took 2.8x as long on the same programmes at 100 segments and
-  3.9x at 1000). The new shape, scaled to the limits, is compared with the best so
-  far; when shorter, it is kept scaled as the best and unscaled as the next iterate: its samples just outside
-  the limits enter the next programme with v_r > 0 and are pulled back by its step, where scaling the whole
-  plan for one overshoot would throw most of the step away (on 100 segments 35.5 s against 36.3 s when every
-  iterate was scaled). An iterate that no step within the radius pulls back (the programme has no solution)
-  gives way to the best. The trust radius follows how well the programme predicted the gain.
+- Step: the normalised violation of each check at each sample, v (need / limit - 1 above, (limit - need) / range
+  below; <= 0 feasible), and its Jacobian dv/dx. The spline's normalised-time coefficients y solve A(T) y = b
+  (solver.System; b is the points), and only the continuity rows' factors (T_k+1 / T_k)^p depend on T, so dy/dx_j =
+  -A^-1 (dA/dx_j y): one banded LU of A (LAPACK gbtrf) gives y and every direction's dy by back-substitution.
+  Derivative q at the normalised time s is T^-q P^(q)(s), so its change is T^-q dP^(q)(s) - q dx p^(q); the needs (a
+  pointwise function of a, j, snap) change along it by a directional difference of step NEEDS_STEP, without a new
+  solve. A change of T_j moves the spline mostly near segment j (a joint's influence decays geometrically along a
+  minimum-derivative spline), so dv/dx is taken banded: BAND segments either side, every (2 BAND + 1)-th segment
+  moved at once in one direction (2 BAND + 1 directions), each row of J held as its 2 BAND + 1 entries (BandRows).
+  The linear programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust
+  radius of its limit (less the rows no step inside the box reaches, v_r + trust |J_r|_1 <= 0), |d_j| <= trust
+  radius, gives the step (_lp_step: an interior-point method whose Newton systems J^T W J are banded, factorised by
+  LAPACK's dpbtrf directly, so a step costs O(rows) at any length of plan; scipy's HiGHS took 2.8x as long on the
+  same programmes at 100 segments and 3.9x at 1000). The new shape, scaled to the limits, is compared with the best
+  so far; when shorter, it is kept scaled as the best and unscaled as the next iterate: its samples just outside the
+  limits enter the next programme with v_r > 0 and are pulled back by its step, where scaling the whole plan for one
+  overshoot would throw most of the step away (on 100 segments 35.5 s against 36.3 s when every iterate was scaled).
+  An iterate that no step within the radius pulls back (the programme has no solution) gives way to the best. The
+  trust radius follows how well the programme predicted the gain.
   BAND = 5 matters: with 3, the directions alias the influence of segments 4 away (about 20 % error in the
   Jacobian) and the search stalls 2-3 % short of the optimum on slalom_dense.
   Every near sample is a row, not only each segment's peak: the peak moves between samples as the times
   change, and a programme that sees only the peaks (or only each local peak and its neighbours) steps into
   the samples it does not see.
-- Stop: after MAX_ITERATIONS steps, when the radius falls below MIN_TRUST, or when the programme predicts
-  less than STALL_GAIN of the total time.
+- Stop: after MAX_ITERATIONS steps, when the radius falls below MIN_TRUST, when the programme predicts
+  less than STALL_GAIN of the total time, or when a kept step gained less than SETTLED_GAIN of it: gains that
+  small are below what rescaling from the search's LOOP_SAMPLES to feasibility.py's 32 moves the total
+  (about 0.4 % on the 100-segment survey), so further steps rarely shorten the returned plan.
 The search samples LOOP_SAMPLES points a segment (fewer rows in each programme), the result is then scaled to
 pass at feasibility.py's 32. Cost per step: one banded LU with 2 BAND + 2 right-hand sides, one need
 evaluation over the 2 BAND + 1 directions at once, one solve and scale for the new shape, one programme of
@@ -347,12 +349,14 @@ class BandRows:
 def _lp_step(T, J, g, trust):
     """The step d: min sum_j T_j d_j s.t. g + J d <= 0, |d_j| <= trust, or None when no such d is found.
 
-    Mehrotra's predictor-corrector interior-point method on A d <= H with A = [J; -I; I], H = [-g; trust;
-    trust]: slacks y = H - A d and multipliers z (both > 0), residuals r_p = A d + y - H, r_d = T + A^T z.
-    J is banded (BandRows), so each Newton system A^T diag(z / y) A dd = -r_d - A^T ((z r_p - r_c) / y) is a
-    banded Cholesky of bandwidth 2 BAND, O(m BAND^2) however many rows. Stops when the residuals and the gap
-    y.z are below LP_TOLERANCE of the problem's scale; None at once when a row lies beyond the box's reach,
-    or when the gap grows DIVERGED-fold (rows that contradict each other: the multipliers grow unbounded)."""
+    Mehrotra's predictor-corrector interior-point method on A d <= H with A = [J; -I; I], H = [-g; trust; trust]:
+    slacks y = H - A d and multipliers z (both > 0), residuals r_p = A d + y - H, r_d = T + A^T z. J is banded
+    (BandRows), so each Newton system A^T diag(z / y) A dd = -r_d - A^T ((z r_p - r_c) / y) is a banded Cholesky of
+    bandwidth 2 BAND, O(m BAND^2) however many rows (LAPACK dpbtrf/dpbtrs called directly: scipy's checking wrappers
+    cost more than the factorisation at 100 segments). The step meets A dd + dy = -r_p and A^T dz = -r_d, so steps
+    of primal and dual length a scale r_p and r_d by 1 - a. Stops when the residuals and the gap y.z are below
+    LP_TOLERANCE of the problem's scale; None at once when a row lies beyond the box's reach, or when the gap grows
+    DIVERGED-fold (rows that contradict each other: the multipliers grow unbounded)."""
     from scipy.linalg.lapack import dpbtrf, dpbtrs
 
     rows, m = J.shape
@@ -380,8 +384,6 @@ def _lp_step(T, J, g, trust):
     z = np.concatenate([np.zeros(rows), np.maximum(T, 0.0), np.maximum(-T, 0.0)]) + 0.1 * cost_scale
     primal_scale, dual_scale = 1.0 + float(np.abs(H).max()), 1.0 + cost_scale
     start_gap = None
-    # a Newton step meets A dd + dy = -r_p and A^T dz = -r_d exactly, so steps of primal and dual lengths scale
-    # the residuals by (1 - length): they are updated, not recomputed
     r_dual = T + a_transpose_dot(z)
     r_primal = a_dot(d) + y - H
     for _ in range(LP_ITERATIONS):
