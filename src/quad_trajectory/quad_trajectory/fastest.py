@@ -391,8 +391,9 @@ def _lp_step(T, J, g, trust):
         start_gap = start_gap or gap
         if not gap < DIVERGED * start_gap:     # the multipliers grow without bound: no d meets every row
             return None
-        if (np.abs(r_primal).max() <= LP_TOLERANCE * primal_scale and np.abs(r_dual).max() <= LP_TOLERANCE * dual_scale
-                and gap <= LP_TOLERANCE * (1.0 + abs(float(np.sum(T * d))))):
+        if (gap <= LP_TOLERANCE * (1.0 + abs(float(np.sum(T * d))))       # the gap first: the last to close
+                and np.abs(r_primal).max() <= LP_TOLERANCE * primal_scale
+                and np.abs(r_dual).max() <= LP_TOLERANCE * dual_scale):
             return d
         w = z / y
         ab = (normal @ w[:rows]).reshape(2 * BAND + 1, m)
