@@ -222,9 +222,7 @@ def _linearised_constraints(system, points, x, constraints, near, derivatives=No
     # the perturbed segment within BAND of each row's segment is the one congruent to the colour modulo
     # 2 BAND + 1: column segment - BAND + (colour - segment + BAND) mod (2 BAND + 1) of the row's band
     band = np.zeros((segment.size, width))
-    rows = np.arange(segment.size)
-    for colour in range(colours):
-        band[rows, (colour - segment + BAND) % width] = dv[colour]
+    band[np.arange(segment.size)[:, None], (np.arange(colours) - segment[:, None] + BAND) % width] = dv.T
     inside = segment[:, None] - BAND + np.arange(width)
     band[(inside < 0) | (inside >= m)] = 0.0
     return BandRows(band, segment, m), v[active]
