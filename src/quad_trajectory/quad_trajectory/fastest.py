@@ -137,10 +137,11 @@ class Constraints:
         if w.max() > 0.0:
             lo, bad = 1.0, w > 0.0
             a, j, snap = a[bad], j[bad], snap[bad]
-            hi = 1.0
+            hi, f0 = 1.0, float(w.max())
             while True:
-                hi *= 1.0 + max(w.max(), 0.05)
-                if worst(hi, a, j, snap).max() <= 0.0:
+                hi *= 1.0 + max(f0, 0.05)
+                f1 = float(worst(hi, a, j, snap).max())
+                if f1 <= 0.0:
                     break
                 if hi > 1e6:
                     raise ValueError('no uniform slow-down of this plan fits the vehicle')
@@ -157,14 +158,15 @@ class Constraints:
                     return lo
             bad = w > 0.0
             a, j, snap = a[bad], j[bad], snap[bad]
+            f0, f1 = float(w.max()), float(worst(hi, a, j, snap).max())
 
         def f(log_k):
             return float(worst(np.exp(log_k), a, j, snap).max())
 
-        # Illinois regula falsi on the worst violation over log k: bracketing, so it converges like bisection
-        # at worst, and in a handful of evaluations on this smooth, monotone function
+        # Illinois regula falsi on the worst violation over log k (over the samples that fail at lo, whose
+        # worst is the worst of all there): bracketing, so it converges like bisection at worst, and in a
+        # handful of evaluations on this smooth, monotone function
         x0, x1 = np.log(lo), np.log(hi)
-        f0, f1 = f(x0), f(x1)
         side = 0
         for _ in range(_ROOT_ITERATIONS):
             # done when the bracket, or the secant's distance from the feasible end to the root, is below tolerance
