@@ -306,16 +306,18 @@ class BandRows:
     CSR, and the normal matrix J^T diag(w) J in LAPACK's upper banded storage (bandwidth 2 BAND) as one sparse
     product with w."""
 
-    def __init__(self, band, segment, m):
+    def __init__(self, band, segment, m, columns=None):
         self.band, self.segment, self.m = band, segment, m
-        self._columns = np.clip(segment[:, None] - BAND + np.arange(band.shape[1]), 0, m - 1)
+        # int32 indices: scipy's sparse constructors would otherwise check and convert int64 ones every time
+        self._columns = (np.clip(segment[:, None] - BAND + np.arange(band.shape[1]), 0, m - 1).astype(np.int32)
+                         if columns is None else columns)
 
     @property
     def shape(self):
         return self.band.shape[0], self.m
 
     def __getitem__(self, rows):
-        return BandRows(self.band[rows], self.segment[rows], self.m)
+        return BandRows(self.band[rows], self.segment[rows], self.m, self._columns[rows])
 
     def toarray(self):
         return self.csr().toarray()
@@ -328,22 +330,29 @@ class BandRows:
         from scipy.sparse import csr_matrix
 
         rows, width = self.band.shape
-        return csr_matrix((self.band.ravel(), self._columns.ravel(), np.arange(0, rows * width + 1, width)),
-                          shape=self.shape)
+        return csr_matrix((self.band.ravel(), self._columns.ravel(), np.arange(0, rows * width + 1, width,
+                                                                                dtype=np.int32)), shape=self.shape)
 
     def normal_operator(self):
         """S with S w = J^T diag(w) J in upper banded storage (2 BAND + 1, m), flattened: entry
-        N[c, c + k] = sum_r w_r J_rc J_r(c+k) sits at ab[2 BAND - k, c + k] (scipy's cholesky_banded).
-        Built as the CSR of S^T (row r: the products of row r's pairs of entries; a pair reaching outside
-        0..m-1 holds a 0 of the band, at a clipped index), used transposed."""
-        from scipy.sparse import csr_matrix
+        N[c, c + k] = sum_r w_r J_rc J_r(c+k) sits at ab[2 BAND - k, c + k] (LAPACK's dpbtrf, upper).
+        Built as a CSC matrix whose column r holds the products of row r's pairs of entries, diagonal by
+        diagonal (k = 0 .. 2 BAND, p = 0 .. 2 BAND - k); a pair reaching outside 0..m-1 holds a 0 of the band,
+        at a clipped index."""
+        from scipy.sparse import csc_matrix
 
         rows, width = self.band.shape
-        p, k = np.nonzero(np.arange(width)[:, None] + np.arange(width)[None, :] < width)   # column pairs (p, p + k)
-        offset = (width - 1 - k) * self.m - BAND + p + k
-        flat = np.clip(self.segment[:, None] + offset[None, :], 0, width * self.m - 1)
-        return csr_matrix(((self.band[:, p] * self.band[:, p + k]).ravel(), flat.ravel(),
-                           np.arange(0, rows * p.size + 1, p.size)), shape=(rows, width * self.m)).T
+        pairs = np.concatenate([self.band[:, :width - k] * self.band[:, k:] for k in range(width)], axis=1)
+        offset = ((width - 1 - _PAIR_K) * self.m - BAND + _PAIR_P + _PAIR_K).astype(np.int32)
+        flat = self.segment.astype(np.int32)[:, None] + offset[None, :]
+        np.clip(flat, 0, width * self.m - 1, out=flat)
+        return csc_matrix((pairs.ravel(), flat.ravel(), np.arange(0, rows * offset.size + 1, offset.size,
+                                                                  dtype=np.int32)), shape=(width * self.m, rows))
+
+
+# the normal matrix's column pairs (p, p + k) of a band row, diagonal k by diagonal
+_PAIR_K, _PAIR_P = (np.concatenate(v) for v in zip(*[(np.full(2 * BAND + 1 - k, k), np.arange(2 * BAND + 1 - k))
+                                                     for k in range(2 * BAND + 1)]))
 
 
 def _lp_step(T, J, g, trust):
