@@ -7,42 +7,44 @@ an upper limit times 1 - margin, a lower one raised by margin x its range). The 
 at feasibility.py's own 32 samples a segment, the check `quadflight plan` and `fly` run before flight.
 
 Method: a trust-region sequential linear programme in x = log T, judged by uniform scaling.
-- Uniform scaling is exact (planner._limit_times): times k T give p(t / k), so acceleration, jerk and snap at
-  a segment's samples divide by k^2, k^3, k^4 without a new solve. `feasible_scale` finds the smallest k with
-  every sample inside the limits: each need falls monotonically towards its hover value as k grows, so a
-  bracket is found from k = 1 outwards and the root (Illinois regula falsi in log k) only over the samples that
-  fail at the bracket's low end. The tilt check is left out: tilt + lag x tilt rate >= tilt under the same
-  limit, so attitude_lag passing implies it.
+- Uniform scaling is exact (planner._limit_times): times k T give p(t / k), so acceleration, jerk and snap at a
+  segment's samples divide by k^2, k^3, k^4 without a new solve. `feasible_scale` finds the smallest k with every
+  sample inside the limits: each need falls monotonically towards its hover value as k grows, so a bracket is found
+  from k = 1 outwards and the root (Illinois regula falsi in log k) only over the samples that fail at the bracket's
+  low end, until the bracket or the secant's distance from its feasible end to the root is below tolerance (the
+  feasible end is returned, so the scale errs only on the slow side). The tilt check is left out: tilt + lag x tilt
+  rate >= tilt under the same limit, so attitude_lag passing implies it.
 - Start: the sqrt shape, then EQUALISE_ROUNDS rounds of T_i <- T_i k_i with k_i the scale that makes segment i
   alone just feasible (its neighbours' coupling ignored; a vectorised bisection for all segments at once); the
   shortest of these, scaled, starts the search.
-- Step: the normalised violation of each check at each sample, v (need / limit - 1 above, (limit - need) /
-  range below; <= 0 feasible), and its Jacobian dv/dx. The spline's normalised-time coefficients y solve
-  A(T) y = b (solver.System; b is the points), and only the continuity rows' factors (T_k+1 / T_k)^p depend on
-  T, so dy/dx_j = -A^-1 (dA/dx_j y): one banded LU of A (LAPACK gbtrf) gives y and every direction's dy by
-  back-substitution. Derivative q at the normalised time s is T^-q P^(q)(s), so its change is
-  T^-q dP^(q)(s) - q dx p^(q); the needs (a pointwise function of a, j, snap) change along it by a
-  directional difference of step NEEDS_STEP, without a new solve. A change of T_j moves the spline mostly near
-  segment j (a joint's influence decays geometrically along a minimum-derivative spline), so dv/dx is taken
-  banded: BAND segments either side, every (2 BAND + 1)-th segment moved at once in one direction (2 BAND + 1
-  directions), each row of J held as its 2 BAND + 1 entries (BandRows). The linear programme
-  min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust radius of its
-  limit (less the rows no step inside the box reaches, v_r + trust |J_r|_1 <= 0), |d_j| <= trust radius,
-  gives the step (_lp_step: an interior-point method whose Newton systems J^T W J are banded, so a step costs
-  O(rows) at any length of plan; scipy's HiGHS took 2.8x as long on the same programmes at 100 segments and
-  3.9x at 1000). The new shape, scaled to the limits, is compared with the best so
-  far; when shorter, it is kept scaled as the best and unscaled as the next iterate: its samples just outside
-  the limits enter the next programme with v_r > 0 and are pulled back by its step, where scaling the whole
-  plan for one overshoot would throw most of the step away (on 100 segments 35.5 s against 36.3 s when every
-  iterate was scaled). An iterate that no step within the radius pulls back (the programme has no solution)
-  gives way to the best. The trust radius follows how well the programme predicted the gain.
+- Step: the normalised violation of each check at each sample, v (need / limit - 1 above, (limit - need) / range
+  below; <= 0 feasible), and its Jacobian dv/dx. The spline's normalised-time coefficients y solve A(T) y = b
+  (solver.System; b is the points), and only the continuity rows' factors (T_k+1 / T_k)^p depend on T, so dy/dx_j =
+  -A^-1 (dA/dx_j y): one banded LU of A (LAPACK gbtrf) gives y and every direction's dy by back-substitution.
+  Derivative q at the normalised time s is T^-q P^(q)(s), so its change is T^-q dP^(q)(s) - q dx p^(q); the needs (a
+  pointwise function of a, j, snap) change along it by a directional difference of step NEEDS_STEP, without a new
+  solve. A change of T_j moves the spline mostly near segment j (a joint's influence decays geometrically along a
+  minimum-derivative spline), so dv/dx is taken banded: BAND segments either side, every (2 BAND + 1)-th segment
+  moved at once in one direction (2 BAND + 1 directions), each row of J held as its 2 BAND + 1 entries (BandRows).
+  The linear programme min sum_j T_j d_j s.t. v_r + J_r d <= 0 for every (check, sample) within NEAR x the trust
+  radius of its limit (less the rows no step inside the box reaches, v_r + trust |J_r|_1 <= 0), |d_j| <= trust
+  radius, gives the step (_lp_step: an interior-point method whose Newton systems J^T W J are banded, factorised by
+  LAPACK's dpbtrf directly, so a step costs O(rows) at any length of plan; scipy's HiGHS took 2.8x as long on the
+  same programmes at 100 segments and 3.9x at 1000). The new shape, scaled to the limits, is compared with the best
+  so far; when shorter, it is kept scaled as the best and unscaled as the next iterate: its samples just outside the
+  limits enter the next programme with v_r > 0 and are pulled back by its step, where scaling the whole plan for one
+  overshoot would throw most of the step away (on 100 segments 35.5 s against 36.3 s when every iterate was scaled).
+  An iterate that no step within the radius pulls back (the programme has no solution) gives way to the best. The
+  trust radius follows how well the programme predicted the gain.
   BAND = 5 matters: with 3, the directions alias the influence of segments 4 away (about 20 % error in the
   Jacobian) and the search stalls 2-3 % short of the optimum on slalom_dense.
   Every near sample is a row, not only each segment's peak: the peak moves between samples as the times
   change, and a programme that sees only the peaks (or only each local peak and its neighbours) steps into
   the samples it does not see.
-- Stop: after MAX_ITERATIONS steps, when the radius falls below MIN_TRUST, or when the programme predicts
-  less than STALL_GAIN of the total time.
+- Stop: after MAX_ITERATIONS steps, when the radius falls below MIN_TRUST, when the programme predicts
+  less than STALL_GAIN of the total time, or when a kept step gained less than SETTLED_GAIN of it: gains that
+  small are below what rescaling from the search's LOOP_SAMPLES to feasibility.py's 32 moves the total
+  (about 0.4 % on the 100-segment survey), so further steps rarely shorten the returned plan.
 The search samples LOOP_SAMPLES points a segment (fewer rows in each programme), the result is then scaled to
 pass at feasibility.py's 32. Cost per step: one banded LU with 2 BAND + 2 right-hand sides, one need
 evaluation over the 2 BAND + 1 directions at once, one solve and scale for the new shape, one programme of
@@ -69,6 +71,7 @@ FIRST_TRUST = 0.3
 GROW, SHRINK = 2.0, 0.4
 GROW_RATIO = 0.75        # a full step whose gain was at least this fraction of the predicted one grows the radius
 STALL_GAIN = 1e-3        # a step predicted to gain less than this fraction of the time ends the search
+SETTLED_GAIN = 5e-4      # a kept step that gained less than this fraction of the time ends the search
 LOOP_SAMPLES = 10        # samples a segment inside the search (the result is scaled to feasibility.py's 32)
 SEGMENT_BISECTIONS = 14  # of each segment's own scale in the start (log k to 4e-4)
 EQUALISE_ROUNDS = 1      # start: each segment scaled to its own limit, this many times
@@ -134,10 +137,11 @@ class Constraints:
         if w.max() > 0.0:
             lo, bad = 1.0, w > 0.0
             a, j, snap = a[bad], j[bad], snap[bad]
-            hi = 1.0
+            hi, f0 = 1.0, float(w.max())
             while True:
-                hi *= 1.0 + max(w.max(), 0.05)
-                if worst(hi, a, j, snap).max() <= 0.0:
+                hi *= 1.0 + max(f0, 0.05)
+                f1 = float(worst(hi, a, j, snap).max())
+                if f1 <= 0.0:
                     break
                 if hi > 1e6:
                     raise ValueError('no uniform slow-down of this plan fits the vehicle')
@@ -154,17 +158,19 @@ class Constraints:
                     return lo
             bad = w > 0.0
             a, j, snap = a[bad], j[bad], snap[bad]
+            f0, f1 = float(w.max()), float(worst(hi, a, j, snap).max())
 
         def f(log_k):
             return float(worst(np.exp(log_k), a, j, snap).max())
 
-        # Illinois regula falsi on the worst violation over log k: bracketing, so it converges like bisection
-        # at worst, and in a handful of evaluations on this smooth, monotone function
+        # Illinois regula falsi on the worst violation over log k (over the samples that fail at lo, whose
+        # worst is the worst of all there): bracketing, so it converges like bisection at worst, and in a
+        # handful of evaluations on this smooth, monotone function
         x0, x1 = np.log(lo), np.log(hi)
-        f0, f1 = f(x0), f(x1)
         side = 0
         for _ in range(_ROOT_ITERATIONS):
-            if x1 - x0 < _ROOT_TOLERANCE:
+            # done when the bracket, or the secant's distance from the feasible end to the root, is below tolerance
+            if x1 - x0 < _ROOT_TOLERANCE or -f1 * (x1 - x0) < _ROOT_TOLERANCE * (f0 - f1):
                 break
             x = x1 - f1 * (x1 - x0) / (f1 - f0) if f1 != f0 else 0.5 * (x0 + x1)
             x = min(max(x, x0 + 0.01 * (x1 - x0)), x1 - 0.01 * (x1 - x0))
@@ -211,16 +217,14 @@ def _linearised_constraints(system, points, x, constraints, near, derivatives=No
     active = v > -near
     segment = np.nonzero(active)[1]          # the segment of each row
     # every colour's perturbed needs in one evaluation: (checks, colours x m, S)
-    moved = constraints.violations(*(np.concatenate(value[None] + NEEDS_STEP * change)
+    moved = constraints.violations(*((value[None] + NEEDS_STEP * change).reshape(-1, *value.shape[1:])
                                      for value, change in ((a, da), (j, dj), (snap, ds))))
     moved = moved.reshape(v.shape[0], colours, m, -1)
     dv = (moved.transpose(1, 0, 2, 3)[:, active] - v[active]) / NEEDS_STEP       # (colours, rows)
     # the perturbed segment within BAND of each row's segment is the one congruent to the colour modulo
     # 2 BAND + 1: column segment - BAND + (colour - segment + BAND) mod (2 BAND + 1) of the row's band
     band = np.zeros((segment.size, width))
-    rows = np.arange(segment.size)
-    for colour in range(colours):
-        band[rows, (colour - segment + BAND) % width] = dv[colour]
+    band[np.arange(segment.size)[:, None], (np.arange(colours) - segment[:, None] + BAND) % width] = dv.T
     inside = segment[:, None] - BAND + np.arange(width)
     band[(inside < 0) | (inside >= m)] = 0.0
     return BandRows(band, segment, m), v[active]
@@ -278,8 +282,10 @@ def _derivative_directions(system, points, T, directions, s):
     y = y.reshape(system.m, n, 3)
     dy = dy.reshape(system.m, n, n_dir, 3)
     values, changes = [], []
-    y_rows = y.transpose(0, 2, 1)                 # (m, 3, n): a matrix product with each derivative's basis
-    dy_rows = dy.transpose(2, 0, 3, 1)            # (D, m, 3, n)
+    # one matrix product with each derivative's basis per direction: (D, m 3, n); a single (D m 3, n) product
+    # is large enough for OpenBLAS to thread, which at 1000 segments cost 2.5x the CPU for the same result
+    y_rows = y.transpose(0, 2, 1).reshape(-1, n)            # (m 3, n)
+    dy_rows = dy.transpose(2, 0, 3, 1).reshape(n_dir, -1, n)
     for q in (2, 3, 4):
         if q >= n:
             basis = np.zeros((n, s.size))
@@ -287,8 +293,8 @@ def _derivative_directions(system, points, T, directions, s):
             basis = np.zeros((n, s.size))
             basis[q:] = derivative_factors(n, q)[:, None] * s[None, :] ** np.arange(n - q)[:, None]
         scale = T[:, None, None] ** -q
-        value = (y_rows @ basis) * scale
-        change = (dy_rows @ basis) * scale[None]
+        value = (y_rows @ basis).reshape(system.m, 3, s.size) * scale
+        change = (dy_rows @ basis).reshape(n_dir, system.m, 3, s.size) * scale[None]
         values.append(value)
         changes.append(change - q * directions[:, :, None, None] * value[None])
     return tuple(values), tuple(changes)
@@ -300,16 +306,18 @@ class BandRows:
     CSR, and the normal matrix J^T diag(w) J in LAPACK's upper banded storage (bandwidth 2 BAND) as one sparse
     product with w."""
 
-    def __init__(self, band, segment, m):
+    def __init__(self, band, segment, m, columns=None):
         self.band, self.segment, self.m = band, segment, m
-        self._columns = np.clip(segment[:, None] - BAND + np.arange(band.shape[1]), 0, m - 1)
+        # int32 indices: scipy's sparse constructors would otherwise check and convert int64 ones every time
+        self._columns = (np.clip(segment[:, None] - BAND + np.arange(band.shape[1]), 0, m - 1).astype(np.int32)
+                         if columns is None else columns)
 
     @property
     def shape(self):
         return self.band.shape[0], self.m
 
     def __getitem__(self, rows):
-        return BandRows(self.band[rows], self.segment[rows], self.m)
+        return BandRows(self.band[rows], self.segment[rows], self.m, self._columns[rows])
 
     def toarray(self):
         return self.csr().toarray()
@@ -322,34 +330,43 @@ class BandRows:
         from scipy.sparse import csr_matrix
 
         rows, width = self.band.shape
-        return csr_matrix((self.band.ravel(), self._columns.ravel(), np.arange(0, rows * width + 1, width)),
-                          shape=self.shape)
+        return csr_matrix((self.band.ravel(), self._columns.ravel(), np.arange(0, rows * width + 1, width,
+                                                                                dtype=np.int32)), shape=self.shape)
 
     def normal_operator(self):
         """S with S w = J^T diag(w) J in upper banded storage (2 BAND + 1, m), flattened: entry
-        N[c, c + k] = sum_r w_r J_rc J_r(c+k) sits at ab[2 BAND - k, c + k] (scipy's cholesky_banded).
-        Built as the CSR of S^T (row r: the products of row r's pairs of entries; a pair reaching outside
-        0..m-1 holds a 0 of the band, at a clipped index), used transposed."""
-        from scipy.sparse import csr_matrix
+        N[c, c + k] = sum_r w_r J_rc J_r(c+k) sits at ab[2 BAND - k, c + k] (LAPACK's dpbtrf, upper).
+        Built as a CSC matrix whose column r holds the products of row r's pairs of entries, diagonal by
+        diagonal (k = 0 .. 2 BAND, p = 0 .. 2 BAND - k); a pair reaching outside 0..m-1 holds a 0 of the band,
+        at a clipped index."""
+        from scipy.sparse import csc_matrix
 
         rows, width = self.band.shape
-        p, k = np.nonzero(np.arange(width)[:, None] + np.arange(width)[None, :] < width)   # column pairs (p, p + k)
-        offset = (width - 1 - k) * self.m - BAND + p + k
-        flat = np.clip(self.segment[:, None] + offset[None, :], 0, width * self.m - 1)
-        return csr_matrix(((self.band[:, p] * self.band[:, p + k]).ravel(), flat.ravel(),
-                           np.arange(0, rows * p.size + 1, p.size)), shape=(rows, width * self.m)).T
+        pairs = np.concatenate([self.band[:, :width - k] * self.band[:, k:] for k in range(width)], axis=1)
+        offset = ((width - 1 - _PAIR_K) * self.m - BAND + _PAIR_P + _PAIR_K).astype(np.int32)
+        flat = self.segment.astype(np.int32)[:, None] + offset[None, :]
+        np.clip(flat, 0, width * self.m - 1, out=flat)
+        return csc_matrix((pairs.ravel(), flat.ravel(), np.arange(0, rows * offset.size + 1, offset.size,
+                                                                  dtype=np.int32)), shape=(width * self.m, rows))
+
+
+# the normal matrix's column pairs (p, p + k) of a band row, diagonal k by diagonal
+_PAIR_K, _PAIR_P = (np.concatenate(v) for v in zip(*[(np.full(2 * BAND + 1 - k, k), np.arange(2 * BAND + 1 - k))
+                                                     for k in range(2 * BAND + 1)]))
 
 
 def _lp_step(T, J, g, trust):
     """The step d: min sum_j T_j d_j s.t. g + J d <= 0, |d_j| <= trust, or None when no such d is found.
 
-    Mehrotra's predictor-corrector interior-point method on A d <= H with A = [J; -I; I], H = [-g; trust;
-    trust]: slacks y = H - A d and multipliers z (both > 0), residuals r_p = A d + y - H, r_d = T + A^T z.
-    J is banded (BandRows), so each Newton system A^T diag(z / y) A dd = -r_d - A^T ((z r_p - r_c) / y) is a
-    banded Cholesky of bandwidth 2 BAND, O(m BAND^2) however many rows. Stops when the residuals and the gap
-    y.z are below LP_TOLERANCE of the problem's scale; None at once when a row lies beyond the box's reach,
-    or when the gap grows DIVERGED-fold (rows that contradict each other: the multipliers grow unbounded)."""
-    from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+    Mehrotra's predictor-corrector interior-point method on A d <= H with A = [J; -I; I], H = [-g; trust; trust]:
+    slacks y = H - A d and multipliers z (both > 0), residuals r_p = A d + y - H, r_d = T + A^T z. J is banded
+    (BandRows), so each Newton system A^T diag(z / y) A dd = -r_d - A^T ((z r_p - r_c) / y) is a banded Cholesky of
+    bandwidth 2 BAND, O(m BAND^2) however many rows (LAPACK dpbtrf/dpbtrs called directly: scipy's checking wrappers
+    cost more than the factorisation at 100 segments). The step meets A dd + dy = -r_p and A^T dz = -r_d, so steps
+    of primal and dual length a scale r_p and r_d by 1 - a. Stops when the residuals and the gap y.z are below
+    LP_TOLERANCE of the problem's scale; None at once when a row lies beyond the box's reach, or when the gap grows
+    DIVERGED-fold (rows that contradict each other: the multipliers grow unbounded)."""
+    from scipy.linalg.lapack import dpbtrf, dpbtrs
 
     rows, m = J.shape
     if np.any(g - trust * J.abs_row_sums() > 0.0):     # a row that no d in the box brings inside
@@ -365,8 +382,7 @@ def _lp_step(T, J, g, trust):
 
     def newton(factor, r_dual, r_primal, r_comp):
         """(dd, dy, dz) of the Newton step with complementarity residual r_comp (of y z)."""
-        dd = cho_solve_banded((factor, False), -r_dual - a_transpose_dot((z * r_primal - r_comp) / y),
-                              check_finite=False)
+        dd, _ = dpbtrs(factor, -r_dual - a_transpose_dot((z * r_primal - r_comp) / y), lower=0)
         dy = -r_primal - a_dot(dd)
         return dd, dy, (-r_comp - z * dy) / y
 
@@ -377,22 +393,22 @@ def _lp_step(T, J, g, trust):
     z = np.concatenate([np.zeros(rows), np.maximum(T, 0.0), np.maximum(-T, 0.0)]) + 0.1 * cost_scale
     primal_scale, dual_scale = 1.0 + float(np.abs(H).max()), 1.0 + cost_scale
     start_gap = None
+    r_dual = T + a_transpose_dot(z)
+    r_primal = a_dot(d) + y - H
     for _ in range(LP_ITERATIONS):
-        r_dual = T + a_transpose_dot(z)
-        r_primal = a_dot(d) + y - H
         gap = float(np.sum(y * z))     # sums, not BLAS dots: OpenBLAS threads a long dot (CPU for nothing)
         start_gap = start_gap or gap
         if not gap < DIVERGED * start_gap:     # the multipliers grow without bound: no d meets every row
             return None
-        if (np.abs(r_primal).max() <= LP_TOLERANCE * primal_scale and np.abs(r_dual).max() <= LP_TOLERANCE * dual_scale
-                and gap <= LP_TOLERANCE * (1.0 + abs(float(np.sum(T * d))))):
+        if (gap <= LP_TOLERANCE * (1.0 + abs(float(np.sum(T * d))))       # the gap first: the last to close
+                and np.abs(r_primal).max() <= LP_TOLERANCE * primal_scale
+                and np.abs(r_dual).max() <= LP_TOLERANCE * dual_scale):
             return d
         w = z / y
         ab = (normal @ w[:rows]).reshape(2 * BAND + 1, m)
         ab[-1] += w[rows:rows + m] + w[rows + m:]
-        try:
-            factor = cholesky_banded(ab, lower=False, check_finite=False)
-        except LinAlgError:
+        factor, info = dpbtrf(ab, lower=0)
+        if info != 0:
             return None
         # predictor: the affine step; its gap sets the centring target sigma mu with sigma = (gap_affine / gap)^3
         dd, dy, dz = newton(factor, r_dual, r_primal, y * z)
@@ -402,6 +418,7 @@ def _lp_step(T, J, g, trust):
         dd, dy, dz = newton(factor, r_dual, r_primal, y * z + dy * dz - target)
         primal, dual = 0.995 * _longest(y, dy), 0.995 * _longest(z, dz)
         d, y, z = d + primal * dd, y + primal * dy, z + dual * dz
+        r_primal, r_dual = (1.0 - primal) * r_primal, (1.0 - dual) * r_dual
     return None
 
 
@@ -427,12 +444,13 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
     best = None
     for shape in shapes:
         T = np.asarray(shape, dtype=float)
-        for _ in range(EQUALISE_ROUNDS + 1):
+        for round_ in range(EQUALISE_ROUNDS + 1):
             trajectory = solve(T)
             candidate = T * constraints.feasible_scale(trajectory)
             if best is None or candidate.sum() < best.sum():
                 best = candidate
-            T = T * constraints.segment_scales(trajectory)
+            if round_ < EQUALISE_ROUNDS:
+                T = T * constraints.segment_scales(trajectory)
     # the iterate T may sit slightly outside the limits (a step is kept for its scaled total, and the next
     # programme pulls its rows back inside); best is the shortest plan scaled to them so far, merit its total
     T = best
@@ -475,6 +493,8 @@ def fastest_times(points, vehicle, method='minsnap', mode='continuity', margin=D
             trust = min(GROW * trust, 1.0)
         if ratio > 0.0:
             T, J, derivatives, best, merit = shape, None, None, candidate, float(candidate.sum())
+            if actual < SETTLED_GAIN * merit:
+                break
     T = best
     # the search samples LOOP_SAMPLES points a segment; the plan is checked (and flown) at feasibility.py's
     return T * Constraints(vehicle, margin).feasible_scale(solve(T))

@@ -235,3 +235,45 @@ def test_the_interior_point_step_solves_the_programme_and_refuses_an_impossible_
     assert fastest._lp_step(T, J, g, 0.1) is None
     two = fastest.BandRows(np.vstack([J.band[0], -J.band[0]]), J.segment[[0, 0]], m)
     assert fastest._lp_step(T, two, np.array([0.05, 0.05]) * np.abs(J.band[0]).sum(), 0.1) is None
+
+
+def _survey(n_segments):
+    """bench_plan's survey: legs of 0.4-1.2 m turning 0.7 rad each."""
+    rng = np.random.default_rng(17)
+    k = np.arange(n_segments)
+    steps = rng.uniform(0.4, 1.2, (n_segments, 1)) * np.column_stack([np.cos(0.7 * k), np.sin(0.7 * k),
+                                                                       np.zeros(n_segments)])
+    w = np.vstack([[0, 0, 1], np.cumsum(steps, axis=0) + [0, 0, 1]])
+    return np.column_stack([w, np.zeros(n_segments + 1)])
+
+
+def test_the_search_ends_at_the_first_kept_step_that_gains_less_than_settled_gain(crazyflie):
+    """On the 100-segment survey the search keeps a step that gains under SETTLED_GAIN of the total (below
+    what rescaling from the search's samples to feasibility.py's 32 moves it) and ends there, its plan the result."""
+    import re
+
+    from quad_trajectory import fastest
+
+    lines = []
+    T = fastest.fastest_times(_survey(100), crazyflie, log=lines.append)
+    steps = [tuple(float(v) for v in re.search(r'([\d.]+) s -> ([\d.]+) s', line).groups()) for line in lines]
+    small = [i for i, (before, after) in enumerate(steps) if 0 < before - after < fastest.SETTLED_GAIN * after]
+    assert small == [len(steps) - 1]                 # a kept step that settled, and nothing after it
+    assert all(before - after >= fastest.SETTLED_GAIN * after for before, after in steps[:-1] if after < before)
+    assert feasibility.check(solve(_survey(100), T), crazyflie, margin=0.1).ok
+
+
+def test_the_feasible_scale_is_the_smallest_to_the_root_tolerance(crazyflie):
+    """feasible_scale's k passes every sample; k less a few times the root tolerance fails one (the secant's stop
+    leaves no more slack than the bracket's)."""
+    from quad_trajectory import fastest
+
+    points = _survey(30)
+    constraints = fastest.Constraints(crazyflie, 0.1)
+    for factor in (0.5, 1.0, 3.0):           # plans too fast (bracket outwards) and too slow (bracket inwards)
+        T = factor * timing.sqrt_allocation(points, 1.0)
+        a, j, snap = constraints.derivatives(solve(points, T))
+        k = constraints.feasible_scale(solve(points, T))
+        assert constraints.violation(a / k ** 2, j / k ** 3, snap / k ** 4).max() <= 0.0
+        low = k * (1.0 - 5 * fastest._ROOT_TOLERANCE)
+        assert constraints.violation(a / low ** 2, j / low ** 3, snap / low ** 4).max() > 0.0
