@@ -26,8 +26,7 @@ from bridge_graph import mavlink
 from launch_standin import evaluate
 from mavlink_hub import read_record
 
-from quad_bringup import graph
-from quad_bringup.emulated_graph import (
+from quad_bringup.emulated.emulated_graph import (
     OFFBOARD_MODE,
     VEHICLE_FILE,
     VEHICLE_PARAMS,
@@ -37,6 +36,7 @@ from quad_bringup.emulated_graph import (
     free_udp_port,
     terminate,
 )
+from quad_bringup.running import graph
 from quad_common.testing import isolated_domain
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,7 +1,7 @@
 """The real-vehicle profile through the bridge against the emulator process at the margin the offline check
-(quad_bringup.stability) asks for: quad_vehicle_emu's ArduPilot with its attitude shaping set for 1.5x the roll/pitch
-lag measured on ArduCopter (0.315 s), 2x its telemetry latency (0.1 s) and a hover thrust 6 % off what the bridge
-is told (MOT_THST_HOVER 0.53 on the vehicle and in the bridge's hover_throttle, true hover 0.50: the vehicle's
+(quad_bringup.offline.stability) asks for: quad_vehicle_emu's ArduPilot with its attitude shaping set for 1.5x the
+roll/pitch lag measured on ArduCopter (0.315 s), 2x its telemetry latency (0.1 s) and a hover thrust 6 % off what the
+bridge is told (MOT_THST_HOVER 0.53 on the vehicle and in the bridge's hover_throttle, true hover 0.50: the vehicle's
 learnt hover value is wrong), + mavlink_bridge + position_controller with config/control_real.yaml in offboard.
 The hover settles within 1 cm without sustained oscillation, and so does a short leg. The twin: control_fast.yaml
 in the same vehicle oscillates against the tilt clamp (13: it flipped ArduCopter)."""
@@ -9,8 +9,8 @@ in the same vehicle oscillates against the tilt clamp (13: it flipped ArduCopter
 import numpy as np
 import pytest
 
-from quad_bringup.emulated_graph import ROOT, VEHICLE_FILE, free_udp_port, hover_in_offboard, running_graph
-from quad_bringup.stability import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LAG_S, MEASURED_LATENCY_S
+from quad_bringup.emulated.emulated_graph import ROOT, VEHICLE_FILE, free_udp_port, hover_in_offboard, running_graph
+from quad_bringup.offline.stability import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LAG_S, MEASURED_LATENCY_S
 from quad_common.conversions import stamp_to_s
 from quad_vehicle_emu.attitude import emulated_vehicle, tau_for_lag_s
 

@@ -12,8 +12,9 @@ import sys
 import numpy as np
 import pytest
 
-from quad_bringup import closed_loop, runs
-from quad_bringup.closed_loop import LoopOptions
+from quad_bringup.experiments import runs
+from quad_bringup.offline import closed_loop
+from quad_bringup.offline.closed_loop import LoopOptions
 from quad_common import paths
 from quad_common.params import parameters_of
 from quad_common.paths import resolve_config
@@ -125,7 +126,8 @@ def test_this_workspace_installs_every_config_file():
 def test_parameter_tables_and_profiles_import_without_rclpy():
     """The controller's table, the params-file helpers and the profile readers are ROS-free cores."""
     code = ("import sys; sys.modules.update(rclpy=None, rcl_interfaces=None); "
-            "import quad_common.params, quad_control.parameters; from quad_bringup import closed_loop, runs; "
+            "import quad_common.params, quad_control.parameters; "
+            "from quad_bringup.offline import closed_loop; from quad_bringup.experiments import runs; "
             "runs.default_gains(); closed_loop.load_control_profile('config/control_fast.yaml')")
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, cwd=paths.REPO_ROOT)
     assert done.returncode == 0, done.stderr

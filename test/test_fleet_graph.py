@@ -1,5 +1,5 @@
-"""Graph tests: a fleet through the ROS graph (quad_bringup.fleet_graph): one sim_node for every vehicle under one
-/clock, each vehicle's trajectory_node and position_controller under its namespace, the recorder's bag."""
+"""Graph tests: a fleet through the ROS graph (quad_bringup.running.fleet_graph): one sim_node for every vehicle under
+one /clock, each vehicle's trajectory_node and position_controller under its namespace, the recorder's bag."""
 
 import json
 import signal
@@ -15,7 +15,7 @@ import yaml
 from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 
-from quad_bringup import fleet_graph
+from quad_bringup.running import fleet_graph
 from quad_common import contract, lockstep
 from quad_common.domains import isolated_domain
 from quad_trajectory.fleet import load_fleet, plan_fleet
@@ -144,7 +144,7 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
     assert cf2['completed'] and cf2['rmse_m'] < 0.03, cf2
     assert not cf1['completed']
     assert result.positions['cf1'][-1, 2] < 0.1, result.positions['cf1'][-1]     # landed by its failsafe
-    from quad_bringup.report import load_flight, load_flights
+    from quad_bringup.analysis.report import load_flight, load_flights
     alone = {n: load_flight(run.bag, namespace=n) for n in ('cf1', 'cf2')}
     # where it was when its controller died (its last setpoint): the simulator waited for the probe at most
     # FOLLOWER_LAG_STEPS odometry periods after t = 2 s, whatever the load, so mid-leg
@@ -207,7 +207,7 @@ def test_sim_node_refuses_a_fleet_whose_arrays_do_not_match_naming_the_field(ros
 def test_node_host_refuses_an_unknown_node_and_a_node_given_twice(ros_env):
     for args, text in ((['sim_node@cf1'], "node 'sim_node@cf1' refused"),
                        (['position_controller@cf1', 'position_controller@cf1'], 'given twice')):
-        done = subprocess.run([str(ROOT / '.venv/bin/python'), '-m', 'quad_bringup.node_host', *args],
+        done = subprocess.run([str(ROOT / '.venv/bin/python'), '-m', 'quad_bringup.running.node_host', *args],
                               env=ros_env, capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and text in done.stderr, done.stderr
 

@@ -12,7 +12,7 @@ import yaml
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
-from quad_bringup.report import Completion, metrics_table, write_report
+from quad_bringup.analysis.report import Completion, metrics_table, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 QUADFLIGHT = str(ROOT / 'quadflight')
@@ -272,7 +272,7 @@ def test_run_directories_are_unique_under_a_race(tmp_path):
     """Default run directories: many flies starting in the same millisecond each get their own."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from quad_bringup.flight_options import make_run_dir
+    from quad_bringup.running.flight_options import make_run_dir
     default = tmp_path / 'runs' / 'maze-pd-20260101-000000-000'
     with ThreadPoolExecutor(8) as pool:
         made = list(pool.map(lambda _: make_run_dir(None, default), range(16)))

@@ -1,7 +1,7 @@
 """`quadflight identify`'s margin check against a plant we did not write: rotorpy 3.0.0's Multirotor (the Crazyflie
 with its own SO(3) PD attitude loop, kp 310 / kd 57: lag kd / kp = 0.184 s, 72 ms motors, rotor drag), in the peers'
-venv (quad_bringup.peer_venv, installed on first use), flown by our position controller and recorded as a rosbag2
-bag (quad_bringup.rotorpy_peer, as bench/bench_transfer.py flies it). The check's verdict at 1.5x the identified
+venv (quad_bringup.peers.peer_venv, installed on first use), flown by our position controller and recorded as a rosbag2
+bag (quad_bringup.peers.rotorpy_peer, as bench/bench_transfer.py flies it). The check's verdict at 1.5x the identified
 response is compared with rotorpy's own hold at 1.5x its lag (its PD's poles scaled by 1 / 1.5): accepted settles,
 refused oscillates."""
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from quad_bringup import rotorpy_peer
+from quad_bringup.peers import rotorpy_peer
 from quad_common.paths import REPO_ROOT, resolve_config
 
 CRAZYFLIE = resolve_config('config/vehicles/crazyflie.yaml')

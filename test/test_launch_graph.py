@@ -27,8 +27,15 @@ from ament_index_python.packages import get_package_prefix
 from launch_standin import evaluate
 from std_srvs.srv import SetBool
 
-from quad_bringup import flight_options, graph
-from quad_bringup.emulated_graph import VEHICLE_FILE, VEHICLE_PARAMS, WAIT_S, Observer, Processes, free_udp_port
+from quad_bringup.emulated.emulated_graph import (
+    VEHICLE_FILE,
+    VEHICLE_PARAMS,
+    WAIT_S,
+    Observer,
+    Processes,
+    free_udp_port,
+)
+from quad_bringup.running import flight_options, graph
 from quad_common.conversions import stamp_to_s
 from quad_common.testing import isolated_domain
 

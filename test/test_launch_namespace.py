@@ -10,8 +10,8 @@ import pytest
 import yaml
 from launched_params import PUSHED, launched_parameters, pushed_launch_file
 
-from quad_bringup import graph
-from quad_bringup.emulated_graph import free_udp_port
+from quad_bringup.emulated.emulated_graph import free_udp_port
+from quad_bringup.running import graph
 
 ROOT = Path(__file__).resolve().parent.parent
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from quad_bringup import sweep
+from quad_bringup.experiments import sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 QUADFLIGHT = str(ROOT / 'quadflight')

@@ -1,13 +1,13 @@
-"""rotorpy 3.0.0's own SE3Control, unchanged from its package (the peers' venv, quad_bringup.peer_venv, installed on
-first use), flown by quadflight's offline loop as a user class: it completes the mission within a centimetre, as it
+"""rotorpy 3.0.0's own SE3Control, unchanged from its package (the peers' venv, quad_bringup.peers.peer_venv, installed
+on first use), flown by quadflight's offline loop as a user class: it completes the mission within a centimetre, as it
 does in rotorpy's own Environment.run (docs/benchmarks.md, bench/bench_plugins.py)."""
 
 import sys
 
 import pytest
 
-from quad_bringup.closed_loop import LoopOptions, fly_offline
-from quad_bringup.rotorpy_peer import SE3CONTROL, rotorpy_dir
+from quad_bringup.offline.closed_loop import LoopOptions, fly_offline
+from quad_bringup.peers.rotorpy_peer import SE3CONTROL, rotorpy_dir
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
 from quad_control.plugins import make_controller, vehicle_params

@@ -1,6 +1,6 @@
 """`quadflight identify` and `quadflight replay` on a flight recorded as on a real vehicle: the emulated PX4
 (quad_vehicle_emu: 0.19 s roll/pitch lag, 20 ms telemetry), mavlink_bridge, position_controller on
-control_real.yaml, the recorder, `offboard`, a 3 m square at 1 m/s, `land` (quad_bringup.emulated_twin;
+control_real.yaml, the recorder, `offboard`, a 3 m square at 1 m/s, `land` (quad_bringup.emulated.emulated_twin;
 bench/bench_twin.py, docs/benchmarks.md). identify finds the emulator's lag and thrust and writes the model;
 replay's twin, which flies odometry as old as the flight's controller reported it did, flies within 20 % of the
 flight's RMSE and traces the flight; a twin with fresh odometry is no twin. The margin check's verdict holds on the
@@ -8,7 +8,7 @@ emulator's attitude structure at the margin it states."""
 
 import pytest
 
-from quad_bringup import emulated_twin
+from quad_bringup.emulated import emulated_twin
 
 
 @pytest.fixture(scope='module')

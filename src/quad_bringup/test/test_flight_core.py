@@ -10,9 +10,9 @@ import pytest
 import rclpy
 from nav_msgs.msg import Odometry
 
-from quad_bringup import processes
-from quad_bringup.flight_monitor import FlightJudge, FlightMonitor
-from quad_bringup.report import Completion
+from quad_bringup.analysis.report import Completion
+from quad_bringup.running import processes
+from quad_bringup.running.flight_monitor import FlightJudge, FlightMonitor
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.testing import isolated_domain
 

@@ -21,7 +21,7 @@ def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=No
     missing --params-file: one error line naming it, exit 2), adds it to `make_executor(node)` (default a
     SingleThreadedExecutor) and runs `spin(node, executor)` (default executor.spin()) until interrupted; then
     destroys the node and shuts the context down. make_node may return a list of nodes (one process hosting
-    several: quad_bringup.node_host); make_executor and spin then get the list.
+    several: quad_bringup.running.node_host); make_executor and spin then get the list.
 
     own_signals: SIGINT/SIGTERM/SIGHUP do not shut rclpy down; they make `node.stop_requested()` true and `spin`
     returns when it has finished (e.g. the simulator's final diagnostics and drain)."""
