@@ -152,3 +152,21 @@ def cross_links(root: Path, importer: str, provider: str) -> list[str]:
 @pytest.mark.parametrize('importer, provider', [('bench', 'test'), ('test', 'bench')])
 def test_bench_and_test_do_not_import_each_other(importer, provider):
     assert cross_links(ROOT, importer, provider) == []
+
+
+# quad_bringup's sub-packages by job, lowest first (README's layout row, docs/design.md)
+BRINGUP_LAYERS = (('limits', 'checks', 'pools'), ('recording',), ('analysis',), ('offline',), ('running',),
+                  ('experiments',), ('cli', 'commands'), ('emulated', 'peers'))
+
+
+def test_quad_bringup_sub_packages_import_downward_only():
+    """A module of quad_bringup imports from its own sub-package or one below, never one above, so each job can be
+    read and tested with what it stands on; a new sub-package gets its place in BRINGUP_LAYERS."""
+    rank = {room: i for i, rooms in enumerate(BRINGUP_LAYERS) for room in rooms}
+    arrows = {m: t for m, t in _module_imports().items() if m.startswith('quad_bringup.')}
+    unplaced = sorted({m.split('.')[1] for m in arrows} - set(rank))
+    assert not unplaced, f'quad_bringup sub-packages without a place in BRINGUP_LAYERS: {unplaced}'
+    upward = sorted(f'{module} -> {target}' for module, targets in arrows.items() for target in targets
+                    if target.startswith('quad_bringup.') and target.split('.')[1] in rank
+                    and rank[target.split('.')[1]] > rank[module.split('.')[1]])
+    assert not upward, f'quad_bringup imports upward: {upward}'
