@@ -4,8 +4,8 @@ the recorder (`quadflight record`'s node), `offboard`, trajectory_node with the 
 end plus the vehicle's settle time, the recorder stopped, then `quadflight report BAG --vehicle VEHICLE`.
 
 Flown through quad_bringup.emulated.emulated_graph's processes; used by the bridge report test
-(test/test_bridge_report.py) and the bridge benches (bench/bench_bridge_flight.py: the flight table of docs/bridge.md;
-bench/bench_twin.py)."""
+(test/bridge/test_bridge_report.py) and the bridge benches (bench/bench_bridge_flight.py: the flight table of
+docs/bridge.md; bench/bench_twin.py)."""
 
 import json
 import subprocess

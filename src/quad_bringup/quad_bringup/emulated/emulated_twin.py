@@ -1,8 +1,8 @@
 """An emulated flight's twin, checked: a bridge flight against quad_vehicle_emu (quad_bringup.emulated.emulated_mission,
 control_real.yaml), `quadflight identify` and `quadflight replay` run on its bag as a user runs them, the twin with
 fresh odometry beside it, and identify's margin check against the emulator's own attitude loop at the margin the
-check states. Shared by the replay graph test (test/test_replay_emulator.py) and the twin bench (bench/bench_twin.py);
-not part of a flight."""
+check states. Shared by the replay graph test (test/emulator/test_replay_emulator.py) and the twin bench
+(bench/bench_twin.py); not part of a flight."""
 
 import subprocess
 import sys

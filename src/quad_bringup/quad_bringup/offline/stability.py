@@ -7,7 +7,7 @@ through the harness's DelayLine (latency) at the bridge's 50 Hz and released in 
 apart, as the emulator does), and a hover-thrust error (delivered / commanded specific force = 1 + thrust_error: the
 bridge's hover_throttle vs the vehicle's true one). The controller flies through the flight harness
 (quad_bringup.offline.harness: position_controller's ControlLoop at its rate), holding a point from a start offset. No
-ROS, no sockets: the graph version is test/test_bridge_real_profile.py.
+ROS, no sockets: the graph version is test/bridge/test_bridge_real_profile.py.
 
 Measured on ArduCopter SITL: roll/pitch lag 0.17-0.21 s, ~50 ms of telemetry. A profile is offered
 only with margin: it settles (no sustained oscillation) at MARGIN_LAG x the lag and MARGIN_LATENCY x the latency.

@@ -10,7 +10,7 @@ import pytest
 
 from quad_bringup.experiments import sweep
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 QUADFLIGHT = str(ROOT / 'quadflight')
 WINDOW = {'file': 'config/missions/window.yaml', 'speed_mps': 2.0}
 FAST = {'name': 'fast', 'profile': 'config/control_fast.yaml'}

@@ -11,7 +11,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from test_fly import QUADFLIGHT, TIMEOUT_S, mission
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 USER_CONTROLLERS = ROOT / 'src' / 'quad_control' / 'test'   # user_controllers.py: classes that fail
 FLIGHTSIM = 'quad_control.templates.flightsim_controller:SE3Control'
 

@@ -126,7 +126,7 @@ def test_quadflight_arm_offboard_land_call_the_bridge_without_the_ros2_cli(tmp_p
     from pathlib import Path
 
     from quad_bringup.emulated.emulated_graph import free_udp_port, running_graph
-    quadflight = str(Path(__file__).resolve().parent.parent / 'quadflight')
+    quadflight = str(Path(__file__).resolve().parents[2] / 'quadflight')
     with running_graph(tmp_path) as (procs, observer):
         port = free_udp_port()
         procs.vehicle('px4', f'udpout:127.0.0.1:{port}', position=(0.0, 0.0, 0.0))

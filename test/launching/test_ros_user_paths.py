@@ -19,7 +19,7 @@ from quad_common.testing import isolated_domain
 os.environ['MAVLINK20'] = '1'
 from pymavlink import mavutil  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'
 
 

@@ -63,7 +63,7 @@ def test_node_reads_params_file(ros_env, tmp_path):
 def test_make_test_runs_every_suite_and_sums_up(tmp_path):
     """`make test` goes on after a failing suite, ends with one summary and fails if any suite failed."""
     from pathlib import Path
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     assert 'SUITES' in (root / 'Makefile').read_text(), 'make test stops at the first failing suite'
     probes = tmp_path / 'probes.mk'
     probes.write_text(f'probe-fail:\n\tfalse\nprobe-ok:\n\ttouch {tmp_path}/ran\n')
@@ -104,7 +104,7 @@ def test_loadgroup_runs_a_files_shared_fixture_once(tmp_path):
     (tmp_path / 'test_shared_fixture.py').write_text(SHARED_FIXTURE_TESTS)
     log = tmp_path / 'setups.log'
     env = dict(os.environ, SETUPS_LOG=str(log),
-               PYTHONPATH=os.pathsep.join([str(Path(__file__).parent), os.environ.get('PYTHONPATH', '')]))
+               PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[1]), os.environ.get('PYTHONPATH', '')]))
     done = subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', '-n', '2',
                            '--dist', 'loadgroup', '--rootdir', str(tmp_path), str(tmp_path)],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)

@@ -13,7 +13,7 @@ from launched_params import PUSHED, launched_parameters, pushed_launch_file
 from quad_bringup.emulated.emulated_graph import free_udp_port
 from quad_bringup.running import graph
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'
 
 

@@ -7,11 +7,11 @@ import re
 from functools import cache
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DESIGN = ROOT / 'docs' / 'design.md'
 PACKAGES = sorted(p.name for p in (ROOT / 'src').iterdir() if (p / 'package.xml').is_file())
 SOURCES = sorted(p for p in (ROOT / 'src').glob('*/*/**/*.py') if p.relative_to(ROOT / 'src').parts[1] != 'test')
-TESTS = {p.name for p in ROOT.glob('test/*.py')} | {p.name for p in (ROOT / 'src').glob('*/test/*.py')}
+TESTS = {p.name for p in ROOT.glob('test/**/*.py')} | {p.name for p in (ROOT / 'src').glob('*/test/*.py')}
 
 
 def quoted(text: str) -> list[str]:

@@ -21,7 +21,7 @@ from quad_common.realtime import policy_of, thread_ids
 
 BRIDGE = [sys.executable, '-m', 'quad_bridge.mavlink_bridge_node', '--ros-args']
 NAMESPACE = f'/bridge_realtime_{os.getpid()}'
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DROP_SYS_NICE = ['setpriv', '--inh-caps=-sys_nice', '--bounding-set=-sys_nice', 'prlimit', '--rtprio=0', '--']
 
 

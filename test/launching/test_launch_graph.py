@@ -39,7 +39,7 @@ from quad_bringup.running import flight_options, graph
 from quad_common.conversions import stamp_to_s
 from quad_common.testing import isolated_domain
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'
 MAZE = ROOT / 'config' / 'missions' / 'maze.yaml'
 SPEED_MPS = 0.5
@@ -459,7 +459,7 @@ def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motio
     first leg is the takeoff), the plan flown to its end, land, disarmed."""
     from launched_params import ParameterReader
     from std_srvs.srv import Trigger
-    from test_bridge_external_pose import EV_PARAMS
+    from bridge.test_bridge_external_pose import EV_PARAMS
 
     port = free_udp_port()
     with _launched(tmp_path) as (start, procs, observer):

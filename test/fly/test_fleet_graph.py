@@ -20,7 +20,7 @@ from quad_common import contract, lockstep
 from quad_common.domains import isolated_domain
 from quad_trajectory.fleet import load_fleet, plan_fleet
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 QUADFLIGHT = str(ROOT / 'quadflight')
 TIMEOUT_S = 540     # a hang guard, far above a loaded run
 HOLD_PROBE = 'probe'

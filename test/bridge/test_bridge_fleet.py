@@ -39,7 +39,7 @@ from quad_bringup.emulated.emulated_graph import (
 from quad_bringup.running import graph
 from quad_common.testing import isolated_domain
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch' / 'fleet.launch.py'
 # (namespace, autopilot, system id, y offset): the one that fails is a PX4, so that a land command it sent to
 # every system (target 0) would land the other PX4 too
@@ -65,7 +65,7 @@ class Hub:
 
     def __init__(self, bridge_ports, env, record_path):
         self.record_path = record_path
-        self.proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name('mavlink_hub.py')),
+        self.proc = subprocess.Popen([sys.executable, str(Path(__file__).parents[1] / 'mavlink_hub.py'),
                                       str(record_path), *map(str, bridge_ports)], env=env, stdout=subprocess.PIPE,
                                      text=True)
         self.vehicle_ports = [int(p) for p in self.proc.stdout.readline().split()]

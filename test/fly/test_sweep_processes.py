@@ -9,7 +9,7 @@ import subprocess
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 QUADFLIGHT = str(ROOT / 'quadflight')
 SPEC = {'missions': ['config/missions/maze.yaml'], 'controllers': ['pd'], 'seeds': 400,
         'disturbances': [{'name': 'wind', 'base': 'drag_wind', 'wind_mps': [0.5, 0.0, 0.0]}]}

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = sorted(p.name for p in (ROOT / 'src').iterdir() if (p / 'package.xml').is_file())
 # Python top-level module -> rosdep key (ros/rosdistro rosdep/python.yaml; each resolves on Ubuntu noble and on
 # Debian bookworm, Jazzy's Tier 3 platform: python3-ruamel.yaml, say, has Debian entries up to buster only)
@@ -126,7 +126,7 @@ def cross_links(root: Path, importer: str, provider: str) -> list[str]:
     top-level name of one of its .py files) or a sys.path entry naming that folder. What both need lives in a
     package (quad_bringup.emulated.emulated_graph, emulated_mission, emulated_chain, emulated_twin, peer_venv,
     rotorpy_peer)."""
-    provided = {p.stem for p in (root / provider).glob('*.py')}
+    provided = {p.stem for p in (root / provider).rglob('*.py')}
     found = []
     for path in sorted((root / importer).rglob('*.py')):
         tree = ast.parse(path.read_text(), str(path))

@@ -14,7 +14,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from quad_bringup.analysis.report import Completion, metrics_table, write_report
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 QUADFLIGHT = str(ROOT / 'quadflight')
 TIMEOUT_S = 540
 
