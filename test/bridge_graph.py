@@ -16,8 +16,8 @@ import rclpy
 from rclpy.parameter import Parameter
 
 from quad_bringup.emulated.emulated_graph import ROOT, free_udp_port, running_graph
-from quad_common.node_main import close_nodes
-from quad_common.testing import Spinner
+from quad_common.ros.node_main import close_nodes
+from quad_common.ros.testing import Spinner
 
 os.environ['MAVLINK20'] = '1'
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402

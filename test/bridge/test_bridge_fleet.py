@@ -37,7 +37,7 @@ from quad_bringup.emulated.emulated_graph import (
     terminate,
 )
 from quad_bringup.running import graph
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch' / 'fleet.launch.py'

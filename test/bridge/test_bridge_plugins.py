@@ -10,7 +10,7 @@ import pytest
 from quad_bringup.emulated.emulated_graph import free_udp_port, hover_in_offboard, python_env, running_graph
 from quad_common import contract
 from quad_common.paths import REPO_ROOT
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 USER_CONTROLLERS = REPO_ROOT / 'src' / 'quad_control' / 'test'
 

@@ -14,7 +14,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from quad_bringup.emulated.emulated_graph import ROOT, WAIT_S, Observer, Processes, free_udp_port, running_graph
 from quad_common import contract
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 HOVER = 0.5
 DO_SET_MODE = 176

@@ -16,8 +16,9 @@ from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 
 from quad_bringup.running import fleet_graph
-from quad_common import contract, lockstep
+from quad_common import contract
 from quad_common.domains import isolated_domain
+from quad_common.ros import lockstep
 from quad_trajectory.fleet import load_fleet, plan_fleet
 
 ROOT = Path(__file__).resolve().parents[2]

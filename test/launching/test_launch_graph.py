@@ -37,7 +37,7 @@ from quad_bringup.emulated.emulated_graph import (
 )
 from quad_bringup.running import flight_options, graph
 from quad_common.conversions import stamp_to_s
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / 'src' / 'quad_bringup' / 'launch'
@@ -457,9 +457,9 @@ def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motio
     same pose; odom: from the autopilot's estimate). The walk-through's calls in order: arm (the autopilot has a
     position only from the forwarded pose), offboard on the floor (the emulator has no takeoff command: the plan's
     first leg is the takeoff), the plan flown to its end, land, disarmed."""
+    from bridge.test_bridge_external_pose import EV_PARAMS
     from launched_params import ParameterReader
     from std_srvs.srv import Trigger
-    from bridge.test_bridge_external_pose import EV_PARAMS
 
     port = free_udp_port()
     with _launched(tmp_path) as (start, procs, observer):

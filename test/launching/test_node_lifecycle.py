@@ -13,7 +13,7 @@ from ament_index_python.packages import get_package_prefix
 from rclpy.executors import SingleThreadedExecutor
 
 from quad_bringup.emulated.emulated_graph import WAIT_S, free_udp_port
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 EXECUTABLES = [('quad_trajectory', 'trajectory_node', []), ('quad_control', 'position_controller', []),
                ('quad_sim', 'sim_node', []), ('quad_bridge', 'mavlink_bridge', ['fcu_url']),

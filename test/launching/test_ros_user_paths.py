@@ -14,7 +14,7 @@ from launch_standin import evaluate
 from launched_params import ParameterReader
 
 from quad_bringup.emulated.emulated_graph import WAIT_S, free_udp_port, terminate
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 os.environ['MAVLINK20'] = '1'
 from pymavlink import mavutil  # noqa: E402

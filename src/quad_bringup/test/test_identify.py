@@ -126,7 +126,7 @@ def test_the_written_profile_loads_in_a_node_started_with_params_file(tmp_path, 
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter_client import AsyncParameterClient
 
-    from quad_common.testing import isolated_domain
+    from quad_common.ros.testing import isolated_domain
     out = tmp_path / 'profile.yaml'
     done = identify_cli(lag_bag, '--out', out)
     assert done.returncode == 0, done.stderr

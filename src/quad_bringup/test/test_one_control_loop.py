@@ -19,10 +19,10 @@ from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_bringup.offline.closed_loop import LoopOptions, make_simulator, plan_offline, run_offline
-from quad_common import cdr
 from quad_common import conversions as conv
 from quad_common.paths import resolve_config
-from quad_common.testing import isolated_domain
+from quad_common.ros import cdr
+from quad_common.ros.testing import isolated_domain
 from quad_control.position_controller_node import PositionControllerNode
 
 MISSION = resolve_config('config/missions/stop_every_waypoint.yaml')

@@ -22,7 +22,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from quad_bringup.commands.record import ros_arguments
 from quad_bringup.recording.recorder import open_bag_reader, repair_bag, typestore
 from quad_common import contract
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 N_ODOM = 300
 N_CLOCK = 40

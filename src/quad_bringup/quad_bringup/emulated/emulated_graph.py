@@ -30,7 +30,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from quad_common import contract
 from quad_common.conversions import stamp_to_s
 from quad_common.paths import REPO_ROOT
-from quad_common.testing import Spinner, isolated_domain
+from quad_common.ros.testing import Spinner, isolated_domain
 
 ROOT = REPO_ROOT   # the checkout whose packages and config/ the processes use
 VEHICLE_FILE = str(ROOT / 'config' / 'vehicles' / 'px4_quad.yaml')

@@ -6,7 +6,7 @@ is subscribed when it appears in the graph, with its type and durability taken f
 are receive times (system clock, as `ros2 bag record` does). SIGINT/SIGTERM/SIGHUP close the bag cleanly, and so
 does the death of the process that started it (quad_common.lifeline.bind_to_parent).
 
-A lockstep follower (quad_common.lockstep): it acknowledges the odometry it has written, so a simulator started
+A lockstep follower (quad_common.ros.lockstep): it acknowledges the odometry it has written, so a simulator started
 with lockstep_followers:=recorder never publishes more than the bag can take. The subscriptions are served in
 one pass per wake-up (HotPathExecutor), the status timer and discovery in its slow pass.
 
@@ -30,12 +30,13 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from quad_bringup.recording.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, contract_spec, installed
-from quad_common import cdr, contract, diagnostics, lockstep, node_start
-from quad_common.hot_path import HotPathExecutor
+from quad_common import contract, diagnostics, node_start
 from quad_common.lifeline import bind_to_parent
-from quad_common.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, rcl_reason
 from quad_common.params import Param
-from quad_common.ros_params import ParameterSet
+from quad_common.ros import cdr, lockstep
+from quad_common.ros.hot_path import HotPathExecutor
+from quad_common.ros.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, rcl_reason
+from quad_common.ros.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
 DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends with a pass this long that takes nothing sent before it
@@ -55,7 +56,8 @@ SPECS = [
     Param('flush_period_s', 1.0, 'wall-clock period of pushing the open chunk to disk (what a SIGKILL can lose)',
           min=0.05, max=60.0),
     Param('lockstep_ack_after', '', 'comma-separated topics that must be in the bag before odometry is '
-          'acknowledged (quad_common.lockstep: a follower\'s simulator does not start without them), e.g. trajectory',
+          'acknowledged (quad_common.ros.lockstep: a follower\'s simulator does not start without them), '
+          'e.g. trajectory',
           read_only=True),
     Param('queue_depth', 1000, 'subscription history depth (reliable; generous so a busy recorder drops nothing)',
           min=1, max=100000, read_only=True),

@@ -29,8 +29,8 @@ from quad_bringup.analysis.report import load_flights, write_report
 from quad_bringup.offline.fleet_loop import FleetRun
 from quad_bringup.running import graph, processes
 from quad_common import contract
-from quad_common.domain_probe import foreign_nodes
 from quad_common.domains import isolated_domain
+from quad_common.ros.domain_probe import foreign_nodes
 from quad_sim.vehicle_contact import ContactRule
 from quad_trajectory.fleet import FleetPlan, resolved_fleet
 
@@ -114,7 +114,7 @@ def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted:
             followers: tuple[str, ...] = ()) -> GraphRun:
     """Writes out_dir/fleet.yaml (the fleet as flown: quad_trajectory.fleet.resolved_fleet) and params.yaml (every
     node's parameters, fully qualified) and makes the processes. followers: lockstep followers beside the recorder
-    (quad_common.lockstep), e.g. a probe that holds the simulator at a sim time."""
+    (quad_common.ros.lockstep), e.g. a probe that holds the simulator at a sim time."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fleet_file = out_dir / 'fleet.yaml'

@@ -6,7 +6,7 @@ sim_node and position_controller (lockstep, use_sim_time), plus the recorder, ea
 group, in a ROS domain of their own (quad_common.domains.isolated_domain, localhost discovery).
 
 Reliability (README, Reliability): the recorder and fly's monitor are the simulator's lockstep followers
-(quad_common.lockstep), so the bag and the verdict hold every step; the bag is checked against the simulator's
+(quad_common.ros.lockstep), so the bag and the verdict hold every step; the bag is checked against the simulator's
 own step count; every node dies with fly (processes, bind_to_parent); SIGINT, SIGTERM and SIGHUP stop the graph in
 order, close the bag and write the report; a dead controller leaves the simulator running until its failsafe has
 landed the vehicle (LANDING_TIMEOUT_S).
@@ -160,7 +160,7 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
     # here, not at the top: a refusal before start-up does not wait for numpy, rclpy, rosbags and the report's imports
     from quad_bringup.analysis.report import load_flight, record_summary, write_report
     from quad_bringup.recording.recorder import DEFAULT_TOPICS
-    from quad_common.domain_probe import foreign_nodes
+    from quad_common.ros.domain_probe import foreign_nodes
     from quad_control.parameters import NODE_NAME as CONTROLLER_NODE
 
     clock.mark('validated, run directory made')

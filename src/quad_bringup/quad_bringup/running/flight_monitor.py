@@ -1,7 +1,7 @@
 """In-process watcher of a flight (fly's eyes): trajectory, odometry and diagnostics -> a verdict.
 
 The judgement itself (`FlightJudge`) has no rclpy: it is fed plain numbers, so it is unit-tested.
-The monitor is a lockstep follower (quad_common.lockstep, as MONITOR): the simulator never runs more than a few
+The monitor is a lockstep follower (quad_common.ros.lockstep, as MONITOR): the simulator never runs more than a few
 steps ahead of what it has judged, so the verdict is computed from every odometry sample, as the report is.
 """
 
@@ -15,9 +15,10 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_bringup.analysis.metrics import Completion
 from quad_bringup.running.graph import MONITOR
-from quad_common import cdr, contract, conversions, lockstep
+from quad_common import contract, conversions
 from quad_common.diagnostics import ERROR, level_of
-from quad_common.hot_path import HotPathExecutor
+from quad_common.ros import cdr, lockstep
+from quad_common.ros.hot_path import HotPathExecutor
 from quad_control.loop import CONTROLLER_FAILED
 
 

@@ -26,8 +26,8 @@ and the recorder's drain), as a lone sim_node's do.
 import importlib
 import sys
 
-from quad_common.hot_path import HotPathExecutor
-from quad_common.node_main import run_node
+from quad_common.ros.hot_path import HotPathExecutor
+from quad_common.ros.node_main import run_node
 
 # executable -> (module, node class) of the nodes a host can hold
 HOSTABLE = {
@@ -82,7 +82,7 @@ def share_clock(nodes):
                          + ', '.join(f'{n.get_fully_qualified_name()}={t}' for n, t in zip(nodes, sim_time)))
     if not all(sim_time):
         return None
-    source = nodes[0]._time_source   # rclpy 7.1 (quad_common.hot_path.CHECKED_RCLPY_VERSION)
+    source = nodes[0]._time_source   # rclpy 7.1 (quad_common.ros.hot_path.CHECKED_RCLPY_VERSION)
     for node in nodes[1:]:
         node._time_source.detach_node()
         source.attach_clock(node.get_clock())

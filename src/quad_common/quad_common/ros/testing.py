@@ -8,7 +8,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
 from quad_common.domains import FASTDDS_PROFILE, isolated_domain  # noqa: F401  (the tests' import path)
-from quad_common.node_main import close_nodes
+from quad_common.ros.node_main import close_nodes
 
 TIMEOUT_S = 60.0
 
@@ -39,7 +39,7 @@ class ProbeGraph:
 
 class Spinner:
     """Spins `executor` in a thread of its own until close(), which stops and joins that thread before it destroys
-    `nodes` (quad_common.node_main.close_nodes): a test's node is never destroyed under a wait or a callback."""
+    `nodes` (quad_common.ros.node_main.close_nodes): a test's node is never destroyed under a wait or a callback."""
 
     def __init__(self, executor, nodes, name='spinner'):
         self.executor, self.nodes = executor, list(nodes)

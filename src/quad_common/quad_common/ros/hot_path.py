@@ -24,7 +24,7 @@ from rclpy.subscription import Subscription
 
 # The rclpy release whose internals this module uses (rclpy_implementation.WaitSet, Executor._guard and
 # _sigint_gc, a subscription handle's take_message, Subscription._callback_type, wait_for_ready_callbacks) and
-# against which quad_common.cdr's hand-packed layouts were checked; src/quad_common/test/test_rclpy_pin.py fails,
+# against which quad_common.ros.cdr's hand-packed layouts were checked; src/quad_common/test/test_rclpy_pin.py fails,
 # naming both versions, when the installed rclpy is another one or a layout no longer matches: re-check both there,
 # then move the pin.
 CHECKED_RCLPY_VERSION = '7.1.5'
