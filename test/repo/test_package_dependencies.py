@@ -170,3 +170,22 @@ def test_quad_bringup_sub_packages_import_downward_only():
                     if target.startswith('quad_bringup.') and target.split('.')[1] in rank
                     and rank[target.split('.')[1]] > rank[module.split('.')[1]])
     assert not upward, f'quad_bringup imports upward: {upward}'
+
+
+def test_quad_common_core_imports_no_rclpy_at_import():
+    """quad_common's core (every module outside quad_common/ros) imports neither rclpy at its top nor
+    quad_common.ros anywhere: the offline tools and the report import it without ROS; a helper that needs rclpy at
+    import belongs in quad_common/ros."""
+    package = ROOT / 'src' / 'quad_common' / 'quad_common'
+    found = []
+    for path in sorted(p for p in package.glob('**/*.py') if p.relative_to(package).parts[0] != 'ros'):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        top = [n for n in tree.body if isinstance(n, (ast.Import, ast.ImportFrom))]
+        for node in ast.walk(tree):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ''] + [f'{node.module}.{a.name}' for a in node.names]
+                     if isinstance(node, ast.ImportFrom) else [])
+            if any(n == 'quad_common.ros' or n.startswith('quad_common.ros.') for n in names) or (
+                    node in top and any(n.split('.')[0] == 'rclpy' for n in names)):
+                found.append(f'{path.relative_to(package)}:{node.lineno}')
+    assert not found, f'quad_common core imports rclpy or quad_common.ros: {found}'
