@@ -10,7 +10,7 @@
    `plan` and `fly` run) and the solver; its optimiser, its scaling and its starts are its own.
 2. Compute time of the allocation alone for 10, 100 and 1000 segments (bench_plan's survey missions), CPU
    seconds of this process, median of RUNS.
-3. Every mission flown with fastest in the offline loop (quad_bringup.closed_loop: the graph's simulator and
+3. Every mission flown with fastest in the offline loop (quad_bringup.offline.closed_loop: the graph's simulator and
    control loop without ROS) with the default se3 profile on the nominal Crazyflie and every plant family
    member, and through the ROS graph (`quadflight fly`) on GRAPH_MISSIONS.
 Prints one markdown section. --quick: fewer missions in the reference and no graph flights.
@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 
-from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile  # noqa: E402
+from quad_bringup.offline.closed_loop import LoopOptions, fly_offline, load_control_profile  # noqa: E402
 from quad_common.paths import resolve_config  # noqa: E402
 from quad_common.vehicle import load_plant_family, load_vehicle  # noqa: E402
 from quad_trajectory import fastest, feasibility, planner, solver, timing  # noqa: E402
@@ -187,8 +187,8 @@ def flown_rows(names, graph_names):
     if graph_names:
         import tempfile
 
-        from quad_bringup.flight import fly
-        from quad_bringup.flight_options import FlightOptions
+        from quad_bringup.running.flight import fly
+        from quad_bringup.running.flight_options import FlightOptions
         with tempfile.TemporaryDirectory(prefix='bench_fastest-') as tmp:
             for name in graph_names:
                 result = fly(FlightOptions(mission=resolve_config(f'config/missions/{name}.yaml'), controller='se3',

@@ -1,5 +1,5 @@
-"""Fleets offline (quad_bringup.fleet_loop): real-time factor of the lockstep fleet step at 1, 4, 16 and 64 vehicles,
-and the physics step as a loop over compiled Simulators beside a numpy core vectorized over vehicles."""
+"""Fleets offline (quad_bringup.offline.fleet_loop): real-time factor of the lockstep fleet step at 1, 4, 16 and
+64 vehicles, and the physics step as a loop over compiled Simulators beside a numpy core vectorized over vehicles."""
 
 import os
 import sys
@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from quad_bringup.fleet_loop import fly_fleet
+from quad_bringup.offline.fleet_loop import fly_fleet
 from quad_common.compiled import COMPILED
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 from quad_common.vehicle import load_vehicle
@@ -109,7 +109,7 @@ def main():
                     f'{loop_us:.0f} | {numpy_us:.0f} | {plan_s:.2f} |')
         print(f'{n} vehicles: {run.real_time_factor:.1f}x', file=sys.stderr)
     print('## Fleets offline (bench_fleet)\n')
-    print(f'`fly_fleet` (quad_bringup.fleet_loop): N Crazyflies in a square grid {SPACING_M} m apart on '
+    print(f'`fly_fleet` (quad_bringup.offline.fleet_loop): N Crazyflies in a square grid {SPACING_M} m apart on '
           '`fleets/formation4.yaml`\'s path, each with its own ControlLoop (pd, 100 Hz) and Simulator (1 kHz physics, '
           f'{"compiled" if COMPILED else "interpreted"}), stepped in lockstep, pairwise collision check every tick. '
           'Real-time factor = simulated s / wall s of the whole flight. Per-tick wall time split into the controllers, '

@@ -8,8 +8,8 @@ import time
 
 from bench_fleet import SPACING_M, grid_fleet
 
-from quad_bringup.fleet_graph import fly_graph
-from quad_bringup.fleet_loop import fly_fleet
+from quad_bringup.offline.fleet_loop import fly_fleet
+from quad_bringup.running.fleet_graph import fly_graph
 from quad_trajectory.fleet import plan_fleet
 
 NOTE = ('\n' +
@@ -67,7 +67,8 @@ def main():
           'one /clock, each vehicle\'s topics under its namespace), each vehicle\'s trajectory_node and '
           'position_controller (pd) under its namespace, the recorder (every vehicle\'s odom, setpoints, plan and '
           'diagnostics) as the lockstep follower: nothing lost. sim_node and the vehicles\' nodes run in one '
-          'process (quad_bringup.node_host, the default; the recorder in its own) or, for 1 and 4 vehicles, one '
+          'process (quad_bringup.running.node_host, the default; the recorder in its own) or, for 1 and 4 '
+          'vehicles, one '
           'process per node as launch_ros starts them. Stepping = sim_node\'s wall time from its first step to its '
           'last (the real-time factor: simulated / stepping); the command = what the user waits for (processes '
           'started, planned, flown, stopped, the bag read and scored). Runs per row: the median and the range. '

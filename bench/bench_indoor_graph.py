@@ -1,7 +1,7 @@
 """Indoor flight through the graph: the 3 m square at 0.8 m/s on the emulated PX4 and ArduPilot (quad_vehicle_emu at
 its defaults, `python -m quad_vehicle_emu.mavlink_vehicle`) through the graph
-(quad_bringup.emulated_graph's processes: real MAVLink over UDP, real DDS; mavlink_bridge, position_controller with
-config/control_real.yaml over control.yaml, the real-vehicle default, trajectory_node, the recorder) on a machine
+(quad_bringup.emulated.emulated_graph's processes: real MAVLink over UDP, real DDS; mavlink_bridge, position_controller
+with config/control_real.yaml over control.yaml, the real-vehicle default, trajectory_node, the recorder) on a machine
 other work shares: the vehicle on the floor, armed, `offboard`, a plan up to the square's first corner (an autopilot
 without GPS has no position before the pose streams), then the square, the plan recorded and scored.
 Each autopilot with its GPS off and external vision on (PX4: EKF2_EV_CTRL 3, EKF2_HGT_REF 3, EKF2_GPS_CTRL 0,
@@ -25,13 +25,19 @@ from pathlib import Path
 import numpy as np
 from std_srvs.srv import SetBool, Trigger
 
+from quad_bringup.analysis.metrics import planned_position
+from quad_bringup.analysis.report import load_flight
 from quad_bringup.commands.record import ros_arguments
-from quad_bringup.emulated_chain import SPEED_MPS, SQUARE
-from quad_bringup.emulated_graph import OFFBOARD_MODE, WAIT_S, free_udp_port, running_graph, start_vehicle_graph
-from quad_bringup.emulated_mission import CONTROL, REAL_PROFILE, plan_waypoints, report
-from quad_bringup.metrics import planned_position
-from quad_bringup.recorder import DEFAULT_TOPICS, open_bag_reader, typestore
-from quad_bringup.report import load_flight
+from quad_bringup.emulated.emulated_chain import SPEED_MPS, SQUARE
+from quad_bringup.emulated.emulated_graph import (
+    OFFBOARD_MODE,
+    WAIT_S,
+    free_udp_port,
+    running_graph,
+    start_vehicle_graph,
+)
+from quad_bringup.emulated.emulated_mission import CONTROL, REAL_PROFILE, plan_waypoints, report
+from quad_bringup.recording.recorder import DEFAULT_TOPICS, open_bag_reader, typestore
 from quad_common import contract
 from quad_common.conversions import stamp_to_s, vec3
 
@@ -108,7 +114,7 @@ def fly_cell(flavour: str, vision: bool, controller: dict) -> tuple[float, float
             procs.stop('trajectory')
             load_start = os.getloadavg()[0]
             bag = out_dir / 'bag'
-            procs.start('recorder', ['-m', 'quad_bringup.recorder_node',
+            procs.start('recorder', ['-m', 'quad_bringup.recording.recorder_node',
                                      *ros_arguments(str(bag), list(DEFAULT_TOPICS))])
             traj = plan_waypoints(procs, observer, SQUARE, SPEED_MPS)
             plan_flown(observer, traj, SQUARE[-1], 'the square')

@@ -18,8 +18,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 
-from quad_bringup.flight import fly  # noqa: E402
-from quad_bringup.flight_options import FlightOptions  # noqa: E402
+from quad_bringup.running.flight import fly  # noqa: E402
+from quad_bringup.running.flight_options import FlightOptions  # noqa: E402
 from quad_control.position import CONTROLLERS  # noqa: E402
 from quad_trajectory.mission import load_mission  # noqa: E402
 

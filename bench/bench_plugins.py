@@ -1,7 +1,7 @@
 """A controller we did not write, flown through quadflight: rotorpy 3.0.0's SE3Control, unchanged from its package
-(the peers' venv, quad_bringup.peer_venv), as `--controller rotorpy.controllers.quadrotor_control:SE3Control`, beside
-rotorpy's own Environment.run of the same controller on the same planned trajectory and vehicle parameters; and the
-cost per tick of the plugin path. Prints one markdown section.
+(the peers' venv, quad_bringup.peers.peer_venv), as `--controller rotorpy.controllers.quadrotor_control:SE3Control`,
+beside rotorpy's own Environment.run of the same controller on the same planned trajectory and vehicle parameters; and
+the cost per tick of the plugin path. Prints one markdown section.
 
 rotorpy is made importable in quadflight's processes without its venv: a directory holding only a link to the
 installed `rotorpy` package goes on PYTHONPATH (both venvs pin the same numpy and scipy; SE3Control imports numpy and
@@ -22,9 +22,9 @@ sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 
 import numpy as np  # noqa: E402
 
-from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile  # noqa: E402
-from quad_bringup.peer_venv import run_peer  # noqa: E402
-from quad_bringup.rotorpy_peer import SE3CONTROL, rotorpy_dir  # noqa: E402
+from quad_bringup.offline.closed_loop import LoopOptions, fly_offline, load_control_profile  # noqa: E402
+from quad_bringup.peers.peer_venv import run_peer  # noqa: E402
+from quad_bringup.peers.rotorpy_peer import SE3CONTROL, rotorpy_dir  # noqa: E402
 from quad_common.paths import resolve_config  # noqa: E402
 from quad_common.types import AttitudeSetpoint, Reference, State  # noqa: E402
 from quad_control.plugins import ControllerPlugin, make_controller, vehicle_params  # noqa: E402

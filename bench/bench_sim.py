@@ -107,7 +107,7 @@ print(20.0 / (time.perf_counter() - start))
 
 def rotorpy_rtf():
     try:
-        from quad_bringup.peer_venv import run_peer
+        from quad_bringup.peers.peer_venv import run_peer
         return f'{float(run_peer(ROTORPY, timeout_s=200).split()[-1]):.1f}x'
     except Exception as exc:  # the peer is optional: report why it is missing
         return f'n/a ({type(exc).__name__})'

@@ -16,7 +16,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 
-from quad_bringup import runs, sweep, tune  # noqa: E402
+from quad_bringup.experiments import runs, sweep, tune  # noqa: E402
 from quad_common.paths import resolve_config  # noqa: E402
 
 MISSIONS = ['config/missions/window.yaml', 'config/missions/maze.yaml', 'config/missions/figure8.yaml']
@@ -115,7 +115,7 @@ def rotorpy_flights() -> dict:
         data.append({'t': (traj.times_s - traj.times_s[0]).tolist(), 'p': traj.position.tolist(),
                      'v': traj.velocity.tolist(), 'a': traj.acceleration.tolist()})
     try:
-        from quad_bringup.peer_venv import run_peer
+        from quad_bringup.peers.peer_venv import run_peer
 
         with tempfile.NamedTemporaryFile('w', suffix='.json', delete=False) as f:
             json.dump(data, f)

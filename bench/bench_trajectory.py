@@ -2,7 +2,7 @@
 rotorpy's MinSnap vs minsnap-trajectories. Prints one markdown section.
 
 Same problem for all: random-walk waypoints (x, y, z), rest-to-rest, 7th-order pieces, segment times from
-length / 1 m/s; each peer is timed inside its own process (quad_bringup.peer_venv). A size is skipped where the
+length / 1 m/s; each peer is timed inside its own process (quad_bringup.peers.peer_venv). A size is skipped where the
 growth measured so far predicts more than 60 s.
 """
 
@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from quad_bringup.peer_venv import run_peer  # noqa: E402
+from quad_bringup.peers.peer_venv import run_peer  # noqa: E402
 from quad_trajectory import planner, solver  # noqa: E402
 
 SIZES = [10, 100, 1000, 10000]

@@ -8,7 +8,7 @@ thrust. Profiles: `default` is what `quadflight fly --controller se3` flies (con
 flight of the same member with the default profile (its function, check_bag, with its quality gates and margin
 check): the profile it writes, or the default where it refuses (nothing written). Each flight: 2 m/s average,
 the mission's limits-aware allocation where the mission gives trajectory.limits (figure8, long_100),
-quad_bringup.closed_loop (the graph's pieces and timing without DDS; RMSE and completion as `quadflight report`
+quad_bringup.offline.closed_loop (the graph's pieces and timing without DDS; RMSE and completion as `quadflight report`
 computes them). Goal: default never diverges, completes, RMSE < 5 cm; identified RMSE < 2 cm.
 """
 
@@ -20,9 +20,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 
-from quad_bringup.closed_loop import LoopOptions, control_profile, fly_offline, load_control_profile  # noqa: E402
 from quad_bringup.commands.identify import check_bag  # noqa: E402
-from quad_bringup.rotorpy_peer import MISSION_SPEED_MPS, rotorpy_mission_bag  # noqa: E402
+from quad_bringup.offline.closed_loop import LoopOptions, control_profile, fly_offline, load_control_profile  # noqa: E402
+from quad_bringup.peers.rotorpy_peer import MISSION_SPEED_MPS, rotorpy_mission_bag  # noqa: E402
 from quad_common.vehicle import load_plant_family  # noqa: E402
 from quad_common.yaml_io import load_yaml  # noqa: E402
 from quad_control.parameters import profile_parameters  # noqa: E402
@@ -56,7 +56,7 @@ def identified_gains(member):
 
 def rotorpy_flight(mission, gains_values, tmp):
     """rotorpy_mission_bag's flight read back as `quadflight report` reads a bag: a Flight."""
-    from quad_bringup.report import load_flight
+    from quad_bringup.analysis.report import load_flight
     bag, plan, trajectory = rotorpy_mission_bag(mission, gains_values, tmp, SPEED_MPS)
     flight = load_flight(bag)
     flight.traj_start_s, flight.trajectory, flight.waypoints = 0.0, trajectory, plan.waypoints
@@ -67,7 +67,7 @@ def rotorpy_rows():
     """(identification, its refusal or None, [(mission, default metrics, identified metrics)]) on rotorpy's
     plant through `quadflight identify`'s check_bag (--vehicle crazyflie.yaml), or the reason it is missing (the
     peer is optional)."""
-    from quad_bringup.report import compute_metrics
+    from quad_bringup.analysis.report import compute_metrics
     from quad_common.paths import resolve_config
     try:
         values = profile_parameters(load_yaml(resolve_config(DEFAULT_PROFILE)))
@@ -124,7 +124,8 @@ def main():
           f'{100 * worst["identified"]:.2f} cm (goal < 2).\n')
     identified_peer, peer_refusal, rows = rotorpy_rows()
     print('Independent plant: rotorpy 3.0.0 `Multirotor` with its Crazyflie parameters (72 ms motors, its own SO(3) '
-          'PD attitude loop kp 310 / kd 57 on `cmd_ctatt`, rotor drag on), in its own venv (quad_bringup.peer_venv), '
+          'PD attitude loop kp 310 / kd 57 on `cmd_ctatt`, rotor drag on), in its own venv '
+          '(quad_bringup.peers.peer_venv), '
           'flown by our planner and position controller (the pure cores) at 100 Hz; identified from its figure8 flight '
           'with the default profile.\n')
     if not rows:

@@ -2,7 +2,7 @@ import pytest
 from vehicle_emu_client import EmulatedVehicle
 from xdist_groups import pytest_collection_modifyitems  # noqa: F401  (the hook, found here by name)
 
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 
 @pytest.fixture

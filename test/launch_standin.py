@@ -219,9 +219,9 @@ def _load(launch_file: Path) -> LaunchDescription:
 
 def evaluate(launch_file: Path, **arguments) -> list[LaunchedNode]:
     """The nodes `ros2 launch <launch_file> name:=value ...` starts, in order."""
-    saved = {name: sys.modules.get(name) for name in [*_modules(), 'quad_bringup.launch_graph']}
+    saved = {name: sys.modules.get(name) for name in [*_modules(), 'quad_bringup.running.launch_graph']}
     sys.modules.update(_modules())
-    sys.modules.pop('quad_bringup.launch_graph', None)   # imported afresh against the stand-in
+    sys.modules.pop('quad_bringup.running.launch_graph', None)   # imported afresh against the stand-in
     try:
         context, nodes = Context({k: str(v) for k, v in arguments.items()}), []
         pending = [_load(launch_file)]

@@ -14,8 +14,8 @@ from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import parameter_value_to_python
 
-from quad_bringup.emulated_graph import WAIT_S, terminate
-from quad_common.testing import isolated_domain
+from quad_bringup.emulated.emulated_graph import WAIT_S, terminate
+from quad_common.ros.testing import isolated_domain
 
 PUSHED = 'uav2'
 RESEND_S = 5.0   # a parameter service's request is asked again after this long without an answer

@@ -7,8 +7,9 @@ import time
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
-from quad_common import cdr, contract
-from quad_common.node_main import run_node
+from quad_common import contract
+from quad_common.ros import cdr
+from quad_common.ros.node_main import run_node
 
 
 class OdomProbe(Node):

@@ -33,7 +33,7 @@ setup(
     entry_points={
         'console_scripts': [
             'quadflight = quad_bringup.cli:main',
-            'recorder = quad_bringup.start:recorder',
+            'recorder = quad_bringup.recording.start:recorder',
         ],
     },
 )

@@ -37,9 +37,9 @@ from quad_bridge.supervision import Supervisor
 from quad_bridge.telemetry_publisher import HANDLERS, TelemetryPublisher, stamp
 from quad_bridge.vehicle_state import Vehicle
 from quad_common import contract, diagnostics
-from quad_common.node_main import run_node
 from quad_common.realtime import apply_or_report
-from quad_common.ros_params import ParameterSet
+from quad_common.ros.node_main import run_node
+from quad_common.ros.ros_params import ParameterSet
 from quad_common.signing_key import load_signing_key
 
 

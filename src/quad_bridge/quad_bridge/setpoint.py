@@ -5,8 +5,9 @@ import struct
 
 import numpy as np
 
-from quad_common import cdr, rotations
+from quad_common import rotations
 from quad_common.conversions import UNSET_COVARIANCE
+from quad_common.ros import cdr
 from quad_common.types import AttitudeSetpoint
 
 # sensor_msgs/Imu in little-endian plain CDR after the header's frame_id (8-aligned): orientation, its covariance[0],

@@ -121,7 +121,7 @@ class SetpointPath:
                 self.on_setpoint(raw)
 
     def on_setpoint(self, raw: bytes):
-        """A serialized cmd/attitude_thrust (quad_common.cdr: no Python message object on the hot path)."""
+        """A serialized cmd/attitude_thrust (quad_common.ros.cdr: no Python message object on the hot path)."""
         vehicle = self.bridge.vehicle
         with vehicle.lock:
             backend = vehicle.status.backend

@@ -21,7 +21,8 @@ from quad_bridge.telemetry import (
     time_us,
 )
 from quad_bridge.telemetry_streams import StreamSelector
-from quad_common import cdr, contract
+from quad_common import contract
+from quad_common.ros import cdr
 from quad_common.types import State
 
 ODOM_GAP_WINDOW_S = 10.0   # diagnostics' odom_gap_max_ms: the longest gap between odometry publications this recent

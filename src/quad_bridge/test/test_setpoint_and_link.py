@@ -162,7 +162,7 @@ def test_the_float_path_from_cdr_gives_what_imu_to_setpoint_and_check_setpoint_g
     the same clamping and the same errors, for setpoints within the tilt limit and beyond, with and without body
     rates, frame ids of every alignment, unset fields, NaN, inf, a zero quaternion and a negative thrust."""
     from quad_bridge.setpoint import setpoint_from_cdr
-    from quad_common import cdr
+    from quad_common.ros import cdr
 
     rng = np.random.default_rng(7)
     cases = []

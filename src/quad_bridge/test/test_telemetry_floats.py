@@ -13,7 +13,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from quad_bridge import frames, telemetry  # noqa: E402
 from quad_bridge.telemetry_publisher import OdometryFloats  # noqa: E402
-from quad_common import cdr, rotations  # noqa: E402
+from quad_common import rotations
+from quad_common.ros import cdr  # noqa: E402
 
 ODOM = struct.Struct('<7d288x6d')
 STAMP_NS = 1_234_567_890_123

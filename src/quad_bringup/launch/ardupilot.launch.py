@@ -1,4 +1,4 @@
-"""A mission on a ArduPilot Copter vehicle (quad_bringup.graph.bridge_graph): trajectory_node and
+"""A mission on a ArduPilot Copter vehicle (quad_bringup.running.graph.bridge_graph): trajectory_node and
 position_controller on wall-clock time,
 mavlink_bridge from config/bridge_ardupilot.yaml (tcp 5760, ArduPilot SITL's port).
 Start in any order: the plan runs only once `offboard` has handed the vehicle over (GUIDED_NOGPS), from where the
@@ -8,7 +8,7 @@ vehicle is then (docs/bridge.md, "Flying a real vehicle").
     ros2 launch quad_bringup ardupilot.launch.py mission:=... external_pose:=enu state_source:=external_pose   # indoors
 """
 
-from quad_bringup.launch_graph import launch_description
+from quad_bringup.running.launch_graph import launch_description
 
 
 def generate_launch_description():

@@ -1,4 +1,4 @@
-"""A mission on a PX4 vehicle (quad_bringup.graph.bridge_graph): trajectory_node and
+"""A mission on a PX4 vehicle (quad_bringup.running.graph.bridge_graph): trajectory_node and
 position_controller on wall-clock time,
 mavlink_bridge from config/bridge_px4.yaml (udpin 14540, PX4 SITL's offboard port).
 Start in any order: the plan runs only once `offboard` has handed the vehicle over (OFFBOARD), from where the
@@ -8,7 +8,7 @@ vehicle is then (docs/bridge.md, "Flying a real vehicle").
     ros2 launch quad_bringup px4.launch.py mission:=... external_pose:=enu state_source:=external_pose   # indoors
 """
 
-from quad_bringup.launch_graph import launch_description
+from quad_bringup.running.launch_graph import launch_description
 
 
 def generate_launch_description():

@@ -5,7 +5,7 @@ import importlib
 import importlib.util
 import sys
 
-__version__ = '0.1.0'
+from quad_bringup import __version__
 
 # name -> (module, help). Each module has add_arguments(parser) and run(args) -> exit code;
 # a subcommand whose module is not there yet is not offered.

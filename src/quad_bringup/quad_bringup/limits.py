@@ -40,8 +40,8 @@ LIMITS = {
 # most, ~120 MB, so a mission of 1e9 m cannot fill the disk or the memory.
 CSV_MAX_SAMPLES = 1_000_000
 
-# identify writes a profile only with margin (quad_bringup.stability): it must settle at MARGIN_LAG x the identified
-# attitude response and MARGIN_LATENCY x the telemetry latency
+# identify writes a profile only with margin (quad_bringup.offline.stability): it must settle at MARGIN_LAG x the
+# identified attitude response and MARGIN_LATENCY x the telemetry latency
 MEASURED_LAG_S = (0.17, 0.21)    # ArduCopter SITL roll/pitch under pd/pid
 MEASURED_LATENCY_S = 0.05        # its telemetry
 MARGIN_LAG = 1.5

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from quad_bringup import cli
-from quad_bringup.profiles import check_control_profile
+from quad_bringup.checks.profiles import check_control_profile
 from quad_common.paths import REPO_ROOT
 
 MISSION = 'name: tiny\nwaypoints:\n  - [0.0, 0.0, 1.0]\n  - [1.0, 0.0, 1.0]\ntrajectory:\n  speed: 0.5\n'
@@ -213,7 +213,7 @@ def test_tune_out_a_file_and_a_closed_scheduler_leave_nothing(capsys, tmp_path):
 def test_fly_on_a_run_directory_another_fly_holds_is_refused_naming_it(capsys, tmp_path):
     import os
 
-    from quad_bringup.flight_options import claim_run_dir
+    from quad_bringup.running.flight_options import claim_run_dir
     run_dir = tmp_path / 'run'
     run_dir.mkdir()
     lock = claim_run_dir(run_dir)   # what a fly in flight holds (flock: one open file description per claim)
@@ -237,8 +237,8 @@ def test_fly_never_overwrites_what_its_out_holds(capsys, tmp_path, mine):
 
 def test_a_disturbance_a_sweep_spec_defines_is_checked_in_the_file_it_wrote(tmp_path):
     """sweep --graph and tune's verification fly spec-defined profiles from their own disturbances_file."""
-    from quad_bringup.flight_options import FlightOptions
-    from quad_bringup.inputs import check_inputs
+    from quad_bringup.checks.inputs import check_inputs
+    from quad_bringup.running.flight_options import FlightOptions
 
     profiles = tmp_path / 'disturbances.yaml'
     profiles.write_text('wind-1.0: {wind_mps: [1.0, 0.0, 0.0]}\n')   # as runs.py writes it: base resolved
@@ -249,7 +249,7 @@ def test_a_disturbance_a_sweep_spec_defines_is_checked_in_the_file_it_wrote(tmp_
 
 
 def test_tune_fails_when_its_verification_could_not_fly(capsys, tmp_path, monkeypatch):
-    import quad_bringup.tune as tune
+    import quad_bringup.experiments.tune as tune
 
     def tuned(spec, out, **kwargs):
         out.mkdir()

@@ -5,9 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from quad_bringup.closed_loop import LoopOptions, fly_offline, load_control_profile
-from quad_bringup.flight import EXIT_REFUSED, fly
-from quad_bringup.flight_options import (
+from quad_bringup.offline.closed_loop import LoopOptions, fly_offline, load_control_profile
+from quad_bringup.running.flight import EXIT_REFUSED, fly
+from quad_bringup.running.flight_options import (
     FlightOptions,
     MissionRefused,
     preflight_options,
@@ -97,7 +97,7 @@ def test_unknown_plant_member_refused_naming_it():
 
 
 def test_node_parameters_carry_the_plant_to_sim_node():
-    from quad_bringup.flight_options import node_parameters
+    from quad_bringup.running.flight_options import node_parameters
     options = FlightOptions(MAZE, controller='se3', plant='autopilot_so3')
     validate(options)
     params = node_parameters(with_profile_controller(options))

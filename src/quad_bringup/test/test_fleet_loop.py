@@ -1,4 +1,4 @@
-"""A fleet flown offline (quad_bringup.fleet_loop) and `quadflight plan FLEET.yaml`."""
+"""A fleet flown offline (quad_bringup.offline.fleet_loop) and `quadflight plan FLEET.yaml`."""
 
 import json
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from quad_bringup import cli
-from quad_bringup.fleet_loop import fly_fleet
+from quad_bringup.offline.fleet_loop import fly_fleet
 from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 from quad_sim.vehicle_contact import VEHICLE_COLLISION, closest_approach, contact_fraction

@@ -10,11 +10,11 @@ import pytest
 import rclpy
 from nav_msgs.msg import Odometry
 
-from quad_bringup import processes
-from quad_bringup.flight_monitor import FlightJudge, FlightMonitor
-from quad_bringup.report import Completion
+from quad_bringup.analysis.report import Completion
+from quad_bringup.running import processes
+from quad_bringup.running.flight_monitor import FlightJudge, FlightMonitor
+from quad_common.ros.testing import isolated_domain
 from quad_common.sampled_trajectory import SampledTrajectory
-from quad_common.testing import isolated_domain
 
 
 def straight_plan(duration_s=2.0, length_m=1.0):

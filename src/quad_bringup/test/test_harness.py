@@ -1,4 +1,4 @@
-"""The flight harness (quad_bringup.harness): the telemetry models deliver what they promise (age, rate, bursts,
+"""The flight harness (quad_bringup.offline.harness): the telemetry models deliver what they promise (age, rate, bursts,
 stamps), and `fly` runs position_controller's ControlLoop rules on the plant: a lockstep flight ends when the
 controller dies, a free-running one keeps the last setpoint through a tick without one, the plant holds level
 until the first odometry, done / fault / a stopped simulation end the flight where they happen."""
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_bringup.harness import DelayLine, FixedAge, Fresh, Mocap, fly, idle
+from quad_bringup.offline.harness import DelayLine, FixedAge, Fresh, Mocap, fly, idle
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
 from quad_control.loop import ControlLoop
 from quad_control.plugins import ControllerFailed

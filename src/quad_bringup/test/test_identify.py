@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import yaml
 
-from quad_bringup.closed_loop import LoopOptions, fly_offline
-from quad_bringup.identify import identify, profile, quality_refusal, read_identification
-from quad_bringup.report import load_flight
+from quad_bringup.analysis.identify import identify, profile, quality_refusal, read_identification
+from quad_bringup.analysis.report import load_flight
+from quad_bringup.offline.closed_loop import LoopOptions, fly_offline
 from quad_common.paths import REPO_ROOT, resolve_config
 from quad_common.vehicle import load_vehicle
 from quad_sim.attitude_poles import attitude_mean_delay_s
@@ -109,7 +109,7 @@ def test_cli_refuses_a_bad_latency_by_name(lag_bag):
 
 
 def test_a_bag_without_commands_is_refused_by_name(tmp_path):
-    from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder
+    from quad_bringup.recording.recorder import DEFAULT_TOPICS, BagRecorder
     bag = tmp_path / 'empty'
     recorder = BagRecorder(bag)
     recorder.add_topic('odom', DEFAULT_TOPICS['odom'])
@@ -126,7 +126,7 @@ def test_the_written_profile_loads_in_a_node_started_with_params_file(tmp_path, 
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter_client import AsyncParameterClient
 
-    from quad_common.testing import isolated_domain
+    from quad_common.ros.testing import isolated_domain
     out = tmp_path / 'profile.yaml'
     done = identify_cli(lag_bag, '--out', out)
     assert done.returncode == 0, done.stderr
@@ -177,7 +177,7 @@ def _bridge_bag(tmp_path, flown, window='engaged', engaged_through_landing=False
     before it and LANDING_S after it in which the controller commands 16-27 m/s^2 and +-8 deg that the vehicle,
     descending and then standing, never flies (a landing phase), and `window`: 'engaged' (vehicle/engaged
     true from the hand-over's start to its end), 'diagnostics' (the bridge's 1 Hz hand-over status) or None."""
-    from quad_bringup.recorder import DEFAULT_TOPICS, BagRecorder, open_bag_reader, typestore
+    from quad_bringup.recording.recorder import DEFAULT_TOPICS, BagRecorder, open_bag_reader, typestore
     from quad_common import contract
     ts, T = typestore(), typestore().types
     reader, _ = open_bag_reader(flown)
@@ -288,7 +288,7 @@ def test_a_bridge_bag_that_cannot_be_windowed_is_refused(tmp_path, lag_bag):
 def feedforward_bag(tmp_path_factory):
     """control_se3 (body rates fed forward) flying the figure8 at 2 m/s on autopilot_so3 (a PX4-like cascade that
     follows those rates): the commanded attitude is tracked within a sample, its 0.154 s lag does not show."""
-    from quad_bringup.closed_loop import load_control_profile
+    from quad_bringup.offline.closed_loop import load_control_profile
     from quad_trajectory.mission import load_mission
     bag = tmp_path_factory.mktemp('feedforward') / 'bag'
     controller, gains = load_control_profile(resolve_config('config/control_se3.yaml'))
@@ -332,7 +332,7 @@ def test_a_collapsed_interval_is_refused(feedforward_bag):
 def test_the_vehicle_model_flies_with_the_response_identified(tmp_path, lag_bag):
     """identify -> vehicle YAML -> the offline loop and a sweep's vehicles: accept it, and a flight of the model
     identifies the same lag and thrust scale again (the model is the vehicle identify measured)."""
-    from quad_bringup.runs import vehicle_entry
+    from quad_bringup.experiments.runs import vehicle_entry
     out, model = tmp_path / 'profile.yaml', tmp_path / 'model.yaml'
     done = identify_cli(lag_bag, '--out', out, '--model-out', model, '--vehicle', CRAZYFLIE)
     assert done.returncode == 0, done.stderr
@@ -365,8 +365,8 @@ def test_the_margin_checks_telemetry_is_the_bags(tmp_path, lag_bag):
     """A simulator's bag: lockstep, 100 Hz, no bursts. A vehicle's bag (wall clock): the median record - stamp
     delay (at least ArduCopter's 0.05 s: the bridge bag's 3 ms is not the vehicle's estimator delay), the
     record-time gaps as bursts; --latency-s replaces the latency and the line says what the bag had."""
-    from quad_bringup.metrics import Flight
-    from quad_bringup.stability import MEASURED_LATENCY_S, Telemetry
+    from quad_bringup.analysis.metrics import Flight
+    from quad_bringup.offline.stability import MEASURED_LATENCY_S, Telemetry
     sim = Telemetry.of_flight(load_flight(lag_bag))
     assert (sim.latency_s, sim.burst_s, round(sim.rate_hz)) == (0.0, 0.0, 100) and 'simulator' in sim.source
     bridge, *_ = _bridge_bag(tmp_path, lag_bag)
@@ -386,7 +386,7 @@ def test_the_margin_checks_telemetry_is_the_bags(tmp_path, lag_bag):
 def _member_hold(plant_fields, controller, gains):
     """stability's hold (20 s from a (0.5, 0, 0.3) m offset) flown on the Crazyflie with plant_fields, without
     the check's model: the plant's own loop, odometry every tick."""
-    from quad_bringup.stability import HOLD_ALTITUDE_M, hold_of
+    from quad_bringup.offline.stability import HOLD_ALTITUDE_M, hold_of
     from quad_common import rotations
     from quad_common.types import Reference
     from quad_control.position import Limits, PositionController
@@ -413,8 +413,8 @@ def test_the_margin_verdict_matches_a_cascade_1_5x_slower(tmp_path, stiff, settl
     """autopilot_so3 (a PX4-like angle-P 6.5 / rate-P 60 cascade: not the check's first order plus dead time),
     identified from a pd flight: the check's verdict at 1.5x equals the member's own with angle_p and rate_p / 1.5
     (its response 1.5x slower): control_se3 settles on both, se3 with kp 40 / kd 13 oscillates on both."""
-    from quad_bringup.closed_loop import load_control_profile
-    from quad_bringup.stability import Telemetry, margin_hold_identified
+    from quad_bringup.offline.closed_loop import load_control_profile
+    from quad_bringup.offline.stability import Telemetry, margin_hold_identified
     flight = load_flight(flown_bag(tmp_path, 'autopilot_so3'))
     result = identify(flight)
     assert result['attitude_lead_s'] == pytest.approx(0.154, rel=0.05)
@@ -458,7 +458,7 @@ def test_the_lag_parts_cut_where_the_command_moves_however_long_the_hover_around
     load, 0.28 s where the rest fit 0.17-0.19 s, and identify refused a right 0.183 s), and parts cut from the whole
     window grow with the hover until too few move: the parts cut the span where the command moves, so a hover before
     or after the plan, as long as the user waited, changes none of them."""
-    from quad_bringup import identify as idf
+    from quad_bringup.analysis import identify as idf
     motion = np.deg2rad(5.0) * np.cos(np.linspace(0.0, 12 * np.pi, 1200))   # moving from its first to last sample
     expected = np.split(motion, idf.BLOCKS)                                  # 12 s: 6 parts of 2 s
     for before, after in ((0, 0), (300, 400), (7000, 0), (0, 7000)):

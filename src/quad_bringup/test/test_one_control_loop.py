@@ -1,6 +1,6 @@
 """One control loop: the same mission flown through position_controller in a real rclpy graph (lockstep, the
 test playing the simulator as sim_node does: odom then /clock at t_k, wait for the setpoint stamped t_k, advance)
-and by the offline loop (quad_bringup.closed_loop) gives the same setpoints to float precision, hold before the
+and by the offline loop (quad_bringup.offline.closed_loop) gives the same setpoints to float precision, hold before the
 plan, plan start and the pid integral's dt included. The offline loop imports without any ROS package."""
 
 import subprocess
@@ -18,11 +18,11 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_bringup.closed_loop import LoopOptions, make_simulator, plan_offline, run_offline
-from quad_common import cdr
+from quad_bringup.offline.closed_loop import LoopOptions, make_simulator, plan_offline, run_offline
 from quad_common import conversions as conv
 from quad_common.paths import resolve_config
-from quad_common.testing import isolated_domain
+from quad_common.ros import cdr
+from quad_common.ros.testing import isolated_domain
 from quad_control.position_controller_node import PositionControllerNode
 
 MISSION = resolve_config('config/missions/stop_every_waypoint.yaml')
@@ -116,7 +116,7 @@ def test_node_and_offline_loop_give_the_same_setpoints(ctx):
 
 
 def test_offline_loop_imports_without_ros():
-    """quad_bringup.closed_loop with every ROS package made unimportable (rclpy, *_msgs, rosbags)."""
+    """quad_bringup.offline.closed_loop with every ROS package made unimportable (rclpy, *_msgs, rosbags)."""
     code = ('import sys\n'
             'class Block:\n'
             '    def find_spec(self, name, path=None, target=None):\n'
@@ -125,7 +125,7 @@ def test_offline_loop_imports_without_ros():
             'or root.endswith("_msgs"):\n'
             '            raise ImportError(f"ROS package {name} imported")\n'
             'sys.meta_path.insert(0, Block())\n'
-            'import quad_bringup.closed_loop\n'
+            'import quad_bringup.offline.closed_loop\n'
             'print("ok")\n')
     proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and 'ok' in proc.stdout, proc.stderr

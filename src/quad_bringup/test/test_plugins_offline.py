@@ -1,4 +1,4 @@
-"""User controllers in the offline loop and sweeps (quad_control.plugins through quad_bringup.closed_loop)."""
+"""User controllers in the offline loop and sweeps (quad_control.plugins through quad_bringup.offline.closed_loop)."""
 
 import json
 import os
@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from quad_bringup import sweep
-from quad_bringup.closed_loop import LoopOptions, fly_offline
-from quad_bringup.runs import SpecError
+from quad_bringup.experiments import sweep
+from quad_bringup.experiments.runs import SpecError
+from quad_bringup.offline.closed_loop import LoopOptions, fly_offline
 from quad_common.paths import REPO_ROOT, resolve_config
 
 USER_CONTROLLERS = REPO_ROOT / 'src' / 'quad_control' / 'test'

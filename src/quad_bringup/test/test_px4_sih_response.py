@@ -1,6 +1,6 @@
 """The shipped profiles on PX4 v1.16 SIH's measured attitude response (limits.PX4_SIH_ATTITUDE_RESPONSE_S: a first
 order of tau 0.15 s behind a dead time of 0.105 s, fitted on the flights that did not oscillate), in the offline
-harness (quad_bringup.stability, not timed). On PX4 SIH control_se3 flew a saturated limit cycle on all three
+harness (quad_bringup.offline.stability, not timed). On PX4 SIH control_se3 flew a saturated limit cycle on all three
 flights (tilt median 25 deg, roll std 18-21 deg at 0.7-0.8 Hz, the setpoint at the 35 deg clamp about half the
 time) while control_real and the seed's pd held: the harness must show the same from a hover a few cm off, and
 identify's margin check (1.5x the identified response) must refuse control_se3 for such a vehicle."""
@@ -10,10 +10,10 @@ import math
 import numpy as np
 import pytest
 
-from quad_bringup.closed_loop import load_control_profile
-from quad_bringup.identify import DT_S, fit_fopdt
+from quad_bringup.analysis.identify import DT_S, fit_fopdt
 from quad_bringup.limits import PX4_SIH_ATTITUDE_RESPONSE_S
-from quad_bringup.stability import Telemetry, hold_on_autopilot, margin_hold_identified
+from quad_bringup.offline.closed_loop import load_control_profile
+from quad_bringup.offline.stability import Telemetry, hold_on_autopilot, margin_hold_identified
 from quad_common import rotations
 from quad_common.paths import resolve_config
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint

@@ -1,5 +1,5 @@
 """The real-vehicle profile (config/control_real.yaml, what the bridge launch files fly) checked on the emulator's
-attitude response (quad_bringup.stability: quad_sim behind quad_vehicle_emu's shaping and telemetry delay line)
+attitude response (quad_bringup.offline.stability: quad_sim behind quad_vehicle_emu's shaping and telemetry delay line)
 with the lags measured on ArduCopter (roll/pitch 0.17-0.21 s) and ~50 ms of telemetry: a hover within 1 cm with a
 6 % hover-thrust error, and margin: it settles at 1.5x the lag and 2x the latency. The same check catches the
 profiles that oscillate behind an autopilot (control_fast flipped ArduCopter)."""
@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from quad_bringup.closed_loop import load_control_profile
-from quad_bringup.identify import DT_S, fit_fopdt
-from quad_bringup.stability import (
+from quad_bringup.analysis.identify import DT_S, fit_fopdt
+from quad_bringup.offline.closed_loop import load_control_profile
+from quad_bringup.offline.stability import (
     MARGIN_LAG,
     MARGIN_LATENCY,
     MEASURED_LAG_S,

@@ -20,9 +20,9 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_bringup.commands.record import ros_arguments
-from quad_bringup.recorder import open_bag_reader, repair_bag, typestore
+from quad_bringup.recording.recorder import open_bag_reader, repair_bag, typestore
 from quad_common import contract
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 
 N_ODOM = 300
 N_CLOCK = 40
@@ -42,7 +42,8 @@ def graph():
 
 
 def start_recorder(bag, env, topics):
-    cmd = [sys.executable, '-m', 'quad_bringup.recorder_node', *ros_arguments(bag, topics, flush_period_s=0.1)]
+    cmd = [sys.executable, '-m', 'quad_bringup.recording.recorder_node',
+           *ros_arguments(bag, topics, flush_period_s=0.1)]
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
@@ -204,7 +205,7 @@ def test_recorder_status_goes_under_the_contracts_name_whatever_the_node_is_call
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
     args = ['__node:=bag_writer' if a == '__node:=recorder' else a for a in ros_arguments(tmp_path / 'bag', ['odom'])]
-    proc = subprocess.Popen([sys.executable, '-m', 'quad_bringup.recorder_node', *args], env=env,
+    proc = subprocess.Popen([sys.executable, '-m', 'quad_bringup.recording.recorder_node', *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + TIMEOUT_S
@@ -220,7 +221,7 @@ def test_recorder_status_goes_under_the_contracts_name_whatever_the_node_is_call
 
 
 def test_a_fleet_vehicles_topics_have_the_contracts_specs():
-    from quad_bringup.recorder import DEFAULT_TOPICS, contract_spec
+    from quad_bringup.recording.recorder import DEFAULT_TOPICS, contract_spec
     assert contract_spec('/cf1/odom') == DEFAULT_TOPICS['odom']
     assert contract_spec('/cf1/cmd/attitude_thrust') == DEFAULT_TOPICS['cmd/attitude_thrust']
     assert contract_spec('/cf1/trajectory') == DEFAULT_TOPICS['trajectory'] and DEFAULT_TOPICS['trajectory'].latched

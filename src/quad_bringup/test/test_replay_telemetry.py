@@ -4,8 +4,8 @@ where it did (its diagnostics, inside the plan's window), else from the bag's re
 import numpy as np
 import pytest
 
-from quad_bringup.metrics import Flight
-from quad_bringup.replay import telemetry_of
+from quad_bringup.analysis.metrics import Flight
+from quad_bringup.offline.replay import telemetry_of
 
 WALL_S = 1.8e9                  # a vehicle's bag: wall-clock stamps
 

@@ -12,9 +12,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from quad_bringup.commands import report as report_command
-from quad_bringup.recorder import typestore
-from quad_bringup.report import (
+from quad_bringup.analysis.report import (
     Completion,
     closest_approach,
     compute_metrics,
@@ -22,7 +20,9 @@ from quad_bringup.report import (
     metrics_table,
     write_report,
 )
-from quad_bringup.report_figures import FIGURES
+from quad_bringup.analysis.report_figures import FIGURES
+from quad_bringup.commands import report as report_command
+from quad_bringup.recording.recorder import typestore
 
 L_M, T_S, DELAY_S, T0_S, RATE_HZ = 2.0, 4.0, 0.5, 10.0, 100
 MISSED_WAYPOINT = (1.0, 0.03, 1.0)  # 3 cm beside the straight path
@@ -200,7 +200,7 @@ def test_a_bag_without_a_simulator_does_not_say_it_did_not_collide(tmp_path):
 
 def test_report_says_whose_speed_and_why_time_actual_is_shorter(tmp_path):
     """A newcomer's friction: `speed_mps: None` for the default mission; time actual < planned unexplained."""
-    from quad_bringup.report import report_markdown
+    from quad_bringup.analysis.report import report_markdown
     metrics = compute_metrics(load_flight(make_bag(tmp_path / 'bag')), Completion(position_tolerance_m=0.2,
                                                                                   speed_tolerance_mps=0.5))
     assert metrics['completed'] and metrics['time_over_s'] < 0
@@ -211,7 +211,7 @@ def test_report_says_whose_speed_and_why_time_actual_is_shorter(tmp_path):
 
 def test_report_says_when_the_flight_began_away_from_the_plan(tmp_path):
     """A bridge flight started 0.5 m from the plan's start joined it silently."""
-    from quad_bringup.report import report_markdown
+    from quad_bringup.analysis.report import report_markdown
     flight = load_flight(make_bag(tmp_path / 'bag'))
     on_plan = compute_metrics(flight, Completion())
     assert on_plan['start_offset_m'] < 0.01 and 'JOINED' not in report_markdown(on_plan, [], 'r')
@@ -246,7 +246,7 @@ def test_report_writes_metrics_markdown_and_figures(tmp_path):
 def test_a_fleets_reports_get_their_figures_drawn_side_by_side(tmp_path):
     """fleet_graph.draw_reports_figures: each report directory its own flight's figures, linked from its
     report.md; a flight that cannot be drawn names its report."""
-    from quad_bringup.fleet_graph import draw_reports_figures
+    from quad_bringup.running.fleet_graph import draw_reports_figures
 
     flights, metrics = {}, {}
     for name, end_s in (('cf1', None), ('cf2', T0_S + T_S / 2)):
@@ -348,7 +348,7 @@ def test_the_figure_worker_whose_fly_is_gone_ends_without_a_traceback(tmp_path):
     import subprocess
     import sys
 
-    worker = subprocess.Popen([sys.executable, '-m', 'quad_bringup.figure_worker'], stdin=subprocess.PIPE,
+    worker = subprocess.Popen([sys.executable, '-m', 'quad_bringup.analysis.figure_worker'], stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     worker.stdout.close()   # fly gone: nobody reads the answer
     _, err = worker.communicate(json.dumps({'bag': str(tmp_path / 'nobag'), 'out': str(tmp_path)}) + '\n',
@@ -359,7 +359,7 @@ def test_the_figure_worker_whose_fly_is_gone_ends_without_a_traceback(tmp_path):
 def test_the_record_check_counts_the_newest_sim_count_up_to_its_own_stamp():
     """fly's monitor may hold an older `sim_node: published` than the bag (received late on a loaded machine): the
     newer of the two counts, checked up to its own stamp; a count newer than what was recorded shows as missing."""
-    from quad_bringup.metrics import Flight, record_check
+    from quad_bringup.analysis.metrics import Flight, record_check
     stamps = np.arange(1, 11, dtype=np.int64) * 10_000_000          # 10 steps recorded, 10 ms apart
     flight = Flight(odom_t=stamps * 1e-9, position=np.zeros((10, 3)), velocity=np.zeros((10, 3)),
                     euler=np.zeros((10, 3)), odom_stamps_ns=stamps, clock_stamps_ns=stamps,
@@ -384,10 +384,10 @@ def test_the_figure_worker_draws_a_pickled_flight_without_the_bag_reader(tmp_pat
 
     with open(tmp_path / 'flight.pickle', 'wb') as f:
         pickle.dump(load_flight(make_bag(tmp_path / 'bag')), f)
-    done = subprocess.run([sys.executable, '-X', 'importtime', '-m', 'quad_bringup.figure_worker'], text=True,
+    done = subprocess.run([sys.executable, '-X', 'importtime', '-m', 'quad_bringup.analysis.figure_worker'], text=True,
                           input=json.dumps({'flight': str(tmp_path / 'flight.pickle'), 'out': str(tmp_path)}) + '\n',
                           capture_output=True, timeout=300)
     assert sorted(json.loads(done.stdout)['figures']) == sorted(f'figures/{name}' for name, _ in FIGURES)
     imported = {line.rsplit('|', 1)[-1].strip() for line in done.stderr.splitlines() if line.startswith('import')}
     assert not {m for m in imported if m.split('.')[0] in ('rosbags', 'rclpy', 'nav_msgs')}
-    assert 'quad_bringup.report' not in imported
+    assert 'quad_bringup.analysis.report' not in imported

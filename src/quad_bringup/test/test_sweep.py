@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from quad_bringup import runs, sweep, tune
-from quad_bringup.executors import LocalExecutor
+from quad_bringup.experiments import runs, sweep, tune
+from quad_bringup.pools.executors import LocalExecutor
 from quad_control.parameters import profile_parameters
 
 WINDOW = {'file': 'config/missions/window.yaml', 'speed_mps': 2.0}
@@ -214,7 +214,7 @@ CROSSING = 'config/missions/fleets/crossing2.yaml'
 
 
 def test_a_sweep_flies_fleet_missions_beside_single_ones(tmp_path, monkeypatch):
-    monkeypatch.setattr('quad_bringup.executors.make_executor', lambda scheduler, workers: SerialExecutor())
+    monkeypatch.setattr('quad_bringup.pools.executors.make_executor', lambda scheduler, workers: SerialExecutor())
     spec = {'missions': [FORMATION, WINDOW], 'seeds': 1,
             'controllers': ['pd', {'name': 'fast', 'profile': 'config/control_fast.yaml'}]}
     (tmp_path / 'spec.yaml').write_text(json.dumps(spec))

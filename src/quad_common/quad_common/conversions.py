@@ -21,7 +21,7 @@ def stamp_to_s(stamp) -> float:
 
 
 def ns_to_s(stamp_ns: int) -> float:
-    """A stamp in integer nanoseconds (quad_common.cdr's decoders) as stamp_to_s gives it, to the last bit."""
+    """A stamp in integer nanoseconds (quad_common.ros.cdr's decoders) as stamp_to_s gives it, to the last bit."""
     sec, nanosec = divmod(stamp_ns, 1_000_000_000)
     return sec + nanosec * 1e-9
 
@@ -79,7 +79,7 @@ def odometry_to_state(msg: Odometry) -> State:
 
 
 def odometry_values_to_state(position, quaternion, v_body, body_rates) -> State:
-    """odometry_to_state on the fields' values (also what quad_common.cdr decodes)."""
+    """odometry_to_state on the fields' values (also what quad_common.ros.cdr decodes)."""
     q = rotations.normalize(quaternion)
     return State(position=np.array(position, dtype=float), velocity=rotations.to_matrix(q) @ np.asarray(v_body),
                  quaternion=q, body_rates=np.array(body_rates, dtype=float))
@@ -109,7 +109,7 @@ def imu_to_setpoint(msg: Imu) -> AttitudeSetpoint:
 
 def imu_values_to_setpoint(orientation, orientation_cov0, rates, rates_cov0, specific_force_mps2,
                            specific_force_cov0) -> AttitudeSetpoint:
-    """imu_to_setpoint on the fields' values (also what quad_common.cdr decodes); *_cov0: covariance[0]."""
+    """imu_to_setpoint on the fields' values (also what quad_common.ros.cdr decodes); *_cov0: covariance[0]."""
     if orientation_cov0 == UNSET_COVARIANCE:
         raise ValueError('cmd/attitude_thrust.orientation is marked unset (covariance[0] = -1)')
     if specific_force_cov0 == UNSET_COVARIANCE:

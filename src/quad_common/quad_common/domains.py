@@ -23,7 +23,7 @@ def isolated_domain(probe=None):
 
     Also puts the discovery profile into os.environ (unless one is set): participants this process creates
     afterwards announce as the children do (Fast DDS reads the profile at its first participant). probe(domain)
-    -> node names (quad_common.domain_probe.foreign_nodes): a domain whose lock is free but which already holds
+    -> node names (quad_common.ros.domain_probe.foreign_nodes): a domain whose lock is free but which already holds
     nodes, a graph started without our lock files (a real bridge), is passed over.
     """
     if not any(os.environ.get(v) for v in _PROFILE_VARIABLES):

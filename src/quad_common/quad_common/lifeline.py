@@ -8,7 +8,7 @@ import sys
 import threading
 import time
 
-PARENT_PID_VARIABLE = 'QUADFLIGHT_PARENT_PID'  # set by quad_bringup.processes for the nodes it starts
+PARENT_PID_VARIABLE = 'QUADFLIGHT_PARENT_PID'  # set by quad_bringup.running.processes for the nodes it starts
 _PR_SET_PDEATHSIG = 1
 LIFELINE_POLL_S = 0.25
 

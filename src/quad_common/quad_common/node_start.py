@@ -1,6 +1,6 @@
 """A node process's first code: its console script (each package's `start` module) records the stop signals
 (SIGINT, SIGTERM) from here on, before the node's module imports rclpy, numpy and the rest (a second or more of
-start-up on a busy machine), and quad_common.node_main goes on recording into the same list. A Ctrl-C at any
+start-up on a busy machine), and quad_common.ros.node_main goes on recording into the same list. A Ctrl-C at any
 moment of start-up therefore ends the node quietly with exit 0, never a KeyboardInterrupt traceback and exit -2
 (`ros2 launch` sends SIGINT to every node at once). No rclpy here: this is what a console script imports first.
 """

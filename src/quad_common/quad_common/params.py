@@ -2,7 +2,7 @@
 and the section of a params file that holds a node's parameters.
 
 A value that is non-finite, outside its range, or not one of its choices is refused with a reason naming the
-parameter, the value and the rule. quad_common.ros_params declares a table on a node (ParameterSet).
+parameter, the value and the rule. quad_common.ros.ros_params declares a table on a node (ParameterSet).
 """
 
 import math

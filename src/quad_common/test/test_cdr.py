@@ -7,9 +7,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import cdr
 from quad_common import conversions as conv
 from quad_common import rotations as rot
+from quad_common.ros import cdr
 from quad_common.types import AttitudeSetpoint, Reference, State
 
 STATE = State(position=np.array([1.5, -2.25, 3.0]), velocity=np.array([0.3, -0.7, 0.2]),

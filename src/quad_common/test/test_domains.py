@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from quad_common import domains
-from quad_common.domain_probe import foreign_nodes
+from quad_common.ros.domain_probe import foreign_nodes
 
 NODE = ('import rclpy, sys, time; rclpy.init(); n = rclpy.create_node("foreign_bridge"); print("up", flush=True); '
         'time.sleep(120)')

@@ -1,8 +1,8 @@
-"""A lockstep follower's acknowledgements (quad_common.lockstep.Acknowledger), without a graph."""
+"""A lockstep follower's acknowledgements (quad_common.ros.lockstep.Acknowledger), without a graph."""
 
 import time
 
-from quad_common import lockstep
+from quad_common.ros import lockstep
 
 
 class _Node:

@@ -7,8 +7,8 @@ import rclpy
 from rclpy.parameter import Parameter
 
 from quad_common.params import Param, check_value
-from quad_common.ros_params import ParameterSet
-from quad_common.testing import FASTDDS_PROFILE, isolated_domain
+from quad_common.ros.ros_params import ParameterSet
+from quad_common.ros.testing import FASTDDS_PROFILE, isolated_domain
 
 SPECS = [Param('kp', [5.0, 5.0, 20.0], 'gains', min=0.0, length=3),
          Param('rate_hz', 100.0, 'loop rate', min=1.0, max=1000.0),

@@ -1,4 +1,4 @@
-"""The lockstep speed relies on rclpy internals (quad_common.hot_path) and hand-packed CDR (quad_common.cdr),
+"""The lockstep speed relies on rclpy internals (quad_common.ros.hot_path) and hand-packed CDR (quad_common.ros.cdr),
 checked against one rclpy release (hot_path.CHECKED_RCLPY_VERSION). These tests fail loudly, naming the checked
 and the installed version, when rclpy is another release or what the fast paths rely on no longer holds."""
 
@@ -9,21 +9,21 @@ from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.serialization import serialize_message
 
-from quad_common import cdr, hot_path
 from quad_common import conversions as conv
-from quad_common.testing import isolated_domain
+from quad_common.ros import cdr, hot_path
+from quad_common.ros.testing import isolated_domain
 from quad_common.types import AttitudeSetpoint, State
 
 CHECKED = hot_path.CHECKED_RCLPY_VERSION
 INSTALLED = hot_path.installed_rclpy_version()
-WHY = (f'quad_common.hot_path / quad_common.cdr were checked against rclpy {CHECKED}; rclpy {INSTALLED} is '
+WHY = (f'quad_common.ros.hot_path / quad_common.ros.cdr were checked against rclpy {CHECKED}; rclpy {INSTALLED} is '
        'installed')
 
 
 def test_installed_rclpy_is_the_checked_release():
     assert INSTALLED == CHECKED, (
         f'{WHY}. Run src/quad_common/test (test_cdr.py, this file) and bench/run sim against it, then set '
-        f'CHECKED_RCLPY_VERSION in quad_common/hot_path.py to {INSTALLED}.')
+        f'CHECKED_RCLPY_VERSION in quad_common/ros/hot_path.py to {INSTALLED}.')
 
 
 def test_packed_bytes_are_rclpys():

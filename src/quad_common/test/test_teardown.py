@@ -1,5 +1,5 @@
 """No node or entity is destroyed while another thread still uses it (a segfault, not an exception, in rcl):
-the harness's close joins the spinning thread first (quad_common.node_main.close_nodes, testing.Spinner), and
+the harness's close joins the spinning thread first (quad_common.ros.node_main.close_nodes, testing.Spinner), and
 HotPathExecutor holds what it waits on in use, so an entity destroyed from another thread outlives the wait."""
 
 import subprocess
@@ -9,8 +9,8 @@ import threading
 import rclpy
 from std_msgs.msg import Empty
 
-from quad_common.hot_path import HotPathExecutor
-from quad_common.testing import TIMEOUT_S, Spinner, isolated_domain
+from quad_common.ros.hot_path import HotPathExecutor
+from quad_common.ros.testing import TIMEOUT_S, Spinner, isolated_domain
 
 DESTROY_CYCLES = 200
 CLOSE_BLOCKED_S = 0.5   # how long close() is watched for returning too early (a correct close cannot return)

@@ -1,5 +1,5 @@
 """ControlLoop: the rules between a PositionController and its inputs (no rclpy), the one loop that
-position_controller_node and the offline flight loop (quad_bringup.closed_loop) both run.
+position_controller_node and the offline flight loop (quad_bringup.offline.closed_loop) both run.
 
 - Engagement (docs/bridge.md): a plan's clock runs only while the vehicle flies our setpoints (`engaged`: the
   bridge's hand-over is active; a simulator is engaged at once). While not engaged the reference follows the

@@ -28,12 +28,13 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import Bool
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import cdr, contract, diagnostics, lockstep, mocap_frames
-from quad_common.hot_path import HotPathExecutor
-from quad_common.node_main import run_node
+from quad_common import contract, diagnostics, mocap_frames
 from quad_common.paths import parameter_file
 from quad_common.realtime import apply_or_report, thread_ids
-from quad_common.ros_params import ParameterSet
+from quad_common.ros import cdr, lockstep
+from quad_common.ros.hot_path import HotPathExecutor
+from quad_common.ros.node_main import run_node
+from quad_common.ros.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_control.loop import ControlLoop, Tick
 from quad_control.parameters import NODE_NAME, SPECS, gains_from
@@ -45,7 +46,7 @@ DIAGNOSTICS_PERIOD_S = 1.0
 
 
 class TrajectoryDecoder:
-    """Decodes serialized trajectories (quad_common.cdr.trajectory_to_sampled) on a thread of its own.
+    """Decodes serialized trajectories (quad_common.ros.cdr.trajectory_to_sampled) on a thread of its own.
 
     submit(raw) returns at once; when a result is ready, on_ready() is called from the worker (it triggers a
     guard condition) and take() hands the results, in arrival order, to the executor's thread: the plan is
@@ -172,7 +173,7 @@ class PositionControllerNode(Node):
     def hot_entities(self):
         """What a tick needs at once (HotPathExecutor): /clock (use_sim_time), odom, the tick timer, and the
         trajectory's bytes and its decoded result (rare, but a new plan must not wait for the slow pass)."""
-        subscriptions = self._subscriptions   # rclpy 7.1 (quad_common.hot_path.CHECKED_RCLPY_VERSION): a list
+        subscriptions = self._subscriptions   # rclpy 7.1 (quad_common.ros.hot_path.CHECKED_RCLPY_VERSION): a list
         if self._clock_subs[0] != len(subscriptions):   # asked before every wait: look up /clock's only when changed
             self._clock_subs = (len(subscriptions), [s for s in subscriptions if s.topic_name == contract.CLOCK])
         clock = self._clock_subs[1]
@@ -208,7 +209,7 @@ class PositionControllerNode(Node):
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, position, quaternion
 
     def _on_odom(self, raw: bytes):
-        """The state's message: odom, serialized (quad_common.cdr: the tick's critical path), or external/pose
+        """The state's message: odom, serialized (quad_common.ros.cdr: the tick's critical path), or external/pose
         (state_source external_pose), made a state by the pose filter once it passed the checks below."""
         pose = None
         try:

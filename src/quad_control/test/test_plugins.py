@@ -13,7 +13,7 @@ import pytest
 from quad_common import rotations
 from quad_common.params import check_value
 from quad_common.paths import resolve_config
-from quad_common.testing import isolated_domain
+from quad_common.ros.testing import isolated_domain
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
 from quad_common.vehicle import load_vehicle
 from quad_control import plugins

@@ -22,8 +22,8 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import conversions as conv
 from quad_common import diagnostics
+from quad_common.ros.testing import TIMEOUT_S, ProbeGraph, isolated_domain, probe_graph
 from quad_common.sampled_trajectory import SampledTrajectory
-from quad_common.testing import TIMEOUT_S, ProbeGraph, isolated_domain, probe_graph
 from quad_common.types import GRAVITY_MPS2, State
 from quad_control.position_controller_node import PositionControllerNode
 

@@ -50,7 +50,7 @@ SPECS = [
     Param('duration_s', 0.0, 'lockstep: end the run (drained, exit 0) at this sim time; 0: run until stopped',
           min=0.0, max=1e6, read_only=True),
     Param('lockstep_followers', '', 'lockstep: comma-separated node names whose acknowledgements each step waits for '
-          '(quad_common.lockstep; e.g. recorder): nothing they record is lost', read_only=True),
+          '(quad_common.ros.lockstep; e.g. recorder): nothing they record is lost', read_only=True),
     Param('mocap_rate_hz', 0.0, 'motion-capture stand-in (quad_sim.mocap) on external/pose: frames per second of sim '
           'time, at most one per step; 0: off', min=0.0, max=10000.0, read_only=True),
     Param('mocap_position_noise_m', 0.0, 'mocap: position noise, RMS per axis (m)', min=0.0, max=10.0,

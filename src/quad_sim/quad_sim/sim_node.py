@@ -1,7 +1,7 @@
 """sim_node: the simulated vehicle on the ROS graph (docs/quad_sim.md), wired to ROS-free rules.
 
 lockstep: publish odom then /clock at t_k, wait for the setpoints of t_k and for the lockstep_followers
-(quad_common.lockstep), advance lockstep_period_s; the rules (setpoints taken or refused, deadlines, a lost
+(quad_common.ros.lockstep), advance lockstep_period_s; the rules (setpoints taken or refused, deadlines, a lost
 controller, re-publication for late joiners, when a step may advance, the drain at a stop) are
 quad_sim.lockstep_policy's. On SIGINT/SIGTERM, or at duration_s, the loop stops advancing, publishes its final counts
 on diagnostics (quad_sim.sim_diagnostics) and drains the followers.
@@ -28,11 +28,12 @@ try:  # not among the PyPI ROS wheels; present on every machine with ROS 2 insta
 except ImportError:
     TFMessage = None
 
-from quad_common import contract, lockstep
-from quad_common.hot_path import HotPathExecutor
-from quad_common.node_main import run_node
+from quad_common import contract
 from quad_common.paths import resolve_config
-from quad_common.ros_params import ParameterSet
+from quad_common.ros import lockstep
+from quad_common.ros.hot_path import HotPathExecutor
+from quad_common.ros.node_main import run_node
+from quad_common.ros.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
 from quad_sim import lockstep_policy as policy
@@ -101,7 +102,7 @@ class SimNode(Node):
             f'disturbances {profile.name}, world {p["world"] or "none"}')
 
     def hot_entities(self):
-        """The lockstep's per-step entities (quad_common.hot_path): every vehicle's setpoints, the followers'
+        """The lockstep's per-step entities (quad_common.ros.hot_path): every vehicle's setpoints, the followers'
         acknowledgements, the realtime tick."""
         return self.hot_subscriptions, self.hot_timers
 

@@ -15,7 +15,8 @@ try:  # not among the PyPI ROS wheels; present on every machine with ROS 2 insta
 except ImportError:
     TFMessage = None
 
-from quad_common import cdr, contract, conversions, diagnostics
+from quad_common import contract, conversions, diagnostics
+from quad_common.ros import cdr
 from quad_sim import lockstep_policy as policy
 from quad_sim.mocap import MotionCapture
 from quad_sim.sim_diagnostics import ReportSchedule, vehicle_statuses
@@ -69,7 +70,7 @@ class SimulatedVehicle:
         return self.node.get_logger()
 
     def _on_setpoint(self, raw: bytes):
-        """cmd/attitude_thrust, serialized (quad_common.cdr: the tick's critical path)."""
+        """cmd/attitude_thrust, serialized (quad_common.ros.cdr: the tick's critical path)."""
         stamp_ns = cdr.header_stamp_ns(raw, Imu)
         verdict = self.lockstep.classify(stamp_ns, self.sim.time_ns, self.node.steps_per_period * self.sim.step_ns)
         if verdict == policy.OLDER:

@@ -20,11 +20,12 @@ from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from quad_common import contract, conversions, lockstep, rotations
+from quad_common import contract, conversions, rotations
 from quad_common.diagnostics import ERROR, level_of
-from quad_common.node_main import close_nodes
+from quad_common.ros import lockstep
+from quad_common.ros.node_main import close_nodes
+from quad_common.ros.testing import Spinner, isolated_domain
 from quad_common.sampled_trajectory import SampledTrajectory
-from quad_common.testing import Spinner, isolated_domain
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -72,7 +73,7 @@ FOLLOWER = 'test_controller'  # the test node is a lockstep follower: it sees ev
 
 class Graph:
     """An in-process test node that answers each odom with a setpoint stamped like it, and acknowledges it
-    (quad_common.lockstep) so the simulator never outruns it: the test sees every step, however busy the machine."""
+    (quad_common.ros.lockstep) so the simulator never outruns it: the test sees every step, however busy the machine."""
 
     def __init__(self, domain, answer_until_s=np.inf, target=(0.5, -0.3, 1.2), inject=None):
         self.ctx = rclpy.Context()

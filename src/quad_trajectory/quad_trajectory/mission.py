@@ -72,7 +72,8 @@ def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
     """Validated Mission from a parsed mission file; relative paths are taken relative to `path`."""
     if 'vehicles' in data:   # never fly one vehicle of a fleet (or its shared path) by mistake
         raise ValueError(f'{path}: a fleet mission (it has vehicles:): `quadflight plan` plans it and '
-                         'quad_bringup.fleet_loop.fly_fleet flies it offline; one-vehicle commands do not take it')
+                         'quad_bringup.offline.fleet_loop.fly_fleet flies it offline; one-vehicle commands '
+                         'do not take it')
     refuse_typos(data, MISSION_KEYS, path)
     refuse_number_text(data, ('robot_radius_m',), f'{path}: ')
     traj = data.get('trajectory') or {}

@@ -22,10 +22,10 @@ from visualization_msgs.msg import MarkerArray
 
 from quad_common import contract, diagnostics
 from quad_common.conversions import sampled_to_msg
-from quad_common.node_main import run_node
 from quad_common.params import Param
 from quad_common.paths import parameter_file
-from quad_common.ros_params import ParameterSet
+from quad_common.ros.node_main import run_node
+from quad_common.ros.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
 from quad_common.world import load_world
 from quad_trajectory import messages, planner, solver, timing

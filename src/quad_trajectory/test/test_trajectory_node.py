@@ -21,7 +21,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from quad_common import diagnostics
 from quad_common.conversions import msg_to_sampled, stamp_to_s
-from quad_common.testing import ProbeGraph, isolated_domain, probe_graph
+from quad_common.ros.testing import ProbeGraph, isolated_domain, probe_graph
 from quad_trajectory import trajectory_node
 from quad_trajectory.mission import DEFAULT_MISSION_PATH, load_mission, plan_mission
 from quad_trajectory.trajectory_node import TrajectoryNode

@@ -5,7 +5,7 @@ feed-forward dropped where the autopilot drops it (PX4's mavlink_receiver keeps 
 SET_ATTITUDE_TARGET that carries an attitude), and the estimate its telemetry reports (`estimator.Estimate`),
 fused, with a VisionFeed, from motion-capture poses on every axis as the autopilot fuses external vision.
 
-Each period T of the offline flight harness (quad_bringup.harness):
+Each period T of the offline flight harness (quad_bringup.offline.harness):
 
     command(setpoint)      a new setpoint: the autopilot's target from now on
     advance(T)             the target through the response into the simulator, physics; then the poses delivered

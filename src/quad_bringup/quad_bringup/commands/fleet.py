@@ -1,7 +1,7 @@
 """`quadflight fleet FLEET.yaml [--out DIR] [--graph [--process-per-node]]`: plan a fleet mission, check its
-separation, and fly every vehicle: offline (quad_bringup.fleet_loop: each vehicle's control loop against its own
-simulator, in lockstep; no ROS), or with --graph through the ROS graph (quad_bringup.fleet_graph: one sim_node for
-the fleet under one /clock, each vehicle's nodes under its namespace, a rosbag2 bag of every vehicle).
+separation, and fly every vehicle: offline (quad_bringup.offline.fleet_loop: each vehicle's control loop against its own
+simulator, in lockstep; no ROS), or with --graph through the ROS graph (quad_bringup.running.fleet_graph: one sim_node
+for the fleet under one /clock, each vehicle's nodes under its namespace, a rosbag2 bag of every vehicle).
 
 Refused (exit 2, one line) before flight: a separation conflict left after the file's deconfliction, or a plan that
 fails fly's feasibility check on its vehicle, unless --fly-anyway. The verdict: exit 0 when every vehicle completed
@@ -94,7 +94,7 @@ def write_figure(run, path):
 
 
 def run(args) -> int:
-    from quad_bringup.flight import EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED
+    from quad_bringup.running.flight import EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED
     from quad_common.yaml_io import load_yaml
     try:
         data = load_yaml(os.fspath(args.mission))   # a file that is not there: said before the planner is imported
@@ -103,9 +103,9 @@ def run(args) -> int:
         fleet = fleet_from_dict(data, os.fspath(args.mission))   # before the simulator and the loop are imported
         import numpy as np
 
-        from quad_bringup.closed_loop import LoopOptions
         from quad_bringup.commands.fleet_plan import feasible, summary_lines
-        from quad_bringup.fleet_loop import fly_fleet
+        from quad_bringup.offline.closed_loop import LoopOptions
+        from quad_bringup.offline.fleet_loop import fly_fleet
 
         overrides = {'time_allocation': args.time_allocation} if args.time_allocation else {}
         plan = plan_fleet(fleet, speed_mps=args.speed, **overrides)
@@ -117,7 +117,7 @@ def run(args) -> int:
             print(f'quadflight fleet: {reasons[0]} (--fly-anyway flies it)', file=sys.stderr)
             return EXIT_REFUSED
         if args.graph:
-            from quad_bringup.fleet_graph import default_out_dir, fly_graph
+            from quad_bringup.running.fleet_graph import default_out_dir, fly_graph
 
             if args.disturbances != 'none':
                 raise ValueError('--disturbances is offline only (sim_node takes its profile from sim.yaml)')

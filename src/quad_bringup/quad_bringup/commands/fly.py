@@ -41,7 +41,7 @@ def add_arguments(parser):
 
 
 def options_from(args):
-    from quad_bringup.flight_options import FlightOptions
+    from quad_bringup.running.flight_options import FlightOptions
 
     return FlightOptions(mission=Path(args.mission), controller=args.controller, speed_mps=args.speed, out=args.out,
                          time_allocation=args.time_allocation,
@@ -71,7 +71,7 @@ def run_fleet(args) -> int:
 
 
 def run(args) -> int:
-    from quad_bringup.flight import fly
+    from quad_bringup.running.flight import fly
     from quad_common.paths import resolve_config
     from quad_trajectory.mission_kind import is_fleet_file
 
@@ -83,7 +83,7 @@ def run(args) -> int:
         return run_fleet(args)
     result = fly(options_from(args), log=lambda line: print(line, flush=True), defer_figures=True)
     if result.metrics is not None:
-        from quad_bringup.report import metrics_table
+        from quad_bringup.analysis.report import metrics_table
 
         print(metrics_table(result.metrics))
         for note in result.notes:

@@ -1,7 +1,7 @@
 """`quadflight identify BAG [--base PROFILE] [--out FILE] [--latency-s S] [--vehicle FILE]`: the vehicle's attitude
 lag and thrust scale from a flight bag (sim or a real vehicle through the bridge; only the window in which the
-vehicle flew our setpoints), written as a control profile (quad_bringup.identify) only when the fits hold and
-that profile has margin on the response it measured, with the bag's telemetry (quad_bringup.stability)."""
+vehicle flew our setpoints), written as a control profile (quad_bringup.analysis.identify) only when the fits hold and
+that profile has margin on the response it measured, with the bag's telemetry (quad_bringup.offline.stability)."""
 
 import sys
 from pathlib import Path
@@ -17,7 +17,7 @@ HEADER = '# quadflight identify '   # the first line of every profile identify w
 
 def out_refusal(out: Path, inputs) -> str | None:
     """--out may replace only a profile identify wrote (inputs are never modified)."""
-    from quad_bringup.inputs import same_file
+    from quad_bringup.checks.inputs import same_file
     for what, path in inputs:
         if path is not None and same_file(out, path):
             return f'--out {out} refused: it is the {what}, an input (never modified)'
@@ -58,10 +58,10 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None,
     base_path / vehicle: None for DEFAULT_BASE / DEFAULT_VEHICLE. Raises ValueError / OSError / ReaderError for a
     bag that cannot be identified. quality_first: fits that do not hold (identify.quality_refusal) end it there,
     with 'margin' None (the margin check flies seconds of simulation)."""
-    from quad_bringup.closed_loop import control_profile
-    from quad_bringup.identify import identify, identify_drag, profile, quality_refusal
-    from quad_bringup.report import load_flight
-    from quad_bringup.stability import Telemetry, margin_hold_identified
+    from quad_bringup.analysis.identify import identify, identify_drag, profile, quality_refusal
+    from quad_bringup.analysis.report import load_flight
+    from quad_bringup.offline.closed_loop import control_profile
+    from quad_bringup.offline.stability import Telemetry, margin_hold_identified
     from quad_common.paths import resolve_config
     from quad_common.vehicle import load_vehicle
     from quad_common.yaml_io import load_yaml
@@ -108,7 +108,7 @@ def print_fits(result: dict):
 
 
 def run(args) -> int:
-    from quad_bringup.inputs import check_bag_dir
+    from quad_bringup.checks.inputs import check_bag_dir
     from quad_bringup.limits import MARGIN_LAG, MARGIN_LATENCY, refusal
 
     bag = Path(args.bag)
@@ -127,7 +127,7 @@ def run(args) -> int:
         return 2
     from rosbags.rosbag2 import ReaderError
 
-    from quad_bringup.identify import model_text, profile_text, quality_refusal, vehicle_model
+    from quad_bringup.analysis.identify import model_text, profile_text, quality_refusal, vehicle_model
     from quad_control.parameters import profile_parameters
 
     try:

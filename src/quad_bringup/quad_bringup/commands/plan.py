@@ -51,7 +51,7 @@ def summary_table(result) -> str:
 
 def refuse_overwriting_inputs(outputs, inputs) -> str | None:
     """Inputs are never modified: the refusal when an output path is one of the inputs."""
-    from quad_bringup.inputs import same_file
+    from quad_bringup.checks.inputs import same_file
     for name, out in outputs:
         for what, path in inputs:
             if out is not None and path is not None and same_file(out, path):

@@ -34,8 +34,8 @@ def run(args) -> int:
     if reason:   # before the recorder makes --out
         print(f'quadflight record: {reason}', file=sys.stderr)
         return 2
-    from quad_bringup import recorder_node
-    from quad_bringup.recorder import DEFAULT_TOPICS
+    from quad_bringup.recording import recorder_node
+    from quad_bringup.recording.recorder import DEFAULT_TOPICS
 
     try:
         recorder_node.main(ros_arguments(args.out, args.topics or list(DEFAULT_TOPICS), args.flush_period))

@@ -1,5 +1,5 @@
 """`quadflight replay BAG [--vehicle MODEL.yaml] [--control-profile FILE] [--figure PNG]`: the flight's twin
-(quad_bringup.replay): its plan flown again in the simulator on the model, closed loop with the controller and
+(quad_bringup.offline.replay): its plan flown again in the simulator on the model, closed loop with the controller and
 gains, and its setpoints open loop; prints the RMSEs and writes a figure."""
 
 import sys
@@ -21,7 +21,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from quad_bringup.inputs import check_bag_dir
+    from quad_bringup.checks.inputs import check_bag_dir
     from quad_common.paths import resolve_config
 
     bag = Path(args.bag).resolve()
@@ -43,9 +43,9 @@ def run(args) -> int:
         return 2
     from rosbags.rosbag2 import ReaderError
 
-    from quad_bringup.closed_loop import load_control_profile
-    from quad_bringup.replay import RMSE_GOAL, replay, write_figure
-    from quad_bringup.report import load_flight
+    from quad_bringup.analysis.report import load_flight
+    from quad_bringup.offline.closed_loop import load_control_profile
+    from quad_bringup.offline.replay import RMSE_GOAL, replay, write_figure
 
     try:
         controller, gains = load_control_profile(args.control_profile or resolve_config(DEFAULT_PROFILE))

@@ -21,7 +21,7 @@ def add_arguments(parser):
 
 def add_completion_arguments(parser):
     """The completion rule's options (report and fly): each overrides the vehicle's `completion:`."""
-    from quad_bringup.completion import Completion
+    from quad_bringup.analysis.completion import Completion
 
     d = Completion()
     parser.add_argument('--position-tolerance', type=float, metavar='M',
@@ -45,7 +45,7 @@ def default_out(bag: Path) -> Path:
 
 
 def run(args) -> int:
-    from quad_bringup.completion import Completion
+    from quad_bringup.analysis.completion import Completion
 
     bag = Path(args.bag)
     out = Path(args.out) if args.out else default_out(bag)
@@ -60,8 +60,8 @@ def run(args) -> int:
         print(f'quadflight report: {exc}', file=sys.stderr)
         return 2
     if bag.is_dir():   # the bag's readers (rosbags, numpy) only for a bag that is there
-        from quad_bringup.recorder import needs_repair, repaired_copy
-        from quad_bringup.report import truncation_summary
+        from quad_bringup.analysis.report import truncation_summary
+        from quad_bringup.recording.recorder import needs_repair, repaired_copy
 
         if needs_repair(bag):  # said first: it holds even if the bag then proves unusable
             try:
@@ -92,7 +92,7 @@ def run(args) -> int:
         return 2
     from rosbags.rosbag2 import ReaderError
 
-    from quad_bringup.report import metrics_table, write_report
+    from quad_bringup.analysis.report import metrics_table, write_report
 
     try:
         metrics = write_report(bag, out, extra, rule)

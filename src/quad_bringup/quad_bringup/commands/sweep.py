@@ -26,8 +26,8 @@ def add_execution_arguments(parser):
 
 
 def run(args) -> int:
-    from quad_bringup.runs import SpecError
-    from quad_bringup.sweep import run_sweep, summary_markdown
+    from quad_bringup.experiments.runs import SpecError
+    from quad_bringup.experiments.sweep import run_sweep, summary_markdown
 
     out = args.out or Path('runs') / f'sweep-{args.spec.stem}'
     try:

@@ -19,8 +19,8 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from quad_bringup.runs import SpecError
-    from quad_bringup.tune import run_tune
+    from quad_bringup.experiments.runs import SpecError
+    from quad_bringup.experiments.tune import run_tune
 
     out = args.out or Path('runs') / f'tune-{args.spec.stem}'
     try:

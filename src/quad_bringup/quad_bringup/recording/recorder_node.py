@@ -1,0 +1,215 @@
+"""Node `recorder`: raw (serialized) subscriptions -> a rosbag2 bag (MCAP), see recorder.py.
+
+Topics of DEFAULT_TOPICS, and a fleet vehicle's namespaced ones (/cf1/odom: recorder.contract_spec), are
+subscribed at once with the QoS their publishers use (latched trajectory topics transient_local); any other topic
+is subscribed when it appears in the graph, with its type and durability taken from its publishers. Timestamps
+are receive times (system clock, as `ros2 bag record` does). SIGINT/SIGTERM/SIGHUP close the bag cleanly, and so
+does the death of the process that started it (quad_common.lifeline.bind_to_parent).
+
+A lockstep follower (quad_common.ros.lockstep): it acknowledges the odometry it has written, so a simulator started
+with lockstep_followers:=recorder never publishes more than the bag can take. The subscriptions are served in
+one pass per wake-up (HotPathExecutor), the status timer and discovery in its slow pass.
+
+Status on `diagnostics` (name `recorder`, one value per topic: messages written) every second and when a topic
+gets its first message: how `quadflight fly` knows the latched plan is in the bag before the flight starts.
+"""
+
+import importlib
+import signal
+import struct
+import sys
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from quad_bringup.recording.recorder import DEFAULT_TOPICS, BagRecorder, TopicSpec, contract_spec, installed
+from quad_common import contract, diagnostics, node_start
+from quad_common.lifeline import bind_to_parent
+from quad_common.params import Param
+from quad_common.ros import cdr, lockstep
+from quad_common.ros.hot_path import HotPathExecutor
+from quad_common.ros.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, rcl_reason
+from quad_common.ros.ros_params import ParameterSet
+
+STATUS_PERIOD_S = 1.0
+DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends with a pass this long that takes nothing sent before it
+ODOM = 'odom'
+CLOCK = contract.CLOCK
+
+
+def _clock_ns(data: bytes) -> int:
+    """The time of a serialized rosgraph_msgs/Clock (CDR: 4-byte encapsulation, then sec int32, nanosec uint32)."""
+    sec, nanosec = struct.unpack_from('<iI' if data[1] == 1 else '>iI', data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+SPECS = [
+    Param('output_dir', '', 'bag directory to create (must not exist yet)', read_only=True),
+    Param('topics', list(DEFAULT_TOPICS), 'topics to record (relative names resolve in the node namespace)',
+          read_only=True),
+    Param('flush_period_s', 1.0, 'wall-clock period of pushing the open chunk to disk (what a SIGKILL can lose)',
+          min=0.05, max=60.0),
+    Param('lockstep_ack_after', '', 'comma-separated topics that must be in the bag before odometry is '
+          'acknowledged (quad_common.ros.lockstep: a follower\'s simulator does not start without them), '
+          'e.g. trajectory',
+          read_only=True),
+    Param('queue_depth', 1000, 'subscription history depth (reliable; generous so a busy recorder drops nothing)',
+          min=1, max=100000, read_only=True),
+]
+
+
+def message_class(msgtype: str):
+    """nav_msgs/msg/Odometry -> the rclpy message class."""
+    package, _, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), name)
+
+
+class RecorderNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__('recorder', **kwargs)
+        self.params = ParameterSet(self, SPECS)
+        if not self.params['output_dir']:
+            raise ValueError('output_dir = \'\' refused: give the bag directory to create')
+        self.bag = BagRecorder(self.params['output_dir'])
+        self.ack = lockstep.Acknowledger(self, self.get_name())
+        self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
+        self._raw_subscriptions = {}
+        # the stop's wall time (ns; none yet: the largest int64) and how many messages published before it (their
+        # publisher's source timestamp) were taken: what the drain after a stop waits for
+        self.stop_ns = 2 ** 63 - 1
+        self.sent_before_stop = 0
+        self._pending = []
+        # the lockstep steps it acknowledges: the newest odom and /clock stamps all taken (a step's /clock follows
+        # its odom on the wire; acknowledging odom alone let the simulator exit with its last /clock unsent); a
+        # fleet's: every vehicle's odom (/cf1/odom, ...) and /clock
+        self._paced_newest_ns = {t: -1 for t in self.params['topics']
+                                 if t == CLOCK or contract.contract_name(t) == ODOM}
+        for topic in self.params['topics']:
+            spec = contract_spec(topic)
+            if spec is None:
+                self._pending.append(topic)
+            elif not installed(spec):  # e.g. tf2_msgs is not among the PyPI ROS wheels
+                self.get_logger().warning(f'not recording {topic}: {spec.msgtype} is not installed')
+            else:
+                self._subscribe(topic, spec)
+        steady = rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME)
+        self.create_timer(self.params['flush_period_s'], self.bag.flush, clock=steady)
+        self.status_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
+                                                contract.qos(contract.DIAGNOSTICS))
+        self.create_timer(STATUS_PERIOD_S, self.publish_status, clock=steady)
+        self.ack_timer = self.create_timer(lockstep.ACK_FLUSH_S, self.ack.flush, clock=steady)
+        if self._pending:
+            self.create_timer(0.5, self._discover,
+                              clock=rclpy.clock.Clock(clock_type=rclpy.clock.ClockType.STEADY_TIME))
+        self.get_logger().info(f'recording {len(self.params["topics"])} topics to {self.params["output_dir"]}')
+
+    def _subscribe(self, topic: str, spec: TopicSpec):
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST,
+                         depth=1 if spec.latched else self.params['queue_depth'],
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if spec.latched else DurabilityPolicy.VOLATILE)
+        self.bag.add_topic(topic, spec, depth=qos.depth)
+
+        def on_message(data: bytes, info: dict, topic=topic):
+            self.bag.write(topic, time.time_ns(), data)
+            if info['source_timestamp'] <= self.stop_ns:
+                self.sent_before_stop += 1
+            if topic in self._paced_newest_ns:
+                stamp_ns = _clock_ns(data) if topic == CLOCK else cdr.header_stamp_ns(data, Odometry)
+                self._paced_newest_ns[topic] = max(self._paced_newest_ns[topic], stamp_ns)
+                self.ack.taken(min(self._paced_newest_ns.values()))
+                if self.ack_after:  # nothing acknowledged until the bag has these (e.g. the latched plan)
+                    self.ack.hold(any(self.bag.counts.get(t, 0) == 0 for t in self.ack_after))
+            if self.bag.counts[topic] == 1:
+                self.publish_status()
+
+        self._raw_subscriptions[topic] = self.create_subscription(message_class(spec.msgtype), topic, on_message, qos,
+                                                              raw=True)
+
+    def hot_entities(self):
+        return list(self._raw_subscriptions.values()), [self.ack_timer]
+
+    def _discover(self):
+        """Subscribe to requested topics that have appeared in the graph since."""
+        types = dict(self.get_topic_names_and_types())
+        for topic in list(self._pending):
+            full = self.resolve_topic_name(topic)
+            if full not in types:
+                continue
+            publishers = self.get_publishers_info_by_topic(full)
+            latched = bool(publishers) and all(p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                                               for p in publishers)
+            try:
+                self._subscribe(topic, TopicSpec(types[full][0], latched))
+            except (ValueError, ImportError) as exc:
+                self.get_logger().error(str(exc))
+            self._pending.remove(topic)
+
+    def publish_status(self):
+        counts = {topic: self.bag.counts.get(topic, 0) for topic in self.params['topics']}
+        self.status_pub.publish(diagnostics.array(self.get_clock().now().to_msg(), [diagnostics.status(
+            contract.RECORDER_STATUS, diagnostics.OK, f'{self.bag.total} messages', counts)]))
+
+    def close_bag(self):
+        self.bag.close()
+        self.get_logger().info(f'bag closed: {self.bag.total} messages '
+                               + ', '.join(f'{t}={n}' for t, n in self.bag.counts.items() if n))
+
+
+def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
+    """Takes what was published before the stop: passes of pass_s until one takes no message whose publisher
+    sent it before now. What a publisher sends after the stop is still written while the drain lasts, but does not
+    prolong it: publishers that never stop do not keep the recorder alive."""
+    node.stop_ns = time.time_ns()
+    taken = -1
+    while taken != node.sent_before_stop:
+        taken = node.sent_before_stop
+        deadline = time.monotonic() + pass_s
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
+
+
+def main(args=None):
+    """Spins until SIGINT/SIGTERM/SIGHUP (or the parent's death), then drains what was published before the stop and
+    closes the bag."""
+    stop = node_start.received   # a stop recorded since the console script's first line counts
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, lambda signum, frame: stop.append(signum))
+    bind_to_parent()
+    if stop:   # Ctrl-C before anything was built
+        ignore_stop_signals()
+        return
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except _rclpy.RCLError as exc:   # a missing or malformed --params-file
+        print(f'[ERROR] [recorder]: recorder refused to start: {rcl_reason(exc)}', file=sys.stderr)
+        sys.exit(2)
+    try:
+        node = RecorderNode()
+    except Exception as exc:  # bad parameters, an existing bag directory, an unknown type
+        print(f'recorder: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(2)
+    executor = HotPathExecutor(node.hot_entities)
+    executor.add_node(node)
+    try:
+        while not stop:
+            executor.spin_once(timeout_sec=0.1)
+        drain(node, executor)
+    except ExternalShutdownException:
+        pass
+    finally:
+        node.close_bag()
+        close_nodes(executor, [node])
+        rclpy.try_shutdown()
+        ignore_stop_signals()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,181 @@
+"""HotPathExecutor: a single-threaded executor that serves a node's per-tick entities through a lean wait set.
+
+Why: rclpy's executor rebuilds its wait set from every entity of every node (parameter services, QoS event
+handlers, all timers and subscriptions) and runs one callback per spin_once: ~0.2-0.4 ms of Python per callback on
+the 2-core machine, several callbacks per lockstep tick, most of the graph's wall time. Here the few entities of
+the tick (`hot`) wake the loop and all of them that are ready run in one pass; everything else (services,
+parameters, slow timers, other subscriptions) is served by the stock executor every `slow_period_s` of wall time,
+or every SLOW_SHARE_BOUND times as long as its last pass took when that is longer (a host of many nodes).
+"""
+
+import time
+from collections.abc import Callable
+
+from rclpy.exceptions import InvalidHandle
+from rclpy.executors import (
+    ConditionReachedException,
+    ExternalShutdownException,
+    ShutdownException,
+    SingleThreadedExecutor,
+    TimeoutException,
+)
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.subscription import Subscription
+
+# The rclpy release whose internals this module uses (rclpy_implementation.WaitSet, Executor._guard and
+# _sigint_gc, a subscription handle's take_message, Subscription._callback_type, wait_for_ready_callbacks) and
+# against which quad_common.ros.cdr's hand-packed layouts were checked; src/quad_common/test/test_rclpy_pin.py fails,
+# naming both versions, when the installed rclpy is another one or a layout no longer matches: re-check both there,
+# then move the pin.
+CHECKED_RCLPY_VERSION = '7.1.5'
+
+
+def installed_rclpy_version() -> str:
+    """The installed rclpy's release: its Python distribution's version (PyPI wheels), else the <version> of its
+    package.xml in the ament index (a ROS install)."""
+    import importlib.metadata
+    import re
+
+    try:
+        return importlib.metadata.version('rclpy')
+    except importlib.metadata.PackageNotFoundError:
+        from ament_index_python.packages import get_package_share_directory
+
+        xml = open(f'{get_package_share_directory("rclpy")}/package.xml').read()
+        return re.search(r'<version>\s*([^<\s]+)', xml).group(1)
+
+
+# Wall time between passes over the other entities: their callbacks wait at most this. A pass rebuilds rclpy's
+# whole wait set (~1-2 ms of Python on the 2-core machine): every 20 ms that was ~30 % of the lockstep graph's
+# time (bench_sim graph RTF, interleaved runs: 6.5-7.1x at 20 ms, 9.6-10.0x at 100 ms).
+SLOW_PERIOD_S = 0.1
+# ... and at least this many times as long as the last pass took: a pass costs O(entities) (a fleet host of 64
+# vehicles: ~1,000 entities, 20-40 ms), so at a fixed period it would take a growing share of the loop (the fleet's
+# stepping time grew as N^2); bounded, it stays under ~1 / SLOW_SHARE_BOUND of it.
+SLOW_SHARE_BOUND = 10.0
+HOT_PASSES_BEFORE_SLOW = 3   # zero-wait hot passes before a slow pass (each serves what the one before made ready)
+
+
+def _take_message(sub):
+    msg_info = sub.handle.take_message(sub.msg_type, sub.raw)
+    return None if msg_info is None else msg_info[0]
+
+
+class HotPathExecutor(SingleThreadedExecutor):
+    def __init__(self, hot: Callable[[], tuple], *, slow_period_s: float = SLOW_PERIOD_S, context=None,
+                 take: Callable | None = None):
+        """hot() -> (subscriptions, timers) or (subscriptions, timers, guard conditions) of the tick; asked before
+        every wait, as a node may replace them. Their callbacks take the message, or the message and its MessageInfo
+        when they take two arguments as rclpy's own executor decides (none for a guard condition), and are plain
+        functions (no coroutines). take(subscription) -> message or None replaces the plain take of a hot
+        subscription of the first kind (quad_bridge.setpoint_source: with the publisher's GID)."""
+        super().__init__(context=context)
+        self._hot = hot
+        self._take = take or _take_message
+        self._slow_period_s = slow_period_s
+        self._next_slow_s = 0.0
+        self._wait_set = None
+        self._wait_set_key = None
+
+    def spin_once(self, timeout_sec: float | None = None) -> None:
+        """Wait up to timeout_sec (None: until the next slow pass) for a hot entity and run every ready one."""
+        if self._is_shutdown or not self._context.ok():
+            return
+        now_s = time.monotonic()
+        if now_s >= self._next_slow_s:
+            # The hot entities ready now first, and what their callbacks made ready (a controller's setpoint for a
+            # hosted simulator): the stock executor would serve each with a pass over every entity of every node.
+            for _ in range(HOT_PASSES_BEFORE_SLOW):
+                if not self._spin_hot(0.0):
+                    break
+            self._spin_ready_others()
+            slow_s = time.monotonic() - now_s
+            self._next_slow_s = now_s + max(self._slow_period_s, SLOW_SHARE_BOUND * slow_s)
+        wait_s = self._next_slow_s - now_s
+        if timeout_sec is not None and timeout_sec >= 0:
+            wait_s = min(wait_s, timeout_sec)
+        self._spin_hot(wait_s)
+
+    def _spin_hot(self, wait_s: float) -> bool:
+        """One wait of up to wait_s for the hot entities, then every ready one's callback; whether any was.
+
+        Every handle in the wait set is held in use for the pass (as rclpy's own executor does): rcl would free an
+        entity destroyed from another thread under the wait (a segfault); held, its destruction waits for the
+        pass to end. An entity already destroyed (its node is going away) ends the pass with nothing served."""
+        subscriptions, timers, *guards = self._hot()
+        guards = guards[0] if guards else ()
+        wakers = (self._guard, self._sigint_gc)
+        if None in wakers:   # shut down
+            return False
+        in_use = []
+        try:
+            try:
+                for entity in (*subscriptions, *timers, *guards, *wakers):
+                    entity.handle.__enter__()
+                    in_use.append(entity.handle)
+            except InvalidHandle:
+                return False
+            return self._serve_hot(wait_s, subscriptions, timers, guards, wakers)
+        finally:
+            for handle in reversed(in_use):
+                handle.__exit__(None, None, None)
+
+    def _serve_hot(self, wait_s, subscriptions, timers, guards, wakers) -> bool:
+        wait_set = self._prepared_wait_set(subscriptions, timers, guards, wakers)
+        wait_set.wait(max(int(wait_s * 1e9), 0))
+        if not self._context.ok():
+            raise ExternalShutdownException()
+        ready = wait_set.get_ready_entities('subscription')
+        served = bool(ready)
+        for sub in subscriptions:
+            if sub.handle.pointer in ready:
+                if sub._callback_type is Subscription.CallbackType.WithMessageInfo:  # callback(msg, MessageInfo)
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                    if taken is not None:
+                        sub.callback(*taken)
+                    continue
+                msg = self._take(sub)
+                if msg is not None:
+                    sub.callback(msg)
+        if guards:  # a worker thread's result (e.g. a decoded trajectory)
+            ready = wait_set.get_ready_entities('guard_condition')
+            for gc in guards:
+                if gc.handle.pointer in ready:
+                    served = True
+                    gc.callback()
+        for timer in timers:  # after the subscriptions: a /clock message may just have made a sim-time timer due
+            if timer.handle.is_timer_ready():
+                served = True
+                timer.handle.call_timer()
+                timer.callback()
+        return served
+
+    def _prepared_wait_set(self, subscriptions, timers, guards, wakers):
+        """The wait set, re-made only when the hot entities change (rcl_wait empties it, so they are re-added)."""
+        key = (tuple(subscriptions), tuple(timers), tuple(guards))
+        if key != self._wait_set_key:
+            self._wait_set = _rclpy.WaitSet(len(subscriptions), 2 + len(guards), len(timers), 0, 0, 0,
+                                            self._context.handle)
+            self._wait_set_key = key
+        wait_set = self._wait_set
+        wait_set.clear_entities()
+        for sub in subscriptions:
+            wait_set.add_subscription(sub.handle)
+        for timer in timers:
+            wait_set.add_timer(timer.handle)
+        for gc in wakers:   # add_node / shutdown wake-ups, SIGINT
+            wait_set.add_guard_condition(gc.handle)
+        for gc in guards:
+            wait_set.add_guard_condition(gc.handle)
+        return wait_set
+
+    def _spin_ready_others(self):
+        """Every callback the stock executor finds ready now (one wait-set pass), hot ones included."""
+        while True:
+            try:
+                handler, _, _ = self.wait_for_ready_callbacks(0)
+            except (TimeoutException, ShutdownException, ConditionReachedException):
+                return
+            handler()
+            if handler.exception() is not None:
+                raise handler.exception()
