@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-BASELINE = '1361a52'   # main before quad_bringup's sub-packages (f5909f4, before fly's concurrent start, no longer completes its own bag check)
+BASELINE = '1361a52'   # main before quad_bringup's sub-packages (f5909f4 no longer passes its own bag check)
 MISSION = ROOT / 'config' / 'missions' / 'maze.yaml'
 
 
