@@ -21,11 +21,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_bridge_flight as bench_flight  # noqa: E402
-import yaml  # noqa: E402
+import yaml
 
-from quad_bringup.emulated import emulated_chain as chain  # noqa: E402
+from quad_bringup.emulated import emulated_chain as chain
+from quad_bringup.emulated.emulated_mission import REAL_PROFILE
+from quad_common.paths import resolve_config
 
 DEFAULT_EMULATOR = ('--attitude-tau-s', '0.036', '--estimator-lag-s', '0', '--estimator-wander-m', '0',
                     '--estimator-wander-z-m', '0', '--estimator-wander-tau-s', '60', '--drag-per-s', '0')
@@ -36,8 +36,8 @@ PERFECT_ESTIMATE = {'--estimator-lag-s': '0', '--estimator-wander-m': '0', '--es
 SIH_TRUTH_ESTIMATE = tuple(x for kv in {**_FITTED, **PERFECT_ESTIMATE}.items() for x in kv)
 PLANTS = {'default emulator': (DEFAULT_EMULATOR, DEFAULT_EMULATOR),
           'PX4 SIH fitted (drag)': (chain.PX4_SIH_FITTED, SIH_TRUTH_ESTIMATE)}
-PROFILES = {'pd (control.yaml)': None, 'control_real.yaml (pid)': bench_flight.REAL_PROFILE,
-            'control_se3.yaml (se3)': bench_flight.SE3_PROFILE}
+PROFILES = {'pd (control.yaml)': None, 'control_real.yaml (pid)': REAL_PROFILE,
+            'control_se3.yaml (se3)': 'config/control_se3.yaml'}
 MOCAP = (0.001, 0.01, 100.0)   # noise m, latency s, rate Hz
 VISION = (0.001, 0.01, 30.0, 5.0)   # noise m, age at the autopilot s, rate Hz, EKF2_EV_DELAY ms
 ACCELERATIONS = (5.0, 20.0)   # pose_acceleration_mps2 flown (5: the default)
@@ -46,7 +46,7 @@ SEEDS = (0, 1)
 
 def with_pose_acceleration(profile, acceleration_mps2: float, directory: Path) -> str:
     """The profile with pose_acceleration_mps2 set, as a file."""
-    content = yaml.safe_load(Path(chain.ROOT / (profile or chain.CONTROL)).read_text())
+    content = yaml.safe_load(Path(resolve_config(profile or chain.CONTROL)).read_text())
     content['position_controller']['ros__parameters']['pose_acceleration_mps2'] = acceleration_mps2
     path = directory / f'{Path(profile or chain.CONTROL).stem}_{acceleration_mps2:g}.yaml'
     path.write_text(yaml.safe_dump(content))
