@@ -45,13 +45,16 @@ def _started(ros_env, priority, prefix=()):
 
 def _until_said(args, ros_env, said):
     """The process of args until its log says `said` (or it ends; a hang guard of 60 s): (process, its log)."""
-    proc = subprocess.Popen(args, env=python_env(ros_env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(args, env=python_env(ros_env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     log, deadline = '', time.monotonic() + 60.0
     with selectors.DefaultSelector() as sel:
         sel.register(proc.stdout, selectors.EVENT_READ)
         while said not in log and time.monotonic() < deadline and proc.poll() is None:
-            if sel.select(timeout=1.0):
-                log += proc.stdout.readline()
+            if sel.select(timeout=1.0):   # all that is in the pipe: a readline would leave a second line, written
+                chunk = os.read(proc.stdout.fileno(), 65536)   # with the first, in a buffer select does not see
+                if not chunk:
+                    break
+                log += chunk.decode(errors='replace')
     return proc, log
 
 
