@@ -205,8 +205,21 @@ def test_sim_node_refuses_a_fleet_whose_arrays_do_not_match_naming_the_field(ros
     assert done.returncode == 2 and "vehicle_names: 'cf1' refused: named twice" in done.stderr, done.stderr
 
 
+def test_node_host_takes_fly_s_nodes_without_a_namespace():
+    from quad_bringup.running.node_host import parse_nodes
+
+    nodes, ros_args = parse_nodes(['trajectory_node', 'sim_node', 'position_controller', '--ros-args', '-p', 'a:=1'])
+    assert nodes == [('trajectory_node', ''), ('sim_node', ''), ('position_controller', '')]
+    assert ros_args == ['--ros-args', '-p', 'a:=1']
+    assert parse_nodes(['position_controller', 'position_controller@cf1'])[0] == [
+        ('position_controller', ''), ('position_controller', 'cf1')]
+
+
 def test_node_host_refuses_an_unknown_node_and_a_node_given_twice(ros_env):
     for args, text in ((['sim_node@cf1'], "node 'sim_node@cf1' refused"),
+                       (['position_controller@'], "node 'position_controller@' refused"),
+                       (['planner'], "node 'planner' refused"),
+                       (['position_controller', 'position_controller'], 'given twice'),
                        (['position_controller@cf1', 'position_controller@cf1'], 'given twice')):
         done = subprocess.run([str(ROOT / '.venv/bin/python'), '-m', 'quad_bringup.running.node_host', *args],
                               env=ros_env, capture_output=True, text=True, timeout=120)

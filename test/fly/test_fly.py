@@ -70,7 +70,9 @@ def test_fly_short_mission_end_to_end(tmp_path, ros_env):
     p = last.pose.pose.position
     assert [p.x, p.y, p.z] == pytest.approx([1.5, 0.0, 1.0], abs=0.03)
     pids = json.loads((run_dir / 'pids.json').read_text())
-    assert set(pids) == {'trajectory_node', 'position_controller', 'sim_node', 'recorder'}
+    assert set(pids) == {'node_host', 'recorder'}   # trajectory_node, sim_node and position_controller in one
+    host_log = (run_dir / 'logs' / 'node_host.log').read_text()
+    assert all(f'[{name}]' in host_log for name in ('trajectory_node', 'sim_node', 'position_controller')), host_log
     assert not any(alive(pid) for pid in pids.values())
     # nothing lost: every step sim_node published is in the bag, and the line fly printed says so
     record = metrics['record']
@@ -185,14 +187,16 @@ def test_signal_mid_flight_stops_everything_and_keeps_a_readable_bag(tmp_path, r
 
 
 def test_dead_controller_lets_the_failsafe_land_and_fly_says_where(tmp_path, ros_env):
-    """SIGKILL of position_controller mid-flight: the graph runs on until sim_node's failsafe has landed, the bag
-    shows the landing, and fly names what died, when and where the vehicle came down (near where it was)."""
+    """--process-per-node (each node a process, as launch_ros starts them): SIGKILL of position_controller
+    mid-flight: the graph runs on until sim_node's failsafe has landed, the bag shows the landing, and fly names what died, when and where the vehicle came down (near where it was)."""
     # a long leg (~40 s simulated): fly prints progress once a wall second, and a lockstep flight on an idle
     # machine runs ~14x real time, so a short one could end before the first progress line
-    proc, run_dir = _start_fly(tmp_path, ros_env, [[0, 0, 1], [20, 0, 1]], speed=0.5)
+    proc, run_dir = _start_fly(tmp_path, ros_env, [[0, 0, 1], [20, 0, 1]], speed=0.5,
+                               extra_args=['--process-per-node'])
     try:
         _await_progress(proc, 2.0)
         pids = json.loads((run_dir / 'pids.json').read_text())
+        assert set(pids) == {'trajectory_node', 'position_controller', 'sim_node', 'recorder'}
         os.kill(pids['position_controller'], signal.SIGKILL)
         out = proc.communicate(timeout=TIMEOUT_S)[0]
     finally:

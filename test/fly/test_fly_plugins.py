@@ -59,7 +59,7 @@ def test_a_user_class_that_raises_mid_flight_stops_the_setpoints_and_fly_names_i
     setpoints = _setpoints(run_dir)
     assert len(setpoints) >= 45 and setpoints[-1][0] < 1.0           # 0.5 s of its plan, then none
     assert all(math.isfinite(f) and all(map(math.isfinite, q)) for _, f, q in setpoints)
-    log = (run_dir / 'logs' / 'position_controller.log').read_text()
+    log = (run_dir / 'logs' / 'node_host.log').read_text()   # the controller's process (with the simulator's)
     assert log.count('controller failed at t = ') == 1, log      # reported once, then silent
 
 

@@ -37,6 +37,9 @@ def add_arguments(parser):
     parser.add_argument('--fly-anyway', action='store_true',
                         help='fly a plan that fails the feasibility check on the vehicle (tilt, thrust, rotors, '
                              'attitude lag); without it such a plan is refused (exit 2)')
+    parser.add_argument('--process-per-node', action='store_true',
+                        help='every node its own process (as launch_ros starts them) instead of one process for '
+                             'trajectory_node, sim_node and position_controller')
     parser.add_argument('--quiet', action='store_true', help='no progress lines')
 
 
@@ -48,7 +51,7 @@ def options_from(args):
                          vehicle=args.vehicle, plant=args.plant, disturbances=args.disturbances,
                          control_profile=args.control_profile, completion=completion_overrides(args),
                          time_limit_factor=args.time_limit_factor, quiet=args.quiet, fly_anyway=args.fly_anyway,
-                         state_source=args.state_source)
+                         state_source=args.state_source, process_per_node=args.process_per_node)
 
 
 # fly's options a fleet does not take: each vehicle's vehicle file, controller and profile are in the fleet file
@@ -66,7 +69,7 @@ def run_fleet(args) -> int:
         return 2
     return fleet.run(argparse.Namespace(mission=Path(args.mission), out=args.out, speed=args.speed,
                                         time_allocation=args.time_allocation, disturbances='none',
-                                        fly_anyway=args.fly_anyway, graph=True, process_per_node=False,
+                                        fly_anyway=args.fly_anyway, graph=True, process_per_node=args.process_per_node,
                                         no_figures=False))
 
 

@@ -56,20 +56,6 @@ def duration_s(plan: FleetPlan) -> float:
     return TRAJECTORY_START_S + max(d + p.trajectory.duration_s for d, p in zip(plan.delays_s, plan.plans)) + SETTLE_S
 
 
-def node_processes(specs, params_file: Path, log_dir: Path, hosted: bool) -> list[processes.NodeProcess]:
-    """The simulator's process first: one node_host process for sim_node and every vehicle's nodes, or one
-    process per node (sim_node, then the vehicles')."""
-    args = ['--params-file', str(params_file)]
-    vehicles = [s for s in specs if s.namespace]
-    if hosted:
-        return [processes.NodeProcess('node_host', 'quad_bringup.running.node_host', args, log_dir / 'node_host.log',
-                                      argv=[s.name if not s.namespace else f'{s.name}@{s.namespace}' for s in specs],
-                                      remap_name=False)]
-    sim = [processes.NodeProcess(s.name, s.module, args, log_dir / 'sim_node.log') for s in specs if not s.namespace]
-    return sim + [processes.NodeProcess(s.name, s.module, ['-r', f'__ns:=/{s.namespace}', *args],
-                                        log_dir / f'{s.namespace}_{s.name}.log') for s in vehicles]
-
-
 @dataclass
 class GraphRun:
     """A fleet's graph, ready to start: its files written under out_dir, its processes (not started)."""
@@ -132,7 +118,8 @@ def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted:
     recorder = processes.NodeProcess(graph.RECORDER, 'quad_bringup.recording.recorder_node',
                                      ['-p', f'output_dir:={out_dir / "bag"}', '-p', f'topics:=[{listed}]',
                                       '-p', f'lockstep_ack_after:={ack_after}'], out_dir / 'logs' / 'recorder.log')
-    return GraphRun(plan, out_dir, recorder, node_processes(specs, params_file, out_dir / 'logs', hosted), end_s)
+    nodes = processes.node_processes(specs, params_file, out_dir / 'logs', hosted)
+    return GraphRun(plan, out_dir, recorder, nodes, end_s)
 
 
 def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True,

@@ -2,8 +2,11 @@
 quad_bringup.running.flight_options; the figures: quad_bringup.analysis.figure_worker).
 
 The graph is the one sim.launch.py starts (quad_bringup.running.graph.fly_graph over sim_graph): trajectory_node,
-sim_node and position_controller (lockstep, use_sim_time), plus the recorder, each a separate process in its own process
-group, in a ROS domain of their own (quad_common.domains.isolated_domain, localhost discovery).
+sim_node and position_controller (lockstep, use_sim_time), plus the recorder, in a ROS domain of their own
+(quad_common.domains.isolated_domain, localhost discovery). The three nodes run in one node_host process (one
+interpreter and one DDS participant to start, the lockstep's odometry and setpoints kept inside the process) and the
+recorder in its own; with process_per_node each node is a process of its own, as launch_ros starts them (a
+controller that dies then leaves the simulator's failsafe to land the vehicle). Each process has its own group.
 
 Reliability (README, Reliability): the recorder and fly's monitor are the simulator's lockstep followers
 (quad_common.ros.lockstep), so the bag and the verdict hold every step; the bag is checked against the simulator's
@@ -11,7 +14,7 @@ own step count; every node dies with fly (processes, bind_to_parent); SIGINT, SI
 order, close the bag and write the report; a dead controller leaves the simulator running until its failsafe has
 landed the vehicle (LANDING_TIMEOUT_S).
 
-Start-up: all four processes start at once (their imports and DDS discovery overlap); the order that matters is
+Start-up: all processes start at once (their imports and DDS discovery overlap); the order that matters is
 kept by the lockstep itself: the simulator does not leave step 0 until both followers have taken it, and the
 recorder and monitor acknowledge nothing before they have the plan.
 """
@@ -169,8 +172,8 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
         parameters_of(params, 'trajectory_node')['mission_file'] = str(flown.resolve())
     params_file = run_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
-    nodes = [processes.NodeProcess(name, graph.MODULES[name], ['--params-file', str(params_file)],
-                                   run_dir / 'logs' / f'{name}.log') for name in params]
+    nodes = processes.node_processes([graph.NodeSpec(name) for name in params], params_file, run_dir / 'logs',
+                                     hosted=not options.process_per_node)
     topics = ','.join(f'"{t}"' for t in DEFAULT_TOPICS)
     recorder = processes.NodeProcess(graph.RECORDER, 'quad_bringup.recording.recorder_node',
                                      ['-p', f'output_dir:={run_dir / "bag"}', '-p', f'topics:=[{topics}]',

@@ -46,6 +46,7 @@ class FlightOptions:
     quiet: bool = False
     fly_anyway: bool = False              # fly a plan that fails the vehicle's feasibility check
     figures: bool = True
+    process_per_node: bool = False        # each node its own process, as launch_ros starts them (else one node_host)
 
 
 def validate(options: FlightOptions):

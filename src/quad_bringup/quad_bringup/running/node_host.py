@@ -1,11 +1,13 @@
-"""node_host: several nodes in one process, each under its namespace (a fleet's simulator, planners and controllers).
+"""node_host: several nodes in one process (a fleet's simulator, planners and controllers; fly's one vehicle).
 
     python -m quad_bringup.running.node_host [sim_node] position_controller@cf1 trajectory_node@cf1 ... \
         --ros-args --params-file F
+    python -m quad_bringup.running.node_host trajectory_node sim_node position_controller --ros-args --params-file F
 
-Each NAME@NAMESPACE is the node of that executable (quad_bringup.running.graph.MODULES) built with that namespace; the
-params files' sections are fully qualified node names (/cf1/position_controller), as rcl applies one file to
-every node of a process. Why one process: a fleet of N vehicles as 2 N processes costs N interpreters, N DDS
+Each NAME@NAMESPACE is the node of that executable (quad_bringup.running.graph.MODULES) built with that namespace, a
+plain NAME the node without one (fly's graph, named as sim.launch.py names it); the params files' sections are
+fully qualified node names (/cf1/position_controller, or position_controller), as rcl applies one file to every
+node of a process. Why one process: a fleet of N vehicles as 2 N processes costs N interpreters, N DDS
 participants and N x 2 context switches per lockstep step; in one process the controllers' ticks are served in
 one pass of one HotPathExecutor (every controller's hot entities), the planners in its slow pass. A node that
 refuses its parameters stops the whole process (exit 2, naming it), as a single node does.
@@ -44,16 +46,14 @@ def parse_nodes(argv: list[str]) -> tuple[list[tuple[str, str]], list[str]]:
     entries = argv[:len(argv) - len(ros_args)]
     nodes = []
     for entry in entries:
-        name, _, namespace = entry.partition('@')
-        if name == SIMULATOR and not namespace.strip('/'):
-            nodes.append((name, ''))
-            continue
-        if name not in HOSTABLE or name == SIMULATOR or not namespace.strip('/'):
-            raise ValueError(f'node {entry!r} refused: NAME@NAMESPACE with NAME one of '
+        name, at, namespace = entry.partition('@')
+        namespace = namespace.strip('/')
+        if name not in HOSTABLE or (at and not namespace) or (name == SIMULATOR and namespace):
+            raise ValueError(f'node {entry!r} refused: NAME or NAME@NAMESPACE with NAME one of '
                              f'{", ".join(n for n in HOSTABLE if n != SIMULATOR)}, or {SIMULATOR} (no namespace)')
-        nodes.append((name, namespace.strip('/')))
+        nodes.append((name, namespace))
     if not nodes:
-        raise ValueError('no nodes given: NAME@NAMESPACE ...')
+        raise ValueError('no nodes given: NAME or NAME@NAMESPACE ...')
     if len(set(nodes)) != len(nodes):
         raise ValueError(f'node {next(f"{n}@{ns}" for n, ns in nodes if nodes.count((n, ns)) > 1)!r} given twice')
     return nodes, ros_args

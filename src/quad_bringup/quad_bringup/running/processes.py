@@ -59,6 +59,23 @@ class NodeProcess:
             pass
 
 
+HOST = 'node_host'   # the process that holds several nodes (quad_bringup.running.node_host)
+
+
+def node_processes(specs, params_file: Path, log_dir: Path, hosted: bool) -> list[NodeProcess]:
+    """The processes of a graph's nodes (graph.NodeSpec: name, namespace, module), in the specs' order: one node_host
+    process for them all (its nodes served by one executor, their messages kept inside it), or one process per node
+    as launch_ros starts them (-r __node:=NAME, -r __ns:=/NAMESPACE)."""
+    args = ['--params-file', str(params_file)]
+    if hosted:
+        return [NodeProcess(HOST, 'quad_bringup.running.node_host', args, log_dir / f'{HOST}.log',
+                            argv=[f'{s.name}@{s.namespace}' if s.namespace else s.name for s in specs],
+                            remap_name=False)]
+    return [NodeProcess(s.name, s.module, [*(['-r', f'__ns:=/{s.namespace}'] if s.namespace else []), *args],
+                        log_dir / (f'{s.namespace}_{s.name}.log' if s.namespace else f'{s.name}.log'))
+            for s in specs]
+
+
 def stop(processes, grace_s=10.0, log=print, idle=None):
     """SIGINT to every group, then SIGTERM, then SIGKILL to groups still alive after `grace_s` each.
 
