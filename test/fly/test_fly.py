@@ -188,7 +188,8 @@ def test_signal_mid_flight_stops_everything_and_keeps_a_readable_bag(tmp_path, r
 
 def test_dead_controller_lets_the_failsafe_land_and_fly_says_where(tmp_path, ros_env):
     """--process-per-node (each node a process, as launch_ros starts them): SIGKILL of position_controller
-    mid-flight: the graph runs on until sim_node's failsafe has landed, the bag shows the landing, and fly names what died, when and where the vehicle came down (near where it was)."""
+    mid-flight: the graph runs on until sim_node's failsafe has landed, the bag shows the landing, and fly names
+    what died, when and where the vehicle came down (near where it was)."""
     # a long leg (~40 s simulated): fly prints progress once a wall second, and a lockstep flight on an idle
     # machine runs ~14x real time, so a short one could end before the first progress line
     proc, run_dir = _start_fly(tmp_path, ros_env, [[0, 0, 1], [20, 0, 1]], speed=0.5,

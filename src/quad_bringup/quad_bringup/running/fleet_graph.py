@@ -30,7 +30,7 @@ from quad_bringup.offline.fleet_loop import FleetRun
 from quad_bringup.running import graph, processes
 from quad_common import contract
 from quad_common.domains import isolated_domain
-from quad_common.ros.domain_probe import foreign_nodes
+from quad_common.ros.domain_probe import domain_occupants
 from quad_sim.vehicle_contact import ContactRule
 from quad_trajectory.fleet import FleetPlan, resolved_fleet
 
@@ -39,7 +39,6 @@ TRAJECTORY_START_S = 1.0    # trajectory_node's start_delay_s (config/trajectory
 # what the report reads (report.load_flight); not control/reference: 100 Hz of it per vehicle would double each
 # controller's publishing cost (a reliable write to a matched reader) for nothing the report uses
 VEHICLE_TOPICS = (contract.ODOM, contract.SETPOINT, contract.TRAJECTORY, contract.DIAGNOSTICS)
-DOMAIN_PROBE_S = 0.5
 LOCKSTEP_TIMEOUT_S = 3.0    # wall time sim_node waits for a setpoint (a loaded machine; graph.FLY_LOCKSTEP_TIMEOUT_S)
 
 
@@ -134,7 +133,7 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
     timing = GraphTiming()
     log(f'flying {plan.fleet.name} ({len(plan.fleet.names)} vehicles) through the ROS graph '
         f'({"one process for the simulator and the vehicles" if hosted else "one process per node"}) -> {run.out_dir}')
-    with isolated_domain(probe=lambda d: foreign_nodes(d, DOMAIN_PROBE_S)) as (_domain, env):
+    with isolated_domain(probe=domain_occupants) as (_domain, env):
         start = time.monotonic()
         try:
             run.start(env)

@@ -53,7 +53,6 @@ EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 LANDING_TIMEOUT_S = 60.0          # wall time fly waits for the failsafe's landing after the controller died
 STARTUP_NOTE_S = 1.0              # a start-up that takes longer says what it waits for
-DOMAIN_PROBE_S = 0.5   # a ROS domain whose lock is free but holds nodes (a real bridge) is passed over
 
 
 @dataclass
@@ -163,7 +162,7 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
     # here, not at the top: a refusal before start-up does not wait for numpy, rclpy, rosbags and the report's imports
     from quad_bringup.analysis.report import load_flight, record_summary, write_report
     from quad_bringup.recording.recorder import DEFAULT_TOPICS
-    from quad_common.ros.domain_probe import foreign_nodes
+    from quad_common.ros.domain_probe import domain_occupants
     from quad_control.parameters import NODE_NAME as CONTROLLER_NODE
 
     clock.mark('validated, run directory made')
@@ -181,14 +180,15 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
                                      run_dir / 'logs' / 'recorder.log')
     log(f'flying {options.mission} with {options.controller} -> {run_dir}')
     started = []
-    with isolated_domain(probe=lambda d: foreign_nodes(d, DOMAIN_PROBE_S)) as (domain, env), \
+    # first: its matplotlib import (most of its cost) overlaps the domain probe's wait, when nothing else runs
+    figure_worker = FigureWorker.start(os.environ) if options.figures else None
+    with isolated_domain(probe=domain_occupants) as (domain, env), \
             _Interrupt() as interrupt:
         for node in [recorder, *nodes]:  # at once: imports and discovery overlap (module docstring)
             node.start(env)
             started.append(node)
         _write_pids(run_dir, started)
         clock.mark('processes started')
-        figure_worker = FigureWorker.start(env) if options.figures else None
         from quad_bringup.running.flight_monitor import FlightJudge, FlightMonitor
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
@@ -208,6 +208,7 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
                 clock.mark('failsafe landing awaited')
         finally:
             stopped = processes.stop(nodes, log=log, idle=monitor.spin_once)
+            clock.mark('nodes stopped')
             stopped.update(processes.stop([recorder], log=log, idle=monitor.spin_once))
             monitor.close()
             clock.mark('graph stopped')

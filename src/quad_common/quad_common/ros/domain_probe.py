@@ -1,8 +1,19 @@
-"""Who is already in a ROS domain (rclpy): quad_common.domains.isolated_domain's probe for `fly`."""
+"""Who is already in a ROS domain: quad_common.domains.isolated_domain's probe for `fly` and fleets."""
 
 import time
 
 import rclpy
+
+from quad_common.domains import domain_ports_holders
+
+PROBE_WAIT_S = 0.5   # where the socket tables are not readable: how long a probe node waits for discovery
+
+
+def domain_occupants(domain: int) -> list[str]:
+    """The processes holding `domain`'s RTPS ports (quad_common.domains.domain_ports_holders: at once, and whatever
+    the load), else, where the kernel does not show them, the nodes a probe node sees within PROBE_WAIT_S."""
+    holders = domain_ports_holders(domain)
+    return foreign_nodes(domain, PROBE_WAIT_S) if holders is None else holders
 
 
 def foreign_nodes(domain: int, wait_s: float) -> list[str]:
