@@ -32,6 +32,7 @@ from quad_common.vehicle import load_plant_family, load_vehicle  # noqa: E402
 from quad_trajectory import fastest, feasibility, planner, solver, timing  # noqa: E402
 from quad_trajectory.mission import load_mission, plan_mission  # noqa: E402
 from quad_trajectory.polynomial import PiecewisePolynomial  # noqa: E402
+from quad_trajectory.survey import survey_waypoints  # noqa: E402
 
 MARGIN = fastest.DEFAULT_MARGIN
 REFERENCE_MAX_SEGMENTS = 30
@@ -141,13 +142,8 @@ def mission_rows(names, reference_max):
 
 
 def survey_points(n_segments):
-    """bench_plan's survey: legs of 0.4-1.2 m turning 0.7 rad each."""
-    rng = np.random.default_rng(17)
-    k = np.arange(n_segments)
-    steps = rng.uniform(0.4, 1.2, (n_segments, 1)) * np.column_stack([np.cos(0.7 * k), np.sin(0.7 * k),
-                                                                       np.zeros(n_segments)])
-    w = np.vstack([[0, 0, 1], np.cumsum(steps, axis=0) + [0, 0, 1]])
-    return np.column_stack([w, np.zeros(n_segments + 1)])
+    """bench_plan's survey route (quad_trajectory.survey), yaw 0."""
+    return np.column_stack([survey_waypoints(n_segments), np.zeros(n_segments + 1)])
 
 
 def timing_rows(vehicle):

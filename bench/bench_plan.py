@@ -16,6 +16,11 @@ import time
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path[:0] = sorted(os.path.join(ROOT, 'src', d) for d in os.listdir(os.path.join(ROOT, 'src'))
+                      if d.startswith('quad_'))
+
+from quad_trajectory.survey import survey_waypoints  # noqa: E402
+
 BASELINE = os.environ.get('PLAN_BASELINE', 'f5909f4')   # main before the plan-speed change
 RUNS = int(os.environ.get('PLAN_RUNS', '5'))
 SIZES = (10, 10001)
@@ -23,11 +28,8 @@ BIG = 100001
 
 
 def mission(path, n):
-    """n waypoints, legs of 0.4-1.2 m turning 0.7 rad each (a dense survey), written as `- [x, y, z]` lines."""
-    rng = np.random.default_rng(17)
-    k = np.arange(n - 1)
-    steps = rng.uniform(0.4, 1.2, (n - 1, 1)) * np.column_stack([np.cos(0.7 * k), np.sin(0.7 * k), np.zeros(n - 1)])
-    w = np.vstack([[0, 0, 1], np.cumsum(steps, axis=0) + [0, 0, 1]])
+    """n waypoints of the survey route (quad_trajectory.survey), written as `- [x, y, z]` lines."""
+    w = survey_waypoints(n - 1)
     with open(path, 'w') as f:
         f.write(f'name: survey_{n}\nwaypoints:\n' + ''.join(f'  - [{x:.4f}, {y:.4f}, {z:.4f}]\n' for x, y, z in w)
                 + 'trajectory:\n  speed: 0.5\n')

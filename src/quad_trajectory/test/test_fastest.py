@@ -11,6 +11,7 @@ from quad_common.world import World
 from quad_trajectory import collision, feasibility, timing
 from quad_trajectory.mission import DEFAULT_VEHICLE_PATH, load_mission, plan_mission
 from quad_trajectory.planner import PlanOptions, allocation_lines, plan, solve
+from quad_trajectory.survey import survey_waypoints
 
 MISSIONS = DEFAULT_VEHICLE_PATH.replace('vehicles/crazyflie.yaml', 'missions/')
 
@@ -238,13 +239,8 @@ def test_the_interior_point_step_solves_the_programme_and_refuses_an_impossible_
 
 
 def _survey(n_segments):
-    """bench_plan's survey: legs of 0.4-1.2 m turning 0.7 rad each."""
-    rng = np.random.default_rng(17)
-    k = np.arange(n_segments)
-    steps = rng.uniform(0.4, 1.2, (n_segments, 1)) * np.column_stack([np.cos(0.7 * k), np.sin(0.7 * k),
-                                                                       np.zeros(n_segments)])
-    w = np.vstack([[0, 0, 1], np.cumsum(steps, axis=0) + [0, 0, 1]])
-    return np.column_stack([w, np.zeros(n_segments + 1)])
+    """The benches' survey route (quad_trajectory.survey), yaw 0."""
+    return np.column_stack([survey_waypoints(n_segments), np.zeros(n_segments + 1)])
 
 
 def test_the_search_ends_at_the_first_kept_step_that_gains_less_than_settled_gain(crazyflie):
