@@ -7,6 +7,12 @@ the completion rule.
 """
 
 import json
+import os
+import select
+import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -391,3 +397,90 @@ def test_the_figure_worker_draws_a_pickled_flight_without_the_bag_reader(tmp_pat
     imported = {line.rsplit('|', 1)[-1].strip() for line in done.stderr.splitlines() if line.startswith('import')}
     assert not {m for m in imported if m.split('.')[0] in ('rosbags', 'rclpy', 'nav_msgs')}
     assert 'quad_bringup.analysis.report' not in imported
+
+
+def _children() -> set[int]:
+    """This process's children, zombies (exited, not reaped) included."""
+    me, kids = str(os.getpid()), set()
+    for entry in os.listdir('/proc'):
+        try:
+            stat = (Path('/proc') / entry / 'stat').read_text() if entry.isdigit() else ''
+        except OSError:   # ended meanwhile
+            continue
+        if stat and stat.rsplit(')', 1)[1].split()[1] == me:
+            kids.add(int(entry))
+    return kids
+
+
+def test_figures_drawn_in_parts_are_those_drawn_in_one(tmp_path):
+    """report_figures.draw_run split between this process and forked children gives the same files, byte for byte,
+    in the same order, so report.md links the same figures; every child is reaped."""
+    from quad_bringup.analysis import report_figures
+    from quad_bringup.analysis.report import write_markdown
+
+    flight = load_flight(make_bag(tmp_path / 'bag'))
+    metrics = {'mission': 'synthetic', **compute_metrics(flight, Completion())}
+    before = _children()
+    drawn = {parts: report_figures.draw_run(flight, tmp_path / f'in{parts}', parts) for parts in (1, 2, 3)}
+    assert _children() == before
+    names = [[p.relative_to(tmp_path / f'in{parts}') for p in drawn[parts]] for parts in drawn]
+    assert names[0] == [Path('figures') / name for name, _ in FIGURES] and names[1] == names[0] == names[2]
+    for parts in drawn:
+        assert [p.read_bytes() for p in drawn[parts]] == [p.read_bytes() for p in drawn[1]]
+        write_markdown(metrics, tmp_path / f'in{parts}', drawn[parts])
+    assert len({(tmp_path / f'in{parts}' / 'report.md').read_text() for parts in drawn}) == 1
+
+
+def _broken(how):
+    def draw(flight, path):
+        if how == 'raises':
+            raise ValueError(f'cannot draw {Path(path).name}')
+        if how == 'dies':
+            os.kill(os.getpid(), signal.SIGKILL)
+        select.select([os.pipe()[0]], [], [])   # hangs: nothing is ever written
+    return draw
+
+
+@pytest.mark.parametrize('how, error, message', [
+    ('raises', ValueError, 'cannot draw'),
+    ('dies', ChildProcessError, r'died \(signal SIGKILL\) without an answer'),
+    ('hangs', ChildProcessError, 'gave no answer in 2 s'),
+])
+def test_a_forked_part_that_fails_is_an_error_not_a_hang(tmp_path, monkeypatch, how, error, message):
+    """A child that raises gives its exception to the caller; one that dies or hangs a ChildProcessError naming its
+    figures (a hung one after PART_TIMEOUT_S, then killed); none is left running or unreaped."""
+    from quad_bringup.analysis import report_figures
+
+    flight = load_flight(make_bag(tmp_path / 'bag'))
+    child = report_figures.split_parts([name for name, _ in FIGURES], 2)[1]
+    figures = [(name, _broken(how) if k == child[0] else draw) for k, (name, draw) in enumerate(FIGURES)]
+    monkeypatch.setattr(report_figures, 'FIGURES', figures)
+    monkeypatch.setattr(report_figures, 'PART_TIMEOUT_S', 2.0)
+    before = _children()
+    with pytest.raises(error, match=message):
+        report_figures.draw_run(flight, tmp_path, 2)
+    assert _children() == before
+
+
+def test_a_forked_part_dies_with_its_caller(tmp_path):
+    """The caller SIGKILLed while its parts draw: the forked child ends too (PR_SET_PDEATHSIG), not run on under
+    init."""
+    script = ('import os, select, sys\n'
+              'from quad_bringup.analysis import report_figures as rf\n'
+              'def hold(flight, path):\n'
+              '    print(os.getpid(), flush=True)\n'
+              '    select.select([os.pipe()[0]], [], [])\n'
+              'rf.FIGURES = [(name, hold) for name, _ in rf.FIGURES]\n'
+              'rf.draw_all(None, sys.argv[1], 2)\n')
+    caller = subprocess.Popen([sys.executable, '-c', script, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    holding = {int(caller.stdout.readline()) for _ in range(2)}   # the caller and its child, each in its figure
+    (child,) = holding - {caller.pid}
+    alive = os.pidfd_open(child)
+    try:
+        caller.kill()
+        caller.wait()
+        assert select.select([alive], [], [], 30)[0], 'the forked part outlived its caller'
+    finally:
+        if not select.select([alive], [], [], 0)[0]:
+            os.kill(child, signal.SIGKILL)
+        os.close(alive)

@@ -2,8 +2,9 @@
 
 It imports matplotlib and the report while the flight runs (most of its cost), then reads one JSON line on
 stdin, {"flight": PICKLE, "out": DIR} (the report.Flight fly has loaded already, pickled; or {"bag": BAG, ...}
-to load it here), draws DIR/figures/*.png and answers one JSON line on stdout: {"figures": [paths relative to
-DIR]} or {"error": message}. FigureWorker is fly's side of it.
+to load it here), draws DIR/figures/*.png on every core (report_figures.PARTS: the graph has stopped by then; the
+parts are forked from this process, so matplotlib is imported once) and answers one JSON line on stdout:
+{"figures": [paths relative to DIR]} or {"error": message}. FigureWorker is fly's side of it.
 """
 
 import json
@@ -81,7 +82,8 @@ def main():
             from quad_bringup.analysis import report
 
             flight = report.load_flight(request['bag'])
-        figures = [str(Path(f).relative_to(out)) for f in report_figures.draw_run(flight, out)]
+        drawn = report_figures.draw_run(flight, out, report_figures.PARTS)
+        figures = [str(Path(f).relative_to(out)) for f in drawn]
         answer = {'figures': figures}
     except Exception as exc:  # any failure is an answer, not a traceback on fly's terminal
         answer = {'error': f'{type(exc).__name__}: {exc}'}

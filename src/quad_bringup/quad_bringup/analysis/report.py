@@ -252,8 +252,10 @@ def truncation_summary(truncated: dict) -> str:
 
 
 def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion | None = None,
-                 published: tuple | None = None, figures: bool = True, flight: Flight | None = None) -> dict:
-    """metrics.json, report.md and (figures=True) figures/*.png for the bag; returns the metrics written.
+                 published: tuple | None = None, figures: bool = True, flight: Flight | None = None,
+                 figure_parts: int = 1) -> dict:
+    """metrics.json, report.md and (figures=True) figures/*.png for the bag, drawn in figure_parts processes
+    (report_figures.draw_all); returns the metrics written.
     published: (stamp ns, steps) of the simulator's newest count the caller saw (fly's monitor); the bag's newest
     too (metrics.record_check).
     flight: the bag's Flight if the caller has loaded it already (load_flight)."""
@@ -264,16 +266,16 @@ def write_report(bag_dir, out_dir, extra: dict | None = None, rule: Completion |
     metrics = dict(extra or {})
     metrics.update(compute_metrics(flight, rule, published))
     metrics = _json_safe(metrics)
-    drawn = draw_figures(flight, out_dir) if figures else []
+    drawn = draw_figures(flight, out_dir, figure_parts) if figures else []
     write_markdown(metrics, out_dir, drawn)
     (out_dir / 'metrics.json').write_text(json.dumps(metrics, indent=2) + '\n')
     return metrics
 
 
-def draw_figures(flight: Flight, out_dir) -> list:
+def draw_figures(flight: Flight, out_dir, parts: int = 1) -> list:
     from quad_bringup.analysis import report_figures
 
-    return report_figures.draw_run(flight, out_dir)
+    return report_figures.draw_run(flight, out_dir, parts)
 
 
 def write_markdown(metrics: dict, out_dir, figures: list):

@@ -1,5 +1,11 @@
-"""The report's figures (matplotlib, Agg): the seed's Figures 1-5, error over time and commands."""
+"""The report's figures (matplotlib, Agg): the seed's Figures 1-5, error over time and commands; drawn in one
+process or split between it and forked children (draw_all's parts)."""
 
+import os
+import pickle
+import select
+import signal
+import time
 from pathlib import Path
 
 import matplotlib
@@ -203,16 +209,125 @@ TICK_BINS = 5
 PNG = {'compress_level': 1}
 
 
-def draw_run(flight, run_dir) -> list[Path]:
-    """A run's figures: run_dir/FOLDER/*.png."""
-    return draw_all(flight, Path(run_dir) / FOLDER)
+# CPU ms each figure takes to draw for maze (16.7 s flown, 1749 odometry samples; the median of 8 draws in one
+# process at load 4): what the parts are balanced by; their ratios, not their sizes, matter
+DRAW_MS = {'fig1_position_velocity.png': 390, 'fig2_path_3d.png': 145, 'fig4_plane_views.png': 225,
+           'fig5_axis_tracking.png': 375, 'error_over_time.png': 95, 'commands.png': 320}
+# parts to draw a run's figures in when the caller has the machine to itself (fly's figure worker after the graph
+# stopped, `quadflight report`): every core this process may run on, at most one part per figure
+PARTS = min(len(os.sched_getaffinity(0)), len(FIGURES))
+# a forked part that has not answered in this long is killed and its figures reported failed: a child that hangs
+# must not hang its caller (its part takes ~0.5 s of CPU on maze; this allows for a core shared 20 ways)
+PART_TIMEOUT_S = 60.0
 
 
-def draw_all(flight, out_dir) -> list[Path]:
+def draw_run(flight, run_dir, parts: int = 1) -> list[Path]:
+    """A run's figures: run_dir/FOLDER/*.png (parts: as draw_all's)."""
+    return draw_all(flight, Path(run_dir) / FOLDER, parts)
+
+
+def draw_all(flight, out_dir, parts: int = 1) -> list[Path]:
+    """FIGURES into out_dir, in FIGURES' order. parts > 1: split by DRAW_MS (split_parts) between this process, which
+    draws the first part, and parts - 1 children forked from it, which inherit matplotlib and the flight instead
+    of importing or loading them again. Fork it only where no other thread holds a lock the children would need:
+    numpy's OpenBLAS stops its own threads before a fork (its atfork handler) and drawing starts none, but a
+    process with threads of its own (rclpy's, a pool's) must draw in one part. A part's failure raises in the
+    caller: its exception, or ChildProcessError for a child that died or did not answer in PART_TIMEOUT_S; no
+    child outlives this call, nor its caller (SIGKILL when the caller dies)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    groups = split_parts([name for name, _ in FIGURES], parts)
     with matplotlib.rc_context(STYLE):
-        return [draw(flight, out_dir / name) for name, draw in FIGURES]
+        children = []
+        try:
+            for group in groups[1:]:
+                children.append(_fork_part(flight, out_dir, group))
+            drawn = _draw_part(flight, out_dir, groups[0])
+            for child in children:
+                drawn.update(_answer(child))
+        finally:
+            for pid, read_end, _ in children:
+                os.close(read_end)
+                _reap(pid)
+    return [drawn[k] for k in sorted(drawn)]
+
+
+def split_parts(names: list[str], parts: int) -> list[list[int]]:
+    """Indices into names in `parts` groups of about equal DRAW_MS: the costliest first, each onto the group with
+    the least so far; the costliest group first (the caller keeps it: it starts drawing before a forked child)."""
+    groups = [[] for _ in range(max(1, min(parts, len(names))))]
+    load = [0] * len(groups)
+    for k in sorted(range(len(names)), key=lambda k: -DRAW_MS.get(names[k], 0)):
+        g = load.index(min(load))
+        groups[g].append(k)
+        load[g] += DRAW_MS.get(names[k], 0)
+    order = sorted(range(len(groups)), key=lambda g: -load[g])
+    return [sorted(groups[g]) for g in order]
+
+
+def _draw_part(flight, out_dir: Path, indices: list[int]) -> dict[int, Path]:
+    return {k: FIGURES[k][1](flight, out_dir / FIGURES[k][0]) for k in indices}
+
+
+def _fork_part(flight, out_dir: Path, indices: list[int]):
+    """(pid, the read end of its answer pipe, the figure names) of a child that draws `indices` and answers one
+    pickle: ('drawn', {index: path}) or ('failed', the exception)."""
+    from quad_bringup.pools.pool_lifeline import die_with_parent
+
+    parent = os.getpid()
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid:
+        os.close(write_end)
+        return pid, read_end, [FIGURES[k][0] for k in indices]
+    try:   # the child: never returns into the caller's code
+        os.close(read_end)
+        die_with_parent(parent)
+        try:
+            answer = pickle.dumps(('drawn', _draw_part(flight, out_dir, indices)))
+        except BaseException as exc:   # a signal (KeyboardInterrupt) too is an answer, not a traceback
+            try:
+                answer = pickle.dumps(('failed', exc))
+            except Exception:
+                answer = pickle.dumps(('failed', RuntimeError(f'{type(exc).__name__}: {exc}')))
+        with os.fdopen(write_end, 'wb') as f:
+            f.write(answer)
+    finally:
+        os._exit(0)
+
+
+def _answer(child) -> dict[int, Path]:
+    """The child's figures once it has exited; raises its exception, or ChildProcessError when it died or hung
+    without an answer."""
+    pid, read_end, names = child
+    deadline = time.monotonic() + PART_TIMEOUT_S
+    chunks = []
+    while not chunks or chunks[-1]:
+        if not select.select([read_end], [], [], max(0.0, deadline - time.monotonic()))[0]:
+            raise ChildProcessError(f'the process drawing {", ".join(names)} gave no answer in {PART_TIMEOUT_S:.0f} s')
+        chunks.append(os.read(read_end, 1 << 16))
+    status = _reap(pid, kill=False)   # its end closed: it is exiting
+    if not b''.join(chunks):
+        why = f'signal {signal.Signals(-status).name}' if status < 0 else f'exit status {status}'
+        raise ChildProcessError(f'the process drawing {", ".join(names)} died ({why}) without an answer')
+    what, value = pickle.loads(b''.join(chunks))
+    if what == 'failed':
+        raise value
+    return value
+
+
+def _reap(pid: int, kill: bool = True) -> int:
+    """Wait for a forked part (kill: SIGKILL it first if it is still running); its exit status, -signal if a signal
+    ended it, 0 if it was reaped already."""
+    try:
+        done, status = os.waitpid(pid, os.WNOHANG) if kill else (0, 0)
+        if not done:
+            if kill:
+                os.kill(pid, signal.SIGKILL)
+            done, status = os.waitpid(pid, 0)
+    except ChildProcessError:
+        return 0
+    return os.waitstatus_to_exitcode(status)
 
 
 def _save(fig, path, margins: dict) -> Path:

@@ -93,9 +93,10 @@ def run(args) -> int:
     from rosbags.rosbag2 import ReaderError
 
     from quad_bringup.analysis.report import metrics_table, write_report
+    from quad_bringup.analysis.report_figures import PARTS
 
-    try:
-        metrics = write_report(bag, out, extra, rule)
+    try:   # the figures on every core: this process has no threads of its own to make a fork unsafe
+        metrics = write_report(bag, out, extra, rule, figure_parts=PARTS)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:
         if created:   # a refusal leaves nothing behind
             shutil.rmtree(out, ignore_errors=True)
