@@ -180,7 +180,7 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
                                      run_dir / 'logs' / 'recorder.log')
     log(f'flying {options.mission} with {options.controller} -> {run_dir}')
     started = []
-    # first: its matplotlib import (most of its cost) overlaps the domain probe's wait, when nothing else runs
+    # first, as its matplotlib import is most of its cost (it needs no ROS domain)
     figure_worker = FigureWorker.start(os.environ) if options.figures else None
     with isolated_domain(probe=domain_occupants) as (domain, env), \
             _Interrupt() as interrupt:
