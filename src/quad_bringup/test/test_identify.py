@@ -103,6 +103,40 @@ def test_cli_refuses_a_profile_without_margin(tmp_path, lag_bag):
     assert 'NOT settled' in done.stdout
 
 
+def test_soften_writes_the_base_softened_until_it_settles_and_says_by_how_much(tmp_path, lag_bag):
+    """A pid base with kp 6 on x and y does not settle behind 1.5x the identified lag; with --soften its horizontal kp
+    and ki are scaled down in steps until the margin check settles, and the profile written holds those gains."""
+    base = yaml.safe_load(resolve_config('config/control_real.yaml').read_text())
+    params = base['position_controller']['ros__parameters']
+    params.update(kp_x=6.0, kp_y=6.0)
+    base_file = tmp_path / 'stiff.yaml'
+    base_file.write_text(yaml.safe_dump(base))
+    out = tmp_path / 'soft.yaml'
+    refused = identify_cli(lag_bag, '--base', base_file, '--out', out, '--latency-s', '0.05')
+    assert refused.returncode == 2 and not out.exists()
+    assert refused.stderr.rstrip().endswith(', or --soften'), refused.stderr
+    done = identify_cli(lag_bag, '--base', base_file, '--out', out, '--latency-s', '0.05', '--soften')
+    assert done.returncode == 0, done.stderr
+    line = next(line for line in done.stdout.splitlines() if line.startswith('softened: '))
+    factor = float(line.split(' x')[1].split()[0])
+    assert 0.5 <= factor < 1.0, line
+    assert ': settled' in next(line for line in done.stdout.splitlines() if line.startswith('margin ('))
+    written = yaml.safe_load(out.read_text())['position_controller']['ros__parameters']
+    assert (written['kp_x'], written['kp_y']) == (round(6.0 * factor, 4),) * 2
+    assert (written['ki_x'], written['ki_y']) == (round(params['ki_x'] * factor, 4), round(params['ki_y'] * factor, 4))
+    assert (written['kp_z'], written['kd_x']) == (params['kp_z'], params['kd_x'])     # the rest as the base has it
+    assert read_identification(out.read_text())['softened'] == factor
+
+
+def test_soften_refuses_a_base_that_half_its_gains_do_not_settle_saying_so(tmp_path, lag_bag):
+    """control_fast (se3, kd 11) oscillates behind the margin's lag whatever its kp: refused, naming the factor."""
+    out = tmp_path / 'fast.yaml'
+    done = identify_cli(lag_bag, '--base', resolve_config('config/control_fast.yaml'), '--out', out,
+                        '--latency-s', '0.05', '--soften')
+    assert done.returncode == 2 and not out.exists()
+    assert 'control_fast.yaml, even with its horizontal kp and ki x0.5) does not settle' in done.stderr, done.stderr
+
+
 def test_cli_refuses_a_bad_latency_by_name(lag_bag):
     done = identify_cli(lag_bag, '--latency-s', 'nan')
     assert done.returncode == 2 and '--latency-s nan refused' in done.stderr

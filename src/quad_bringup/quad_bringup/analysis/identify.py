@@ -376,6 +376,24 @@ def profile(result: dict, base: dict | None = None) -> dict:
     return out
 
 
+# --soften: the base's horizontal proportional and integral gains times each factor in turn, until the margin check
+# settles (kd kept: the loop slows and gains damping, so it stays stable behind a longer lag); half at most
+SOFTEN_FACTORS = (0.9, 0.8, 0.7, 0.6, 0.5)
+SOFTENED_GAINS = ('kp', 'ki')
+
+
+def softened(written: dict, gains, factor: float) -> dict:
+    """The profile `written` with kp and ki on x and y set to `factor` x their values in `gains` (the profile's
+    effective PositionGains: a base that leaves one out flies the default, which is what is scaled)."""
+    out = dict(written)
+    params = dict(out['position_controller']['ros__parameters'])
+    for name in SOFTENED_GAINS:
+        for axis, value in zip('xy', getattr(gains, name)[:2]):
+            params[f'{name}_{axis}'] = round(float(value) * factor, 4)
+    out['position_controller'] = {'ros__parameters': params}
+    return out
+
+
 def vehicle_model(result: dict, vehicle_path) -> dict:
     """The vehicle file at vehicle_path as this flight measured it, for `fly --vehicle`, a sweep's `vehicles:` and
     the twin: attitude_loop `lag` with time_constant_s = the mean of roll and pitch tau + dead time (quad_sim's lag

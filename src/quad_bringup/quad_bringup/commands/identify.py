@@ -44,6 +44,9 @@ def add_arguments(parser):
                         help='the vehicle\'s telemetry latency (default: the bag\'s: 0 for a simulator\'s lockstep '
                         f'bag, a vehicle\'s record - stamp delay but at least {MEASURED_LATENCY_S}, ArduCopter\'s); '
                         f'the profile must settle at {MARGIN_LAG}x the identified response and {MARGIN_LATENCY}x this')
+    parser.add_argument('--soften', action='store_true',
+                        help='where the base does not settle at the margin, scale its horizontal kp and ki down in '
+                        'steps of 10 %% (to half at most) and write the first profile that settles, saying by how much')
     parser.add_argument('--vehicle', type=input_path, default=None, metavar='FILE',
                         help=f'vehicle file of the margin check and of the model (default {DEFAULT_VEHICLE})')
     parser.add_argument('--model-out', type=Path, metavar='FILE',
@@ -51,14 +54,24 @@ def add_arguments(parser):
                         '--vehicle with the identified attitude response and thrust, for fly --vehicle and sweeps')
 
 
-def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None, quality_first=False) -> dict:
+def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None, quality_first=False,
+              soften=False) -> dict:
     """What `quadflight identify` decides on a bag: {'result': identify's, 'written': the profile, 'controller',
-    'telemetry': stability.Telemetry, 'margin': stability.Hold, 'refusal': one line or None}. The margin check
-    flies the profile on the response identified (stability.margin_hold_identified) with the bag's telemetry.
+    'telemetry': stability.Telemetry, 'margin': stability.Hold, 'refusal': one line or None, 'softened': the factor
+    on the base's horizontal kp and ki, 1 unless soften}. The margin check flies the profile on the response
+    identified (stability.margin_hold_identified) with the bag's telemetry; soften: a base that does not settle is
+    softened (identify.SOFTEN_FACTORS) until one does.
     base_path / vehicle: None for DEFAULT_BASE / DEFAULT_VEHICLE. Raises ValueError / OSError / ReaderError for a
     bag that cannot be identified. quality_first: fits that do not hold (identify.quality_refusal) end it there,
     with 'margin' None (the margin check flies seconds of simulation)."""
-    from quad_bringup.analysis.identify import identify, identify_drag, profile, quality_refusal
+    from quad_bringup.analysis.identify import (
+        SOFTEN_FACTORS,
+        identify,
+        identify_drag,
+        profile,
+        quality_refusal,
+        softened,
+    )
     from quad_bringup.analysis.report import load_flight
     from quad_bringup.offline.closed_loop import control_profile
     from quad_bringup.offline.stability import Telemetry, margin_hold_identified
@@ -79,15 +92,24 @@ def check_bag(bag, base_path=None, vehicle=None, latency_s: float | None = None,
     # the vehicle as identified (its response, thrust scale k), flown by the profile that divides by k
     margin = margin_hold_identified(vehicle, controller, gains, result, telemetry)
     refusal = quality_refusal(result)
+    factor, base_gains = 1.0, gains
+    if soften and refusal is None and not margin.settled:
+        for factor in SOFTEN_FACTORS:
+            written = softened(written, base_gains, factor)
+            controller, gains = control_profile(written)
+            margin = margin_hold_identified(vehicle, controller, gains, result, telemetry)
+            if margin.settled:
+                break
     if refusal is None and not margin.settled:
         lost = f', {margin.stopped}' if margin.stopped else ''
-        refusal = (f'the profile ({controller}, base {base_path or DEFAULT_BASE}) does not settle at '
+        soft = f', even with its horizontal kp and ki x{factor:g}' if factor != 1.0 else ''
+        refusal = (f'the profile ({controller}, base {base_path or DEFAULT_BASE}{soft}) does not settle at '
                    f'{margin.lag_s:.3f} s of attitude lag and {margin.latency_s:.3f} s of telemetry latency at '
                    f'{telemetry.rate_hz:.0f} Hz with bursts up to {telemetry.burst_s:.3f} s (tilt '
                    f'{margin.late_tilt_deg:.1f} deg over the last quarter, oscillation '
                    f'{margin.oscillation_deg:.2f} deg rms{lost}; telemetry from {telemetry.source})')
     return {'result': result, 'written': written, 'controller': controller, 'telemetry': telemetry,
-            'margin': margin, 'refusal': refusal, 'vehicle': vehicle}
+            'margin': margin, 'refusal': refusal, 'vehicle': vehicle, 'softened': factor, 'base_gains': base_gains}
 
 
 def print_fits(result: dict):
@@ -131,7 +153,7 @@ def run(args) -> int:
     from quad_control.parameters import profile_parameters
 
     try:
-        checked = check_bag(bag, args.base, args.vehicle, args.latency_s, quality_first=True)
+        checked = check_bag(bag, args.base, args.vehicle, args.latency_s, quality_first=True, soften=args.soften)
     except (OSError, ValueError, ReaderError, StopIteration) as exc:
         why = str(exc) or 'none of the topics identify needs (odom, cmd/attitude_thrust) in it'
         print(f'quadflight identify: {bag}: {why}', file=sys.stderr)
@@ -151,10 +173,17 @@ def run(args) -> int:
           f'the telemetry latency {telemetry.latency_s:.3f} s, {checked["controller"]}): {margin.describe()}')
     if checked['refusal']:
         hint = f' (e.g. --base {DEFAULT_BASE})' if args.base and not quality_refusal(result) else ''
+        hint += ', or --soften' if not args.soften and not quality_refusal(result) else ''
         soft = ': start from softer gains' if not quality_refusal(result) else ''
         print(f'quadflight identify: refused to write {out}: {checked["refusal"]}{soft}{hint}', file=sys.stderr)
         return 2
-    facts = {**result, 'margin': {'lag_s': round(margin.lag_s, 4), 'latency_s': round(margin.latency_s, 4),
+    if checked['softened'] != 1.0:
+        base, values = checked['base_gains'], profile_parameters(written)
+        print(f'softened: the base does not settle at the margin, its horizontal kp and ki x{checked["softened"]:g} '
+              'do: ' + ', '.join(f'{name}_{axis} {float(getattr(base, name)[i]):g} -> {values[f"{name}_{axis}"]:g}'
+                                 for name in ('kp', 'ki') for i, axis in enumerate('xy')))
+    facts = {**result, **({'softened': checked['softened']} if checked['softened'] != 1.0 else {}),
+             'margin': {'lag_s': round(margin.lag_s, 4), 'latency_s': round(margin.latency_s, 4),
                                   'late_tilt_deg': round(margin.late_tilt_deg, 3),
                                   'oscillation_deg': round(margin.oscillation_deg, 3),
                                   'offset_m': round(margin.offset_m, 4)}}
