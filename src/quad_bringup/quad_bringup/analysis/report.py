@@ -2,7 +2,9 @@
 
 Reads any rosbag2 bag (MCAP or sqlite3, ours or `ros2 bag record`'s) with `rosbags`,
 deserialising with its ROS 2 Jazzy typestore; the messages it yields have the rclpy field names,
-so the shared converters of quad_common.conversions read them.
+so the shared converters of quad_common.conversions read them. Odometry, setpoints and /clock, most of a bag, are read
+from their bytes where they are little-endian plain CDR (quad_common.cdr_layout: the same values, without a
+Python object per field), and deserialised like the rest where not.
 
 Times are message header stamps (simulated time in lockstep). The metrics and their definitions (the scored
 window, completion per vehicle) are quad_bringup.analysis.metrics (numpy only; docs/quad_bringup.md).
@@ -11,6 +13,7 @@ window, completion per vehicle) are quad_bringup.analysis.metrics (numpy only; d
 import json
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -27,6 +30,7 @@ from quad_bringup.analysis.metrics import (  # noqa: F401  (re-exported: the rep
 )
 from quad_bringup.recording.recorder import open_bag_reader, typestore
 from quad_common import contract, conversions, rotations
+from quad_common.cdr_layout import imu_fields, imu_setpoint_values, le_stamp, odometry_fields, odometry_state_values
 from quad_common.contract import DIAGNOSTICS, ENGAGED, ODOM, TRAJECTORY
 from quad_common.contract import SETPOINT as COMMAND
 from quad_common.contract import TRAJECTORY_MARKERS as MARKERS
@@ -42,6 +46,9 @@ _namespaced = contract.matches
 
 
 WANTED = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK, ENGAGED)   # what a Flight is made of
+# topic -> (its type, the reader of its fields from the bytes)
+FROM_BYTES = {ODOM: ('nav_msgs/msg/Odometry', odometry_fields), COMMAND: ('sensor_msgs/msg/Imu', imu_fields),
+              CLOCK: ('rosgraph_msgs/msg/Clock', le_stamp)}   # a Clock's body is its one Time
 
 
 def load_flight(bag_dir, namespace: str = '') -> Flight:
@@ -70,10 +77,16 @@ def load_flights(bag_dir, namespaces) -> dict:
             where = ', '.join(f'/{ns}/' for ns in namespaces if ns)
             raise ValueError(f'bag {bag_dir}: none of the flight topics (odom, trajectory, cmd/attitude_thrust'
                              f'{f" under {where}" if where else ""}) in it')
+        from_bytes = {}   # connection id -> the reader of its fields (one contract topic of the right type), or None
+        for conn in connections:
+            topics = {topic for _, topic in routes[conn.id]}
+            kind = FROM_BYTES.get(topics.pop()) if len(topics) == 1 else None
+            from_bytes[conn.id] = kind[1] if kind is not None and kind[0] == conn.msgtype else None
         for conn, record_ns, raw in reader.messages(connections=connections):
-            msg = ts.deserialize_cdr(raw, conn.msgtype)
+            fields = from_bytes[conn.id](raw) if from_bytes[conn.id] is not None else None
+            msg = ts.deserialize_cdr(raw, conn.msgtype) if fields is None else None
             for part, topic in routes[conn.id]:
-                part.add(topic, msg, record_ns)
+                part.add(topic, msg, record_ns, fields)
     finally:
         reader.close()
     return {ns: part.flight(bag_dir, ns, repair) for ns, part in parts.items()}
@@ -95,19 +108,28 @@ class _FlightParts:
         self.odom_age = []
         self.errors, self.collision, self.published = [], None, None
 
-    def add(self, topic: str, msg, record_ns: int):
+    def add(self, topic: str, msg, record_ns: int, fields=None):
+        """msg: the deserialised message, or None where `fields` holds its stamp and values (FROM_BYTES)."""
         if topic == ODOM:
-            self.odom.append((conversions.stamp_to_s(msg.header.stamp), conversions.odometry_to_state(msg),
-                              _ns(msg.header.stamp), record_ns))
+            if fields is None:
+                stamp, state = msg.header.stamp, conversions.odometry_to_state(msg)
+            else:
+                stamp = _Stamp(fields[0], fields[1])
+                state = conversions.odometry_values_to_state(*odometry_state_values(fields[2]))
+            self.odom.append((conversions.stamp_to_s(stamp), state, _ns(stamp), record_ns))
         elif topic == CLOCK:
-            self.clock.append(_ns(msg.clock))
+            self.clock.append(_ns(msg.clock if fields is None else _Stamp(*fields)))
         elif topic == COMMAND:
             try:  # the contract's one decoder; a setpoint it refuses was refused by the vehicle too
-                setpoint = conversions.imu_to_setpoint(msg)
+                if fields is None:
+                    stamp, setpoint = msg.header.stamp, conversions.imu_to_setpoint(msg)
+                else:
+                    stamp = _Stamp(fields[0], fields[1])
+                    setpoint = conversions.imu_values_to_setpoint(*imu_setpoint_values(fields[2]))
             except ValueError:
                 return
-            self.cmds.append((conversions.stamp_to_s(msg.header.stamp), setpoint.specific_force_mps2,
-                              setpoint.quaternion, record_ns))
+            self.cmds.append((conversions.stamp_to_s(stamp), setpoint.specific_force_mps2, setpoint.quaternion,
+                              record_ns))
         elif topic == ENGAGED:
             self.engaged.append((record_ns, bool(msg.data)))
         elif topic == DIAGNOSTICS:
@@ -168,6 +190,12 @@ class _FlightParts:
             flight.cmd_euler = rotations.to_euler(np.array([c[2] for c in cmds]))
             flight.cmd_record_ns = np.array([c[3] for c in cmds], dtype=np.int64)
         return flight
+
+
+class _Stamp(NamedTuple):
+    """builtin_interfaces/Time's fields, as read from the bytes."""
+    sec: int
+    nanosec: int
 
 
 def _ns(stamp) -> int:

@@ -20,14 +20,17 @@ from sensor_msgs.msg import Imu
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from quad_common import conversions, rotations
+from quad_common.cdr_layout import (
+    CDR_LE,
+    imu_fields,
+    imu_setpoint_values,
+    le_stamp,
+    odometry_fields,
+    odometry_state_values,
+)
 from quad_common.conversions import BODY_FRAME, UNSET_COVARIANCE, WORLD_FRAME
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.types import AttitudeSetpoint, Reference, State
-
-CDR_LE = b'\x00\x01\x00\x00'  # encapsulation header: plain CDR, little endian
-_STAMP = struct.Struct('<iI')
-_ODOM_FIELDS = struct.Struct('<7d288x6d')  # pose, its covariance (36 d), twist; its covariance is not read
-_IMU_FIELDS = struct.Struct('<4dd64x3dd64x3dd')  # orientation, cov[0], rates, cov[0], acceleration, cov[0]
 
 
 def _constant(parts) -> bytes:
@@ -41,21 +44,10 @@ def _constant(parts) -> bytes:
     return out + b'\x00' * (-(8 + len(out)) % 8)
 
 
-def _fields_offset(raw: bytes, strings: int) -> int:
-    """Offset in raw of the first field after the header's `strings` strings (frame ids)."""
-    offset = 8  # from the body's start, after the stamp
-    for _ in range(strings):
-        offset += -offset % 4
-        offset += 4 + struct.unpack_from('<I', raw, 4 + offset)[0]
-    return 4 + offset + (-offset % 8)
-
-
 def _le_stamp_ns(raw: bytes) -> int | None:
     """header.stamp of a serialized message in nanoseconds; None if it is not little-endian plain CDR."""
-    if raw[:4] != CDR_LE:
-        return None
-    sec, nanosec = _STAMP.unpack_from(raw, 4)
-    return sec * 1_000_000_000 + nanosec
+    stamp = le_stamp(raw)
+    return None if stamp is None else stamp[0] * 1_000_000_000 + stamp[1]
 
 
 class OdometryPacker:
@@ -74,12 +66,12 @@ class OdometryPacker:
 
 def odometry_to_state(raw: bytes) -> tuple[int, State]:
     """(header.stamp in ns, conversions.odometry_to_state) of a serialized nav_msgs/Odometry."""
-    stamp = _le_stamp_ns(raw)
-    if stamp is None:
+    fields = odometry_fields(raw)
+    if fields is None:
         msg = deserialize_message(raw, Odometry)
         return _msg_stamp_ns(msg), conversions.odometry_to_state(msg)
-    v = _ODOM_FIELDS.unpack_from(raw, _fields_offset(raw, 2))
-    return stamp, conversions.odometry_values_to_state(v[0:3], v[3:7], v[7:10], v[10:13])
+    sec, nanosec, v = fields
+    return sec * 1_000_000_000 + nanosec, conversions.odometry_values_to_state(*odometry_state_values(v))
 
 
 class SetpointPacker:
@@ -133,10 +125,10 @@ class ReferencePacker:
 
 def imu_to_setpoint(raw: bytes) -> AttitudeSetpoint:
     """conversions.imu_to_setpoint of a serialized sensor_msgs/Imu (ValueError naming the field)."""
-    if raw[:4] != CDR_LE:
+    fields = imu_fields(raw)
+    if fields is None:
         return conversions.imu_to_setpoint(deserialize_message(raw, Imu))
-    v = _IMU_FIELDS.unpack_from(raw, _fields_offset(raw, 1))
-    return conversions.imu_values_to_setpoint(v[0:4], v[4], v[5:8], v[8], v[11], v[12])
+    return conversions.imu_values_to_setpoint(*imu_setpoint_values(fields[2]))
 
 
 def header_stamp_ns(raw: bytes, msg_type) -> int:
