@@ -520,8 +520,8 @@ def test_odometry_and_setpoints_read_from_their_bytes_give_the_flight_deserialis
 def test_bag_metadata_is_read_with_ruamels_c_parser():
     """rosbags reads metadata.yaml and every topic's QoS with ruamel.yaml (typ 'safe'): with ruamel.yaml.clib, in the
     pinned set, that is its C parser (a 16-topic bag opens ~0.15 s faster than with the pure-Python one)."""
-    from ruamel.yaml import YAML
+    from rosbags.rosbag2 import metadata  # its YAML is ruamel.yaml's
 
-    yaml_reader = YAML(typ='safe')
+    yaml_reader = metadata.YAML(typ='safe')
     yaml_reader.load('a: 1')
     assert type(yaml_reader.parser).__name__ == 'CParser'
