@@ -159,19 +159,21 @@ def msg_to_sampled(msg: MultiDOFJointTrajectory) -> tuple[float, SampledTrajecto
     n = len(msg.points)
     t = np.empty(n)
     p, v, a = np.zeros((n, 4)), np.zeros((n, 4)), np.zeros((n, 4))
+    q = np.empty((n, 4))
     for k, pt in enumerate(msg.points):
         if not pt.transforms:
             raise ValueError(f'trajectory point {k} has no transform')
         t[k] = pt.time_from_start.sec + pt.time_from_start.nanosec * 1e-9
         tf = pt.transforms[0]
         p[k, :3] = vec3(tf.translation)
-        p[k, 3] = rotations.to_euler(quat(tf.rotation))[2]
+        q[k] = quat(tf.rotation)
         if pt.velocities:
             v[k, :3] = vec3(pt.velocities[0].linear)
             v[k, 3] = pt.velocities[0].angular.z
         if pt.accelerations:
             a[k, :3] = vec3(pt.accelerations[0].linear)
             a[k, 3] = pt.accelerations[0].angular.z
+    p[:, 3] = rotations.to_euler(q)[:, 2]   # one call for every point's yaw (per point it was most of the time)
     return stamp_to_s(msg.header.stamp), SampledTrajectory(t, p, v, a)
 
 
