@@ -103,9 +103,12 @@ def arrival_gap(env, domain, rate_hz=100.0):
         p = np.column_stack([0.01 * np.sin(t), np.zeros_like(t), np.ones_like(t), np.zeros_like(t)])
         plan = conv.sampled_to_msg(SampledTrajectory(t, p, np.zeros_like(p), np.zeros_like(p)),
                                    (node.get_clock().now() + Duration(seconds=3600)).to_msg())
-        has_plan = []  # the node's diagnostics say it holds the plan (mode 'hold (trajectory not started)')
+        # the node's diagnostics say it holds the plan: mode 'hold (trajectory not started)' when engaged, '...,
+        # plan waiting' when not (no vehicle/engaged here: it follows the vehicle, and ticks all the same)
+        has_plan = []
         node.create_subscription(DiagnosticArray, 'diagnostics', lambda m: has_plan.extend(
-            1 for st in m.status for kv in st.values if kv.key == 'mode' and 'not started' in kv.value), 10)
+            1 for st in m.status for kv in st.values
+            if kv.key == 'mode' and ('not started' in kv.value or 'plan waiting' in kv.value)), 10)
 
         def spin_for(seconds, until=lambda: False):
             end = time.monotonic() + seconds
