@@ -16,8 +16,14 @@ import time
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path[:0] = sorted(os.path.join(ROOT, 'src', d) for d in os.listdir(os.path.join(ROOT, 'src'))
-                      if d.startswith('quad_'))
+
+
+def src_path(root):
+    return ':'.join(os.path.join(root, 'src', d) for d in sorted(os.listdir(os.path.join(root, 'src')))
+                    if d.startswith('quad_'))
+
+
+sys.path[:0] = src_path(ROOT).split(':')
 
 from quad_trajectory.survey import survey_waypoints  # noqa: E402
 
@@ -34,11 +40,6 @@ def mission(path, n):
         f.write(f'name: survey_{n}\nwaypoints:\n' + ''.join(f'  - [{x:.4f}, {y:.4f}, {z:.4f}]\n' for x, y, z in w)
                 + 'trajectory:\n  speed: 0.5\n')
     return path
-
-
-def src_path(root):
-    return ':'.join(os.path.join(root, 'src', d) for d in sorted(os.listdir(os.path.join(root, 'src')))
-                    if d.startswith('quad_'))
 
 
 def run_once(argv, env):

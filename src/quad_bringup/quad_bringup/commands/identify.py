@@ -149,7 +149,7 @@ def run(args) -> int:
         return 2
     from rosbags.rosbag2 import ReaderError
 
-    from quad_bringup.analysis.identify import model_text, profile_text, quality_refusal, vehicle_model
+    from quad_bringup.analysis.identify import SOFTENED_GAINS, model_text, profile_text, quality_refusal, vehicle_model
     from quad_control.parameters import profile_parameters
 
     try:
@@ -181,12 +181,11 @@ def run(args) -> int:
         base, values = checked['base_gains'], profile_parameters(written)
         print(f'softened: the base does not settle at the margin, its horizontal kp and ki x{checked["softened"]:g} '
               'do: ' + ', '.join(f'{name}_{axis} {float(getattr(base, name)[i]):g} -> {values[f"{name}_{axis}"]:g}'
-                                 for name in ('kp', 'ki') for i, axis in enumerate('xy')))
+                                 for name in SOFTENED_GAINS for i, axis in enumerate('xy')))
     facts = {**result, **({'softened': checked['softened']} if checked['softened'] != 1.0 else {}),
              'margin': {'lag_s': round(margin.lag_s, 4), 'latency_s': round(margin.latency_s, 4),
-                                  'late_tilt_deg': round(margin.late_tilt_deg, 3),
-                                  'oscillation_deg': round(margin.oscillation_deg, 3),
-                                  'offset_m': round(margin.offset_m, 4)}}
+                        'late_tilt_deg': round(margin.late_tilt_deg, 3),
+                        'oscillation_deg': round(margin.oscillation_deg, 3), 'offset_m': round(margin.offset_m, 4)}}
     model = vehicle_model(result, checked['vehicle'])
     for flag, path, text in (('--out', out, profile_text(written, facts, f'{HEADER.removeprefix("# ")}{bag}')),
                              ('--model-out', model_out, model_text(model, result,

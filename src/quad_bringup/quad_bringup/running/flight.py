@@ -180,8 +180,6 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
                                      run_dir / 'logs' / 'recorder.log')
     log(f'flying {options.mission} with {options.controller} -> {run_dir}')
     started = []
-    # first, as its matplotlib import is most of its cost (it needs no ROS domain)
-    figure_worker = FigureWorker.start(os.environ) if options.figures else None
     with isolated_domain(probe=domain_occupants) as (domain, env), \
             _Interrupt() as interrupt:
         for node in [recorder, *nodes]:  # at once: imports and discovery overlap (module docstring)
@@ -189,6 +187,7 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
             started.append(node)
         _write_pids(run_dir, started)
         clock.mark('processes started')
+        figure_worker = FigureWorker.start(env) if options.figures else None
         from quad_bringup.running.flight_monitor import FlightJudge, FlightMonitor
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
