@@ -20,7 +20,7 @@ import numpy as np
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu
 
-from quad_bringup.emulated.emulated_graph import Processes, enter_offboard, free_udp_port, running_graph
+from quad_bringup.emulated.vehicle_graph import Processes, enter_offboard, free_udp_port, running_graph
 from quad_common.conversions import stamp_to_s
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -13,7 +13,7 @@ rates of an attitude setpoint dropped as mavlink_receiver does, the output predi
 accelerometer noise over EKF2_TAU_VEL (0.0125 / 0.0425 / 0.035 m/s on the body axes). Load: the
 1-minute load average when the flight ended (2 cores; other work on the machine counts in it: a loaded machine
 delays odometry and setpoints, which the stiff profiles feel first). Beside them the same PX4 SIH-like chain
-offline (quad_bringup.emulated.emulated_chain's `fly_chain_offline`: the emulator's pieces under position_controller's
+offline (quad_bringup.emulated.offline_chain's `fly_chain_offline`: the emulator's pieces under position_controller's
 loop without processes, MAVLink or load; three seeds), once without the three from PX4's source (the SIH-like setting
 before them) and once with the estimate's velocity also 0.15 s late (the first SIH-like estimate)."""
 
@@ -23,9 +23,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from quad_bringup.emulated.emulated_chain import PX4_SIH_BEFORE, PX4_SIH_LIKE, SPEED_MPS, SQUARE, fly_chain_offline
-from quad_bringup.emulated.emulated_graph import running_graph
-from quad_bringup.emulated.emulated_mission import CONTROL, REAL_PROFILE, fly_mission
+from quad_bringup.emulated.mission_flight import CONTROL, REAL_PROFILE, fly_mission
+from quad_bringup.emulated.offline_chain import PX4_SIH_BEFORE, PX4_SIH_LIKE, SPEED_MPS, SQUARE, fly_chain_offline
+from quad_bringup.emulated.vehicle_graph import running_graph
 
 PROFILES = {'seed pd (control.yaml)': None, 'control_real.yaml (pid)': REAL_PROFILE}
 SE3_PROFILE = 'config/control_se3.yaml'

@@ -1,6 +1,6 @@
 """Indoor flight: what the controller flies from, scored where the vehicle really is.
 
-The 3 m square at 0.8 m/s on the offline chain of quad_bringup.emulated.emulated_chain (the emulator's own pieces under
+The 3 m square at 0.8 m/s on the offline chain of quad_bringup.emulated.offline_chain (the emulator's own pieces under
 position_controller's ControlLoop at 100 Hz: its vehicle, the attitude shaping behind the autopilot's loop, the
 estimate, the telemetry delay line; no processes, MAVLink or load), on two plants: the default emulated autopilot
 (0.19 s attitude lag, no drag) and PX4 SIH as fitted to its recorded flights (0.105 s dead time before a 0.05 s
@@ -23,8 +23,8 @@ from pathlib import Path
 
 import yaml
 
-from quad_bringup.emulated import emulated_chain as chain
-from quad_bringup.emulated.emulated_mission import REAL_PROFILE
+from quad_bringup.emulated import offline_chain as chain
+from quad_bringup.emulated.mission_flight import REAL_PROFILE
 from quad_common.paths import resolve_config
 
 DEFAULT_EMULATOR = ('--attitude-tau-s', '0.036', '--estimator-lag-s', '0', '--estimator-wander-m', '0',

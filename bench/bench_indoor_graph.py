@@ -1,6 +1,6 @@
 """Indoor flight through the graph: the 3 m square at 0.8 m/s on the emulated PX4 and ArduPilot (quad_vehicle_emu at
 its defaults, `python -m quad_vehicle_emu.mavlink_vehicle`) through the graph
-(quad_bringup.emulated.emulated_graph's processes: real MAVLink over UDP, real DDS; mavlink_bridge, position_controller
+(quad_bringup.emulated.vehicle_graph's processes: real MAVLink over UDP, real DDS; mavlink_bridge, position_controller
 with config/control_real.yaml over control.yaml, the real-vehicle default, trajectory_node, the recorder) on a machine
 other work shares: the vehicle on the floor, armed, `offboard`, a plan up to the square's first corner (an autopilot
 without GPS has no position before the pose streams), then the square, the plan recorded and scored.
@@ -28,15 +28,15 @@ from std_srvs.srv import SetBool, Trigger
 from quad_bringup.analysis.metrics import planned_position
 from quad_bringup.analysis.report import load_flight
 from quad_bringup.commands.record import ros_arguments
-from quad_bringup.emulated.emulated_chain import SPEED_MPS, SQUARE
-from quad_bringup.emulated.emulated_graph import (
+from quad_bringup.emulated.mission_flight import CONTROL, REAL_PROFILE, plan_waypoints, report
+from quad_bringup.emulated.offline_chain import SPEED_MPS, SQUARE
+from quad_bringup.emulated.vehicle_graph import (
     OFFBOARD_MODE,
     WAIT_S,
     free_udp_port,
     running_graph,
     start_vehicle_graph,
 )
-from quad_bringup.emulated.emulated_mission import CONTROL, REAL_PROFILE, plan_waypoints, report
 from quad_bringup.recording.recorder import DEFAULT_TOPICS, open_bag_reader, typestore
 from quad_common import contract
 from quad_common.conversions import stamp_to_s, vec3

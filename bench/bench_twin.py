@@ -1,7 +1,7 @@
 """A 3 m square at 1.0 m/s, 2 m high (the manoeuvre identify asks for), flown as on a real vehicle against
 quad_vehicle_emu (PX4 and ArduPilot, their defaults) through mavlink_bridge with position_controller on
 config/control_real.yaml, recorded by the recorder (`quadflight record`'s node), `offboard`, trajectory_node, `land`
-(quad_bringup.emulated.emulated_mission, as bench_bridge_flight flies its square); then what a user runs: `quadflight
+(quad_bringup.emulated.mission_flight, as bench_bridge_flight flies its square); then what a user runs: `quadflight
 identify BAG --vehicle px4_quad.yaml --model-out MODEL` and `quadflight replay BAG --vehicle MODEL --control-profile
 control_real.yaml`. The emulator's truth (docs/emulator.md, quad_vehicle_emu.attitude and mavlink_vehicle):
 roll/pitch lag = the quaternion loop's 1 / angle P + the shaping tau, thrust scale 1 (its hover throttle is the
@@ -12,8 +12,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from quad_bringup.emulated.emulated_graph import VEHICLE_FILE
-from quad_bringup.emulated.emulated_twin import emulator_flight, fresh_twin, identify_and_replay, margin_rows
+from quad_bringup.emulated.twin_check import emulator_flight, fresh_twin, identify_and_replay, margin_rows
+from quad_bringup.emulated.vehicle_graph import VEHICLE_FILE
 
 
 def truth(flavour):

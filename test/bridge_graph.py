@@ -1,5 +1,5 @@
 """The bridge graph tests' own instruments, beside the graph harness they share with the benches
-(quad_bringup.emulated.emulated_graph): a Tap on the wire between vehicle and bridge, a stand-in
+(quad_bringup.emulated.vehicle_graph): a Tap on the wire between vehicle and bridge, a stand-in
 controller's SetpointPublisher, the bridge built inside the test process, a tapped graph, and the odometry probe
 process (test/odom_probe.py)."""
 
@@ -15,7 +15,7 @@ from contextlib import contextmanager
 import rclpy
 from rclpy.parameter import Parameter
 
-from quad_bringup.emulated.emulated_graph import ROOT, free_udp_port, running_graph
+from quad_bringup.emulated.vehicle_graph import ROOT, free_udp_port, running_graph
 from quad_common.ros.node_main import close_nodes
 from quad_common.ros.testing import Spinner
 

@@ -14,7 +14,7 @@ from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import parameter_value_to_python
 
-from quad_bringup.emulated.emulated_graph import WAIT_S, terminate
+from quad_bringup.emulated.vehicle_graph import WAIT_S, terminate
 from quad_common.ros.testing import isolated_domain
 
 PUSHED = 'uav2'

@@ -11,7 +11,7 @@ import time
 os.environ['MAVLINK20'] = '1'
 from pymavlink import mavutil  # noqa: E402
 
-from quad_bringup.emulated.emulated_graph import EMULATOR_SCHEDULING, ROOT, VEHICLE_FILE, free_udp_port, python_env  # noqa: E402
+from quad_bringup.emulated.vehicle_graph import EMULATOR_SCHEDULING, ROOT, VEHICLE_FILE, free_udp_port, python_env  # noqa: E402
 
 WAIT_S = 60.0
 PX4_MODES = {'OFFBOARD': 6 << 16, 'POSCTL': 3 << 16, 'AUTO.LOITER': 4 << 16 | 3 << 24, 'AUTO.LAND': 4 << 16 | 6 << 24}

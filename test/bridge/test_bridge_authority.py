@@ -86,7 +86,7 @@ def test_the_fast_dds_of_the_pypi_wheels_has_no_dds_security(tmp_path, ros_env):
 def test_a_second_vehicle_on_the_link_is_refused_and_reported(tmp_path):
     """An emulator left running on the bridge's port, with the same system id (telemetry would mix:
     odometry jumping between the two) or another one (target_system 0 may have taken the wrong vehicle)."""
-    from quad_bringup.emulated.emulated_graph import free_udp_port, running_graph
+    from quad_bringup.emulated.vehicle_graph import free_udp_port, running_graph
     with running_graph(tmp_path) as (procs, observer):
         port = free_udp_port()
         procs.vehicle('px4', f'udpout:127.0.0.1:{port}')
@@ -125,7 +125,7 @@ def test_quadflight_arm_offboard_land_call_the_bridge_without_the_ros2_cli(tmp_p
     import subprocess
     from pathlib import Path
 
-    from quad_bringup.emulated.emulated_graph import free_udp_port, running_graph
+    from quad_bringup.emulated.vehicle_graph import free_udp_port, running_graph
     quadflight = str(Path(__file__).resolve().parents[2] / 'quadflight')
     with running_graph(tmp_path) as (procs, observer):
         port = free_udp_port()

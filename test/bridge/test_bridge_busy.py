@@ -16,7 +16,7 @@ from bridge_graph import Tap, bridge_in_this_process, mavlink, odom_arrivals, st
 from rclpy.duration import Duration
 
 from quad_bridge import frames
-from quad_bringup.emulated.emulated_graph import VEHICLE_PARAMS, free_udp_port, hover_in_offboard, running_graph
+from quad_bringup.emulated.vehicle_graph import VEHICLE_PARAMS, free_udp_port, hover_in_offboard, running_graph
 from quad_common import contract, rotations
 from quad_common import conversions as conv
 from quad_common.conversions import stamp_to_s

@@ -8,7 +8,7 @@ import pytest
 from bridge_graph import SetpointPublisher, bridge_in_this_process
 from std_srvs.srv import SetBool
 
-from quad_bringup.emulated.emulated_graph import free_udp_port, running_graph
+from quad_bringup.emulated.vehicle_graph import free_udp_port, running_graph
 
 # Telemetry this old puts TIMESYNC (a few ms round trip on loopback) 0.5 s before every arrival, beyond
 # quad_bridge.clock's agreement bound (0.25 s), even when a starved receive thread makes TIMESYNC's round trip

@@ -14,7 +14,7 @@ from bridge_graph import SetpointPublisher, tapped_graph
 from geometry_msgs.msg import PoseStamped
 from std_srvs.srv import SetBool
 
-from quad_bringup.emulated.emulated_graph import free_udp_port, running_graph
+from quad_bringup.emulated.vehicle_graph import free_udp_port, running_graph
 from quad_common import contract
 
 HOVER = 0.5

@@ -26,7 +26,7 @@ from bridge_graph import mavlink
 from launch_standin import evaluate
 from mavlink_hub import read_record
 
-from quad_bringup.emulated.emulated_graph import (
+from quad_bringup.emulated.vehicle_graph import (
     OFFBOARD_MODE,
     VEHICLE_FILE,
     VEHICLE_PARAMS,

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_bringup.emulated.emulated_graph import VEHICLE_FILE, free_udp_port, hover_in_offboard, running_graph
+from quad_bringup.emulated.vehicle_graph import VEHICLE_FILE, free_udp_port, hover_in_offboard, running_graph
 from quad_common.conversions import stamp_to_s
 
 WAYPOINTS = [(0.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 1.0, 1.3)]

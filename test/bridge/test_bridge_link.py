@@ -11,7 +11,7 @@ import pytest
 from bridge_graph import SetpointPublisher, Tap, tapped_graph
 from std_srvs.srv import SetBool, Trigger
 
-from quad_bringup.emulated.emulated_graph import free_udp_port, running_graph
+from quad_bringup.emulated.vehicle_graph import free_udp_port, running_graph
 
 os.environ['MAVLINK20'] = '1'
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402

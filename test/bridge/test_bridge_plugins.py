@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from quad_bringup.emulated.emulated_graph import free_udp_port, hover_in_offboard, python_env, running_graph
+from quad_bringup.emulated.vehicle_graph import free_udp_port, hover_in_offboard, python_env, running_graph
 from quad_common import contract
 from quad_common.paths import REPO_ROOT
 from quad_common.ros.testing import isolated_domain

@@ -9,7 +9,7 @@ in the same vehicle oscillates against the tilt clamp (13: it flipped ArduCopter
 import numpy as np
 import pytest
 
-from quad_bringup.emulated.emulated_graph import ROOT, VEHICLE_FILE, free_udp_port, hover_in_offboard, running_graph
+from quad_bringup.emulated.vehicle_graph import ROOT, VEHICLE_FILE, free_udp_port, hover_in_offboard, running_graph
 from quad_bringup.offline.stability import MARGIN_LAG, MARGIN_LATENCY, MEASURED_LAG_S, MEASURED_LATENCY_S
 from quad_common.conversions import stamp_to_s
 from quad_vehicle_emu.attitude import emulated_vehicle, tau_for_lag_s

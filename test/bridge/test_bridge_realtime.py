@@ -16,7 +16,7 @@ import pytest
 from ament_index_python.packages import get_package_prefix
 from launch_standin import evaluate
 
-from quad_bringup.emulated.emulated_graph import Observer, free_udp_port, python_env, terminate
+from quad_bringup.emulated.vehicle_graph import Observer, free_udp_port, python_env, terminate
 from quad_common.realtime import policy_of, thread_ids
 
 BRIDGE = [sys.executable, '-m', 'quad_bridge.mavlink_bridge_node', '--ros-args']

@@ -5,8 +5,8 @@ end plus its settle time, never in the landing that follows; the report says whi
 
 import pytest
 
-from quad_bringup.emulated.emulated_graph import running_graph
-from quad_bringup.emulated.emulated_mission import fly_mission, report
+from quad_bringup.emulated.mission_flight import fly_mission, report
+from quad_bringup.emulated.vehicle_graph import running_graph
 
 WAYPOINTS = [(0.0, 0.0, 1.5), (1.5, 0.0, 1.5), (1.5, 1.0, 1.8)]
 SPEED_MPS = 0.5

@@ -11,7 +11,7 @@ from bridge_graph import SetpointPublisher
 from sensor_msgs.msg import Imu
 from std_srvs.srv import SetBool
 
-from quad_bringup.emulated.emulated_graph import free_udp_port, python_env, running_graph
+from quad_bringup.emulated.vehicle_graph import free_udp_port, python_env, running_graph
 from quad_common import rotations
 from quad_common.conversions import to_quaternion
 from quad_common.types import GRAVITY_MPS2

@@ -12,7 +12,7 @@ from bridge_graph import SetpointPublisher, Tap, bridge_in_this_process, tapped_
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
-from quad_bringup.emulated.emulated_graph import ROOT, WAIT_S, Observer, Processes, free_udp_port, running_graph
+from quad_bringup.emulated.vehicle_graph import ROOT, WAIT_S, Observer, Processes, free_udp_port, running_graph
 from quad_common import contract
 from quad_common.ros.testing import isolated_domain
 

@@ -27,7 +27,7 @@ from ament_index_python.packages import get_package_prefix
 from launch_standin import evaluate
 from std_srvs.srv import SetBool
 
-from quad_bringup.emulated.emulated_graph import (
+from quad_bringup.emulated.vehicle_graph import (
     VEHICLE_FILE,
     VEHICLE_PARAMS,
     WAIT_S,

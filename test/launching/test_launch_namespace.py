@@ -10,7 +10,7 @@ import pytest
 import yaml
 from launched_params import PUSHED, launched_parameters, pushed_launch_file
 
-from quad_bringup.emulated.emulated_graph import free_udp_port
+from quad_bringup.emulated.vehicle_graph import free_udp_port
 from quad_bringup.running import graph
 
 ROOT = Path(__file__).resolve().parents[2]

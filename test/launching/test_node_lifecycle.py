@@ -12,7 +12,7 @@ import rclpy
 from ament_index_python.packages import get_package_prefix
 from rclpy.executors import SingleThreadedExecutor
 
-from quad_bringup.emulated.emulated_graph import WAIT_S, free_udp_port
+from quad_bringup.emulated.vehicle_graph import WAIT_S, free_udp_port
 from quad_common.ros.testing import isolated_domain
 
 EXECUTABLES = [('quad_trajectory', 'trajectory_node', []), ('quad_control', 'position_controller', []),

@@ -13,7 +13,7 @@ from ament_index_python.packages import get_package_prefix
 from launch_standin import evaluate
 from launched_params import ParameterReader
 
-from quad_bringup.emulated.emulated_graph import WAIT_S, free_udp_port, terminate
+from quad_bringup.emulated.vehicle_graph import WAIT_S, free_udp_port, terminate
 from quad_common.ros.testing import isolated_domain
 
 os.environ['MAVLINK20'] = '1'

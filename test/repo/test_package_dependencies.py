@@ -124,7 +124,7 @@ def test_optional_imports_without_a_key_are_named_in_package_xml(package):
 def cross_links(root: Path, importer: str, provider: str) -> list[str]:
     """Where a file under root/importer/ reaches into root/provider/: an import of a module that lives there (a
     top-level name of one of its .py files) or a sys.path entry naming that folder. What both need lives in a
-    package (quad_bringup.emulated.emulated_graph, emulated_mission, emulated_chain, emulated_twin, peer_venv,
+    package (quad_bringup.emulated.vehicle_graph, mission_flight, offline_chain, twin_check, peer_venv,
     rotorpy_peer)."""
     provided = {p.stem for p in (root / provider).rglob('*.py')}
     found = []

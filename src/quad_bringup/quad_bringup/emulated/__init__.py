@@ -1,3 +1,3 @@
 """The real-vehicle chain on one machine, for the bridge tests and the benches: the emulated autopilot, mavlink_bridge
-and position_controller as processes (emulated_graph), a mission through them (emulated_mission), the same chain flown
-offline (emulated_chain) and a flight's twin checked (emulated_twin)."""
+and position_controller as processes (vehicle_graph), a mission through them (mission_flight), the same chain flown
+offline (offline_chain) and a flight's twin checked (twin_check)."""

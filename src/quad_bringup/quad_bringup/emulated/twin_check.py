@@ -1,4 +1,4 @@
-"""An emulated flight's twin, checked: a bridge flight against quad_vehicle_emu (quad_bringup.emulated.emulated_mission,
+"""An emulated flight's twin, checked: a bridge flight against quad_vehicle_emu (quad_bringup.emulated.mission_flight,
 control_real.yaml), `quadflight identify` and `quadflight replay` run on its bag as a user runs them, the twin with
 fresh odometry beside it, and identify's margin check against the emulator's own attitude loop at the margin the
 check states. Shared by the replay graph test (test/emulator/test_replay_emulator.py) and the twin bench
@@ -9,9 +9,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from quad_bringup.emulated.emulated_chain import SQUARE
-from quad_bringup.emulated.emulated_graph import VEHICLE_FILE, running_graph
-from quad_bringup.emulated.emulated_mission import REAL_PROFILE, fly_mission
+from quad_bringup.emulated.mission_flight import REAL_PROFILE, fly_mission
+from quad_bringup.emulated.offline_chain import SQUARE
+from quad_bringup.emulated.vehicle_graph import VEHICLE_FILE, running_graph
 from quad_common.paths import REPO_ROOT
 
 SPEED_MPS = 1.0           # the square at the speed identify asks for
@@ -25,7 +25,7 @@ MARGIN_PROFILES = {'control_real.yaml (kp 2 / kd 2.5)': {}, 'kp 4 / kd 3': {'kp_
 
 
 def emulator_flight(flavour, out_dir: Path, waypoints=SQUARE, speed_mps=SPEED_MPS):
-    """A bridge flight against the emulated `flavour` (quad_bringup.emulated.emulated_mission.fly_mission,
+    """A bridge flight against the emulated `flavour` (quad_bringup.emulated.mission_flight.fly_mission,
     control_real.yaml): a MissionFlight whose bag stays under out_dir."""
     with running_graph(out_dir) as (procs, observer):
         return fly_mission(procs, observer, out_dir, flavour, waypoints, speed_mps,

@@ -1,4 +1,4 @@
-"""The real-vehicle chain flown offline (quad_bringup.emulated.emulated_chain): the odometry stamps' bias
+"""The real-vehicle chain flown offline (quad_bringup.emulated.offline_chain): the odometry stamps' bias
 (fly_chain_offline odom_early_s: a clock fallback of the bridge once stamped PX4 SIH's odometry 70-150 ms early). The
 bias must be range-checked, reach the stamps position_controller's loop is given and the stamps the scoring uses, and
 leave the flight itself alone (under the bridge the loop controls from the newest odometry at the node's time, whatever
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from quad_bringup.emulated import emulated_chain as chain
+from quad_bringup.emulated import offline_chain as chain
 
 CONTROL_LOOP = chain.ControlLoop
 

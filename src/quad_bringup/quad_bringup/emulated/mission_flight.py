@@ -3,7 +3,7 @@ off, mavlink_bridge, position_controller with a control profile (the launch file
 the recorder (`quadflight record`'s node), `offboard`, trajectory_node with the waypoints, `land` after the plan's
 end plus the vehicle's settle time, the recorder stopped, then `quadflight report BAG --vehicle VEHICLE`.
 
-Flown through quad_bringup.emulated.emulated_graph's processes; used by the bridge report test
+Flown through quad_bringup.emulated.vehicle_graph's processes; used by the bridge report test
 (test/bridge/test_bridge_report.py) and the bridge benches (bench/bench_bridge_flight.py: the flight table of
 docs/bridge.md; bench/bench_twin.py)."""
 
@@ -16,7 +16,7 @@ from pathlib import Path
 from std_srvs.srv import Trigger
 
 from quad_bringup.analysis.metrics import Completion
-from quad_bringup.emulated.emulated_graph import (
+from quad_bringup.emulated.vehicle_graph import (
     OFFBOARD_MODE,
     ROOT,
     VEHICLE_FILE,

@@ -2,7 +2,7 @@
 position_controller as processes on loopback UDP (Processes, start_vehicle_graph), in a ROS domain and namespace of
 their own (running_graph), watched and commanded from a node in this process (Observer: odom, diagnostics,
 control/reference, trajectory; the bridge's services), taken into offboard as a pilot would (enter_offboard).
-The harness of the bridge graph tests (test/) and of the bridge benches (bench/); quad_bringup.emulated.emulated_mission
+The harness of the bridge graph tests (test/) and of the bridge benches (bench/); quad_bringup.emulated.mission_flight
 flies and scores a mission through it. It runs the packages of this checkout (python_env: src/ on PYTHONPATH, the
 processes' working directory the checkout's root)."""
 
@@ -53,7 +53,7 @@ def _check_test_ports_outside_ephemeral():
         low, high = map(int, _EPHEMERAL_RANGE.read_text().split())
         if low <= TEST_PORTS[-1] and TEST_PORTS[0] <= high:
             raise RuntimeError(f'ip_local_port_range {low}-{high} overlaps the test ports '
-                               f'{TEST_PORTS[0]}-{TEST_PORTS[-1]} (emulated_graph.TEST_PORTS)')
+                               f'{TEST_PORTS[0]}-{TEST_PORTS[-1]} (vehicle_graph.TEST_PORTS)')
 
 
 def free_udp_port() -> int:
