@@ -1,7 +1,6 @@
 """Defaults are written once: each node's parameter table (Param) takes them from the core's dataclass or
-constants, the node's YAML under config/ lists every parameter with exactly that default (the bridge's two
-files: each difference stated below), and the offline loop and the sweeps default to the same values; config/
-is installed into quad_bringup's share directory."""
+constants, a params file under config/ sets only what differs from them, and the offline loop and the sweeps
+default to the same values; config/ is installed into quad_bringup's share directory."""
 
 import dataclasses
 import importlib
@@ -21,23 +20,24 @@ from quad_common.paths import resolve_config
 from quad_common.yaml_io import load_yaml
 from quad_control.position import PositionGains
 
-NODES = [  # (module, parameter table, node name, its YAML)
+NODES = [  # (module, parameter table, node name, its params file under config/)
     ('quad_control.parameters', 'SPECS', 'position_controller', 'config/control.yaml'),
     ('quad_sim.parameters', 'SPECS', 'sim_node', 'config/sim.yaml'),
     ('quad_trajectory.trajectory_node', 'SPECS', 'trajectory_node', 'config/trajectory.yaml'),
+    ('quad_bridge.parameters', 'SPECS', 'mavlink_bridge', 'config/bridge_px4.yaml'),
+    ('quad_bridge.parameters', 'SPECS', 'mavlink_bridge', 'config/bridge_ardupilot.yaml'),
 ]
 
 
 @pytest.mark.parametrize(('module', 'table', 'node', 'config'), NODES)
-def test_yaml_lists_every_parameter_with_its_default(module, table, node, config):
+def test_params_files_set_only_what_differs_from_the_node_defaults(module, table, node, config):
+    """A default is written once, in the node's table: a params file under config/ sets only parameters of its node,
+    each to a value other than the default (the docs tables list every parameter: test_parameter_docs)."""
     specs = {p.name: p for p in getattr(importlib.import_module(module), table)}
     values = parameters_of(load_yaml(resolve_config(config)), node)
     assert not set(values) - set(specs), f'{config}: not parameters of {node}: {set(values) - set(specs)}'
-    with_default = {name for name, p in specs.items() if isinstance(p.default, (bool, int, float, str, list))}
-    assert with_default <= set(values), f'{config} leaves out {sorted(with_default - set(values))}'
-    for name in with_default:
-        assert values[name] == specs[name].default, f'{config}: {name} = {values[name]!r}, ' \
-                                                    f'the node default is {specs[name].default!r}'
+    repeated = sorted(name for name, value in values.items() if value == specs[name].default)
+    assert not repeated, f'{config} repeats the node defaults of {repeated}: leave them to the node\'s table'
 
 
 def test_controller_parameters_default_to_the_dataclass():
@@ -52,27 +52,6 @@ def test_controller_parameters_default_to_the_dataclass():
             assert specs[field.name] == value, field.name
     options = LoopOptions()
     assert (specs['rate_hz'], specs['max_start_step_m']) == (options.rate_hz, options.max_start_step_m)
-
-
-# what a bridge file sets unlike the node's defaults, on purpose (anything else it sets must be the default)
-BRIDGE_CHOICES = {
-    'config/bridge_px4.yaml': {'autopilot', 'geofence_enabled', 'geofence_min_m', 'geofence_max_m',
-                               'realtime_priority'},
-    'config/bridge_ardupilot.yaml': {'fcu_url', 'autopilot', 'geofence_enabled', 'geofence_min_m', 'geofence_max_m',
-                                     'realtime_priority'},
-}
-@pytest.mark.parametrize('config', sorted(BRIDGE_CHOICES))
-def test_bridge_files_set_the_defaults_except_their_stated_choices(config):
-    from quad_bridge.parameters import SPECS
-    specs = {p.name: p for p in SPECS}
-    values = parameters_of(load_yaml(resolve_config(config)), 'mavlink_bridge')
-    assert not set(values) - set(specs), f'{config}: not parameters of mavlink_bridge: {set(values) - set(specs)}'
-    for name, value in values.items():
-        if name in BRIDGE_CHOICES[config]:
-            assert value != specs[name].default, f'{config}: {name} is stated as a choice but is the default'
-        else:
-            assert value == specs[name].default, f'{config}: {name} = {value!r}, the node default is ' \
-                                                 f'{specs[name].default!r} (or state it in BRIDGE_CHOICES)'
 
 
 def test_bridge_parameters_default_to_the_bridge_config():

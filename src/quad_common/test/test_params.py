@@ -96,3 +96,18 @@ def test_type_refusal_of_scalars_and_lists():
     assert check_value(SPECS[0], 'stiff') == "kp = 'stiff' refused: must be a list"
     assert check_value(Param('priority', 0, 'an int'), 2.5) == 'priority = 2.5 refused: must be an integer'
     assert check_value(SPECS[1], 7) is None
+
+
+def test_a_namespaced_node_refuses_a_plain_section_only_when_it_sets_parameters(tmp_path):
+    """rcl gives a file's plain `NAME:` section to /NAME only: a section setting gains would be lost without a word
+    under /uav2 (refused); an empty one (config/control.yaml sets nothing) loses nothing (accepted)."""
+    from types import SimpleNamespace
+
+    from quad_common.ros.ros_params import check_sections_reach
+    node = SimpleNamespace(get_namespace=lambda: '/uav2', get_name=lambda: 'position_controller')
+    setting, empty = tmp_path / 'setting.yaml', tmp_path / 'empty.yaml'
+    setting.write_text('position_controller:\n  ros__parameters:\n    kp_x: 3.0\n')
+    empty.write_text('position_controller:\n  ros__parameters: {}\n')
+    check_sections_reach(node, ['--ros-args', '--params-file', str(empty)])
+    with pytest.raises(ValueError, match='section reaches /position_controller only, not /uav2/position_controller'):
+        check_sections_reach(node, ['--ros-args', '--params-file', str(setting)])

@@ -62,11 +62,13 @@ def params_files(argv) -> list[str]:
 
 
 def check_sections_reach(node, argv=None):
-    """Raises ValueError when a params file of the command line has a plain `NAME:` section for this node while
-    it runs in a namespace: rcl gives such a section to /NAME only, so the node would run on its built-in defaults
-    without a word (e.g. `ros2 run ... -r __ns:=/uav2 --params-file control_real.yaml`)."""
+    """Raises ValueError when a params file of the command line has a plain `NAME:` section that sets parameters
+    of this node while it runs in a namespace: rcl gives such a section to /NAME only, so the node would run on its
+    built-in defaults without a word (e.g. `ros2 run ... -r __ns:=/uav2 --params-file control_real.yaml`). A section
+    that sets nothing (config/control.yaml: the defaults) loses nothing."""
     import sys
 
+    from quad_common.params import parameters_of
     from quad_common.yaml_io import load_yaml
 
     namespace, name = node.get_namespace(), node.get_name()
@@ -78,7 +80,7 @@ def check_sections_reach(node, argv=None):
             content = load_yaml(path) or {}
         except (OSError, ValueError):
             continue   # rcl itself refuses a file it cannot read
-        if isinstance(content, dict) and name in content:
+        if isinstance(content, dict) and parameters_of(content, name):
             raise ValueError(f'--params-file {path}: its `{name}:` section reaches /{name} only, not {fqn} (rcl): '
                              f'key it `/**/{name}:` or `{fqn}:`, or start the node through a launch file (it hands '
                              'a namespaced node its files merged)')
