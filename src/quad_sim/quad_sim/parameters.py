@@ -7,7 +7,7 @@ from rclpy.parameter import Parameter
 
 from quad_common import contract
 from quad_common.params import Param
-from quad_sim.simulator import PHYSICS_RATE_HZ, PHYSICS_RATE_RANGE_HZ
+from quad_sim.simulator import PHYSICS_RATE_HZ, PHYSICS_RATE_RANGE_HZ, ROBOT_RADIUS_M, SETPOINT_TIMEOUT_S
 
 SPECS = [
     Param('vehicle', 'config/vehicles/crazyflie.yaml', 'vehicle file (config/vehicles/*.yaml)', read_only=True),
@@ -32,9 +32,9 @@ SPECS = [
     Param('disturbances', 'none', 'disturbance profile name in disturbances_file', read_only=True),
     Param('disturbances_file', 'config/disturbances.yaml', 'disturbance profiles file', read_only=True),
     Param('world', '', 'world file (boxes, JSON or YAML) for collisions; empty: none', read_only=True),
-    Param('robot_radius_m', 0.1, 'collision radius around the vehicle centre (m)', min=0.0, max=5.0,
+    Param('robot_radius_m', ROBOT_RADIUS_M, 'collision radius around the vehicle centre (m)', min=0.0, max=5.0,
           read_only=True),
-    Param('setpoint_timeout_s', 0.5, 'sim time without a setpoint before the landing failsafe',
+    Param('setpoint_timeout_s', SETPOINT_TIMEOUT_S, 'sim time without a setpoint before the landing failsafe',
           min=0.01, max=60.0, read_only=True),
     Param('max_tracking_error_m', 0.0, 'stop the run when farther than this from control/reference; 0: off',
           min=0.0, max=1000.0, read_only=True),

@@ -44,6 +44,8 @@ NON_FINITE, SPEED_LIMIT, BODY_RATE_LIMIT, FAR_FROM_REFERENCE = (
     'non_finite_state', 'speed_limit', 'body_rate_limit', 'far_from_reference')
 PHYSICS_RATE_HZ = 1000.0      # RK4 and onboard loop steps per second: sim_node's and the offline loop's default
 PHYSICS_RATE_RANGE_HZ = (100.0, 100000.0)   # what any simulator (sim_node, the emulator, the harness) accepts
+ROBOT_RADIUS_M = 0.1          # collision radius around the vehicle centre: sim_node's default
+SETPOINT_TIMEOUT_S = 0.5      # sim time without a setpoint before the landing failsafe: sim_node's default
 FAILSAFE_VELOCITY_GAIN = 2.0  # 1/s, vertical speed loop of the landing failsafe
 FAILSAFE_POSITION_GAIN = 4.0  # 1/s^2, horizontal hold: omega_n = 2 rad/s, critically damped with
 FAILSAFE_DAMPING_GAIN = 4.0   # 1/s
@@ -83,9 +85,9 @@ class Event:
 class Simulator:
     def __init__(self, vehicle: Vehicle, physics_rate_hz: float = PHYSICS_RATE_HZ, initial_position=(0.0, 0.0, 0.0),
                  initial_yaw: float = 0.0, disturbances: DisturbanceProfile | None = None,
-                 world: World | None = None, robot_radius_m: float = 0.1, seed: int = 0,
-                 setpoint_timeout_s: float = 0.5, floor_z_m: float | None = None, max_speed_mps: float = 50.0,
-                 max_body_rate_radps: float = 100.0, failsafe_descent_mps: float = 0.5):
+                 world: World | None = None, robot_radius_m: float = ROBOT_RADIUS_M, seed: int = 0,
+                 setpoint_timeout_s: float = SETPOINT_TIMEOUT_S, floor_z_m: float | None = None,
+                 max_speed_mps: float = 50.0, max_body_rate_radps: float = 100.0, failsafe_descent_mps: float = 0.5):
         low, high = PHYSICS_RATE_RANGE_HZ
         self._check(math.isfinite(physics_rate_hz) and low <= physics_rate_hz <= high, 'physics_rate_hz',
                     physics_rate_hz, f'must be a number in [{low:g}, {high:g}]')
