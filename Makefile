@@ -38,10 +38,24 @@ $(BUILD_STAMP): $(VENV_STAMP) $(PKG_FILES)
 # The package tests run beside the graph tests: they are CPU work on one core for most of their time (quad_bringup's
 # take 2.5 of 3.5 minutes alone), while the graph tests wait on flights in real time and on DDS; each graph claims a
 # ROS domain of its own (quad_common.domains), so the two never share one. Their output follows the graph tests'.
+SUITE_FIRST := lint
+SUITE_BESIDE := test-packages
+SUITE_MAIN := test-graph
+BESIDE_LOG := build/$(SUITE_BESIDE).log
 SUBMAKE = $(MAKE) --no-print-directory $(foreach f,$(MAKEFILE_LIST),-f $(f))
-PACKAGES_LOG := build/test-packages.log
 test: $(BUILD_STAMP)
-	@failed=""; 	echo "=== make lint"; 	$(SUBMAKE) lint || failed="$$failed lint"; 	echo "=== make test-packages (beside the graph tests; its output below them, and in $(PACKAGES_LOG))"; 	$(SUBMAKE) test-packages > $(PACKAGES_LOG) 2>&1 & packages=$$!; 	echo "=== make test-graph"; 	$(SUBMAKE) test-graph || failed="$$failed test-graph"; 	wait $$packages || failed="$$failed test-packages"; 	echo "=== make test-packages: its output"; 	cat $(PACKAGES_LOG); 	echo "=== summary: 3 suites,$${failed:- none} failed"; 	[ -z "$$failed" ]
+	@failed=""; mkdir -p $(dir $(BESIDE_LOG)); \
+	echo "=== make $(SUITE_FIRST)"; \
+	$(SUBMAKE) $(SUITE_FIRST) || failed="$$failed $(SUITE_FIRST)"; \
+	echo "=== make $(SUITE_BESIDE) (beside $(SUITE_MAIN); its output after it, and in $(BESIDE_LOG))"; \
+	$(SUBMAKE) $(SUITE_BESIDE) > $(BESIDE_LOG) 2>&1 & beside=$$!; \
+	echo "=== make $(SUITE_MAIN)"; \
+	$(SUBMAKE) $(SUITE_MAIN) || failed="$$failed $(SUITE_MAIN)"; \
+	wait $$beside || failed="$$failed $(SUITE_BESIDE)"; \
+	echo "=== make $(SUITE_BESIDE): its output"; \
+	cat $(BESIDE_LOG); \
+	echo "=== summary: 3 suites,$${failed:- none} failed"; \
+	[ -z "$$failed" ]
 
 lint: $(VENV_STAMP)
 	$(VENV)/bin/ruff check src test bench

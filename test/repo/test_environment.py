@@ -5,6 +5,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 PUBLISHER = textwrap.dedent('''
     import rclpy
     from nav_msgs.msg import Odometry
@@ -60,19 +62,23 @@ def test_node_reads_params_file(ros_env, tmp_path):
     assert json.loads(out) == {'rate_hz': 250.0, 'gains': [5.0, 5.0, 20.0], 'mode': 'lockstep'}
 
 
-def test_make_test_runs_every_suite_and_sums_up(tmp_path):
-    """`make test` goes on after a failing suite, ends with one summary and fails if any suite failed."""
+@pytest.mark.parametrize('failing', ['SUITE_FIRST', 'SUITE_BESIDE', 'SUITE_MAIN'])
+def test_make_test_runs_every_suite_and_sums_up(tmp_path, failing):
+    """`make test` goes on after a failing suite (lint first, then the package tests beside the graph tests), ends
+    with one summary and fails if any suite failed."""
     from pathlib import Path
     root = Path(__file__).resolve().parents[2]
-    assert 'SUITES' in (root / 'Makefile').read_text(), 'make test stops at the first failing suite'
     probes = tmp_path / 'probes.mk'
-    probes.write_text(f'probe-fail:\n\tfalse\nprobe-ok:\n\ttouch {tmp_path}/ran\n')
+    probes.write_text(f'probe-fail:\n\tfalse\nprobe-ok-%:\n\ttouch {tmp_path}/ran-$*\n')
+    suites = {slot: f'probe-ok-{slot}' for slot in ('SUITE_FIRST', 'SUITE_BESIDE', 'SUITE_MAIN')}
+    suites[failing] = 'probe-fail'
     done = subprocess.run(['make', '--no-print-directory', '-C', str(root), '-f', 'Makefile', '-f', str(probes),
-                           'test', 'SUITES=probe-fail probe-ok', 'BUILD_STAMP='],
-                          capture_output=True, text=True, timeout=120)
+                           'test', *(f'{k}={v}' for k, v in suites.items()), 'BUILD_STAMP=',
+                           f'BESIDE_LOG={tmp_path}/beside.log'], capture_output=True, text=True, timeout=120)
     assert done.returncode != 0
-    assert (tmp_path / 'ran').exists()                     # the suite after the failing one ran
-    assert done.stdout.strip().splitlines()[-1] == '=== summary: 2 suites, probe-fail failed'
+    ran = {p.name for p in tmp_path.glob('ran-*')}
+    assert ran == {f'ran-{slot}' for slot in suites if slot != failing}   # every other suite ran
+    assert done.stdout.strip().splitlines()[-1] == '=== summary: 3 suites, probe-fail failed'
 
 
 SHARED_FIXTURE_TESTS = textwrap.dedent('''
