@@ -15,6 +15,7 @@ nodes started as launch_ros starts them: the installed console script, `--ros-ar
 """
 
 import ast
+import importlib
 import math
 import subprocess
 from contextlib import contextmanager
@@ -79,9 +80,23 @@ def test_launch_file_starts_installed_executables_with_existing_params_files(kin
         assert files and all(Path(f).is_file() for f in files) and argv[4::2] == ['--params-file'] * len(files)
 
 
-def _merged(nodes) -> dict:
-    return {n.name: graph.absolute_config_paths(graph.NodeSpec(n.name, tuple(n.parameters)).merged_parameters())
-            for n in nodes}
+NODE_TABLES = {'position_controller': 'quad_control.parameters', 'mavlink_bridge': 'quad_bridge.parameters',
+               'trajectory_node': 'quad_trajectory.trajectory_node', 'sim_node': 'quad_sim.parameters'}
+
+
+def as_run(spec: graph.NodeSpec) -> dict:
+    """What the node runs with: its table's defaults under the parameters the launch hands it (a params file under
+    config/ sets only what differs from them)."""
+    defaults = {p.name: p.default for p in importlib.import_module(NODE_TABLES[spec.name]).SPECS
+                if isinstance(p.default, (bool, int, float, str, list))}
+    return {**defaults, **spec.merged_parameters()}
+
+
+def _merged(nodes, run=False) -> dict:
+    """{node: the parameters the launch hands it} (run: over the node's defaults, what it runs with)."""
+    merged = {n.name: graph.NodeSpec(n.name, tuple(n.parameters)) for n in nodes}
+    return {name: graph.absolute_config_paths(as_run(spec) if run else spec.merged_parameters())
+            for name, spec in merged.items()}
 
 
 def test_sim_launch_starts_the_graph_fly_starts():
@@ -119,7 +134,7 @@ def test_bridge_launch_arguments_reach_their_nodes(autopilot):
                      vehicle='vehicles/crazyflie.yaml', control_profile='control_fast.yaml',
                      fcu_url='udpin:127.0.0.1:14999', hover_throttle='0.42', vehicle_params='adopt')
     assert [n.name for n in nodes] == ['trajectory_node', 'position_controller', 'mavlink_bridge']
-    p = _merged(nodes)
+    p = _merged(nodes, run=True)
     crazyflie = str(ROOT / 'config' / 'vehicles' / 'crazyflie.yaml')
     assert p['trajectory_node']['vehicle_file'] == crazyflie == p['position_controller']['vehicle']
     assert p['trajectory_node']['mission_file'] == str(ROOT / 'config' / 'missions' / 'window.yaml')
@@ -128,9 +143,9 @@ def test_bridge_launch_arguments_reach_their_nodes(autopilot):
     assert p['mavlink_bridge']['fcu_url'] == 'udpin:127.0.0.1:14999'
     assert p['mavlink_bridge']['hover_throttle'] == 0.42 and p['mavlink_bridge']['vehicle_params'] == 'adopt'
     assert p['mavlink_bridge']['autopilot'] == autopilot
-    defaults = _merged(evaluate(LAUNCH / f'{autopilot}.launch.py'))
+    defaults = _merged(evaluate(LAUNCH / f'{autopilot}.launch.py'), run=True)
     assert defaults['position_controller']['vehicle'].endswith('px4_quad.yaml')
-    assert defaults['mavlink_bridge']['hover_throttle'] == 0.5     # the bridge config's
+    assert defaults['mavlink_bridge']['hover_throttle'] == 0.5     # the node's default
     with pytest.raises(ValueError, match="hover_throttle 'half' refused"):
         evaluate(LAUNCH / f'{autopilot}.launch.py', hover_throttle='half')
 
@@ -142,8 +157,8 @@ def test_indoor_launch_arguments_reach_the_bridge_and_the_controller(kind):
     forward, is refused naming the argument and the value."""
     def launched(**arguments):
         nodes = evaluate(LAUNCH / f'{kind}.launch.py', **arguments)
-        return [(graph.NodeSpec(n.name, tuple(n.parameters), (n.namespace or '/')[1:]).merged_parameters(),
-                 graph.NodeSpec(m.name, tuple(m.parameters), (m.namespace or '/')[1:]).merged_parameters())
+        return [(as_run(graph.NodeSpec(n.name, tuple(n.parameters), (n.namespace or '/')[1:])),
+                 as_run(graph.NodeSpec(m.name, tuple(m.parameters), (m.namespace or '/')[1:])))
                 for n, m in zip(nodes, nodes[1:]) if (n.name, m.name) == ('position_controller', 'mavlink_bridge')]
 
     pairs = launched()
@@ -177,7 +192,7 @@ def test_fleet_launch_starts_three_nodes_per_vehicle_under_its_namespace(tmp_pat
     nodes = evaluate(LAUNCH / 'fleet.launch.py')           # config/missions/fleets/sitl3.yaml
     assert [(n.namespace, n.name) for n in nodes] == [(f'/{v}', n) for v in ('px4_1', 'px4_2', 'apm_3') for n in
                                                       ('trajectory_node', 'position_controller', 'mavlink_bridge')]
-    p = {(n.namespace, n.name): graph.NodeSpec(n.name, tuple(n.parameters), n.namespace[1:]).merged_parameters()
+    p = {(n.namespace, n.name): as_run(graph.NodeSpec(n.name, tuple(n.parameters), n.namespace[1:]))
          for n in nodes}
     for ns, autopilot, url, system_id in (('/px4_1', 'px4', 'udpin:0.0.0.0:14540', 1),
                                           ('/px4_2', 'px4', 'udpin:0.0.0.0:14541', 2),
@@ -203,7 +218,7 @@ def test_fleet_launch_starts_three_nodes_per_vehicle_under_its_namespace(tmp_pat
                'controller': 'pid', 'profile': str(ROOT / 'config' / 'control_real.yaml')})])
     nodes = evaluate(LAUNCH / 'fleet.launch.py', mission=str(fleet), control_profile='control_fast.yaml',
                      hover_throttle='0.42', vehicle_params='adopt')
-    p = {(n.namespace, n.name): graph.NodeSpec(n.name, tuple(n.parameters), n.namespace[1:]).merged_parameters()
+    p = {(n.namespace, n.name): as_run(graph.NodeSpec(n.name, tuple(n.parameters), n.namespace[1:]))
          for n in nodes}
     assert p[('/a', 'position_controller')]['controller'] == 'se3'           # control_fast.yaml's
     assert p[('/b', 'position_controller')]['controller'] == 'pid'

@@ -18,7 +18,7 @@ def test_profile_has_the_geofence_on_around_every_mission(profile):
     assert not set(values) - set(defaults), f'not bridge parameters: {set(values) - set(defaults)}'
     validate({**defaults, **values})
     assert values['geofence_enabled'] is True
-    assert values['setpoint_source'] == 'position_controller'
+    assert {**defaults, **values}['setpoint_source'] == 'position_controller'
     # SCHED_FIFO above every ordinary process, below the kernel's threaded interrupts (50) that deliver our UDP
     assert 1 <= values['realtime_priority'] < 50
     lo, hi = np.array(values['geofence_min_m']), np.array(values['geofence_max_m'])

@@ -10,6 +10,7 @@ import pytest
 from quad_bringup import cli
 from quad_bringup.checks.profiles import check_control_profile
 from quad_common.paths import REPO_ROOT
+from quad_common.yaml_io import load_yaml
 
 MISSION = 'name: tiny\nwaypoints:\n  - [0.0, 0.0, 1.0]\n  - [1.0, 0.0, 1.0]\ntrajectory:\n  speed: 0.5\n'
 
@@ -117,7 +118,8 @@ def test_fly_checks_the_disturbances_before_anything_starts(capsys, tmp_path):
 
 @pytest.mark.parametrize('profile', sorted(p.name for p in (REPO_ROOT / 'config').glob('control*.yaml')))
 def test_every_shipped_control_profile_passes_the_check(profile):
-    assert check_control_profile(Path(REPO_ROOT / 'config' / profile))
+    path = Path(REPO_ROOT / 'config' / profile)
+    assert check_control_profile(path) == load_yaml(path)['position_controller']['ros__parameters']
 
 
 def test_typos_of_known_keys_are_refused_naming_the_key(capsys, tmp_path):
