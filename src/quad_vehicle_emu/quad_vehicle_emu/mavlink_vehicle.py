@@ -118,6 +118,8 @@ class MavlinkVehicle:
         # it believes until the loop's first tick steps the estimate
         self.plant = AutopilotPlant(sim, AttitudeResponse(tau_s, sim.state.quaternion, args.attitude_dead_time_s),
                                     estimate, estimate_now=False)
+        tick_s = 1.0 / args.loop_rate_hz
+        self.steps_per_tick = sim.steps_in(round(tick_s * args.physics_rate_hz) / args.physics_rate_hz)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
         self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
@@ -157,35 +159,38 @@ class MavlinkVehicle:
 
     def run(self):
         tick_s = 1.0 / self.args.loop_rate_hz
-        sim = self.plant.sim
-        steps_per_tick = sim.steps_in(round(tick_s * self.args.physics_rate_hz) / self.args.physics_rate_hz)
         while self.args.duration_s <= 0 or self.now_s() < self.args.duration_s:
             self.receive()
-            now = self.now_s()
-            self.control(now)
-            lag_steps = int((now - sim.time_s) * self.args.physics_rate_hz)   # physics caught up with now, or
-            self.plant.advance_steps(min(max(lag_steps, 0), 5 * steps_per_tick))   # 5 ticks at most after a stall
-            if self.mocap is not None:   # the truth, as a motion-capture system sees it
-                self.mocap.offer(sim.time_s, sim.position_m, sim.state.quaternion)
-            estimated = self.plant.step_estimate(now, self.ap.vision_axes())
-            self.telemetry.push(now, (estimated, sim.specific_force_body_mps2.copy()))
-            self.send_telemetry(now)
-            self.send_log()
-            sleep_s = sim.time_s + tick_s - self.now_s()
+            self.tick(self.now_s())
+            sleep_s = self.plant.sim.time_s + tick_s - self.now_s()
             if sleep_s > 0:
                 time.sleep(sleep_s)
 
+    def tick(self, now):
+        """One loop tick at now (this clock, after the received messages): the autopilot's modes, physics caught
+        up with now (at most 5 ticks of it after a stall), the estimate at now, telemetry."""
+        sim = self.plant.sim
+        self.control(now)
+        lag_steps = int((now - sim.time_s) * self.args.physics_rate_hz)
+        self.plant.advance_steps(min(max(lag_steps, 0), 5 * self.steps_per_tick))
+        if self.mocap is not None:   # the truth, as a motion-capture system sees it
+            self.mocap.offer(sim.time_s, sim.position_m, sim.state.quaternion)
+        estimated = self.plant.step_estimate(now, self.ap.vision_axes())
+        self.telemetry.push(now, (estimated, sim.specific_force_body_mps2.copy()))
+        self.send_telemetry(now)
+        self.send_log()
+
     def control(self, now):
         """The autopilot's modes on what it believes (the plant's estimate): its target through the attitude
-        response over the time since the last tick, or, disarmed, the motors off."""
+        response over the time since the last tick; disarmed, the motors off and the response at rest."""
         dt = min(max(now - self.last_update_s, 0.0), 0.1)
         self.last_update_s = now
         state = self.plant.observed()
         target = self.ap.update(state, self.plant.sim.landed, now, dt)
+        self.plant.sim.armed = target is not None
         if target is None:
-            self.plant.disarm(state.quaternion)
+            self.plant.rest(state.quaternion)
             return
-        self.plant.sim.armed = True
         self.plant.command(target)
         self.plant.respond(dt)
 

@@ -3,8 +3,9 @@ the vehicle as the emulator flies it (`attitude.emulated_vehicle`, linear air dr
 response in front of it (`attitude.AttitudeResponse`: first order behind a dead time), roll/pitch rate
 feed-forward dropped where the autopilot drops it (PX4's mavlink_receiver keeps only the yaw rate of a
 SET_ATTITUDE_TARGET that carries an attitude), and the estimate its telemetry reports (`estimator.Estimate`),
-fused from external-vision poses as the autopilot fuses them. The offline harness and the emulator's real-time
-loop (mavlink_vehicle) both fly this class; they differ only in who sets the pace.
+fused from external-vision poses as the autopilot fuses them. The offline harness flies this class period by
+period on the simulator's time, the emulator's real-time loop (mavlink_vehicle) tick by tick on its own clock
+with the poses it receives.
 
 Each period T of the offline flight harness (quad_bringup.offline.harness):
 
@@ -17,8 +18,8 @@ Each period T of the offline flight harness (quad_bringup.offline.harness):
 Each tick of the emulator's real-time loop (quad_vehicle_emu.mavlink_vehicle), at its own clock's now:
 
     fuse_vision(p, t)      a pose received over MAVLink, fused as measured at t (external_vision.VisionClock)
-    command(target), respond(dt)    the autopilot's target through the response; disarm(q) instead when it
-                           gives none (the motors off, the response at rest at q)
+    command(target), respond(dt)    the autopilot's target through the response; rest(q) instead when it
+                           gives none (disarmed: the response at rest at q)
     advance_steps(n)       physics: the simulator caught up with now
     step_estimate(now, vision_axes)    the estimate at now, on the axes the autopilot takes from vision
 """
@@ -85,9 +86,9 @@ class AutopilotPlant:
         self.target = AttitudeSetpoint(quaternion=setpoint.quaternion,
                                        specific_force_mps2=setpoint.specific_force_mps2, body_rates=rates)
 
-    def disarm(self, quaternion):
-        """The motors off and no target; the response at rest at quaternion (where it starts from when armed)."""
-        self.sim.armed = False
+    def rest(self, quaternion):
+        """No target (the autopilot disarmed): the response at rest at quaternion, where the next target starts
+        it from."""
         self.target = None
         self.response.reset(quaternion)
 
