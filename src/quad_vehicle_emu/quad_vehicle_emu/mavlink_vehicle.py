@@ -98,10 +98,9 @@ class MavlinkVehicle:
         self.system_id = int(self.ap.params[SYSTEM_ID_PARAMS[self.flavour]])
         check_drag(args.drag_per_s)   # bad values before the vehicle file is read
         estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
-                                 args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps,
-                                 args.estimator_velocity_wander_mps, args.estimator_velocity_wander_z_mps,
-                                 args.estimator_velocity_wander_tau_s,
-                                 vision_timeout_s=self.ap.position_timeout_s())
+                            args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps,
+                            args.estimator_velocity_wander_mps, args.estimator_velocity_wander_z_mps,
+                            args.estimator_velocity_wander_tau_s, vision_timeout_s=self.ap.position_timeout_s())
         self.vision_clock = VisionClock(self.flavour)   # when a received pose is fused (external_vision)
         self.vision_refusals = set()                     # reasons a pose was not fused, each printed once
         vehicle, drag = with_linear_drag(emulated_vehicle(parameter_file('--vehicle', args.vehicle),
