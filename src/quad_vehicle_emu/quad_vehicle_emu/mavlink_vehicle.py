@@ -1,10 +1,11 @@
 """mavlink_vehicle: quad_sim's plant behind a real MAVLink endpoint, behaving like PX4 or ArduPilot Copter.
 
 The protocol (modes, type_mask, thrust, parameters, streams, SYS_STATUS) is the emulator's own reading of the
-autopilots' source (quad_vehicle_emu.protocol, .onboard_params, .autopilots), independent of quad_bridge. Physics:
-quad_sim's Simulator in real time with the autopilot's quaternion attitude loop, behind a first-order attitude
-response (quad_vehicle_emu.attitude) and a telemetry delay line; every message's time field is the vehicle's own
-boot clock at the sample it carries.
+autopilots' source (quad_vehicle_emu.protocol, .onboard_params, .autopilots), independent of quad_bridge. The
+vehicle is quad_vehicle_emu.plant's AutopilotPlant (quad_sim's Simulator with the autopilot's quaternion attitude
+loop, behind the attitude response, with the estimate fused from the received vision poses), flown in real time
+here; then a telemetry delay line. Every message's time field is the vehicle's own boot clock at the sample it
+carries.
 
     python -m quad_vehicle_emu.mavlink_vehicle --autopilot px4 --url udpout:127.0.0.1:14540
 
@@ -27,7 +28,7 @@ from quad_common import rotations  # noqa: E402
 from quad_common.paths import parameter_file  # noqa: E402
 from quad_common.realtime import apply_or_report, freeze_startup_heap  # noqa: E402
 from quad_common.signing_key import load_signing_key  # noqa: E402
-from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint  # noqa: E402
+from quad_common.types import GRAVITY_MPS2  # noqa: E402
 from quad_sim.simulator import Simulator  # noqa: E402
 from quad_vehicle_emu import ned  # noqa: E402
 from quad_vehicle_emu import protocol as p  # noqa: E402
@@ -42,7 +43,7 @@ from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noq
 from quad_vehicle_emu.drag import check_drag, with_linear_drag  # noqa: E402
 from quad_vehicle_emu.estimator import Estimate  # noqa: E402
 from quad_vehicle_emu.external_vision import VisionClock  # noqa: E402
-from quad_vehicle_emu.plant import PHYSICS_RATE_HZ  # noqa: E402
+from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, AutopilotPlant  # noqa: E402
 
 DEFAULT_VEHICLE = 'vehicles/px4_quad.yaml'   # found as every file argument is (quad_common.paths)
 # the autopilot's own MAVLink system id parameter (PX4 mavlink_params.c, ArduCopter Parameters.cpp): read at boot
@@ -87,7 +88,7 @@ class Streams:
 
 
 class MavlinkVehicle:
-    """Socket, clocks and telemetry around a Simulator and an emulated autopilot."""
+    """Socket, clocks, the autopilot's modes and telemetry around the AutopilotPlant (quad_vehicle_emu.plant)."""
 
     def __init__(self, args):
         self.args = args
@@ -96,27 +97,30 @@ class MavlinkVehicle:
                                  rp_rates_with_attitude=args.rp_rates_with_attitude == 'fed')
         self.system_id = int(self.ap.params[SYSTEM_ID_PARAMS[self.flavour]])
         check_drag(args.drag_per_s)   # bad values before the vehicle file is read
-        self.estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
-                                 args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps,
-                                 args.estimator_velocity_wander_mps, args.estimator_velocity_wander_z_mps,
-                                 args.estimator_velocity_wander_tau_s,
-                                 vision_timeout_s=self.ap.position_timeout_s())
+        estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
+                            args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps,
+                            args.estimator_velocity_wander_mps, args.estimator_velocity_wander_z_mps,
+                            args.estimator_velocity_wander_tau_s, vision_timeout_s=self.ap.position_timeout_s())
         self.vision_clock = VisionClock(self.flavour)   # when a received pose is fused (external_vision)
         self.vision_refusals = set()                     # reasons a pose was not fused, each printed once
         vehicle, drag = with_linear_drag(emulated_vehicle(parameter_file('--vehicle', args.vehicle),
                                                           rate_loop=args.rate_loop), args.drag_per_s)
-        self.sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
-                             initial_position=args.initial_position, initial_yaw=args.initial_yaw,
-                             setpoint_timeout_s=1e6, disturbances=drag)
-        self.sim.warm_up()  # before the first heartbeat: compiling mid-flight would stall the link for seconds
-        if not self.sim.landed:  # starts in the air: armed, holding position
+        sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
+                        initial_position=args.initial_position, initial_yaw=args.initial_yaw,
+                        setpoint_timeout_s=1e6, disturbances=drag)
+        sim.warm_up()  # before the first heartbeat: compiling mid-flight would stall the link for seconds
+        if not sim.landed:  # starts in the air: armed, holding position
             self.ap.armed = True
             self.ap.mode = 'AUTO.LOITER' if self.flavour == 'px4' else 'LOITER'
         tau_s = default_tau_s(vehicle) if args.attitude_tau_s is None else args.attitude_tau_s
-        self.shaper = AttitudeResponse(tau_s, self.sim.state.quaternion, args.attitude_dead_time_s)
+        # the autopilot drops roll/pitch rates itself (make_autopilot's rp_rates_with_attitude); the truth is what
+        # it believes until the loop's first tick steps the estimate
+        self.plant = AutopilotPlant(sim, AttitudeResponse(tau_s, sim.state.quaternion, args.attitude_dead_time_s),
+                                    estimate, estimate_now=False)
+        tick_s = 1.0 / args.loop_rate_hz
+        self.steps_per_tick = sim.steps_in(round(tick_s * args.physics_rate_hz) / args.physics_rate_hz)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
         self.telemetry = DelayLine(latency)
-        self.estimated = self.sim.state   # what the autopilot believes (its hold and its telemetry fly this)
         self.burst_s = DEFAULT_BURST_S[self.flavour] if args.burst_s is None else args.burst_s
         self.rng = random.Random(args.seed)
         self.queue = []              # ArduPilot: packed messages waiting for the next burst
@@ -154,35 +158,40 @@ class MavlinkVehicle:
 
     def run(self):
         tick_s = 1.0 / self.args.loop_rate_hz
-        steps_per_tick = self.sim.steps_in(round(tick_s * self.args.physics_rate_hz) / self.args.physics_rate_hz)
         while self.args.duration_s <= 0 or self.now_s() < self.args.duration_s:
             self.receive()
-            now = self.now_s()
-            self.control(now)
-            lag_steps = int((now - self.sim.time_s) * self.args.physics_rate_hz)
-            self.sim.advance_steps(min(max(lag_steps, 0), 5 * steps_per_tick))
-            if self.mocap is not None:   # the truth, as a motion-capture system sees it
-                self.mocap.offer(self.sim.time_s, self.sim.position_m, self.sim.state.quaternion)
-            self.estimated = self.estimate.step(now, self.sim.state, self.ap.vision_axes())
-            self.telemetry.push(now, (self.estimated, self.sim.specific_force_body_mps2.copy()))
-            self.send_telemetry(now)
-            self.send_log()
-            sleep_s = self.sim.time_s + tick_s - self.now_s()
+            self.tick(self.now_s())
+            sleep_s = self.plant.sim.time_s + tick_s - self.now_s()
             if sleep_s > 0:
                 time.sleep(sleep_s)
 
+    def tick(self, now):
+        """One loop tick at now (this clock, after the received messages): the autopilot's modes, physics caught
+        up with now (at most 5 ticks of it after a stall), the estimate at now, telemetry."""
+        sim = self.plant.sim
+        self.control(now)
+        lag_steps = int((now - sim.time_s) * self.args.physics_rate_hz)
+        self.plant.advance_steps(min(max(lag_steps, 0), 5 * self.steps_per_tick))
+        if self.mocap is not None:   # the truth, as a motion-capture system sees it
+            self.mocap.offer(sim.time_s, sim.position_m, sim.state.quaternion)
+        estimated = self.plant.step_estimate(now, self.ap.vision_axes())
+        self.telemetry.push(now, (estimated, sim.specific_force_body_mps2.copy()))
+        self.send_telemetry(now)
+        self.send_log()
+
     def control(self, now):
+        """The autopilot's modes on what it believes (the plant's estimate): its target through the attitude
+        response over the time since the last tick; disarmed, the motors off and the response at rest."""
         dt = min(max(now - self.last_update_s, 0.0), 0.1)
         self.last_update_s = now
-        state = self.estimated
-        target = self.ap.update(state, self.sim.landed, now, dt)
-        self.sim.armed = target is not None
+        state = self.plant.observed()
+        target = self.ap.update(state, self.plant.sim.landed, now, dt)
+        self.plant.sim.armed = target is not None
         if target is None:
-            self.shaper.reset(state.quaternion)
+            self.plant.rest(state.quaternion)
             return
-        q_cmd, w_cmd = self.shaper.step(target.quaternion, dt, target.body_rates)
-        self.sim.set_setpoint(AttitudeSetpoint(quaternion=q_cmd, specific_force_mps2=target.specific_force_mps2,
-                                               body_rates=w_cmd))
+        self.plant.command(target)
+        self.plant.respond(dt)
 
     def receive(self):
         for _ in range(200):
@@ -260,7 +269,7 @@ class MavlinkVehicle:
                                 'us, before boot: not fused (nor any other in that clock; shown once)')
             return
         fusion_s = (fusion_us * 1e-6 - self.args.boot_offset_s) / self.args.clock_rate
-        self.estimate.fuse_vision(ned.enu_to_ned(position_ned), fusion_s)   # the swap NED <-> ENU is its own inverse
+        self.plant.fuse_vision(ned.enu_to_ned(position_ned), fusion_s)   # the swap NED <-> ENU is its own inverse
         self.ap.on_external_pose(now)
 
     def _refuse_vision(self, key, text):
@@ -279,7 +288,7 @@ class MavlinkVehicle:
                 self.send_message(entry.msgname, now)
             result = p.MAV_RESULT_ACCEPTED if ok else p.MAV_RESULT_FAILED
         else:
-            result = self.ap.command(msg.command, params, self.sim.landed, now)
+            result = self.ap.command(msg.command, params, self.plant.sim.landed, now)
         self.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
 
     def set_interval(self, msg_id, interval_us, now) -> int:
