@@ -25,27 +25,16 @@ os.environ.setdefault('MAVLINK20', '1')
 from pymavlink import mavutil  # noqa: E402
 
 from quad_common import rotations  # noqa: E402
-from quad_common.paths import parameter_file  # noqa: E402
 from quad_common.realtime import apply_or_report, freeze_startup_heap  # noqa: E402
 from quad_common.signing_key import load_signing_key  # noqa: E402
 from quad_common.types import GRAVITY_MPS2  # noqa: E402
-from quad_sim.simulator import Simulator  # noqa: E402
 from quad_vehicle_emu import ned  # noqa: E402
 from quad_vehicle_emu import protocol as p  # noqa: E402
-from quad_vehicle_emu.attitude import (  # noqa: E402
-    RATE_LOOPS,
-    AttitudeResponse,
-    DelayLine,
-    default_tau_s,
-    emulated_vehicle,
-)
+from quad_vehicle_emu.attitude import DelayLine  # noqa: E402
 from quad_vehicle_emu.autopilots import AttitudeTargetMsg, make_autopilot  # noqa: E402
-from quad_vehicle_emu.drag import check_drag, with_linear_drag  # noqa: E402
-from quad_vehicle_emu.estimator import Estimate  # noqa: E402
 from quad_vehicle_emu.external_vision import VisionClock  # noqa: E402
-from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, AutopilotPlant  # noqa: E402
+from quad_vehicle_emu.plant import add_plant_arguments, plant_from_flags  # noqa: E402
 
-DEFAULT_VEHICLE = 'vehicles/px4_quad.yaml'   # found as every file argument is (quad_common.paths)
 # the autopilot's own MAVLink system id parameter (PX4 mavlink_params.c, ArduCopter Parameters.cpp): read at boot
 SYSTEM_ID_PARAMS = {'px4': 'MAV_SYS_ID', 'ardupilot': 'SYSID_THISMAV'}
 HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_M = -35.363261, 149.165230, 584.0   # ArduPilot SITL's default (CMAC)
@@ -96,27 +85,16 @@ class MavlinkVehicle:
         self.ap = make_autopilot(self.flavour, args.hover_throttle, dict(args.param),  # bad parameters: first
                                  rp_rates_with_attitude=args.rp_rates_with_attitude == 'fed')
         self.system_id = int(self.ap.params[SYSTEM_ID_PARAMS[self.flavour]])
-        check_drag(args.drag_per_s)   # bad values before the vehicle file is read
-        estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
-                            args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps,
-                            args.estimator_velocity_wander_mps, args.estimator_velocity_wander_z_mps,
-                            args.estimator_velocity_wander_tau_s, vision_timeout_s=self.ap.position_timeout_s())
+        # the autopilot drops roll/pitch rates itself (make_autopilot's rp_rates_with_attitude); the truth is what
+        # it believes until the loop's first tick steps the estimate
+        self.plant = plant_from_flags(args, vision_timeout_s=self.ap.position_timeout_s(), estimate_now=False)
+        sim = self.plant.sim
         self.vision_clock = VisionClock(self.flavour)   # when a received pose is fused (external_vision)
         self.vision_refusals = set()                     # reasons a pose was not fused, each printed once
-        vehicle, drag = with_linear_drag(emulated_vehicle(parameter_file('--vehicle', args.vehicle),
-                                                          rate_loop=args.rate_loop), args.drag_per_s)
-        sim = Simulator(vehicle, physics_rate_hz=args.physics_rate_hz,
-                        initial_position=args.initial_position, initial_yaw=args.initial_yaw,
-                        setpoint_timeout_s=1e6, disturbances=drag)
         sim.warm_up()  # before the first heartbeat: compiling mid-flight would stall the link for seconds
         if not sim.landed:  # starts in the air: armed, holding position
             self.ap.armed = True
             self.ap.mode = 'AUTO.LOITER' if self.flavour == 'px4' else 'LOITER'
-        tau_s = default_tau_s(vehicle) if args.attitude_tau_s is None else args.attitude_tau_s
-        # the autopilot drops roll/pitch rates itself (make_autopilot's rp_rates_with_attitude); the truth is what
-        # it believes until the loop's first tick steps the estimate
-        self.plant = AutopilotPlant(sim, AttitudeResponse(tau_s, sim.state.quaternion, args.attitude_dead_time_s),
-                                    estimate, estimate_now=False)
         tick_s = 1.0 / args.loop_rate_hz
         self.steps_per_tick = sim.steps_in(round(tick_s * args.physics_rate_hz) / args.physics_rate_hz)
         latency = DEFAULT_LATENCY_S[self.flavour] if args.telemetry_latency_s is None else args.telemetry_latency_s
@@ -462,13 +440,6 @@ class MavlinkVehicle:
         self.log_index = len(self.ap.log)
 
 
-def _triple(text):
-    values = [float(v) for v in text.split(',')]
-    if len(values) != 3 or not all(map(math.isfinite, values)):
-        raise argparse.ArgumentTypeError(f'needs 3 finite numbers x,y,z, got {text!r}')
-    return values
-
-
 def _param(text):
     name, sep, value = text.partition('=')
     try:
@@ -500,15 +471,11 @@ def mocap_publisher(args, wall0_ns):
 def build_parser():
     ap = argparse.ArgumentParser(prog='mavlink_vehicle', description=__doc__.split('\n\n')[0])
     ap.add_argument('--autopilot', choices=('px4', 'ardupilot'), default='px4')
+    add_plant_arguments(ap)
     ap.add_argument('--url', default=None, help='pymavlink connection (default: px4 udpout:127.0.0.1:14540, '
                     'ardupilot tcpin:127.0.0.1:5760)')
     ap.add_argument('--system-id', type=int, default=None,
                     help='its MAVLink system id: = --param MAV_SYS_ID=N (px4) / SYSID_THISMAV=N (ardupilot); default 1')
-    ap.add_argument('--vehicle', default=DEFAULT_VEHICLE,
-                    help='vehicle YAML (quad_common.vehicle): a path, or one under config/ (installed or the checkout)')
-    ap.add_argument('--initial-position', type=_triple, default=[0.0, 0.0, 0.0],
-                    help='x,y,z in map (ENU), m; above the floor: starts armed, holding (AUTO.LOITER / LOITER)')
-    ap.add_argument('--initial-yaw', type=float, default=0.0, help='rad, ENU')
     ap.add_argument('--hover-throttle', type=float, default=0.5,
                     help="the vehicle's true hover thrust (MPC_THR_HOVER / MOT_THST_HOVER start equal to it)")
     ap.add_argument('--param', type=_param, action='append', default=[], metavar='NAME=VALUE',
@@ -516,47 +483,12 @@ def build_parser():
     ap.add_argument('--guid-options', type=int, default=None, help='ArduPilot: = --param GUID_OPTIONS=N')
     ap.add_argument('--offboard-loss-s', type=float, default=None, help='PX4: = --param COM_OF_LOSS_T=S')
     ap.add_argument('--guided-timeout-s', type=float, default=None, help='ArduPilot: = --param GUID_TIMEOUT=S')
-    ap.add_argument('--attitude-tau-s', type=float, default=None,
-                    help='attitude shaping time constant; default: what makes the roll/pitch lag 0.19 s on the '
-                    "autopilot's loop (0.036 s; ArduCopter SITL measured 0.17-0.21 s), 0 when the vehicle file "
-                    "sets quad_sim's attitude_loop to an autopilot-like one itself (so3_pd, lag)")
-    ap.add_argument('--attitude-dead-time-s', type=float, default=0.0,
-                    help='the attitude target is acted on this late, before the shaping (PX4 SIH measured 0.09-0.11 '
-                    's before a 0.15 s first order: --attitude-tau-s 0 --attitude-dead-time-s 0.1 with --rate-loop '
-                    'px4-sih); default 0')
     ap.add_argument('--telemetry-latency-s', type=float, default=None, help='px4 0.02, ardupilot 0.035 (+ its bursts)')
     ap.add_argument('--burst-s', type=float, default=None, help='ArduPilot: telemetry leaves in bursts up to '
                     'this far apart (0.04); 0 sends each message at once')
     ap.add_argument('--boot-offset-s', type=float, default=37.0, help='the vehicle booted this long before us')
     ap.add_argument('--clock-rate', type=float, default=1.0,
                     help="the vehicle's clock rate against ours (PX4 SIH ran 0.984-0.993 of wall time), 0.5..2")
-    ap.add_argument('--estimator-lag-s', type=float, default=0.0,
-                    help="its position estimate trails the truth this much (PX4 SIH: 0.15; velocity is now)")
-    ap.add_argument('--estimator-wander-m', type=float, default=0.0,
-                    help="RMS of the estimate's horizontal position wander per axis (PX4 SIH: 0.4-0.8 m off)")
-    ap.add_argument('--estimator-wander-z-m', type=float, default=0.0,
-                    help="RMS of the estimate's height wander (PX4 SIH: 0.3-1.3 m)")
-    ap.add_argument('--estimator-wander-tau-s', type=float, default=60.0,
-                    help="the wander's correlation time (PX4 SIH: about 0.5 m a minute)")
-    ap.add_argument('--estimator-velocity-noise-mps', type=_triple, default=[0.0, 0.0, 0.0], metavar='X,Y,Z',
-                    help="RMS of the estimate's velocity noise on the body axes, correlated over EKF2_TAU_VEL "
-                         '(PX4 SIH: 0.0125,0.0425,0.035 from its accelerometer noise); default none')
-    ap.add_argument('--rate-loop', choices=tuple(RATE_LOOPS), default='default',
-                    help="the autopilot's roll/pitch rate loop: default 60 rad/s; px4-sih: PX4's defaults on SIH's "
-                         'airframe (12.7 rad/s behind 0.05 s motors; quad_vehicle_emu.attitude)')
-    ap.add_argument('--rp-rates-with-attitude', choices=('fed', 'ignored'), default='fed',
-                    help='PX4: roll/pitch rates of a SET_ATTITUDE_TARGET that sets the attitude: fed forward '
-                         "(default) or ignored as PX4's mavlink_receiver does (yaw rate kept)")
-    ap.add_argument('--estimator-velocity-wander-mps', type=float, default=0.0,
-                    help="RMS of the estimate's slow horizontal velocity error per axis (PX4 SIH: 0.1-0.32 m/s)")
-    ap.add_argument('--estimator-velocity-wander-z-mps', type=float, default=0.0,
-                    help="RMS of the estimate's slow vertical velocity error (PX4 SIH: 0.14-0.19 m/s)")
-    ap.add_argument('--estimator-velocity-wander-tau-s', type=float, default=3.0,
-                    help="the velocity error's correlation time (PX4 SIH: 2-5 s)")
-    ap.add_argument('--drag-per-s', type=float, default=0.0,
-                    help='linear air drag, m/s^2 per m/s on every axis (PX4 SIH: SIH_KDV / SIH_MASS = 1.0); 0: none')
-    ap.add_argument('--seed', type=int, default=0)
-    ap.add_argument('--physics-rate-hz', type=float, default=PHYSICS_RATE_HZ)
     ap.add_argument('--loop-rate-hz', type=float, default=100.0)
     ap.add_argument('--signing-key-file', default='', help='MAVLink 2 signing key; empty: unsigned')
     ap.add_argument('--realtime-priority', type=int, default=0,

@@ -66,3 +66,16 @@ def test_a_tick_of_the_loop_is_a_period_of_the_offline_plant():
         np.testing.assert_allclose(seen.velocity, observed.velocity, rtol=0, atol=1e-12)
     assert sum(target is None for target in targets) == 20
     assert np.linalg.norm(sim.state.position - start) > 0.1   # it moved: the comparison is not of rest
+
+
+def test_the_offline_chain_reads_the_emulators_own_plant_flags():
+    """plant_flags reads a flag tuple as the emulator's parser does (its clock flag left to it); a flag that is
+    neither the plant's nor the emulator's known non-plant one is refused by name, never skipped."""
+    import pytest
+
+    from quad_vehicle_emu.plant import plant_flags
+    emulator = build_parser().parse_args(FLAGS)
+    offline = plant_flags([*FLAGS[2:], '--clock-rate', '0.99'])
+    assert {k: v for k, v in vars(offline).items()} == {k: getattr(emulator, k) for k in vars(offline)}
+    with pytest.raises(ValueError, match="'--estimator-lag' is no plant flag"):
+        plant_flags(['--estimator-lag', '0.15'])

@@ -22,13 +22,11 @@ from quad_control.plugins import make_controller
 from quad_control.pose_state import PoseStateFilter
 from quad_control.position import Limits
 from quad_sim.mocap import MocapConfig
-from quad_sim.simulator import Simulator
 from quad_trajectory import planner
 from quad_trajectory.mission import SAMPLE_RATE_HZ
-from quad_vehicle_emu.attitude import AttitudeResponse, DelayLine, emulated_vehicle
-from quad_vehicle_emu.drag import with_linear_drag
-from quad_vehicle_emu.estimator import SIH_VELOCITY_NOISE_MPS, Estimate
-from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, AutopilotPlant, VisionFeed
+from quad_vehicle_emu.attitude import DelayLine
+from quad_vehicle_emu.estimator import SIH_VELOCITY_NOISE_MPS
+from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, VisionFeed, plant_flags, plant_from_flags
 
 CONTROL = str(resolve_config('config/control.yaml'))                   # the seed profile every profile is laid over
 VEHICLE_FILE = str(resolve_config('config/vehicles/px4_quad.yaml'))    # the emulator's vehicle
@@ -124,28 +122,18 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
     plan = planner.plan(np.array(waypoints), 0.0, planner.PlanOptions(speed_mps=speed_mps), vehicle=vehicle)
     traj = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
     loop.set_trajectory(int(hover_s * 1e9), traj)
-    option = dict(zip(options[::2], options[1::2]))
-    airframe, drag = with_linear_drag(emulated_vehicle(VEHICLE_FILE, rate_loop=option.get('--rate-loop', 'default')),
-                                      float(option['--drag-per-s']))
-    sim = Simulator(airframe, PHYSICS_RATE_HZ, initial_position=waypoints[0], setpoint_timeout_s=1e6, disturbances=drag)
-    sim.armed = True
-    noise = [float(v) for v in option.get('--estimator-velocity-noise-mps', '0,0,0').split(',')]
-    estimate = Estimate(float(option['--estimator-lag-s']), float(option['--estimator-wander-m']),
-                        float(option['--estimator-wander-z-m']), float(option['--estimator-wander-tau-s']), seed,
-                        noise, float(option.get('--estimator-velocity-wander-mps', 0.0)),
-                        float(option.get('--estimator-velocity-wander-z-mps', 0.0)),
-                        float(option.get('--estimator-velocity-wander-tau-s', 3.0)))
-    if velocity_lag_s:
-        estimate = _LateVelocity(estimate, velocity_lag_s)
+    start = ','.join(map(str, waypoints[0]))
+    flags = plant_flags((*options, '--vehicle', VEHICLE_FILE, '--initial-position', start, '--seed', str(seed),
+                         '--physics-rate-hz', str(PHYSICS_RATE_HZ)))
     feed = None
     if vision is not None:
         vision_noise_m, vision_age_s, vision_rate_hz, vision_delay_ms = vision
         feed = VisionFeed('px4', MocapConfig(rate_hz=vision_rate_hz, position_noise_m=vision_noise_m,
                                              latency_s=vision_age_s), vision_delay_ms, seed)
-    plant = AutopilotPlant(sim, AttitudeResponse(float(option['--attitude-tau-s']), sim.state.quaternion,
-                                                 float(option.get('--attitude-dead-time-s', 0.0))),
-                           estimate, rp_rates_fed=option.get('--rp-rates-with-attitude', 'fed') == 'fed',
-                           vision=feed)
+    late = (lambda estimate: _LateVelocity(estimate, velocity_lag_s)) if velocity_lag_s else None
+    plant = plant_from_flags(flags, rp_rates_fed=flags.rp_rates_with_attitude == 'fed', vision=feed,
+                             estimate_wrapper=late)
+    plant.sim.armed = True
     if mocap is not None:
         mocap_noise_m, mocap_latency_s, mocap_rate_hz = mocap
         telemetry = Mocap(MocapConfig(rate_hz=mocap_rate_hz, position_noise_m=mocap_noise_m,
