@@ -464,11 +464,12 @@ def test_a_forked_part_that_fails_is_an_error_not_a_hang(tmp_path, monkeypatch, 
 
 def test_a_forked_part_dies_with_its_caller(tmp_path):
     """The caller SIGKILLed while its parts draw: the forked child ends too (PR_SET_PDEATHSIG), not run on under
-    init."""
+    init. Each says its pid in one write (print under PYTHONUNBUFFERED writes the number and the newline apart, and
+    the two processes' lines could interleave)."""
     script = ('import os, select, sys\n'
               'from quad_bringup.analysis import report_figures as rf\n'
               'def hold(flight, path):\n'
-              '    print(os.getpid(), flush=True)\n'
+              '    os.write(1, f"{os.getpid()}\\n".encode())\n'
               '    select.select([os.pipe()[0]], [], [])\n'
               'rf.FIGURES = [(name, hold) for name, _ in rf.FIGURES]\n'
               'rf.draw_all(None, sys.argv[1], 2)\n')
