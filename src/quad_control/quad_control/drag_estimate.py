@@ -6,26 +6,28 @@ same first-order filter H = 1 / (T_f s + 1) give, without differentiating the ve
 
     y = (v - H v) / T_f - H u = -D phi + H b,    phi = H v
 
-x and y share D, each axis has its own bias. D is the least-squares fit over exponentially weighted means
-(m <- m + w dt / T (s - m), T the forgetting time), the biases eliminated:
+x and y share D, each axis has its own bias. D is the least-squares fit over exponentially forgotten sums
+(S <- exp(-w dt / T) S + w dt s for s in 1, phi, y, phi^2, phi y; T the forgetting time), the biases eliminated:
 
     D = -sum_i cov(phi_i, y_i) / sum_i var(phi_i),  clamped to [0, MAX_PER_S]
 
 Each sample's weight w = min(1, |H v_T|^2 / EXCITED_MPS^2) comes from the plan's own speed (independent of the
 estimate's noise): while the plan holds a point nothing is learnt and nothing forgotten, so a hover, where the
-velocity is noise alone, cannot pull D anywhere. The means start from the prior D0 (drag_feedforward_per_s) as if
-one forgetting time had been flown at EXCITED_MPS, and the first WARMUP_TIME_CONSTANTS T_f after a (re)start are
-not learnt from (the filters start at the current values). The velocity noise enters phi too and biases D toward
-0 by var(noise) / var(phi): a few % at the blended velocity's 0.1 m/s against a plan at 0.8 m/s.
+velocity is noise alone, cannot pull D anywhere. The sums start from the prior D0 (drag_feedforward_per_s) as if
+PRIOR_S had been flown at EXCITED_MPS (a few tenths of a second of a leg outweigh it), and the first
+WARMUP_TIME_CONSTANTS T_f after a (re)start are not learnt from (the filters start at the current values). The
+velocity noise enters phi too and biases D toward 0 by var(noise) / var(phi): a few % at the blended velocity's
+0.1 m/s against a plan at 0.8 m/s.
 """
 
 import numpy as np
 
-FILTER_TIME_CONSTANT_S = 0.3   # T_f: slower than the attitude lag and the estimate's noise, faster than a leg
+FILTER_TIME_CONSTANT_S = 0.3   # T_f: smooths the velocity's noise, far shorter than a leg (0.1-2 s all work)
 EXCITED_MPS = 0.3              # plan speeds below this are weighted down (squared): their drag is below the noise
 MAX_PER_S = 3.0                # the estimate's range [0, MAX_PER_S] (1/s)
 PRIOR_S = 1.0                  # the prior D0 weighs as this many s of flight at EXCITED_MPS
-WARMUP_TIME_CONSTANTS = 1.0
+ABSURD = 1e3                   # a sample beyond this (m/s, m/s^2) is no flight (an estimate's glitch): left out
+WARMUP_TIME_CONSTANTS = 1.0    # after a (re)start the filters settle for this many T_f before D is learnt
 
 
 class DragEstimate:
@@ -57,6 +59,9 @@ class DragEstimate:
         u = np.asarray(force_mps2, dtype=float)[:2]
         v_t = np.asarray(ref_velocity, dtype=float)[:2]
         if not (np.isfinite(v).all() and np.isfinite(u).all() and np.isfinite(v_t).all() and np.isfinite(dt_s)):
+            return self.drag_per_s
+        if max(np.abs(v).max(), np.abs(u).max(), np.abs(v_t).max()) > ABSURD:   # no flight: the filters restart
+            self.restart()
             return self.drag_per_s
         if self.filtered is None:
             self.filtered = (v.copy(), u.copy(), v_t.copy())
