@@ -55,6 +55,10 @@ SPECS = [
     Param('drag_feedforward_per_s', SEED.drag_feedforward_per_s, 'linear air drag of the vehicle (1/s: drag '
           'deceleration per m/s; quadflight identify measures it): the plan\'s drag D * reference velocity is added '
           'to the feed-forward; 0 = off (the seed)', min=0.0, max=10.0),
+    Param('drag_learning_time_s', SEED.drag_learning_time_s, 'learn the horizontal drag D online (quad_control.'
+          'drag_estimate: the observed external acceleration regressed on the velocity while the plan moves), '
+          'starting from drag_feedforward_per_s, kept in [0, 3] 1/s; the forgetting time of the fit (s of flight '
+          'at >= 0.3 m/s); 0 = off (the seed: D = drag_feedforward_per_s)', min=0.0, max=600.0),
     Param('velocity_from_position_s', SEED.velocity_from_position_s, 'the velocity the controller flies follows '
           'the odometry\'s own position (its derivative) below 1 / (2 pi tau) and its velocity above (a '
           'complementary filter, quad_control.velocity_blend): an autopilot estimate whose velocity wanders apart '
@@ -92,6 +96,7 @@ def gains_from(values: dict) -> PositionGains:
                          thrust_scale=float(values.get('thrust_scale', seed.thrust_scale)),
                          drag_feedforward_per_s=float(values.get('drag_feedforward_per_s',
                                                                  seed.drag_feedforward_per_s)),
+                         drag_learning_time_s=float(values.get('drag_learning_time_s', seed.drag_learning_time_s)),
                          velocity_from_position_s=float(values.get('velocity_from_position_s',
                                                                    seed.velocity_from_position_s)))
 

@@ -27,6 +27,7 @@ import numpy as np
 from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
 from quad_common.vehicle import Vehicle
+from quad_control.drag_estimate import DragEstimate
 
 CONTROLLERS = ('pd', 'pid', 'se3')
 E3 = np.array([0.0, 0.0, 1.0])
@@ -49,6 +50,8 @@ class PositionGains:
     attitude_lead_s: float = 0.0                # attitude from a_des + lead * jerk_T (thrust from a_des)
     disturbance_time_constant_s: float = 0.0    # > 0: subtract the observed external acceleration (filtered)
     drag_feedforward_per_s: float = 0.0         # linear air drag D (1/s): a_des += D v_T, the drag the plan meets
+    drag_learning_time_s: float = 0.0           # > 0: D learnt online, horizontally (quad_control.drag_estimate,
+    #                                             forgetting time), starting from drag_feedforward_per_s
     velocity_from_position_s: float = 0.0       # > 0: the odometry's velocity follows its position's derivative
     #                                             below 1 / (2 pi tau) (quad_control.velocity_blend, in ControlLoop)
     thrust_scale: float = 1.0                   # delivered / commanded specific force of the vehicle (quadflight
@@ -95,15 +98,17 @@ def check_finite(state: State, ref: Reference):
                 raise ValueError(f'{owner}.{name} is not finite: {value.tolist()}')
 
 
-def desired_acceleration(state: State, ref: Reference, gains: PositionGains, integral_m_s=None) -> np.ndarray:
+def desired_acceleration(state: State, ref: Reference, gains: PositionGains, integral_m_s=None,
+                         drag_per_s=None) -> np.ndarray:
     """Eq. 1 (plus ki * integral of the position error for pid), with the plan's drag D v_T in the feed-forward:
     a vehicle in linear air drag (-D v) needs a_T + D v_T to follow the plan, from the plan alone (outside the
-    feedback loop, so it adds no lag to it)."""
+    feedback loop, so it adds no lag to it). drag_per_s: D per axis (default gains.drag_feedforward_per_s)."""
     acc = gains.kp * (ref.position - state.position) + gains.kd * (ref.velocity - state.velocity)
+    drag = gains.drag_feedforward_per_s if drag_per_s is None else drag_per_s
     if gains.use_feedforward:
         acc = acc + ref.acceleration
-        if gains.drag_feedforward_per_s:
-            acc = acc + gains.drag_feedforward_per_s * np.asarray(ref.velocity, dtype=float)
+        if np.any(drag):
+            acc = acc + drag * np.asarray(ref.velocity, dtype=float)
     if integral_m_s is not None:
         acc = acc + gains.ki * integral_m_s
     return acc
@@ -180,7 +185,8 @@ def geometric_setpoint(acc_des, state: State, ref: Reference, mass_kg: float, li
 
 
 class PositionController:
-    """One of CONTROLLERS by name, holding the pid error integral (reset when a new trajectory starts)."""
+    """One of CONTROLLERS by name, holding the pid error integral (reset when a new trajectory starts) and, with
+    gains.drag_learning_time_s > 0, the learnt drag (kept across resets: it is the vehicle's)."""
 
     def __init__(self, name: str, gains: PositionGains, vehicle: Vehicle, limits: Limits | None = None):
         if name not in CONTROLLERS:
@@ -190,11 +196,40 @@ class PositionController:
         self.integral_m_s = np.zeros(3)
         self.disturbance_mps2 = np.zeros(3)
         self._previous = None   # (velocity, body z, specific force commanded) of the previous step
+        self.drag = None        # DragEstimate while gains.drag_learning_time_s > 0
+        self._force_mps2 = None   # specific force commanded at the previous step (delivered, before thrust_scale)
 
     def reset(self):
         self.integral_m_s = np.zeros(3)
         self.disturbance_mps2 = np.zeros(3)
         self._previous = None
+        self._force_mps2 = None
+        if self.drag is not None:
+            self.drag.restart()
+
+    @property
+    def drag_per_s(self) -> np.ndarray:
+        """D per axis of the plan's drag feed-forward: the learnt one horizontally while learning, else the gains'."""
+        fixed = self.gains.drag_feedforward_per_s
+        if self.drag is None:
+            return np.full(3, fixed)
+        return np.array([self.drag.drag_per_s, self.drag.drag_per_s, fixed])
+
+    def _learn_drag(self, state: State, ref: Reference, dt_s):
+        """Feeds the drag estimate (started from drag_feedforward_per_s) with the velocity, the specific force of
+        the previous step along the body z now, and the plan's velocity; dropped when learning is switched off."""
+        learning_time_s = self.gains.drag_learning_time_s
+        if not learning_time_s:
+            self.drag = None
+            return
+        if self.drag is None:
+            self.drag = DragEstimate(self.gains.drag_feedforward_per_s, learning_time_s)
+        self.drag.learning_time_s = learning_time_s
+        if self._force_mps2 is None:
+            self.drag.restart()
+            return
+        body_z = rotations.to_matrix(state.quaternion)[:, 2]
+        self.drag.update(state.velocity, self._force_mps2 * body_z, ref.velocity, dt_s)
 
     def _observe_disturbance(self, state: State, dt_s):
         """External acceleration (drag, wind) seen over the last step, first-order filtered:
@@ -226,7 +261,9 @@ class PositionController:
         if self.name == 'pid':
             windup = self._integrate(np.asarray(ref.position) - state.position, dt_s)
             integral = self.integral_m_s
-        acc = desired_acceleration(state, ref, self.gains, integral)
+        self._learn_drag(state, ref, dt_s)
+        acc = desired_acceleration(state, ref, self.gains, integral,
+                                   None if self.drag is None else self.drag_per_s)
         observing = self.gains.disturbance_time_constant_s > 0
         if observing:
             body_z = self._observe_disturbance(state, dt_s)
@@ -240,6 +277,8 @@ class PositionController:
         sat.integral = windup
         if observing:
             self._previous = (np.array(state.velocity, dtype=float), body_z, sp.specific_force_mps2)
+        if self.drag is not None:
+            self._force_mps2 = sp.specific_force_mps2
         if self.gains.thrust_scale != 1.0:  # what the vehicle delivers is thrust_scale times the command
             sp.specific_force_mps2 = sp.specific_force_mps2 / self.gains.thrust_scale
         return sp, sat

@@ -397,6 +397,7 @@ class PositionControllerNode(Node):
                   'lockstep': self.params['lockstep'], 'rate_hz': self.params['rate_hz'],
                   'loop_rate_hz': f'{self._loop_rate_hz(now_ns):.2f}', **self.counts,
                   'integral_m_s': np.round(self.controller.integral_m_s, 4).tolist(), 'last_error': self.last_error,
+                  'drag_learnt_per_s': self._drag_learnt_per_s(),
                   'hold_position_m': None if self.loop.hold is None else self.loop.hold.position.tolist(),
                   'start_step_m': self.loop.last_start_step_m, 'max_start_step_m': self.loop.max_start_step_m,
                   'last_future_odom': self.last_future_odom, 'realtime': self.realtime,
@@ -405,6 +406,11 @@ class PositionControllerNode(Node):
             level, message = diagnostics.WARN, f'realtime {self.realtime}'
         self.diag_pub.publish(diagnostics.array(_stamp(now_ns), [
             diagnostics.status(contract.CONTROLLER_STATUS, level, message, values)]))
+
+    def _drag_learnt_per_s(self):
+        """The drag learnt in flight (quad_control.drag_estimate); None while not learning (or a user class)."""
+        estimate = getattr(self.controller, 'drag', None)
+        return None if estimate is None else round(float(estimate.drag_per_s), 3)
 
 
 def main(args=None):

@@ -429,6 +429,16 @@ def test_diagnostics_report_the_mean_age_of_the_odometry_the_setpoints_flew(grap
     assert values['odom_age_ms'] == 'None'
 
 
+
+@pytest.mark.parametrize(('learning_s', 'reported'), [(0.0, 'None'), (20.0, '0.4')])
+def test_diagnostics_report_the_drag_learnt(graph, learning_s, reported):
+    """drag_learnt_per_s: the learnt D while drag_learning_time_s > 0 (from drag_feedforward_per_s, nothing learnt
+    in a hover), None while not learning."""
+    graph.start(use_sim_time=True, lockstep=True, drag_feedforward_per_s=0.4, drag_learning_time_s=learning_s)
+    graph.step(1.0, z=1.0)
+    values = {kv.key: kv.value for kv in graph.node_status().values}
+    assert values['drag_learnt_per_s'] == reported
+
 def test_state_source_external_pose_flies_from_motion_capture_with_a_filtered_velocity(graph):
     """state_source external_pose: the controller takes no odometry; each pose on external/pose (Y-up here, as
     Motive streams it) is its state, with the velocity quad_control.pose_state's filter makes of the poses."""

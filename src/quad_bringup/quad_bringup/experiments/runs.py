@@ -26,7 +26,7 @@ MODES = ('offline', 'graph')
 # controller profile keys a run carries (position_controller parameters that shape the control law)
 GAIN_KEYS = ('controller', *(f'{g}_{a}' for g in ('kp', 'kd', 'ki') for a in 'xyz'), 'integral_limit_mps2',
              'use_feedforward', 'attitude_lead_s', 'disturbance_time_constant_s', 'thrust_scale',
-             'drag_feedforward_per_s', 'velocity_from_position_s')
+             'drag_feedforward_per_s', 'drag_learning_time_s', 'velocity_from_position_s')
 # the seed's Table 1/2 columns, the errors, and what a failure needs explained
 METRIC_COLUMNS = ('time_planned_s', 'time_actual_s', 'length_planned_m', 'length_actual_m', 'avg_velocity_mps',
                   'rmse_m', 'max_error_m', 'waypoint_miss_max_m', 'final_error_m', 'time_over_s', 'max_speed_mps',
