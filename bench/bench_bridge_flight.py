@@ -30,8 +30,8 @@ import yaml
 from quad_bringup.emulated.mission_flight import CONTROL, REAL_PROFILE, fly_mission
 from quad_bringup.emulated.offline_chain import PX4_SIH_BEFORE, PX4_SIH_LIKE, SPEED_MPS, SQUARE, fly_chain_offline
 from quad_bringup.emulated.vehicle_graph import running_graph
-from quad_common.paths import REPO_ROOT
 from quad_common.yaml_io import load_yaml
+from quad_control.parameters import profile_with
 
 PROFILES = {'seed pd (control.yaml)': None, 'control_real.yaml (pid)': REAL_PROFILE}
 SE3_PROFILE = 'config/control_se3.yaml'
@@ -43,10 +43,8 @@ PX4_SIH_RMSE_M = {'seed pd (control.yaml)': (0.34, 0.55), AS_FLOWN_ON_SIH: (0.43
 
 def as_flown_on_sih(directory: Path) -> str:
     """control_real.yaml as PX4 SIH flew it (drag_learning_time_s 0), written into directory."""
-    content = load_yaml(REPO_ROOT / REAL_PROFILE)
-    content['position_controller']['ros__parameters']['drag_learning_time_s'] = 0.0
     path = directory / 'control_real_as_flown_on_sih.yaml'
-    path.write_text(yaml.safe_dump(content))
+    path.write_text(yaml.safe_dump(profile_with(load_yaml(REAL_PROFILE), {'drag_learning_time_s': 0.0})))
     return str(path)
 
 

@@ -26,6 +26,8 @@ import yaml
 from quad_bringup.emulated import offline_chain as chain
 from quad_bringup.emulated.mission_flight import REAL_PROFILE
 from quad_common.paths import resolve_config
+from quad_common.yaml_io import load_yaml
+from quad_control.parameters import profile_with
 
 DEFAULT_EMULATOR = ('--attitude-tau-s', '0.036', '--estimator-lag-s', '0', '--estimator-wander-m', '0',
                     '--estimator-wander-z-m', '0', '--estimator-wander-tau-s', '60', '--drag-per-s', '0')
@@ -46,8 +48,8 @@ SEEDS = (0, 1)
 
 def with_pose_acceleration(profile, acceleration_mps2: float, directory: Path) -> str:
     """The profile with pose_acceleration_mps2 set, as a file."""
-    content = yaml.safe_load(Path(resolve_config(profile or chain.CONTROL)).read_text())
-    content['position_controller']['ros__parameters']['pose_acceleration_mps2'] = acceleration_mps2
+    content = profile_with(load_yaml(resolve_config(profile or chain.CONTROL)),
+                           {'pose_acceleration_mps2': acceleration_mps2})
     path = directory / f'{Path(profile or chain.CONTROL).stem}_{acceleration_mps2:g}.yaml'
     path.write_text(yaml.safe_dump(content))
     return str(path)

@@ -135,3 +135,14 @@ def test_fly_anyway_and_the_missions_own_choice(tmp_path):
     feasible = FlightOptions(MAZE, controller='pd', speed_mps=0.5)
     assert preflight_options(feasible, validate(feasible), log=lines.append).time_allocation is None
     assert lines[-1].startswith('feasible on crazyflie: tilt 2.1')
+
+
+def test_a_profile_variant_sets_its_values_over_the_shipped_profile_and_leaves_it_alone():
+    """profile_with: the benches' variants of a shipped profile (control_real as PX4 SIH flew it, drag learning off)."""
+    from quad_common.paths import resolve_config
+    from quad_common.yaml_io import load_yaml
+    from quad_control.parameters import profile_parameters, profile_with
+    shipped = load_yaml(resolve_config('config/control_real.yaml'))
+    variant = profile_with(shipped, {'drag_learning_time_s': 0.0})
+    assert profile_parameters(variant) == {**profile_parameters(shipped), 'drag_learning_time_s': 0.0}
+    assert profile_parameters(shipped)['drag_learning_time_s'] == 20.0

@@ -109,3 +109,9 @@ def profile_parameters(content: dict) -> dict:
 def profile_content(values: dict) -> dict:
     """A params file's content (a control profile) setting `values` on position_controller."""
     return params_content(NODE_NAME, values)
+
+
+def profile_with(content: dict, values: dict) -> dict:
+    """A control profile's content with `values` set over its position_controller parameters (content itself
+    unchanged): a variant of a shipped profile."""
+    return profile_content({**profile_parameters(content), **values})

@@ -85,14 +85,14 @@ def margin_rows(bag: Path):
     from quad_bringup.offline.closed_loop import control_profile
     from quad_bringup.offline.stability import hold_on_autopilot
     from quad_common.paths import resolve_config
-    base = yaml.safe_load(Path(resolve_config(REAL_PROFILE)).read_text())
+    from quad_common.yaml_io import load_yaml
+    from quad_control.parameters import profile_with
+    base = load_yaml(resolve_config(REAL_PROFILE))
     rows = []
     with tempfile.TemporaryDirectory(prefix='bench_twin-') as tmp:
         for label, over in MARGIN_PROFILES.items():
-            content = yaml.safe_load(yaml.safe_dump(base))
-            content['position_controller']['ros__parameters'].update(over)
             path = Path(tmp) / 'base.yaml'
-            path.write_text(yaml.safe_dump(content))
+            path.write_text(yaml.safe_dump(profile_with(base, over)))
             checked = check_bag(bag, str(path), VEHICLE_FILE)
             m, t = checked['margin'], checked['telemetry']
             controller, gains = control_profile(checked['written'])
