@@ -262,8 +262,7 @@ class PositionController:
             windup = self._integrate(np.asarray(ref.position) - state.position, dt_s)
             integral = self.integral_m_s
         self._learn_drag(state, ref, dt_s)
-        acc = desired_acceleration(state, ref, self.gains, integral,
-                                   None if self.drag is None else self.drag_per_s)
+        acc = desired_acceleration(state, ref, self.gains, integral, self.drag_per_s)
         observing = self.gains.disturbance_time_constant_s > 0
         if observing:
             body_z = self._observe_disturbance(state, dt_s)

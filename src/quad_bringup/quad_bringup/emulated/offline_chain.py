@@ -26,7 +26,7 @@ from quad_trajectory import planner
 from quad_trajectory.mission import SAMPLE_RATE_HZ
 from quad_vehicle_emu.attitude import DelayLine
 from quad_vehicle_emu.estimator import SIH_VELOCITY_NOISE_MPS
-from quad_vehicle_emu.plant import PHYSICS_RATE_HZ, VisionFeed, plant_flags, plant_from_flags
+from quad_vehicle_emu.plant import VisionFeed, plant_flags, plant_from_flags
 
 CONTROL = str(resolve_config('config/control.yaml'))                   # the seed profile every profile is laid over
 VEHICLE_FILE = str(resolve_config('config/vehicles/px4_quad.yaml'))    # the emulator's vehicle
@@ -123,8 +123,7 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
     traj = plan.trajectory.to_sampled(SAMPLE_RATE_HZ)
     loop.set_trajectory(int(hover_s * 1e9), traj)
     start = ','.join(map(str, waypoints[0]))
-    flags = plant_flags((*options, '--vehicle', VEHICLE_FILE, '--initial-position', start, '--seed', str(seed),
-                         '--physics-rate-hz', str(PHYSICS_RATE_HZ)))
+    flags = plant_flags((*options, '--vehicle', VEHICLE_FILE, '--initial-position', start, '--seed', str(seed)))
     feed = None
     if vision is not None:
         vision_noise_m, vision_age_s, vision_rate_hz, vision_delay_ms = vision
