@@ -50,4 +50,4 @@ def external_pose_status(ep, now_ns: int, handovers_ended: int):
         f'{NAME}: external pose', diagnostics.WARN if ep.fault else diagnostics.OK, ep.fault or 'forwarding',
         {'frame': ep.config.frame, 'rate_hz': f'{ep.rate_hz(now_ns):.1f}',
          'age_ms': f'{ep.last_age_s * 1e3:.1f}', 'forwarded': ep.forwarded, 'dropped_rate': ep.dropped_rate,
-         'fault': ep.fault or '', 'handovers_ended': handovers_ended})
+         'dropped_late': ep.dropped_late, 'fault': ep.fault or '', 'handovers_ended': handovers_ended})

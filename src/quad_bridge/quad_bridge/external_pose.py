@@ -15,10 +15,13 @@ sample's stamp after a gap): a faster stream is thinned to max_rate_hz on averag
 own period (PX4 EKF2 fuses external vision at up to ~30-50 Hz; ArduPilot's visual odometry at the rate
 VISION_POSITION_ESTIMATE arrives).
 
-Faults (each one line in diagnostics; while engaged the bridge ends the hand-over on any of them):
-- timeout: no sample for timeout_s;
-- jump: |p - p_last| > max_speed_m_s * dt + jump_margin_m (a swapped rigid body, a reflection);
-- late: now - stamp > max_age_s.
+Faults (each one line in diagnostics):
+- late: now - stamp > max_age_s. The sample is dropped and counted, the hand-over goes on: the autopilot's
+  estimator drops such a sample itself (EKF2 fuses an observation only within 100 ms of its fusion horizon, EKF3
+  likewise within its buffer) and predicts on its IMU meanwhile; its position is lost only when no timely sample
+  comes, which is the timeout;
+- timeout: no timely sample for timeout_s (none at all, or only late ones): ends a hand-over;
+- jump: |p - p_last| > max_speed_m_s * dt + jump_margin_m (a swapped rigid body, a reflection): ends a hand-over.
 """
 
 import dataclasses
@@ -29,6 +32,13 @@ import numpy as np
 
 from quad_bridge import frames
 from quad_common import mocap_frames, rotations
+
+LATE = 'late'
+
+
+def ends_handover(fault: str | None) -> bool:
+    """Every fault but a late sample ends a hand-over (module docstring)."""
+    return bool(fault) and not fault.startswith(LATE)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,10 +84,12 @@ class ExternalPoseFilter:
         self.fault = None           # the newest fault, one line, or None
         self.forwarded = 0
         self.dropped_rate = 0
+        self.dropped_late = 0
         self._last_stamp_ns = None  # stamp of the last accepted sample (jump reference)
         self._last_position = None
         self._next_due_ns = None    # stamp from which the next sample may go out (rate)
         self._last_arrival_ns = None
+        self._last_timely_arrival_ns = None   # arrival of the last sample no older than max_age_s (timeout)
         self._sent_times_ns = []    # arrival times of forwarded samples over the last second (rate)
         self.last_age_s = math.nan
         self._lock = threading.Lock()
@@ -92,8 +104,12 @@ class ExternalPoseFilter:
         self._last_arrival_ns = now_ns
         self.last_age_s = (now_ns - stamp_ns) / 1e9
         if self.last_age_s > cfg.max_age_s:
-            self.fault = f'late: stamp {self.last_age_s * 1e3:.0f} ms old > {cfg.max_age_s * 1e3:.0f} ms'
+            self.dropped_late += 1
+            self.fault = f'{LATE}: stamp {self.last_age_s * 1e3:.0f} ms old > {cfg.max_age_s * 1e3:.0f} ms'
             return None
+        self._last_timely_arrival_ns = now_ns
+        if not ends_handover(self.fault):
+            self.fault = None   # the late fault lasts as long as late samples come
         p, q, v = mocap_frames.to_enu(cfg.frame, position, quaternion, velocity)
         if self._last_position is not None:
             dt = max(0.0, (stamp_ns - self._last_stamp_ns) / 1e9)
@@ -117,14 +133,22 @@ class ExternalPoseFilter:
                        None if v is None else frames.body_flu_frd(v))
 
     def check_timeout(self, now_ns: int) -> str | None:
-        """The timeout fault once the stream has been silent timeout_s (or never started), else the current one."""
+        """The timeout fault once no timely sample came for timeout_s (silent, only late ones, or never started),
+        else the current one."""
         with self._lock:
             return self._check_timeout(now_ns)
 
     def _check_timeout(self, now_ns):
-        if self._last_arrival_ns is None or now_ns - self._last_arrival_ns > self.config.timeout_s * 1e9:
-            silent = 'never received' if self._last_arrival_ns is None else \
-                f'no sample for {(now_ns - self._last_arrival_ns) / 1e9:.2f} s'
+        timeout_ns = self.config.timeout_s * 1e9
+        if self._last_timely_arrival_ns is None or now_ns - self._last_timely_arrival_ns > timeout_ns:
+            if self._last_arrival_ns is None:
+                silent = 'never received'
+            elif now_ns - self._last_arrival_ns > timeout_ns:
+                silent = f'no sample for {(now_ns - self._last_arrival_ns) / 1e9:.2f} s'
+            else:
+                since = 'ever' if self._last_timely_arrival_ns is None else \
+                    f'for {(now_ns - self._last_timely_arrival_ns) / 1e9:.2f} s'
+                silent = f'no timely sample {since} (the newest {self.last_age_s * 1e3:.0f} ms old)'
             self.fault = f'timeout: {silent} (> {self.config.timeout_s:.2f} s)'
         return self.fault
 

@@ -24,7 +24,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from quad_bridge.bridge_diagnostics import external_pose_status, link_status, setpoints_status
 from quad_bridge.commands import VehicleCommander
-from quad_bridge.external_pose import ExternalPoseFilter
+from quad_bridge.external_pose import ExternalPoseFilter, ends_handover
 from quad_bridge.geofence import Geofence
 from quad_bridge.link import LinkState
 from quad_bridge.mavlink_client import MavlinkClient
@@ -172,8 +172,11 @@ class MavlinkBridge(Node):
         if pose is not None and backend is not None and self.link.state == LinkState.UP:
             for name, args in backend.external_pose_messages(pose):
                 self.client.send(name, *args)
-        elif self.external_pose.fault:
+        elif ends_handover(self.external_pose.fault):
             self.supervisor.on_external_pose_fault(self.external_pose.fault)
+        elif self.external_pose.fault:
+            self.log.warn(f'external pose: {self.external_pose.fault}: not forwarded, the hand-over goes on '
+                          f'({self.external_pose.dropped_late} so far)', throttle_duration_sec=1.0)
 
     # --- services (the node's executor): quad_bridge.services ----------------------------------------
 

@@ -81,9 +81,10 @@ SPECS = [
           'capture Y-up: (x, y, z) -> (x, -z, y) ENU)', choices=mocap_frames.FRAMES, read_only=True),
     Param('external_pose_rate_hz', 30.0, 'external pose forwarded at most at this rate (PX4 EKF2: 30-50 Hz)',
           min=1.0, max=200.0, read_only=True),
-    Param('external_pose_timeout_s', 0.5, 'no external pose for this long: fault', min=0.02, max=10.0,
-          read_only=True),
-    Param('external_pose_max_age_s', 0.2, 'an external pose older than this (stamp to arrival): fault (late)',
+    Param('external_pose_timeout_s', 0.5, 'no timely external pose (none, or only late ones) for this long: fault '
+          '(timeout), a hand-over ends', min=0.02, max=10.0, read_only=True),
+    Param('external_pose_max_age_s', 0.2, 'an external pose older than this (stamp to arrival): fault (late), '
+          'dropped',
           min=0.005, max=5.0, read_only=True),
     Param('external_pose_max_speed_mps', 10.0, 'a position step beyond speed x dt + external_pose_jump_margin_m '
           'between samples: fault (jump)', min=0.1, max=100.0, read_only=True),

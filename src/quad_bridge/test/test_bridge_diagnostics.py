@@ -86,7 +86,7 @@ def test_external_pose_status_warns_with_its_fault():
     assert st.name == 'mavlink_bridge: external pose' and st.message == 'forwarding'
     assert level(st) == diagnostics.OK
     assert values(st) == {'frame': 'enu', 'rate_hz': '0.0', 'age_ms': f'{ep.last_age_s * 1e3:.1f}', 'forwarded': '0',
-                          'dropped_rate': '0', 'fault': '', 'handovers_ended': '1'}
+                          'dropped_rate': '0', 'dropped_late': '0', 'fault': '', 'handovers_ended': '1'}
     ep.fault = 'timeout (no pose for 0.5 s)'
     st = bd.external_pose_status(ep, 0, 1)
     assert level(st) == diagnostics.WARN and st.message == values(st)['fault'] == ep.fault

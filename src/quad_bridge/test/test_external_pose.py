@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from quad_bridge import frames
-from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter
+from quad_bridge.external_pose import ExternalPoseConfig, ExternalPoseFilter, ends_handover
 from quad_common import rotations
 from quad_common.mocap_frames import to_enu
 
@@ -86,9 +86,41 @@ def test_late_sample_is_a_fault():
     f = _filter(max_age_s=0.2)
     t = 7_000 * MS
     assert f.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + 250 * MS) is None
-    assert f.fault.startswith('late: stamp 250 ms old')
+    assert f.fault.startswith('late: stamp 250 ms old') and f.dropped_late == 1
     assert f.offer([0, 0, 0], [0, 0, 0, 1], None, t + 300 * MS, t + 310 * MS) is not None
     assert f.fault is None
+
+
+def test_a_late_sample_is_dropped_but_does_not_end_a_hand_over_as_a_jump_or_a_timeout_does():
+    assert not ends_handover('late: stamp 358 ms old > 200 ms')
+    assert ends_handover('jump: 5.00 m in 10 ms > 0.20 m') and ends_handover('timeout: no sample for 0.60 s')
+    assert ends_handover('bad sample: zero quaternion') and not ends_handover(None)
+
+
+def test_a_late_burst_shorter_than_the_timeout_leaves_no_fault_once_timely_samples_come_back():
+    f = _filter(max_age_s=0.2, timeout_s=0.5, max_rate_hz=100.0)
+    t = 7_000 * MS
+    assert f.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + MS) is not None
+    for k in range(1, 30):   # 0.3 s of samples each 350 ms old: a publisher that stalled
+        assert f.offer([0, 0, 0], [0, 0, 0, 1], None, t + k * 10 * MS - 350 * MS, t + k * 10 * MS) is None
+    assert f.check_timeout(t + 300 * MS).startswith('late') and f.dropped_late == 29
+    assert f.offer([0, 0, 0], [0, 0, 0, 1], None, t + 300 * MS, t + 301 * MS) is not None
+    assert f.fault is None and f.check_timeout(t + 310 * MS) is None
+
+
+def test_only_late_samples_for_the_timeout_is_a_timeout_though_samples_arrive():
+    f = _filter(max_age_s=0.2, timeout_s=0.5)
+    t = 7_000 * MS
+    f.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + MS)
+    for k in range(1, 61):
+        f.offer([0, 0, 0], [0, 0, 0, 1], None, t + k * 10 * MS - 300 * MS, t + k * 10 * MS)
+    assert f.check_timeout(t + 400 * MS).startswith('late')
+    fault = f.check_timeout(t + 600 * MS)
+    assert fault.startswith('timeout: no timely sample for 0.60 s (the newest 300 ms old)'), fault
+    assert ends_handover(fault)
+    g = _filter(max_age_s=0.2, timeout_s=0.5)
+    g.offer([0, 0, 0], [0, 0, 0, 1], None, t, t + 300 * MS)
+    assert g.check_timeout(t + 300 * MS).startswith('timeout: no timely sample ever')
 
 
 def test_timeout_when_the_stream_stops():
