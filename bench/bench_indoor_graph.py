@@ -5,9 +5,10 @@ with config/control_real.yaml over control.yaml, the real-vehicle default, traje
 other work shares: the vehicle on the floor, armed, `offboard`, a plan up to the square's first corner (an autopilot
 without GPS has no position before the pose streams), then the square, the plan recorded and scored.
 Each autopilot with its GPS off and external vision on (PX4: EKF2_EV_CTRL 3, EKF2_HGT_REF 3, EKF2_GPS_CTRL 0,
-EKF2_EV_DELAY 0 as docs/bridge.md sets it; ArduPilot: VISO_TYPE 1, EK3_SRC1_POSXY/VELXY/POSZ/YAW 6), the emulator's
-motion-capture stand-in publishing its truth on external/pose (`--mocap-topic external/pose`: 100 Hz, 1 mm RMS
-noise, 10 ms from capture to message, stamped at the capture instant) and the bridge forwarding it
+EKF2_EV_DELAY 0 as docs/bridge.md sets it, flown once the bridge answered 550 of PX4's TIMESYNC requests, when
+its filter has converged and maps the pose's stamp; ArduPilot: VISO_TYPE 1, EK3_SRC1_POSXY/VELXY/POSZ/YAW 6), the
+emulator's motion-capture stand-in publishing its truth on external/pose (`--mocap-topic external/pose`: 100 Hz,
+1 mm RMS noise, 10 ms from capture to message, stamped at the capture instant) and the bridge forwarding it
 (`external_pose_enabled: true`). The controller flies from the autopilot's odometry (its estimate, fused from the
 forwarded pose) or from the pose itself (`state_source: external_pose`). Beside them the same flights with GPS
 (the emulator's default estimate, no external vision; the stand-in still publishing, not forwarded). Truth vs plan:
@@ -49,6 +50,7 @@ EXTERNAL_VISION = {'px4': ('EKF2_EV_CTRL=3', 'EKF2_HGT_REF=3', 'EKF2_GPS_CTRL=0'
 SETTLE_S = 3.0   # the scored window: the plan plus this
 HOVER_M = 0.1    # a plan's end reached: the odometry this close to its last point
 EXTERNAL_POSE_STATUS = 'mavlink_bridge: external pose'
+PX4_TIMESYNC_ANSWERS = 550   # Timesync's CONVERGENCE_WINDOW (500 round trips under 10 ms) and some slow ones
 SOURCES = {   # label: (external vision on, controller parameters)
     'GPS-like estimate (odom, no vision)': (False, {}),
     'autopilot odometry fused from the pose (odom)': (True, {}),
@@ -104,6 +106,9 @@ def fly_cell(flavour: str, vision: bool, controller: dict) -> tuple[float, float
             if vision:
                 observer.wait_for(lambda: observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding',
                                   f'the bridge forwarding the pose ({observer.status(EXTERNAL_POSE_STATUS)})')
+            if vision and flavour == 'px4':   # PX4 reads the pose's stamp once its TIMESYNC filter converged
+                observer.wait_for(lambda: int(observer.link()[1].get('timesync_requests_answered', 0)) >=
+                                  PX4_TIMESYNC_ANSWERS, f'{PX4_TIMESYNC_ANSWERS} TIMESYNC answers', 3 * WAIT_S)
             observer.wait_for(lambda: observer.call('arm', SetBool.Request(data=True)).success, 'arming accepted')
             observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
             observer.wait_for(lambda: observer.references, 'the controller to hold position')

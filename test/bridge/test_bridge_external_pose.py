@@ -101,6 +101,8 @@ def test_external_pose_is_forwarded_and_its_faults_end_the_hand_over(graph, flav
     assert (m.x, m.y, m.z) == pytest.approx((2.0, 1.0, -0.5), abs=1e-5)   # ENU (1, 2, 0.5) in NED
     if flavour == 'px4':
         assert (m.frame_id, m.child_frame_id, m.estimator_type) == (20, 12, 2)
+        observer.wait_for(lambda: int(observer.link()[1].get('timesync_requests_answered', 0)) > 0,
+                          "PX4's TIMESYNC requests answered")   # it maps the stamps after 500 of them
     window = [s for s, _ in sent if s > sent[-1][0] - 1.0]
     assert 25 <= len(window) <= 32, len(window)   # 100 Hz published, 30 Hz forwarded
     observer.wait_for(lambda: observer.status(STATUS)[0] == 'forwarding', 'the external pose status forwarding')

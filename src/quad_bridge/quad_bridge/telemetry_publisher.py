@@ -62,6 +62,7 @@ class TelemetryPublisher:
         self.odom_packer = OdometryFloats()   # serialized: ~10x cheaper than building the messages
         self.imu_packer = cdr.ImuPacker()
         self.timesync_ts1 = None
+        self.timesync_requests_answered = 0   # PX4 maps a companion's stamps only after 500 of them (Timesync)
         self.attitude = None           # the latest ATTITUDE_QUATERNION: (quaternion ENU/FLU, body rates FLU), floats
         self.quaternion = None         # the latest published odometry's quaternion (floats), for `imu`
         self.last_odom_s = None        # monotonic time of the newest odometry publication (None: none since up)
@@ -101,6 +102,7 @@ class TelemetryPublisher:
         return {'clock': self.clock.source, 'clock_switches': self.clock.switches,
                 'clock_offset_jitter_ms': f'{self.clock.jitter_ms():.3f}',
                 'clock_drift_ppm': f'{self.clock.drift_ppm():.0f}',
+                'timesync_requests_answered': self.timesync_requests_answered,
                 'odometry_source': '+'.join(st.current('odometry')) if st else '',
                 'imu_source': '+'.join(st.current('imu')) if st else '',
                 'missing_streams': ','.join(st.missing(now_s)) if st else '',
@@ -186,6 +188,7 @@ class TelemetryPublisher:
     def on_timesync(self, msg, arrival_ns):
         if msg.tc1 == 0:  # a request from the vehicle: answer it
             self.client.send('timesync', answer_clock_ns(), msg.ts1)
+            self.timesync_requests_answered += 1
         elif msg.ts1 == self.timesync_ts1:
             self.clock.timesync(msg.ts1, msg.tc1, arrival_ns)
             with self.vehicle.lock:
