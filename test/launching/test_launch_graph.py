@@ -151,9 +151,10 @@ def test_bridge_launch_arguments_reach_their_nodes(autopilot):
 
 
 @pytest.mark.parametrize('kind', ['px4', 'ardupilot', 'fleet'])
-def test_indoor_launch_arguments_reach_the_bridge_and_the_controller(kind):
-    """external_pose:=enu|y_up: the bridge forwards external/pose in that frame; state_source:=external_pose: the
-    controller flies from it in the same frame; a bad value, or the controller on a pose the bridge does not
+def test_indoor_launch_arguments_reach_the_bridge_and_the_controller(kind, tmp_path):
+    """external_pose:=enu|y_up: the bridge forwards external/pose in that frame and the controller flies from it in
+    the same frame (state_source:=external_pose, the default then; state_source:=odom: from the autopilot's
+    estimate); a bad value, or the controller on a pose the bridge does not
     forward, is refused naming the argument and the value."""
     def launched(**arguments):
         nodes = evaluate(LAUNCH / f'{kind}.launch.py', **arguments)
@@ -167,8 +168,15 @@ def test_indoor_launch_arguments_reach_the_bridge_and_the_controller(kind):
         for control, bridge in launched(external_pose=frame, state_source='external_pose'):
             assert bridge['external_pose_enabled'] and bridge['external_pose_frame'] == frame
             assert control['state_source'] == 'external_pose' and control['external_pose_frame'] == frame
-    for control, bridge in launched(external_pose='y_up'):         # the controller on the autopilot's estimate
+    for control, bridge in launched(external_pose='y_up'):         # by default the controller on the pose too
+        assert bridge['external_pose_frame'] == 'y_up' and control['state_source'] == 'external_pose'
+        assert control['external_pose_frame'] == 'y_up'
+    for control, bridge in launched(external_pose='y_up', state_source='odom'):   # on the autopilot's estimate
         assert bridge['external_pose_frame'] == 'y_up' and control['state_source'] == 'odom'
+    profile = tmp_path / 'odom_profile.yaml'   # a profile that says odom keeps it
+    profile.write_text('position_controller:\n  ros__parameters:\n    state_source: odom\n')
+    for control, _ in launched(external_pose='enu', control_profile=str(profile)):
+        assert control['state_source'] == 'odom'
     for arguments, message in ((dict(external_pose='ned'), "external_pose 'ned' refused: must be one of off, enu, "
                                                            "y_up"),
                                (dict(state_source='mocap'), "state_source 'mocap' refused"),
@@ -462,16 +470,16 @@ INDOOR_END_M = 0.15          # the plan's last waypoint, reached within this (th
 EXTERNAL_POSE_STATUS = 'mavlink_bridge: external pose'
 
 
-@pytest.mark.parametrize('autopilot, state_source', [('px4', 'external_pose'), ('ardupilot', 'odom')],
-                         ids=['px4-external_pose', 'ardupilot-odom'])
+@pytest.mark.parametrize('autopilot, state_source', [('px4', ''), ('ardupilot', 'odom')],
+                         ids=['px4-external_pose-by-default', 'ardupilot-odom'])
 def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motion_capture(tmp_path, autopilot,
                                                                                           state_source):
     """The emulated autopilot with its GPS off and external vision on (test_bridge_external_pose's EV_PARAMS), its
     motion-capture stand-in (`mavlink_vehicle --mocap-topic external/pose`: the truth, 100 Hz, 1 mm, 10 ms late)
-    and <autopilot>.launch.py with external_pose:=enu (state_source:=external_pose: the controller flies from the
-    same pose; odom: from the autopilot's estimate). The walk-through's calls in order: arm (the autopilot has a
-    position only from the forwarded pose), offboard on the floor (the emulator has no takeoff command: the plan's
-    first leg is the takeoff), the plan flown to its end, land, disarmed."""
+    and <autopilot>.launch.py with external_pose:=enu (the controller flies from the same pose, as the walk-through
+    leaves it; state_source:=odom: from the autopilot's estimate). The walk-through's calls in order: arm (the
+    autopilot has a position only from the forwarded pose), offboard on the floor (the emulator has no takeoff
+    command: the plan's first leg is the takeoff), the plan flown to its end, land, disarmed."""
     from bridge.test_bridge_external_pose import EV_PARAMS
     from launched_params import ParameterReader
     from std_srvs.srv import Trigger
@@ -482,7 +490,8 @@ def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motio
         procs.vehicle(autopilot, f'udpout:127.0.0.1:{port}', position=INDOOR_WAYPOINTS[0],
                       extra=(*VEHICLE_PARAMS[autopilot], *ev, '--mocap-topic', 'external/pose'))
         start(LAUNCH / f'{autopilot}.launch.py', mission=str(_mission(tmp_path, INDOOR_WAYPOINTS)),
-              fcu_url=f'udpin:127.0.0.1:{port}', external_pose='enu', state_source=state_source)
+              fcu_url=f'udpin:127.0.0.1:{port}', external_pose='enu',
+              **({'state_source': state_source} if state_source else {}))
         observer.wait_for(lambda: observer.trajectory is not None, 'the plan')
         observer.wait_for(lambda: observer.status(EXTERNAL_POSE_STATUS)[0] == 'forwarding',
                           f'the bridge forwarding the motion capture ({observer.status(EXTERNAL_POSE_STATUS)})')
@@ -491,7 +500,7 @@ def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motio
             control = reader.parameters('/position_controller')
         finally:
             reader.close()
-        assert (control['state_source'], control['external_pose_frame']) == (state_source, 'enu')
+        assert (control['state_source'], control['external_pose_frame']) == (state_source or 'external_pose', 'enu')
         observer.wait_for(lambda: observer.call('arm', SetBool.Request(data=True)).success, 'arming accepted')
         observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
         result = observer.call('offboard', SetBool.Request(data=True))
@@ -507,7 +516,8 @@ def test_indoor_walk_through_from_ros2_launch_against_the_emulator_and_its_motio
         with observer.lock:
             heights = [p[2] for _, p in observer.odom]
         miss_m = np.linalg.norm(np.array(observer.position()) - end)
-        print(f'indoor, {autopilot}, state_source {state_source}: {miss_m:.3f} m from the last waypoint, highest '
+        print(f'indoor, {autopilot}, state_source {state_source or "external_pose"}: {miss_m:.3f} m from the last '
+              f'waypoint, highest '
               f'{max(heights):.2f} m, pose age '
               f'{observer.status(EXTERNAL_POSE_STATUS)[1].get("age_ms")} ms')
         result = observer.call('land', Trigger.Request())

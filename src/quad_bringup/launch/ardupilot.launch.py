@@ -5,7 +5,7 @@ Start in any order: the plan runs only once `offboard` has handed the vehicle ov
 vehicle is then (docs/bridge.md, "Flying a real vehicle").
 
     ros2 launch quad_bringup ardupilot.launch.py mission:=/path/to/mission.yaml [fcu_url:=...] [hover_throttle:=0.42]
-    ros2 launch quad_bringup ardupilot.launch.py mission:=... external_pose:=enu state_source:=external_pose   # indoors
+    ros2 launch quad_bringup ardupilot.launch.py mission:=... external_pose:=enu   # indoors
 """
 
 from quad_bringup.running.launch_graph import launch_description

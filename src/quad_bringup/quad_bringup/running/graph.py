@@ -277,8 +277,10 @@ def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=
     docs/plugins.md); fcu_url, hover_throttle, vehicle_params: the bridge's parameters when given.
     external_pose: off, or the frame (enu, y_up) of the motion capture on external/pose that the bridge forwards to
     the autopilot's estimator; state_source: over the profile's (odom, external_pose: the controller flies from that
-    pose, in the bridge's frame). A controller on external_pose with external_pose off is refused: the autopilot
-    would hold and fail safe on an estimate without the pose the controller flies from."""
+    pose, in the bridge's frame). With external_pose on and state_source set by neither, the controller flies from
+    the pose: it is the autopilot's estimate's own source without the estimator's and the telemetry's delays
+    (docs/benchmarks.md, indoor flight through the graph). A controller on external_pose with external_pose off is
+    refused: the autopilot would hold and fail safe on an estimate without the pose the controller flies from."""
     from quad_common.mocap_frames import FRAMES
     from quad_control.parameters import STATE_SOURCES
 
@@ -308,6 +310,8 @@ def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=
         NodeSpec('position_controller', (config(CONFIG_FILES['position_controller']), profile, control)),
         NodeSpec('mavlink_bridge', (config(CONFIG_FILES['mavlink_bridge'].format(autopilot=autopilot)), bridge)),
     ]
+    if external_pose != EXTERNAL_POSE_OFF and 'state_source' not in nodes[1].merged_parameters():
+        control['state_source'] = 'external_pose'   # indoors the controller flies from the motion capture (below)
     if nodes[1].merged_parameters().get('state_source') == 'external_pose':
         if external_pose == EXTERNAL_POSE_OFF:
             raise ValueError(f'state_source {"external_pose"!r} refused with external_pose {external_pose!r}: the '
@@ -374,7 +378,8 @@ INDOOR_LAUNCH_ARGUMENTS = (
                                          'in this frame to the autopilot\'s estimator (docs/bridge.md "Indoor '
                                          'flight")'),
     ('state_source', '', 'odom | external_pose: what position_controller flies from (external_pose: the same '
-                         'motion capture, needs external_pose:=enu or y_up); empty: the profile\'s'),
+                         'motion capture, needs external_pose:=enu or y_up); empty: the profile\'s, and '
+                         'external_pose where external_pose is on and the profile does not say'),
 )
 BRIDGE_LAUNCH_ARGUMENTS = (
     ('mission', 'missions/maze.yaml', 'mission YAML: a path, or one under config/'),
