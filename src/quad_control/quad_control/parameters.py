@@ -46,8 +46,9 @@ SPECS = [
     Param('integral_limit_mps2', SEED.integral_limit_mps2, 'anti-windup clamp on ki * integral, per axis (m/s^2)',
           min=0.0, max=100.0),
     Param('use_feedforward', True, 'reference acceleration in eq. 1 and jerk-based body rates in se3'),
-    Param('attitude_lead_s', SEED.attitude_lead_s, 'attitude from a_des + lead * reference jerk, cancelling the '
-          'onboard attitude loop lag (about kd/kp of eq. 6 = 0.1 s); 0 = off (the seed)', min=0.0, max=1.0),
+    Param('attitude_lead_s', SEED.attitude_lead_s, 'attitude from a_des + lead * (reference jerk + drag x reference '
+          'acceleration: the feed-forward lead later), cancelling the onboard attitude loop lag (about kd/kp of '
+          'eq. 6 = 0.1 s); 0 = off (the seed)', min=0.0, max=1.0),
     Param('thrust_scale', SEED.thrust_scale, 'delivered / commanded specific force of the vehicle (quadflight '
           'identify); the thrust command is divided by it; 1 = the seed', min=0.5, max=2.0),
     Param('disturbance_time_constant_s', SEED.disturbance_time_constant_s, 'filter time constant of the observed '

@@ -47,7 +47,7 @@ class PositionGains:
     integral_limit_mps2: float = 2.0            # anti-windup: |ki_i * integral_i| <= this
     use_feedforward: bool = True                # reference acceleration in eq. 1, jerk in se3 rates
     # Speed extensions (all off by default, so the defaults are the seed's controller; docs "Tuning for speed"):
-    attitude_lead_s: float = 0.0                # attitude from a_des + lead * jerk_T (thrust from a_des)
+    attitude_lead_s: float = 0.0                # attitude from a_des + lead * (jerk_T + D a_T) (thrust from a_des)
     disturbance_time_constant_s: float = 0.0    # > 0: subtract the observed external acceleration (filtered)
     drag_feedforward_per_s: float = 0.0         # linear air drag D (1/s): a_des += D v_T, the drag the plan meets
     drag_learning_time_s: float = 0.0           # > 0: D learnt online, horizontally (quad_control.drag_estimate,
@@ -114,16 +114,21 @@ def desired_acceleration(state: State, ref: Reference, gains: PositionGains, int
     return acc
 
 
-def attitude_acceleration(acc_des, ref: Reference, gains: PositionGains) -> np.ndarray:
-    """The acceleration the attitude is computed from: a_des + lead * jerk_T.
+def attitude_acceleration(acc_des, ref: Reference, gains: PositionGains, drag_per_s=None) -> np.ndarray:
+    """The acceleration the attitude is computed from: a_des + lead * (jerk_T + D a_T).
 
     The onboard eq. 6 with p_des = q_des = 0 follows an attitude step like kp / (s^2 + kd s + kp), i.e. with
     a lag of about kd / kp (0.1 s with the seed's 3000 / 300): commanding the attitude that the plan needs
     `lead` seconds later cancels it to first order (the thrust magnitude, which has no such lag, is not led).
+    What the plan needs is its whole feed-forward a_T + D v_T (drag_per_s: D per axis), whose rate is
+    jerk_T + D a_T.
     """
     if not gains.attitude_lead_s:
         return acc_des
-    return acc_des + gains.attitude_lead_s * np.asarray(ref.jerk, dtype=float)
+    lead = np.asarray(ref.jerk, dtype=float)
+    if drag_per_s is not None and np.any(drag_per_s) and gains.use_feedforward:
+        lead = lead + drag_per_s * np.asarray(ref.acceleration, dtype=float)
+    return acc_des + gains.attitude_lead_s * lead
 
 
 def clamp_thrust(thrust_n, limits: Limits, sat: Saturation) -> float:
@@ -267,7 +272,7 @@ class PositionController:
         if observing:
             body_z = self._observe_disturbance(state, dt_s)
             acc = acc - self.disturbance_mps2
-        acc_attitude = attitude_acceleration(acc, ref, self.gains)
+        acc_attitude = attitude_acceleration(acc, ref, self.gains, self.drag_per_s)
         if self.name == 'se3':
             sp, sat = geometric_setpoint(acc, state, ref, mass_kg, self.limits, use_jerk=self.gains.use_feedforward,
                                          acc_attitude=acc_attitude)

@@ -267,6 +267,21 @@ def test_attitude_lead_tilts_by_lead_times_jerk_and_leaves_thrust(law):
     assert led.specific_force_mps2 == pytest.approx(plain.specific_force_mps2, abs=1e-12)
 
 
+@pytest.mark.parametrize('law', ['pd', 'se3'])
+def test_attitude_lead_leads_the_drag_feedforward_too(law):
+    """The attitude is led to the whole feed-forward `lead` later: (a_T + D v_T)' = j_T + D a_T, so with drag D the
+    tilt is that of a_x = a_T + D v_T + lead (j_T + D a_T); the thrust is not led."""
+    ref = _ref(velocity=(0.5, 0, 0), acceleration=(1.0, 0, 0), jerk=(4.0, 0, 0))
+    state = _state(velocity=(0.5, 0, 0))
+    gains = replace(SEED, attitude_lead_s=0.1, drag_feedforward_per_s=2.0)
+    led = PositionController(law, gains, VEHICLE).update(state, ref, 0.01)[0]
+    unled = PositionController(law, replace(gains, attitude_lead_s=0.0), VEHICLE).update(state, ref, 0.01)[0]
+    a_x = 1.0 + 2.0 * 0.5 + 0.1 * (4.0 + 2.0 * 1.0)   # 2.6 m/s^2
+    expected = a_x / G if law == 'pd' else math.atan(a_x / G)
+    assert rotations.to_euler(led.quaternion)[1] == pytest.approx(expected, abs=1e-9)
+    assert led.specific_force_mps2 == pytest.approx(unled.specific_force_mps2, abs=1e-12)
+
+
 @pytest.mark.parametrize('law', ['pd', 'pid', 'se3'])
 def test_drag_feedforward_adds_drag_times_the_plan_velocity_and_only_with_feedforward(law):
     """On the plan (no error), a_des = a_T + D v_T: a command identical to one asking for that acceleration."""
