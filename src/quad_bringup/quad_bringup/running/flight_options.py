@@ -90,9 +90,12 @@ def validate(options: FlightOptions):
             raise MissionRefused(f'--plant {options.plant!r} refused: {exc}') from None
         if options.plant not in family:
             raise MissionRefused(f'--plant {options.plant!r} refused: must be one of {", ".join(family)}')
-    from quad_trajectory import mission as mission_module
+    from quad_trajectory.mission_file import mission_fields
 
     try:
+        mission_fields(load_yaml(path), os.fspath(path))   # the file's own values, refused before numpy is imported
+        from quad_trajectory import mission as mission_module
+
         mission = mission_module.load_mission(path)
         mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
     except (ValueError, KeyError, TypeError, OSError) as exc:
