@@ -5,7 +5,7 @@ function before numpy is imported. Errors name the file, the field and the value
 
 import math
 
-from quad_common.yaml_io import load_yaml, refuse_typos
+from quad_common.yaml_io import as_floats, load_yaml, refuse_typos
 
 ATTITUDE_LOOPS = ('eq6', 'so3_pd', 'lag')
 ATTITUDE_LOOP_KEYS = ('type', 'angle_p', 'rate_p', 'time_constant_s', 'use_feedforward_rates')
@@ -24,16 +24,6 @@ def _is_number(v) -> bool:
 def _sequence(value) -> bool:
     """A list, a tuple or a 1-D array (not a string, not a mapping)."""
     return hasattr(value, '__len__') and not isinstance(value, (str, bytes, dict))
-
-
-def _floats(value, n=3) -> list[float] | None:
-    """n values as floats where float() takes each one (numbers, numeric text), else None."""
-    if not _sequence(value) or len(value) != n or any(_sequence(v) for v in value):
-        return None
-    try:
-        return [float(v) for v in value]
-    except (TypeError, ValueError):
-        return None
 
 
 def _positive(data, key, path, allow_zero=False):
@@ -96,7 +86,7 @@ def vehicle_fields(data: dict, path='vehicle') -> dict:
     converted = {}
     for name, default in (('kp', 3000.0), ('kd', 300.0)):
         value = gains.get(name, [default] * 3)
-        g = _floats(value)
+        g = as_floats(value, 3)
         if g is None or not all(math.isfinite(v) and v >= 0 for v in g):
             raise ValueError(f'{path}: attitude_gains.{name} = {value!r:.120} must be three finite numbers >= 0')
         converted[name] = g

@@ -6,6 +6,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
+from quad_common.yaml_io import as_floats, shown
 from quad_trajectory import timing
 
 ORDERS = {'minaccel': 2, 'minjerk': 3, 'minsnap': 4}   # method -> the derivative whose integral square is minimised
@@ -40,31 +41,11 @@ def finite_number(name, value, positive=True) -> float:
     return float(value)
 
 
-def _as_float(v) -> float:
-    """float(v), None as NaN (what an array of floats makes of it)."""
-    return math.nan if v is None else float(v)
-
-
-def _floats(value, n: int | None = None) -> list[float] | None:
-    """The values of a flat list, tuple or 1-D array as floats (n of them when n is given); None where one is not a
-    number, numeric text or None, or where they are not n."""
-    value = value.tolist() if hasattr(value, 'tolist') else value
-    if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n) \
-            or any(isinstance(v, (list, tuple, dict)) for v in value):
-        return None
-    try:
-        return [_as_float(v) for v in value]
-    except (TypeError, ValueError):
-        return None
-
-
 def waypoint_rows(waypoints) -> list[list[float]]:
     """The waypoints as [x, y, z] floats (at least two, all finite); ValueError naming the first bad one by its index
     (never the whole list: 50,000 of them are 1 MB)."""
-    from quad_common.yaml_io import shown
-
     listed = waypoints.tolist() if hasattr(waypoints, 'tolist') else waypoints
-    rows = [_floats(point, 3) for point in listed] if isinstance(listed, (list, tuple)) else None
+    rows = [as_floats(point, 3) for point in listed] if isinstance(listed, (list, tuple)) else None
     if not rows or None in rows:
         if isinstance(waypoints, (list, tuple)):
             bad = next((i for i, row in enumerate(rows) if row is None), None)
@@ -84,9 +65,9 @@ def yaw_values(yaw, n: int) -> float | list[float] | None:
     if yaw is None:
         return None
     if isinstance(yaw, numbers.Real):
-        values = _as_float(yaw)
+        values = float(yaw)
     else:
-        values = _floats(yaw, n) if not isinstance(yaw, str) else None
+        values = as_floats(yaw, n) if not isinstance(yaw, str) else None
         if values is None:
             raise ValueError(f'yaw = {yaw!r} must be one number or one per waypoint ({n})')
     if not all(math.isfinite(v) for v in (values if isinstance(values, list) else [values])):
