@@ -52,8 +52,11 @@ class FlightOptions:
 def validate(options: FlightOptions):
     """Loads and plans the mission with quad_trajectory (so a bad one is refused before anything starts).
 
-    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem. The checks that need no numpy
-    (option values, files that are not there) come first: such a refusal imports no controller and no planner.
+    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem (a bad --vehicle file: ValueError,
+    as flight_vehicle raises it). The checks that need no numpy come first: option values, --out, files that are not
+    there, a vehicle file's fields, a controller, disturbance profile or plant family member by name, the mission
+    file's own values (pure Python rules that the later load applies too); such a refusal imports no controller and
+    no planner.
     """
     if options.time_allocation is not None and options.time_allocation not in TIME_ALLOCATIONS:
         raise MissionRefused(f'--time-allocation {options.time_allocation!r} refused: must be one of '
