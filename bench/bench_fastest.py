@@ -28,7 +28,8 @@ sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 
 from quad_bringup.offline.closed_loop import LoopOptions, fly_offline, load_control_profile  # noqa: E402
 from quad_common.paths import resolve_config  # noqa: E402
-from quad_common.vehicle import load_plant_family, load_vehicle  # noqa: E402
+from quad_common.vehicle import load_vehicle  # noqa: E402
+from quad_common.vehicle_file import load_plant_family  # noqa: E402
 from quad_trajectory import fastest, feasibility, planner, solver, timing  # noqa: E402
 from quad_trajectory.mission import load_mission, plan_mission  # noqa: E402
 from quad_trajectory.polynomial import PiecewisePolynomial  # noqa: E402

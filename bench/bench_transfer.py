@@ -23,7 +23,7 @@ sys.path[:0] = [str(p) for p in sorted((ROOT / 'src').glob('quad_*'))]
 from quad_bringup.commands.identify import check_bag  # noqa: E402
 from quad_bringup.offline.closed_loop import LoopOptions, control_profile, fly_offline, load_control_profile  # noqa: E402
 from quad_bringup.peers.rotorpy_peer import MISSION_SPEED_MPS, rotorpy_mission_bag  # noqa: E402
-from quad_common.vehicle import load_plant_family  # noqa: E402
+from quad_common.vehicle_file import load_plant_family  # noqa: E402
 from quad_common.yaml_io import load_yaml  # noqa: E402
 from quad_control.parameters import profile_parameters  # noqa: E402
 from quad_trajectory.mission import load_mission  # noqa: E402

@@ -343,12 +343,12 @@ def test_plan_on_a_full_disk_leaves_nothing_and_names_the_path(capsys, mission, 
 
 
 def test_fly_says_when_the_controller_is_not_the_profiles(capsys, tmp_path):
-    run_dir = tmp_path / 'run'
-    run_dir.mkdir()
-    (run_dir / 'report.md').write_text('mine\n')   # refused there: nothing flies
-    code, out, _ = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--controller', 'pd',
-                         '--control-profile', 'config/control_se3.yaml', '--out', run_dir)
-    assert code == 2 and 'note: flying pd with the gains of /' in out   # file arguments are made absolute
+    (tmp_path / 'afile').write_text('mine\n')
+    run_dir = tmp_path / 'afile' / 'run'   # refused when it is made, once the mission is planned: nothing flies
+    code, out, err = _main(capsys, 'fly', REPO_ROOT / 'config/missions/maze.yaml', '--controller', 'pd',
+                           '--control-profile', 'config/control_se3.yaml', '--out', run_dir)
+    assert code == 2 and 'cannot create or write it' in err, err
+    assert 'note: flying pd with the gains of /' in out   # file arguments are made absolute
     assert ('control_se3.yaml, a profile for se3 (its controller:); --controller wins: drop it to fly se3') in out
 
 

@@ -77,13 +77,25 @@ OPTION_REFUSALS = {
     'arm-bad-timeout': ('arm', '--timeout-s', '-1'),
     'land-off': ('land', '--off'),
 }
-# numpy, nothing heavier: refused for what an input file holds (the mission's or the disturbance profile's own
-# checks), or by a module that imports numpy at its top (tune's)
-NUMPY_ONLY_REFUSALS = {
+# refused for what an input file holds or for a name it must hold (pure Python checks: quad_common.vehicle_file,
+# quad_trajectory.mission_file, quad_control.controller_names, quad_sim.disturbance_file): no numpy either
+CONTENT_REFUSALS = {
     'plan-bad-waypoint': (('plan', 'bad.yaml'), "waypoints[1] = [1.0, 0.0, 'up']"),
+    'plan-bad-speed': (('plan', 'badspeed.yaml'), 'speed = -3 must be a finite number > 0'),
+    'plan-vehicle-without-inertia': (('plan', 'withbadveh.yaml'), 'badveh.yaml: inertia_kgm2 = None'),
     'fly-bad-waypoint': (('fly', 'bad.yaml'), "waypoints[1] = [1.0, 0.0, 'up']"),
+    'fly-bad-speed': (('fly', 'badspeed.yaml'), 'speed = -3 must be a finite number > 0'),
+    'fly-vehicle-without-inertia': (('fly', 'withbadveh.yaml'), 'badveh.yaml: inertia_kgm2 = None'),
+    'fly-bad-vehicle': (('fly', 'm.yaml', '--vehicle', 'badveh.yaml'), 'badveh.yaml: inertia_kgm2 = None'),
+    'fly-unknown-controller': (('fly', 'm.yaml', '--controller', 'nope'), "--controller 'nope' refused: must be"),
+    'fly-unknown-plant': (('fly', 'm.yaml', '--plant', 'nope'), "--plant 'nope' refused: must be one of"),
     'fly-bad-disturbances': (('fly', 'm.yaml', '--disturbances', 'nope'), "disturbances = 'nope': no such profile"),
+    'fly-out-a-file': (('fly', 'm.yaml', '--out', 'afile'), '--out afile: a file, not a directory'),
     'fleet-not-a-fleet': (('fleet', 'm.yaml'), 'not a fleet mission'),
+    'report-bad-vehicle': (('report', 'no_bag', '--vehicle', 'badveh.yaml'), 'badveh.yaml: inertia_kgm2 = None'),
+}
+# numpy, nothing heavier: a module that imports numpy at its top (tune's)
+NUMPY_ONLY_REFUSALS = {
     'tune-missing-spec': (('tune', 'missing.yaml'), 'tune refused: spec missing.yaml: file not found'),
 }
 
@@ -103,6 +115,11 @@ def refused(tmp_path, *argv) -> tuple[int, list[str], set[str]]:
 def inputs(tmp_path):
     (tmp_path / 'm.yaml').write_text(MISSION)
     (tmp_path / 'bad.yaml').write_text(BAD_WAYPOINT)
+    (tmp_path / 'badspeed.yaml').write_text(MISSION + 'trajectory:\n  speed: -3\n')
+    (tmp_path / 'badveh.yaml').write_text('name: noinertia\nmass_kg: 0.03\narm_length_m: 0.046\nk_eta: 2.3e-8\n'
+                                          'k_m: 7.8e-10\nrotor_speed_min_radps: 0.0\nrotor_speed_max_radps: 2500.0\n')
+    (tmp_path / 'withbadveh.yaml').write_text(MISSION + 'vehicle: badveh.yaml\n')
+    (tmp_path / 'afile').write_text('not a directory\n')
     return tmp_path
 
 
@@ -116,8 +133,19 @@ def test_an_option_or_missing_file_refusal_imports_nothing_heavy(inputs, argv):
     assert sorted(inputs.iterdir()) == before
 
 
+@pytest.mark.parametrize(('argv', 'said'), CONTENT_REFUSALS.values(), ids=CONTENT_REFUSALS.keys())
+def test_a_file_content_or_name_refusal_imports_nothing_heavy(inputs, argv, said):
+    """Refused with the rule the later load applies (one function, pure Python): one line naming the field and the
+    value, exit 2, nothing left, and neither numpy nor anything heavier imported."""
+    before = sorted(inputs.iterdir())
+    code, lines, modules = refused(inputs, *argv)
+    assert code == 2 and len(lines) == 1 and said in lines[0], lines
+    assert not modules & set(HEAVY + ('numpy', 'rosbags')), sorted(modules & set(HEAVY + ('numpy', 'rosbags')))
+    assert sorted(inputs.iterdir()) == before
+
+
 @pytest.mark.parametrize(('argv', 'said'), NUMPY_ONLY_REFUSALS.values(), ids=NUMPY_ONLY_REFUSALS.keys())
-def test_a_file_content_refusal_imports_numpy_only(inputs, argv, said):
+def test_a_refusal_by_a_numpy_module_imports_numpy_only(inputs, argv, said):
     before = sorted(inputs.iterdir())
     code, lines, modules = refused(inputs, *argv)
     assert code == 2 and len(lines) == 1 and said in lines[0], lines

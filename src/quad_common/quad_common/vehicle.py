@@ -1,6 +1,7 @@
 """The vehicle description shared by planner (limits), controller (mass, thrust, tilt) and simulator.
 
-Loaded from config/vehicles/*.yaml; every field is checked and a bad one is named.
+Loaded from config/vehicles/*.yaml; every field is checked and a bad one is named (quad_common.vehicle_file, pure
+Python, the rules; here the Vehicle they make).
 Rotor model: thrust_i = k_eta w_i^2 along body z, yaw moment_i = -dir_i k_m w_i^2 (dir +1 = CCW).
 
 What varies between real vehicles of one design, and only the simulated plant sees (the controller
@@ -18,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_common.types import GRAVITY_MPS2
-from quad_common.yaml_io import load_yaml, refuse_typos
+from quad_common.vehicle_file import load_vehicle_fields, vehicle_fields
 
 
 @dataclass
@@ -28,8 +29,6 @@ class AttitudeGains:
     kp: np.ndarray = field(default_factory=lambda: np.array([3000.0, 3000.0, 3000.0]))
     kd: np.ndarray = field(default_factory=lambda: np.array([300.0, 300.0, 300.0]))
 
-
-ATTITUDE_LOOPS = ('eq6', 'so3_pd', 'lag')
 
 
 @dataclass
@@ -114,153 +113,25 @@ class Vehicle:
         return positions, np.array([1.0, -1.0, 1.0, -1.0])
 
 
-def _positive(data, key, path, allow_zero=False):
-    value = data.get(key)
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value) and (
-        value >= 0 if allow_zero else value > 0)
-    if not ok:
-        rule = '>= 0' if allow_zero else '> 0'
-        raise ValueError(f'{path}: {key} = {value!r} must be a finite number {rule}')
-    return float(value)
-
-
-def _three(data, key, default, path, rule_positive=True):
-    value = data.get(key, default)
-    g = np.asarray(value if not isinstance(value, (int, float)) else [value] * 3, dtype=object)
-    ok = g.shape == (3,) and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-                                 and (v > 0 if rule_positive else v >= 0) for v in g)
-    if not ok:
-        raise ValueError(f'{path}: {key} = {value!r} must be three finite numbers {"> 0" if rule_positive else ">= 0"}')
-    return np.asarray(g, dtype=float)
-
-
-def attitude_loop_from_dict(data, path='attitude_loop') -> AttitudeLoop:
-    if data is None:
-        return AttitudeLoop()
-    if not isinstance(data, dict):
-        raise ValueError(f'{path} = {data!r} must be a mapping with a type ({", ".join(ATTITUDE_LOOPS)})')
-    unknown = set(data) - {'type', 'angle_p', 'rate_p', 'time_constant_s', 'use_feedforward_rates'}
-    if unknown:
-        raise ValueError(f'{path}: unknown field(s) {sorted(unknown)}')
-    kind = data.get('type', 'eq6')
-    if kind not in ATTITUDE_LOOPS:
-        raise ValueError(f'{path}.type = {kind!r} must be one of {", ".join(ATTITUDE_LOOPS)}')
-    default = AttitudeLoop()
-    loop = AttitudeLoop(type=kind, angle_p=_three(data, 'angle_p', default.angle_p.tolist(), path),
-                        rate_p=_three(data, 'rate_p', default.rate_p.tolist(), path),
-                        time_constant_s=_positive(data, 'time_constant_s', path) if 'time_constant_s' in data
-                        else default.time_constant_s)
-    ff = data.get('use_feedforward_rates', True)
-    if not isinstance(ff, bool):
-        raise ValueError(f'{path}: use_feedforward_rates = {ff!r} must be true or false')
-    loop.use_feedforward_rates = ff
-    return loop
-
-
-def _fraction(data, key, path):
-    value = data.get(key, 0.0)
-    if not (isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
-            and -0.5 <= value <= 1.0):
-        raise ValueError(f'{path}: {key} = {value!r} must be a finite fraction in [-0.5, 1.0] (0.06 = +6 %)')
-    return float(value)
-
-
 def vehicle_from_dict(data: dict, path='vehicle') -> Vehicle:
-    inertia = data.get('inertia_kgm2')
-    if (not isinstance(inertia, (list, tuple)) or len(inertia) != 3
-            or not all(isinstance(v, (int, float)) and np.isfinite(v) and v > 0 for v in inertia)):
-        raise ValueError(f'{path}: inertia_kgm2 = {inertia!r} must be three finite numbers > 0 (Ixx, Iyy, Izz)')
-    gains = data.get('attitude_gains') or {}
-    if not isinstance(gains, dict):
-        raise ValueError(f'{path}: attitude_gains = {gains!r:.120} must be a mapping (kp, kd)')
-    converted = {}
-    for name, default in (('kp', 3000.0), ('kd', 300.0)):
-        value = gains.get(name, [default] * 3)
-        try:
-            g = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            g = None
-        if g is None or g.shape != (3,) or not np.all(np.isfinite(g)) or np.any(g < 0):
-            raise ValueError(f'{path}: attitude_gains.{name} = {value!r:.120} must be three finite numbers >= 0')
-        converted[name] = g
-    kp, kd = converted['kp'], converted['kd']
-    layout = data.get('layout', 'x')
-    if layout not in ('x', 'plus'):
-        raise ValueError(f"{path}: layout = {layout!r} must be 'x' or 'plus'")
-    known = {'name', 'mass_kg', 'inertia_kgm2', 'arm_length_m', 'k_eta', 'k_m', 'rotor_speed_min_radps',
-             'rotor_speed_max_radps', 'motor_time_constant_s', 'layout', 'max_tilt_deg', 'attitude_gains',
-             'attitude_loop', 'mass_error', 'thrust_error'}
-    refuse_typos(data, known | {'aerodynamics', 'completion'}, str(path))   # sections other modules read
-    v = Vehicle(
-        name=str(data.get('name', path)),
-        mass_kg=_positive(data, 'mass_kg', path),
-        inertia_kgm2=np.asarray(inertia, dtype=float),
-        arm_length_m=_positive(data, 'arm_length_m', path),
-        k_eta=_positive(data, 'k_eta', path),
-        k_m=_positive(data, 'k_m', path),
-        rotor_speed_min_radps=_positive(data, 'rotor_speed_min_radps', path, allow_zero=True),
-        rotor_speed_max_radps=_positive(data, 'rotor_speed_max_radps', path),
-        motor_time_constant_s=_positive(data, 'motor_time_constant_s', path, allow_zero=True)
-        if 'motor_time_constant_s' in data else 0.0,
-        layout=layout,
-        max_tilt_deg=_positive(data, 'max_tilt_deg', path) if 'max_tilt_deg' in data else 35.0,
-        attitude_gains=AttitudeGains(kp=kp, kd=kd),
-        attitude_loop=attitude_loop_from_dict(data.get('attitude_loop'), f'{path}: attitude_loop'),
-        mass_error=_fraction(data, 'mass_error', path),
-        thrust_error=_fraction(data, 'thrust_error', path),
-        extra={k: val for k, val in data.items() if k not in known},
-    )
-    if v.rotor_speed_min_radps >= v.rotor_speed_max_radps:
-        raise ValueError(f'{path}: rotor_speed_min_radps = {v.rotor_speed_min_radps} must be below '
-                         f'rotor_speed_max_radps = {v.rotor_speed_max_radps}')
-    if v.max_tilt_deg >= 90:
-        raise ValueError(f'{path}: max_tilt_deg = {v.max_tilt_deg} must be below 90')
+    """The Vehicle of a vehicle file's content: its fields checked by quad_common.vehicle_file.vehicle_fields, then
+    whether the rotors lift it."""
+    return _vehicle(vehicle_fields(data, path), path)
+
+
+def _vehicle(fields: dict, path) -> Vehicle:
+    gains, loop = fields['attitude_gains'], fields['attitude_loop']
+    v = Vehicle(**{**fields, 'inertia_kgm2': np.asarray(fields['inertia_kgm2'], dtype=float),
+                   'attitude_gains': AttitudeGains(kp=np.asarray(gains['kp']), kd=np.asarray(gains['kd'])),
+                   'attitude_loop': AttitudeLoop(**{k: np.asarray(value) if k in ('angle_p', 'rate_p') else value
+                                                    for k, value in loop.items()})})
     if v.thrust_to_weight <= 1.0:
         raise ValueError(f'{path}: the rotors cannot lift the vehicle: max thrust {v.thrust_max_n:.3f} N '
                          f'<= weight {v.hover_thrust_n:.3f} N')
     return v
 
 
-PLANT_FIELDS = ('motor_time_constant_s', 'attitude_gains', 'attitude_loop', 'mass_error', 'thrust_error')
-PLANT_FAMILY_FILE = 'config/plant_family.yaml'
-
-
-def load_plant_family(path=None) -> dict:
-    """{member name: vehicle-file overrides} of config/plant_family.yaml (or `path`); each member checked."""
-    from quad_common.paths import resolve_config
-    path = resolve_config(path or PLANT_FAMILY_FILE)
-    family = load_yaml(path)
-    if not isinstance(family, dict) or not family:
-        raise ValueError(f'{path}: must map member names to vehicle-field overrides')
-    for name, member in family.items():
-        if not isinstance(member, dict):
-            raise ValueError(f'{path}: member {name!r} = {member!r} must be a mapping of vehicle fields')
-        unknown = set(member) - set(PLANT_FIELDS)
-        if unknown:
-            raise ValueError(f'{path}: member {name!r} sets {sorted(unknown)}; a member may set only '
-                             f'{", ".join(PLANT_FIELDS)}')
-    return family
-
-
-def plant_overrides(plant, family_path=None) -> dict:
-    """The vehicle-field overrides of `plant`: a family member's name, a mapping, or None / '' (nothing)."""
-    if not plant:
-        return {}
-    if isinstance(plant, dict):
-        unknown = set(plant) - set(PLANT_FIELDS)
-        if unknown:
-            raise ValueError(f'plant sets {sorted(unknown)}; a plant may set only {", ".join(PLANT_FIELDS)}')
-        return plant
-    family = load_plant_family(family_path)
-    if plant not in family:
-        raise ValueError(f'plant = {plant!r} is not a member of the plant family ({", ".join(family)})')
-    return family[plant]
-
-
 def load_vehicle(path, plant=None, family_path=None) -> Vehicle:
     """The vehicle file, with a plant family member (name or overrides mapping) applied when given."""
-    data = dict(load_yaml(path))
-    overrides = plant_overrides(plant, family_path)
-    data.update(overrides)
-    where = f'{path} with plant {plant!r}' if overrides else str(path)
-    return vehicle_from_dict(data, where)
+    fields, where = load_vehicle_fields(path, plant, family_path)
+    return _vehicle(fields, where)

@@ -82,6 +82,19 @@ def shown(value, limit: int = SHOWN_CHARS) -> str:
     return text if len(text) <= limit else f'{text[:limit]}... ({len(text):,} characters)'
 
 
+def as_floats(value, n: int | None = None) -> list[float] | None:
+    """The values of a flat list, tuple or 1-D array as floats, as an array of floats would hold them (numeric text
+    parsed, None as NaN); None where one is not a number or there are not n of them."""
+    value = value.tolist() if hasattr(value, 'tolist') else value
+    if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n) \
+            or any(isinstance(v, (list, tuple, dict)) for v in value):
+        return None
+    try:
+        return [float('nan') if v is None else float(v) for v in value]
+    except (TypeError, ValueError):
+        return None
+
+
 def suggestion(key, known) -> str:
     """' (did you mean 'speed'?)' for a near miss of a known key, else ''."""
     import difflib

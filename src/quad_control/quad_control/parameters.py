@@ -5,8 +5,8 @@ import numpy as np
 
 from quad_common import mocap_frames
 from quad_common.params import Param, parameters_of, params_content
+from quad_control.controller_names import CONTROLLER_PARAM
 from quad_control.loop import ENGAGE_DELAY_S, MAX_START_STEP_M, RATE_HZ
-from quad_control.plugins import refusal as controller_refusal
 from quad_control.position import PositionGains
 
 NODE_NAME = 'position_controller'
@@ -15,9 +15,7 @@ SEED = PositionGains()
 STATE_SOURCES = ('odom', 'external_pose')
 
 SPECS = [
-    Param('controller', 'pd', 'position controller: pd (the seed eq. 1-5), pid (plus integral), se3 (geometric), '
-          'or a user class: package.module:Class or a quadflight.controllers entry point (docs/plugins.md)',
-          check=controller_refusal),
+    CONTROLLER_PARAM,
     Param('rate_hz', RATE_HZ, 'control loop rate on the node clock; in lockstep 1 / sim lockstep_period_s',
           min=1.0, max=2000.0),
     Param('lockstep', False, 'compute the tick at t from the odometry stamped t (deferred until it arrives)'),

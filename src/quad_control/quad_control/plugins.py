@@ -2,8 +2,8 @@
 place a controller name is resolved (`make_controller`), and the guard that turns a failing user controller into
 a dead one (docs/plugins.md).
 
-Names: `pd`, `pid`, `se3` (ours, quad_control.position), `package.module:Class`, or the name of an entry point of
-the group `quadflight.controllers` (an installed package registering its classes).
+Names (quad_control.controller_names): `pd`, `pid`, `se3` (ours, quad_control.position), `package.module:Class`,
+or the name of an entry point of the group `quadflight.controllers` (an installed package registering its classes).
 
 A class is flown one of two ways:
 - ours: a subclass of `ControllerPlugin`, built `Class(vehicle, params)` (quad_common.vehicle.Vehicle and the
@@ -27,8 +27,6 @@ quad_control.loop then treats the controller as dead (no setpoint is published a
 bridge's setpoint-timeout failsafes take the vehicle).
 """
 
-import importlib
-import importlib.metadata
 import inspect
 import math
 import time
@@ -37,10 +35,10 @@ import numpy as np
 
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, Reference, State
-from quad_common.user_code import load_attribute, user_line
+from quad_common.user_code import user_line
 from quad_common.vehicle import Vehicle
+from quad_control.controller_names import CONTROLLERS, ControllerRefused, resolve
 from quad_control.position import (
-    CONTROLLERS,
     Limits,
     PositionController,
     PositionGains,
@@ -48,13 +46,8 @@ from quad_control.position import (
     clamp_thrust,
 )
 
-ENTRY_POINT_GROUP = 'quadflight.controllers'
 MOTOR_LEVEL_KEYS = ('cmd_motor_speeds', 'cmd_motor_thrusts', 'cmd_moment')
 LATE_TICKS = 3   # over the period on this many updates in a row is too slow
-
-
-class ControllerRefused(ValueError):
-    """A controller name that does not resolve, or a class that cannot be built (before anything starts)."""
 
 
 class ControllerFailed(ValueError):
@@ -116,46 +109,6 @@ def flat_output(ref: Reference) -> dict:
     return {'x': np.array(ref.position, dtype=float), 'x_dot': np.array(ref.velocity, dtype=float),
             'x_ddot': np.array(ref.acceleration, dtype=float), 'x_dddot': np.array(ref.jerk, dtype=float),
             'x_ddddot': np.zeros(3), 'yaw': float(ref.yaw), 'yaw_dot': float(ref.yaw_rate), 'yaw_ddot': 0.0}
-
-
-# --- names ------------------------------------------------------------------------------------------------
-
-
-def _entry_points() -> dict:
-    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
-
-
-def resolve(name: str):
-    """The class a plugin name means (`module:Class` or an entry point's name); ControllerRefused naming why."""
-    if not isinstance(name, str) or not name:
-        raise ControllerRefused(f'controller = {name!r} refused: a name is needed')
-    if ':' in name:
-        cls = load_attribute(name, f'controller = {name!r} refused', ControllerRefused)
-    else:
-        points = _entry_points()
-        if name not in points:
-            known = ', '.join([*CONTROLLERS, *sorted(points)])
-            raise ControllerRefused(f'controller = {name!r} refused: must be one of {known}, or module:Class')
-        try:
-            cls = points[name].load()
-        except Exception as exc:  # noqa: BLE001
-            raise ControllerRefused(f'controller = {name!r} refused: its entry point {points[name].value!r} '
-                                    f'failed to load: {type(exc).__name__}: {exc}') from None
-    if not inspect.isclass(cls) or not callable(getattr(cls, 'update', None)):
-        raise ControllerRefused(f'controller = {name!r} refused: {cls!r} is not a class with an update method')
-    return cls
-
-
-def refusal(name) -> str | None:
-    """Why `name` is not a controller (None: it is one): the parameter check of position_controller's
-    `controller` (quad_common.params.Param.check), so fly, sweep, tune and the node refuse alike."""
-    if name in CONTROLLERS:
-        return None
-    try:
-        resolve(name)
-    except ControllerRefused as exc:
-        return str(exc)
-    return None
 
 
 def make_controller(name: str, gains: PositionGains | None, vehicle: Vehicle, limits: Limits | None = None,

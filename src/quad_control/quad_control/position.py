@@ -27,9 +27,9 @@ import numpy as np
 from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
 from quad_common.vehicle import Vehicle
+from quad_control.controller_names import CONTROLLERS
 from quad_control.drag_estimate import DragEstimate
 
-CONTROLLERS = ('pd', 'pid', 'se3')
 E3 = np.array([0.0, 0.0, 1.0])
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from quad_common.yaml_io import load_yaml
+from quad_sim.disturbance_file import profile_entry
 
 NOISE_KEYS = ('position_std_m', 'velocity_std_mps', 'attitude_std_rad', 'body_rates_std_radps')
 PROFILE_KEYS = ('body_drag', 'rotor_drag', 'wind_mps', 'gusts', 'odom_noise', 'odom_latency_s')
@@ -93,13 +93,8 @@ def profile_from_dict(data, name='profile') -> DisturbanceProfile:
 
 
 def load_profile(path, name: str) -> DisturbanceProfile:
-    """Profile `name` from a disturbances YAML file (`none` always exists)."""
-    profiles = load_yaml(path)
-    if name == 'none' and name not in profiles:
-        return DisturbanceProfile()
-    if name not in profiles:
-        raise ValueError(f'disturbances = {name!r}: no such profile in {path}; known: {sorted(profiles)}')
-    return profile_from_dict(profiles[name], name)
+    """Profile `name` from a disturbances YAML file (`none` always exists: quad_sim.disturbance_file)."""
+    return profile_from_dict(profile_entry(path, name), name)
 
 
 def vehicle_aerodynamics(vehicle, body=True, rotor=True):

@@ -10,7 +10,8 @@ from conftest import CONFIG
 
 from quad_common import rotations
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
-from quad_common.vehicle import AttitudeLoop, load_plant_family, load_vehicle, vehicle_from_dict
+from quad_common.vehicle import AttitudeLoop, load_vehicle, vehicle_from_dict
+from quad_common.vehicle_file import load_plant_family
 from quad_common.yaml_io import load_yaml
 from quad_sim.attitude_poles import MIN_DAMPING_RATIO, attitude_damping
 from quad_sim.simulator import Simulator

@@ -59,6 +59,7 @@ is a sample like any other, so the first and last legs are lengthened until it f
 import numpy as np
 
 from quad_trajectory import feasibility, solver, timing
+from quad_trajectory.plan_inputs import DEFAULT_MARGIN
 from quad_trajectory.polynomial import PiecewisePolynomial, derivative_factors
 
 BAND = 5                 # segments either side in the banded Jacobian
@@ -80,7 +81,6 @@ NEEDS_STEP = 1e-7        # step of the needs' directional derivative along a col
 _ROOT_ITERATIONS = 60     # of the scale's root finding (Illinois), to _ROOT_TOLERANCE in log k
 _ROOT_TOLERANCE = 1e-7
 _SAFETY = 1.0 + 1e-7     # the returned scale a hair above the root finder's feasible end
-DEFAULT_MARGIN = 0.1
 
 
 class Constraints:

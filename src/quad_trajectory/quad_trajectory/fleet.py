@@ -18,13 +18,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_common import contract
-from quad_common.yaml_io import load_yaml, refuse_number_text, refuse_typos
+from quad_common.yaml_io import load_yaml, refuse_number_text
 from quad_trajectory import separation
 from quad_trajectory.mission import Mission, mission_from_dict, plan_mission
-from quad_trajectory.mission_kind import is_fleet, is_fleet_file  # noqa: F401  (re-exported)
+from quad_trajectory.mission_kind import check_fleet_keys, is_fleet, is_fleet_file  # noqa: F401  (re-exported)
 
-FLEET_KEYS = frozenset({'name', 'vehicles', 'waypoints', 'yaw', 'trajectory', 'vehicle', 'world', 'robot_radius_m',
-                        'separation', 'autopilot'})
 VEHICLE_KEYS = frozenset({'name', 'vehicle', 'start', 'waypoints', 'offset', 'yaw', 'trajectory', 'robot_radius_m',
                           'controller', 'profile', 'start_delay_s', 'autopilot', 'fcu_url', 'system_id'})
 AUTOPILOTS = ('px4', 'ardupilot')   # a real vehicle's autopilot (quad_bridge's backends)
@@ -243,14 +241,7 @@ def _refuse_shared_links(vehicles, path):
 
 def fleet_from_dict(data: dict, path: str = 'fleet') -> Fleet:
     """Validated Fleet; every error names the file, the vehicle (index and name), the field and the value."""
-    refuse_typos(data, FLEET_KEYS, path)
-    unknown = sorted(set(data) - FLEET_KEYS)
-    if unknown:
-        raise ValueError(f'{path}: {unknown[0]} = {data[unknown[0]]!r} is not a known fleet key '
-                         f'(known: {", ".join(sorted(FLEET_KEYS))})')
-    if 'vehicles' not in data:
-        raise ValueError(f'{path}: not a fleet mission (no vehicles: list); `quadflight fly` flies a one-vehicle '
-                         'mission')
+    check_fleet_keys(data, path)
     vehicles = data.get('vehicles')
     if not isinstance(vehicles, list) or not vehicles:
         raise ValueError(f'{path}: vehicles = {vehicles!r} must be a list of at least one vehicle')

@@ -12,6 +12,13 @@ import numpy as np
 from quad_common.vehicle import Vehicle
 from quad_common.world import World
 from quad_trajectory import collision, fastest, feasibility, generated, solver, timing
+from quad_trajectory.plan_inputs import (
+    PlanOptions,
+    check_option_values,
+    finite_number,
+    waypoint_rows,
+    yaw_values,
+)
 from quad_trajectory.polynomial import PiecewisePolynomial
 
 MERGE_DISTANCE_M = 1e-3
@@ -22,25 +29,6 @@ _FIT_STEPS = 30                 # limits with a vehicle: at most 1.1^30 = 17x sl
 MAX_LIMITS_LENGTH_RATIO = 1.5   # limits: a faster shape is taken only while its path stays this short
 ABSURD_LENGTH_RATIO = 10.0      # no plan longer than this x the polyline through its points is returned
 MIN_MEAN_SPEED_MPS = 1e-3       # nor one slower on average along that polyline (the 2.1e11 s plan: 1e-10 m/s)
-
-
-@dataclass
-class PlanOptions:
-    method: str = 'minsnap'                    # minaccel | minjerk | minsnap
-    waypoint_constraint: str = 'continuity'    # continuity | stop
-    speed_mps: float = 0.5                     # the seed's speed constant
-    time_allocation: str = 'sqrt'              # sqrt | proportional | limits | optimal | fastest
-    control_points: tuple = ()                 # fractions along each segment, the seed's (0.1, 0.9)
-    v_max_mps: float | None = None             # limits; None: timing.DEFAULT_V_MAX_MPS
-    a_max_mps2: float | None = None            # limits; None: from the vehicle's thrust-to-weight
-    rho: float | None = None                   # optimal: weight of total time; None: 2r - 1
-    margin: float = fastest.DEFAULT_MARGIN     # fastest: the fraction of each vehicle limit left unused
-    robot_radius_m: float = 0.0
-    avoid_collisions: bool = True              # insert points and replan until collision-free
-    generator: str = ''                        # a user's trajectory class, package.module:Class (generated.py)
-    generator_args: dict | None = None         # its keyword arguments after the waypoints
-    generator_waypoints: bool = True           # False: built from generator_args alone (a circle, a Lissajous)
-    duration_s: float | None = None            # how long it is sampled; None: the instance's duration_s
 
 
 @dataclass
@@ -104,81 +92,28 @@ class PlanResult:
 
 # --- validation -----------------------------------------------------------------------------
 
-def _finite_number(name, value, positive=True):
-    ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool) and \
-        np.isfinite(value) and (value > 0 if positive else value >= 0)
-    if not ok:
-        raise ValueError(f'{name} = {value!r} must be a finite number {"> 0" if positive else ">= 0"}')
-    return float(value)
-
-
 def validate_waypoints(waypoints) -> np.ndarray:
-    try:
-        w = np.asarray(waypoints, dtype=float)
-    except (TypeError, ValueError):
-        w = None
-    if w is None or w.ndim != 2 or w.shape[1] != 3:
-        _refuse_waypoints(waypoints)
-    bad = np.nonzero(~np.all(np.isfinite(w), axis=1))[0]
-    if bad.size:
-        raise ValueError(f'waypoints[{bad[0]}] = {w[bad[0]].tolist()} must be finite')
-    if len(w) < 2:
-        raise ValueError(f'waypoints = {w.tolist()} needs at least two distinct waypoints')
-    return w
-
-
-def _refuse_waypoints(waypoints):
-    """ValueError naming the first bad waypoint by its index (never the whole list: 50,000 of them are 1 MB)."""
-    from quad_common.yaml_io import shown
-
-    if isinstance(waypoints, (list, tuple)):
-        for i, point in enumerate(waypoints):
-            try:
-                ok = np.asarray(point, dtype=float).shape == (3,)
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:
-                raise ValueError(f'waypoints[{i}] = {shown(point)} must be [x, y, z] in metres (numbers)')
-    raise ValueError(f'waypoints = {shown(waypoints)} must be a list of [x, y, z] in metres')
+    """(N, 3) waypoints (quad_trajectory.plan_inputs.waypoint_rows checks them)."""
+    return np.asarray(waypoint_rows(waypoints), dtype=float)
 
 
 def validate_yaw(yaw, n: int) -> np.ndarray:
-    """None -> 0; one value -> constant; one per waypoint -> unwrapped."""
-    if yaw is None:
+    """None -> 0; one value -> constant; one per waypoint -> unwrapped (plan_inputs.yaw_values checks them)."""
+    values = yaw_values(yaw, n)
+    if values is None:
         return np.zeros(n)
-    y = np.asarray(yaw, dtype=float) if not isinstance(yaw, str) else None
-    if y is None or not (y.ndim == 0 or y.shape == (n,)):
-        raise ValueError(f'yaw = {yaw!r} must be one number or one per waypoint ({n})')
-    if not np.all(np.isfinite(y)):
-        raise ValueError(f'yaw = {yaw!r} must be finite')
-    return np.full(n, float(y)) if y.ndim == 0 else np.unwrap(y)
+    return np.full(n, values) if isinstance(values, float) else np.unwrap(np.asarray(values, dtype=float))
 
 
 def validate_options(o: PlanOptions, vehicle: Vehicle | None = None) -> PlanOptions:
-    if o.method not in solver.ORDERS:
-        raise ValueError(f'method = {o.method!r} must be one of {", ".join(solver.ORDERS)}')
-    if o.waypoint_constraint not in solver.MODES:
-        raise ValueError(f'waypoint_constraint = {o.waypoint_constraint!r} must be one of {", ".join(solver.MODES)}')
-    if o.time_allocation not in timing.ALLOCATIONS:
-        raise ValueError(f'time_allocation = {o.time_allocation!r} must be one of {", ".join(timing.ALLOCATIONS)}')
-    _finite_number('speed', o.speed_mps)
-    _finite_number('robot_radius_m', o.robot_radius_m, positive=False)
-    fractions = tuple(o.control_points or ())
-    for f in fractions:
-        if not (isinstance(f, (int, float)) and 0 < f < 1):
-            raise ValueError(f'control_points = {list(fractions)!r} must be fractions strictly between 0 and 1')
-    if o.v_max_mps is not None:
-        _finite_number('limits.v_max_mps', o.v_max_mps)
-    if o.a_max_mps2 is not None:
-        _finite_number('limits.a_max_mps2', o.a_max_mps2)
-        if vehicle is not None and o.a_max_mps2 > timing.vehicle_acceleration_capability(vehicle.thrust_to_weight):
-            cap = timing.vehicle_acceleration_capability(vehicle.thrust_to_weight)
+    """Each option's own rule (plan_inputs.check_option_values), then what needs the vehicle, and a generator's
+    class resolved."""
+    check_option_values(o)
+    if o.a_max_mps2 is not None and vehicle is not None:
+        cap = timing.vehicle_acceleration_capability(vehicle.thrust_to_weight)
+        if o.a_max_mps2 > cap:
             raise ValueError(f'limits.a_max_mps2 = {o.a_max_mps2} cannot be met: vehicle {vehicle.name} gives at most '
                              f'g (thrust/weight - 1) = {cap:.2f} m/s^2')
-    if o.rho is not None:
-        _finite_number('rho', o.rho)
-    if not (isinstance(o.margin, (int, float)) and not isinstance(o.margin, bool) and 0.0 <= o.margin < 1.0):
-        raise ValueError(f'margin = {o.margin!r} must be a fraction in [0, 1) (0.1: 10 % of each limit unused)')
     if o.time_allocation == 'fastest' and vehicle is None:
         raise ValueError('time_allocation = fastest needs a vehicle (its limits are what it flies to)')
     if o.generator:
@@ -188,7 +123,7 @@ def validate_options(o: PlanOptions, vehicle: Vehicle | None = None) -> PlanOpti
         if not isinstance(o.generator_waypoints, bool):
             raise ValueError(f'generator_waypoints = {o.generator_waypoints!r} must be true or false')
         if o.duration_s is not None:
-            _finite_number('duration_s', o.duration_s)
+            finite_number('duration_s', o.duration_s)
     return o
 
 

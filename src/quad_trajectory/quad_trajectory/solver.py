@@ -20,10 +20,8 @@ from math import factorial
 
 import numpy as np
 
+from quad_trajectory.plan_inputs import MODES, ORDERS  # noqa: F401  (ORDERS: solver.ORDERS, as its callers name it)
 from quad_trajectory.polynomial import derivative_factors
-
-ORDERS = {'minaccel': 2, 'minjerk': 3, 'minsnap': 4}
-MODES = ('continuity', 'stop')
 
 
 def _boundary_rows(n_coef: int):

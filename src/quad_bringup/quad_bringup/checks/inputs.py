@@ -7,20 +7,24 @@ there, which every bag reader refuses first (pure Python: a command says it befo
 
 def check_inputs(options):
     """Raises ValueError naming the option, the file and the problem."""
-    from quad_bringup.checks.profiles import check_control_profile
     from quad_common.paths import resolve_config
 
     if options.control_profile is not None:
+        from quad_bringup.checks.profiles import check_control_profile
+
         try:
             check_control_profile(options.control_profile)
         except ValueError as exc:
             raise ValueError(f'--control-profile {exc}') from None
     if options.disturbances is not None:
-        from quad_sim.disturbances import load_profile
+        from quad_sim.disturbance_file import profile_entry
 
         source = (options.sim_parameters or {}).get('disturbances_file') or 'config/disturbances.yaml'
         try:
-            load_profile(resolve_config(source), options.disturbances)
+            profile_entry(resolve_config(source), options.disturbances)   # the name, before numpy
+            from quad_sim.disturbances import load_profile
+
+            load_profile(resolve_config(source), options.disturbances)    # its fields
         except ValueError as exc:
             raise ValueError(f'--disturbances: {exc}') from None
 

@@ -96,8 +96,10 @@ def write_figure(run, path):
 def run(args) -> int:
     from quad_bringup.running.flight import EXIT_COMPLETED, EXIT_FAILED, EXIT_REFUSED
     from quad_common.yaml_io import load_yaml
+    from quad_trajectory.mission_kind import check_fleet_keys
     try:
         data = load_yaml(os.fspath(args.mission))   # a file that is not there: said before the planner is imported
+        check_fleet_keys(data, os.fspath(args.mission))   # as is a one-vehicle mission
         from quad_trajectory.fleet import fleet_from_dict, plan_fleet
 
         fleet = fleet_from_dict(data, os.fspath(args.mission))   # before the simulator and the loop are imported

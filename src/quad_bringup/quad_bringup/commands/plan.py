@@ -81,6 +81,9 @@ def run(args) -> int:
         if is_fleet(data):   # a `vehicles:` list: docs/missions.md "Fleets"
             from quad_bringup.commands import fleet_plan
             return fleet_plan.run(args, data)
+        from quad_trajectory.mission_file import mission_fields
+
+        mission_fields(data, os.fspath(args.mission))   # the file's own values, refused before numpy is imported
         from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
         from quad_trajectory.planner import allocation_lines
 

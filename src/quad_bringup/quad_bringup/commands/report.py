@@ -51,7 +51,10 @@ def run(args) -> int:
     out = Path(args.out) if args.out else default_out(bag)
     try:
         vehicle = None
-        if args.vehicle:   # quad_common.vehicle imports numpy: only for a vehicle file
+        if args.vehicle:   # its fields checked in pure Python first: quad_common.vehicle imports numpy
+            from quad_common.vehicle_file import load_vehicle_fields
+
+            load_vehicle_fields(args.vehicle)
             from quad_common.vehicle import load_vehicle
 
             vehicle = load_vehicle(args.vehicle)

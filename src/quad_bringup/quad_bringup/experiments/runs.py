@@ -135,7 +135,8 @@ def vehicle_entry(entry, where: str) -> tuple[str, str | None, dict]:
     """(name, nominal vehicle file or None for the mission's, plant overrides) of a vehicle entry: a plant family
     member's name (config/plant_family.yaml), a vehicle file, or {name, file, plant: MEMBER | {fields}}. The
     overrides are stored resolved, so a run's key changes when its member is edited."""
-    from quad_common.vehicle import load_plant_family, load_vehicle, plant_overrides
+    from quad_common.vehicle import load_vehicle
+    from quad_common.vehicle_file import load_plant_family, plant_overrides
     from quad_trajectory.mission import DEFAULT_VEHICLE_PATH
 
     if isinstance(entry, str):

@@ -43,7 +43,7 @@ def expand(spec: dict, mode: str = 'offline', where: str = 'spec') -> list[dict]
     if unknown:
         raise SpecError(f'{where}: unknown key(s) {sorted(unknown)}; known: {", ".join(SPEC_KEYS)}')
     if spec.get('vehicles') == 'plant_family':  # every member of config/plant_family.yaml
-        from quad_common.vehicle import load_plant_family
+        from quad_common.vehicle_file import load_plant_family
 
         spec = {**spec, 'vehicles': list(load_plant_family())}
     axes = [runs.entries(spec, 'missions', runs.mission_entry, None),

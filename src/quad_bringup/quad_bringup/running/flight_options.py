@@ -52,8 +52,11 @@ class FlightOptions:
 def validate(options: FlightOptions):
     """Loads and plans the mission with quad_trajectory (so a bad one is refused before anything starts).
 
-    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem. The checks that need no numpy
-    (option values, files that are not there) come first: such a refusal imports no controller and no planner.
+    Returns the quad_trajectory Mission. Raises MissionRefused naming the problem (a bad --vehicle file: ValueError,
+    as flight_vehicle raises it). The checks that need no numpy come first: option values, --out, files that are not
+    there, a vehicle file's fields, a controller, disturbance profile or plant family member by name, the mission
+    file's own values (pure Python rules that the later load applies too); such a refusal imports no controller and
+    no planner.
     """
     if options.time_allocation is not None and options.time_allocation not in TIME_ALLOCATIONS:
         raise MissionRefused(f'--time-allocation {options.time_allocation!r} refused: must be one of '
@@ -64,10 +67,16 @@ def validate(options: FlightOptions):
     path = Path(options.mission)
     if not path.is_file():
         raise MissionRefused(f'mission {path}: no such file')
+    if options.out is not None:
+        refuse_out(Path(options.out))
     for name, value in (('--vehicle', options.vehicle), ('--control-profile', options.control_profile)):
         if value is not None and not Path(value).is_file():
             raise MissionRefused(f'{name} {value}: no such file')
-    from quad_control.plugins import refusal as controller_refusal
+    if options.vehicle is not None:   # its fields (pure Python): ValueError as flight_vehicle raises it later
+        from quad_common.vehicle_file import load_vehicle_fields
+
+        load_vehicle_fields(options.vehicle)
+    from quad_control.controller_names import refusal as controller_refusal
 
     if (reason := controller_refusal(options.controller)) is not None:
         name = options.controller
@@ -77,16 +86,19 @@ def validate(options: FlightOptions):
     except ValueError as exc:
         raise MissionRefused(str(exc)) from None
     if options.plant:
-        from quad_common.vehicle import load_plant_family
+        from quad_common.vehicle_file import load_plant_family
         try:
             family = load_plant_family()
         except (ValueError, OSError) as exc:
             raise MissionRefused(f'--plant {options.plant!r} refused: {exc}') from None
         if options.plant not in family:
             raise MissionRefused(f'--plant {options.plant!r} refused: must be one of {", ".join(family)}')
-    from quad_trajectory import mission as mission_module
+    from quad_trajectory.mission_file import mission_fields
 
     try:
+        mission_fields(load_yaml(path), os.fspath(path))   # the file's own values, refused before numpy is imported
+        from quad_trajectory import mission as mission_module
+
         mission = mission_module.load_mission(path)
         mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
     except (ValueError, KeyError, TypeError, OSError) as exc:
@@ -98,8 +110,8 @@ def validate(options: FlightOptions):
 def check_controller(options: FlightOptions, mission):
     """A user class is built (and probed on a hover) with the flight's vehicle here, so a class that cannot be built
     or gives no attitude / thrust setpoint is refused before anything starts (quad_control.plugins)."""
-    from quad_control.plugins import ControllerRefused, make_controller
-    from quad_control.position import CONTROLLERS
+    from quad_control.controller_names import CONTROLLERS, ControllerRefused
+    from quad_control.plugins import make_controller
 
     if options.controller in CONTROLLERS:
         return
@@ -232,13 +244,7 @@ def make_run_dir(requested: Path | None, default: Path) -> Path:
     a path that cannot be created or written."""
     if requested is not None:
         run_dir = Path(requested)
-        if run_dir.exists() and not run_dir.is_dir():
-            raise MissionRefused(f'--out {run_dir}: a file, not a directory; choose a new run directory')
-        from quad_bringup.checks.dir_lock import holder_of
-
-        if (holder := holder_of(run_dir)) is not None:
-            raise MissionRefused(_busy(run_dir, holder))
-        _refuse_outputs(run_dir)
+        refuse_out(run_dir)
         try:
             run_dir.mkdir(parents=True, exist_ok=True)
             _check_writable(run_dir)
@@ -261,6 +267,18 @@ def make_run_dir(requested: Path | None, default: Path) -> Path:
             raise MissionRefused(f'run directory {run_dir}: cannot create it ({exc.strerror or exc}); '
                                  'give --out') from None
     raise MissionRefused(f'run directory {default}: 999 runs of that name already exist')
+
+
+def refuse_out(run_dir: Path):
+    """An explicit --out that fly cannot use: a file, a directory another command writes now, or one holding any of
+    RUN_OUTPUTS (MissionRefused). Checked before the mission is planned and again when the directory is made."""
+    if run_dir.exists() and not run_dir.is_dir():
+        raise MissionRefused(f'--out {run_dir}: a file, not a directory; choose a new run directory')
+    from quad_bringup.checks.dir_lock import holder_of
+
+    if (holder := holder_of(run_dir)) is not None:
+        raise MissionRefused(_busy(run_dir, holder))
+    _refuse_outputs(run_dir)
 
 
 def claim_run_dir(run_dir: Path) -> int:

@@ -155,11 +155,11 @@ def controller_and_profile(controller: str | None, control_profile) -> tuple[str
     """--controller if given, else the profile's `controller`, else pd; a controller named without a profile
     flies its default profile (se3: the robust control_se3.yaml; pd and pid: the seed's gains). An unknown
     controller is refused here, before any node starts."""
-    if controller:   # the node's own rule for its `controller` parameter (quad_control imports numpy: only then)
+    if controller:   # the node's own rule for its `controller` parameter (pure Python: no controller is imported)
         from quad_common.params import check_value
-        from quad_control.parameters import SPECS
+        from quad_control.controller_names import CONTROLLER_PARAM
 
-        if reason := check_value(next(s for s in SPECS if s.name == 'controller'), controller):
+        if reason := check_value(CONTROLLER_PARAM, controller):
             raise ValueError(reason)
     if control_profile:
         return controller or profile_controller(control_profile) or 'pd', str(control_profile)
