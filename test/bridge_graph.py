@@ -205,6 +205,10 @@ def bridge_in_this_process(observer, namespace, url, **params):
             sys.setswitchinterval(switch)
 
 
+PORT_TAKEN = 'Address already in use'   # the bridge's refusal when its udpin port is bound by another process
+PORT_TRIES = 3
+
+
 @contextmanager
 def tapped_graph(tmp_path):
     """running_graph plus start(flavour, position, extra, **bridge_params): an emulated vehicle and the bridge
@@ -213,13 +217,21 @@ def tapped_graph(tmp_path):
     taps = []
     with running_graph(tmp_path) as (procs, observer):
         def start(flavour, position=(0.0, 0.0, 1.0), extra=(), **bridge_params):
-            bridge_port = free_udp_port()
-            tap = Tap(bridge_port)
-            taps.append(tap)
-            procs.vehicle(flavour, f'udpout:127.0.0.1:{tap.port}', position=position, extra=extra)
-            procs.bridge(f'udpin:127.0.0.1:{bridge_port}', **bridge_params)
-            observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
-            return tap
+            for _ in range(PORT_TRIES):
+                bridge_port = free_udp_port()
+                tap = Tap(bridge_port)
+                taps.append(tap)
+                procs.vehicle(flavour, f'udpout:127.0.0.1:{tap.port}', position=position, extra=extra)
+                bridge = procs.bridge(f'udpin:127.0.0.1:{bridge_port}', **bridge_params)
+                observer.wait_for(lambda b=bridge: observer.link()[1].get('armed') == 'True' or b.poll() is not None,
+                                  'the bridge to see the armed vehicle')
+                if bridge.poll() is None:
+                    return tap
+                log = procs.log('bridge')
+                assert PORT_TAKEN in log, f'the bridge exited with {bridge.returncode}: {log[-2000:]}'
+                procs.stop('bridge')   # its claimed port taken by a process that claims none: new ports
+                procs.stop('vehicle')
+            raise AssertionError(f'the bridge found its port taken {PORT_TRIES} times')
         try:
             yield procs, observer, start
         finally:
