@@ -163,7 +163,9 @@ def test_ctrl_c_while_the_vehicle_flies_our_setpoints_lands_it_then_exits_0(tmp_
                  '-p', f'fcu_url:=udpin:127.0.0.1:{bridge_port}'],
                 env=procs.env, stdout=log, stderr=subprocess.STDOUT, cwd=str(ROOT))
             procs.procs['bridge'] = bridge
-            observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
+            observer.wait_for(lambda: observer.link()[1].get('armed') == 'True' or bridge.poll() is not None,
+                              'the bridge to see the armed vehicle')
+            assert bridge.poll() is None, f'the bridge exited with {bridge.returncode}: {procs.log("bridge")[-2000:]}'
             publisher = SetpointPublisher(observer)
             _offboard(observer, tap, flavour)
             stopped_s = time.monotonic()
