@@ -99,8 +99,7 @@ def _emulated_hold(profile):
 def test_se3_limit_cycles_on_the_emulators_px4_sih_setting():
     hold = _emulated_hold('config/control_se3.yaml')
     assert not hold.settled and hold.stopped is None
-    # PX4 SIH: about 0.8 Hz, flown before the loop carried odometry to the tick time (0.5 Hz here with it)
-    assert hold.late_tilt_deg > 30.0 and 15.0 < hold.oscillation_deg < 35.0 and 0.4 < hold.oscillation_hz < 1.1
+    assert hold.late_tilt_deg > 30.0 and 15.0 < hold.oscillation_deg < 35.0 and 0.5 < hold.oscillation_hz < 1.1
 
 
 @pytest.mark.parametrize('profile', ['config/control_real.yaml', 'config/control.yaml'])

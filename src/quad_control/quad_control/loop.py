@@ -27,16 +27,10 @@ position_controller_node and the offline flight loop (quad_bringup.offline.close
 - Lockstep: the tick at t runs with the odometry stamped >= t, deferred until that arrives (a newer tick
   supersedes a pending one), and until the vehicle is engaged (the simulator engages at once, so a lockstep run
   never depends on when that message arrives); wait_for_trajectory also defers it until a plan is here.
-- Otherwise the tick at t controls from the newest odometry, stamped s <= t when it was measured, carried to t
-  with the reference's acceleration a: p + v d + a d^2 / 2, v + a d, d = clamp(t - s, 0, MAX_CARRY_S). Compared
-  with the reference at t as it was measured, it would put the vehicle v d behind where it is (2.4 cm at 0.8 m/s
-  and PX4's 20 ms telemetry, more in ArduPilot's bursts), and its velocity a d behind during the plan's turns.
 """
 
 import math
 from dataclasses import dataclass, replace
-
-import numpy as np
 
 from quad_common import rotations
 from quad_common.types import AttitudeSetpoint, Reference, State
@@ -47,7 +41,6 @@ from quad_control.velocity_blend import VelocityBlend
 RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's default
 ENGAGE_DELAY_S = 1.0       # position_controller engage_delay_s
 MAX_START_STEP_M = 0.5     # position_controller max_start_step_m and the offline loop's default
-MAX_CARRY_S = 0.2          # odometry older than this at a tick is carried this far only (the node judges staleness)
 CONTROLLER_FAILED = 'controller failed'   # how the fault of a dead controller begins (fly's monitor ends on it)
 COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'controller_failures',
           'refused_start_steps', 'saturation_thrust', 'saturation_tilt', 'saturation_integral')
@@ -168,7 +161,7 @@ class ControlLoop:
         """The timer tick at t_ns: lockstep defers it until its odometry; otherwise controls at once from the
         newest odometry (the node decides whether that odometry is fresh enough)."""
         if not self.lockstep:
-            return None if self.odom is None else self.control(t_ns, self.odom[1], self.odom[0])
+            return None if self.odom is None else self.control(t_ns, self.odom[1])
         if self.pending_tick_ns is not None:
             self.counts['superseded_ticks'] += 1
         self.pending_tick_ns = t_ns
@@ -190,14 +183,11 @@ class ControlLoop:
         t_ns, self.pending_tick_ns = self.pending_tick_ns, None
         return self.control(t_ns, self.odom[1])
 
-    def control(self, t_ns: int, state: State, stamp_ns: int | None = None) -> Tick | None:
-        """One controller step at t_ns from `state` (measured at stamp_ns: carried to t_ns, module docstring);
-        None (and on_fault) if the controller refuses or is dead."""
+    def control(self, t_ns: int, state: State) -> Tick | None:
+        """One controller step at t_ns from `state`; None (and on_fault) if the controller refuses or is dead."""
         if self.dead is not None:
             return None
         ref = self.reference(t_ns, state)
-        if stamp_ns is not None and stamp_ns < t_ns:
-            state = carried(state, ref.acceleration, min((t_ns - stamp_ns) * 1e-9, MAX_CARRY_S))
         period_s = 1.0 / self.rate_hz
         dt_s = 0.0 if self.last_control_ns is None else min(max((t_ns - self.last_control_ns) * 1e-9, 0.0),
                                                             2 * period_s)
@@ -266,10 +256,3 @@ class ControlLoop:
             return 'hold (trajectory not started)' if self.next_plan is not None else 'hold (no trajectory)'
         plan = self.trajectory
         return 'tracking' if plan.time_s(t_ns) <= plan.trajectory.duration_s else 'hold (trajectory ended)'
-
-
-def carried(state: State, acceleration, d_s: float) -> State:
-    """The state d_s later at the given acceleration: p + v d + a d^2 / 2, v + a d (attitude and rates as measured)."""
-    a = np.asarray(acceleration, dtype=float)
-    return replace(state, position=state.position + state.velocity * d_s + 0.5 * d_s * d_s * a,
-                   velocity=state.velocity + d_s * a)

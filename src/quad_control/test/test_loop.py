@@ -7,7 +7,7 @@ import pytest
 
 from quad_common.sampled_trajectory import SampledTrajectory
 from quad_common.types import AttitudeSetpoint, State
-from quad_control.loop import CONTROLLER_FAILED, MAX_CARRY_S, ControlLoop
+from quad_control.loop import CONTROLLER_FAILED, ControlLoop
 from quad_control.plugins import ControllerFailed
 from quad_control.position import Saturation
 
@@ -165,35 +165,3 @@ def test_the_end_of_a_hand_over_pauses_the_plan_and_the_next_engagement_resumes_
     assert np.allclose(loop.tick(120 * PERIOD_NS).reference.position, [0.2, 0.1, 1.0])  # hold, re-anchored
     resumed = loop.tick(150 * PERIOD_NS)                     # 1.0 s + 0.5 s: the plan resumes at 0.4 s
     assert resumed.reference.position[0] == pytest.approx(0.4)
-
-
-def _accelerating(acceleration=(1.0, 0.0, 0.0), duration_s=10.0):
-    t = np.linspace(0.0, duration_s, 1001)
-    zeros = np.zeros((len(t), 4))   # x, y, z, yaw
-    return SampledTrajectory(t, zeros, zeros, np.tile([*acceleration, 0.0], (len(t), 1)))
-
-
-def test_without_lockstep_the_odometry_is_carried_from_its_stamp_to_the_tick_with_the_plans_acceleration():
-    """p + v d + a d^2 / 2, v + a d for odometry measured d before the tick (d at most MAX_CARRY_S); none for
-    odometry stamped at the tick, and none in lockstep."""
-    measured = State(position=np.array([1.0, 2.0, 3.0]), velocity=np.array([0.5, 0.0, 0.0]),
-                     quaternion=np.array([0.0, 0, 0, 1]))
-    ctl = Recorder()
-    loop = ControlLoop(ctl, RATE_HZ)
-    loop.set_trajectory(0, _accelerating())
-    for age_s, carried_s in ((0.02, 0.02), (1.0, MAX_CARRY_S), (0.0, 0.0)):
-        tick_ns = (len(ctl.calls) + 100) * PERIOD_NS
-        loop.set_odometry(tick_ns - round(age_s * 1e9), measured)
-        assert loop.tick(tick_ns) is not None
-        state, ref, _ = ctl.calls[-1]
-        assert ref.acceleration == pytest.approx([1.0, 0.0, 0.0])
-        d = carried_s
-        assert state.position == pytest.approx([1.0 + 0.5 * d + 0.5 * d * d, 2.0, 3.0], abs=1e-12)
-        assert state.velocity == pytest.approx([0.5 + d, 0.0, 0.0], abs=1e-12)
-        assert measured.position[0] == 1.0   # the odometry itself is left as it came
-    ctl = Recorder()
-    loop = ControlLoop(ctl, RATE_HZ, lockstep=True)
-    loop.set_trajectory(0, _accelerating())
-    loop.set_odometry(PERIOD_NS, measured)
-    loop.tick(PERIOD_NS)
-    assert ctl.calls[-1][0].position == pytest.approx(measured.position, abs=0)

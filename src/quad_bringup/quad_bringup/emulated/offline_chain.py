@@ -104,8 +104,8 @@ def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, o
     docs/emulator.md); a number stamps it as the bridge does, when it was measured on the vehicle's clock, that many
     seconds early (0..ODOM_EARLY_MAX_S; the bridge's clock fallback on PX4 SIH: 0.07-0.15 s). Either
     stamp reaches the controller as position_controller's odometry stamp (the loop runs as the node does under the
-    bridge, lockstep false: a tick controls from the newest odometry carried from its stamp, quad_control.loop)
-    and the scoring (score: the plan at the stamp, as `quadflight report` does).
+    bridge, lockstep false: a tick controls from the newest odometry, whatever its stamp) and the scoring (score:
+    the plan at the stamp, as `quadflight report` does).
     mocap: None, or (noise_m, latency_s, rate_hz): the controller flies from motion capture (position_controller's
     state_source external_pose: quad_bringup.offline.harness.Mocap, the simulator's stand-in at rate_hz with that noise
     and latency, through quad_control.pose_state's filter with the profile's pose parameters) instead of the odometry.
