@@ -51,7 +51,6 @@ def _wait_for_node(domain, name, proc):
         rclpy.shutdown(context=ctx)
 
 
-
 def _ctrl_c_twice(tmp_path, package, executable, needs, name, when_started):
     """_ctrl_c_once, on another claimed port when the bridge's fcu_url port was taken by a process that claims none
     (the bridge refused it, exit 2, before any signal mattered: CI saw it once on a machine other work shares)."""

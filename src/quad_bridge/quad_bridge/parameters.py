@@ -84,8 +84,7 @@ SPECS = [
     Param('external_pose_timeout_s', 0.5, 'no timely external pose (none, or only late ones) for this long: fault '
           '(timeout), a hand-over ends', min=0.02, max=10.0, read_only=True),
     Param('external_pose_max_age_s', 0.2, 'an external pose older than this (stamp to arrival): fault (late), '
-          'dropped',
-          min=0.005, max=5.0, read_only=True),
+          'dropped', min=0.005, max=5.0, read_only=True),
     Param('external_pose_max_speed_mps', 10.0, 'a position step beyond speed x dt + external_pose_jump_margin_m '
           'between samples: fault (jump)', min=0.1, max=100.0, read_only=True),
     Param('external_pose_jump_margin_m', 0.1, 'see external_pose_max_speed_mps', min=0.0, max=10.0, read_only=True),

@@ -48,10 +48,11 @@ class Mission:
         return self.waypoints[0].copy()
 
 
-def mission_from_dict(data: dict, path: str = 'mission') -> Mission:
-    """Validated Mission from a parsed mission file (its own values: quad_trajectory.mission_file.mission_fields;
-    here the vehicle, what the options need of it, and the world); relative paths are taken relative to `path`."""
-    fields = mission_fields(data, path)
+def mission_from_dict(data: dict, path: str = 'mission', fields: dict | None = None) -> Mission:
+    """Validated Mission from a parsed mission file (its own values: quad_trajectory.mission_file.mission_fields,
+    or `fields` where the caller has them already; here the vehicle, what the options need of it, and the world);
+    relative paths are taken relative to `path`."""
+    fields = mission_fields(data, path) if fields is None else fields
     traj, options, vehicle_path = fields['trajectory'], fields['options'], fields['vehicle_path']
     try:
         vehicle = load_vehicle(vehicle_path) if vehicle_path else None

@@ -83,11 +83,11 @@ def run(args) -> int:
             return fleet_plan.run(args, data)
         from quad_trajectory.mission_file import mission_fields
 
-        mission_fields(data, os.fspath(args.mission))   # the file's own values, refused before numpy is imported
+        fields = mission_fields(data, os.fspath(args.mission))   # refused before numpy is imported
         from quad_trajectory.mission import mission_from_dict, plan_mission, preflight
         from quad_trajectory.planner import allocation_lines
 
-        mission = mission_from_dict(data, os.fspath(args.mission))
+        mission = mission_from_dict(data, os.fspath(args.mission), fields)
         reason = refuse_overwriting_inputs([('--out', args.out), ('--csv (next to --out)', csv_path)],
                                            [('mission\'s vehicle file', mission.vehicle_path),
                                             ('mission\'s world file', mission.world_path)])

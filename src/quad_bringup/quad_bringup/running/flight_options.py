@@ -96,10 +96,11 @@ def validate(options: FlightOptions):
     from quad_trajectory.mission_file import mission_fields
 
     try:
-        mission_fields(load_yaml(path), os.fspath(path))   # the file's own values, refused before numpy is imported
+        data = load_yaml(path)
+        fields = mission_fields(data, os.fspath(path))   # the file's own values, refused before numpy is imported
         from quad_trajectory import mission as mission_module
 
-        mission = mission_module.load_mission(path)
+        mission = mission_module.mission_from_dict(data, os.fspath(path), fields)
         mission_module.plan_mission(mission, speed_mps=options.speed_mps, **plan_overrides(options))
     except (ValueError, KeyError, TypeError, OSError) as exc:
         raise MissionRefused(str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None

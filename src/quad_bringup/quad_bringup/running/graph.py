@@ -310,9 +310,10 @@ def bridge_graph(autopilot: str, mission_path, *, vehicle=None, control_profile=
         NodeSpec('position_controller', (config(CONFIG_FILES['position_controller']), profile, control)),
         NodeSpec('mavlink_bridge', (config(CONFIG_FILES['mavlink_bridge'].format(autopilot=autopilot)), bridge)),
     ]
-    if external_pose != EXTERNAL_POSE_OFF and 'state_source' not in nodes[1].merged_parameters():
-        control['state_source'] = 'external_pose'   # indoors the controller flies from the motion capture (below)
-    if nodes[1].merged_parameters().get('state_source') == 'external_pose':
+    flies_from = nodes[1].merged_parameters().get('state_source')   # the argument's, else the profile's, or None
+    if flies_from is None and external_pose != EXTERNAL_POSE_OFF:     # indoors: from the motion capture (above)
+        flies_from = control['state_source'] = 'external_pose'
+    if flies_from == 'external_pose':
         if external_pose == EXTERNAL_POSE_OFF:
             raise ValueError(f'state_source {"external_pose"!r} refused with external_pose {external_pose!r}: the '
                              'controller flies from the motion capture the bridge forwards (external_pose:=enu or '
