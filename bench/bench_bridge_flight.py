@@ -16,8 +16,8 @@ delays odometry and setpoints, which the stiff profiles feel first). Beside them
 offline (quad_bringup.emulated.offline_chain's `fly_chain_offline`: the emulator's pieces under position_controller's
 loop without processes, MAVLink or load; three seeds), once without the three from PX4's source (the SIH-like setting
 before them) and once with the estimate's velocity also 0.15 s late (the first SIH-like estimate). PX4 SIH flew
-control_real.yaml before it learnt the drag in flight: that profile (drag_learning_time_s 0) is the one held to PX4
-SIH's range; the real-vehicle default as shipped is flown beside it."""
+control_real.yaml before the drag, the velocity blend and its ki were set (offline_chain.AS_FLOWN_ON_PX4_SIH): that
+profile is the one held to PX4 SIH's range; the real-vehicle default as shipped is flown beside it."""
 
 import os
 import re
@@ -28,23 +28,29 @@ from pathlib import Path
 import yaml
 
 from quad_bringup.emulated.mission_flight import CONTROL, REAL_PROFILE, fly_mission
-from quad_bringup.emulated.offline_chain import PX4_SIH_BEFORE, PX4_SIH_LIKE, SPEED_MPS, SQUARE, fly_chain_offline
+from quad_bringup.emulated.offline_chain import (
+    AS_FLOWN_ON_PX4_SIH,
+    PX4_SIH_BEFORE,
+    PX4_SIH_LIKE,
+    SPEED_MPS,
+    SQUARE,
+    fly_chain_offline,
+)
 from quad_bringup.emulated.vehicle_graph import running_graph
-from quad_common.yaml_io import load_yaml
-from quad_control.parameters import profile_with
+from quad_control.parameters import profile_content
 
 PROFILES = {'seed pd (control.yaml)': None, 'control_real.yaml (pid)': REAL_PROFILE}
 SE3_PROFILE = 'config/control_se3.yaml'
-AS_FLOWN_ON_SIH = 'control_real.yaml, no drag learning (as flown on PX4 SIH)'
+AS_FLOWN_ON_SIH = 'control_real as PX4 SIH flew it'
 SIH_SEEDS = (1, 2)
 PX4_SIH_RMSE_M = {'seed pd (control.yaml)': (0.34, 0.55), AS_FLOWN_ON_SIH: (0.43, 0.53),
                   'control_se3.yaml (se3)': (0.26, 0.27)}   # PX4 v1.16.0 SIH
 
 
 def as_flown_on_sih(directory: Path) -> str:
-    """control_real.yaml as PX4 SIH flew it (drag_learning_time_s 0), written into directory."""
+    """control_real.yaml as PX4 SIH flew it (offline_chain.AS_FLOWN_ON_PX4_SIH), written into directory."""
     path = directory / 'control_real_as_flown_on_sih.yaml'
-    path.write_text(yaml.safe_dump(profile_with(load_yaml(REAL_PROFILE), {'drag_learning_time_s': 0.0})))
+    path.write_text(yaml.safe_dump(profile_content(AS_FLOWN_ON_PX4_SIH)))
     return str(path)
 
 

@@ -6,7 +6,7 @@ estimate, the telemetry delay line; no processes, MAVLink or load), on two plant
 (0.19 s attitude lag, no drag) and PX4 SIH as fitted to its recorded flights (0.105 s dead time before a 0.05 s
 response, SIH's air drag 1 m/s^2 per m/s). RMSE of the truth (where the vehicle is, every 10 ms) against the plan,
 over the plan plus 3 s. Three sources of the controller's state. GPS-like estimate: the autopilot's estimate as PX4
-SIH's EKF2 gave it with its simulated GPS (PX4_SIH_FITTED: 0.15 s behind, wandering 0.18 m / 0.3 m in height over
+SIH's EKF2 gave it with its simulated GPS (PX4_SIH_FITTED: current, wandering 0.18 m / 0.3 m in height over
 4 s, velocity wander 0.2 m/s), odometry at 50 Hz, 20 ms late. Autopilot estimate = truth: the best an estimator
 fusing the motion capture can publish (the truth's position and velocity, odometry at 50 Hz, 20 ms late), an upper
 bound for external vision through the autopilot. Motion capture direct: position_controller `state_source:

@@ -12,7 +12,8 @@ of the emulated flight; the seed pd oscillated at 0.85-0.99 m.
 Wander: per axis a first-order Gauss-Markov process (correlation time tau_s, standard deviation wander_m
 horizontally, wander_z_m vertically), w' = -w / tau + sqrt(2 sigma^2 / tau) n(t), stepped exactly:
 w(t + dt) = a w(t) + sigma sqrt(1 - a^2) n,  a = exp(-dt / tau). PX4 SIH: 0.4-0.8 m RMS off the truth (height
-0.3-1.3 m), wandering about 0.5 m a minute, 0.15 s behind. The wander starts at 0 (the estimator initialised
+0.3-1.3 m), wandering about 0.5 m a minute (the first guesses; the flights' own logs: PX4_SIH_FITTED in
+quad_bringup.emulated.offline_chain). The wander starts at 0 (the estimator initialised
 where the vehicle stands). Defaults (lag 0, no wander): the estimate is the truth.
 
 What the autopilot publishes is smooth: EKF2's output predictor propagates the estimate with the IMU at the
@@ -20,8 +21,11 @@ current time and spreads each correction of its delayed filter over EKF2_TAU_POS
 complementary filter of EKF2's output_predictor), so the published position never jumps by a correction. The
 Gauss-Markov process alone moves by white increments (at 100 Hz, 1 cm per tick at 0.6 m / 60 s: a 1.6 cm
 jitter per 50 Hz odometry sample, which doubled the flown path's length and reached the position loop as noise);
-here it passes through that first-order filter (time constant OUTPUT_TAU_S), its input scaled by
-sqrt((tau + OUTPUT_TAU_S) / tau) so that the wander's RMS stays sigma.
+here it passes through a first-order filter of time constant smoothing_s (default OUTPUT_TAU_S), its input scaled
+by sqrt((tau + smoothing_s) / tau) so that the wander's RMS stays sigma. On PX4 SIH's flights the error's power
+above 0.5 Hz is smaller than EKF2_TAU_POS alone gives (the delayed filter smooths its GPS too): band RMS 0.5-2 Hz
+/ 0.05-0.5 Hz 0.07-0.15, 2-10 Hz / 0.5-2 Hz 0.12-0.22, where 0.25 s gives 0.24 and 0.18; WANDER_SMOOTHING_PX4_SIH_S
+(0.7 s) gives 0.13 and 0.15.
 
 Velocity noise (`velocity_noise_mps`, off by default): EKF2's output predictor (output_predictor.cpp) integrates
 the IMU's delta velocities at the IMU rate and pulls the result toward the delayed filter's velocity with the
@@ -57,6 +61,7 @@ from quad_common.types import State
 from quad_vehicle_emu.external_vision import VisionFusion
 
 OUTPUT_TAU_S = 0.25   # PX4 EKF2_TAU_POS: the output predictor's position correction time constant
+WANDER_SMOOTHING_PX4_SIH_S = 0.7   # the wander's smoothing that fits PX4 SIH's error spectrum (docstring)
 VELOCITY_TAU_S = 0.25   # PX4 EKF2_TAU_VEL: the output predictor's velocity correction time constant
 SIH_ACCEL_NOISE_MPS2 = (0.5, 1.7, 1.4)   # sih.cpp reconstruct_sensors_signals, body x y z, thrusting
 SIH_IMU_DT_S = 1.0 / 200.0               # sih.cpp lockstep_loop: min(IMU_GYRO_RATEMAX, IMU_INTEG_RATE) = 200 Hz
@@ -67,13 +72,16 @@ class Estimate:
     def __init__(self, lag_s: float = 0.0, wander_m: float = 0.0, wander_z_m: float = 0.0, tau_s: float = 60.0,
                  seed: int = 0, velocity_noise_mps=(0.0, 0.0, 0.0), velocity_wander_mps: float = 0.0,
                  velocity_wander_z_mps: float = 0.0, velocity_wander_tau_s: float = 3.0,
-                 vision_timeout_s: float = 5.0):
+                 vision_timeout_s: float = 5.0, smoothing_s: float = OUTPUT_TAU_S):
         for name, value in (('--estimator-lag-s', lag_s), ('--estimator-wander-m', wander_m),
                             ('--estimator-wander-z-m', wander_z_m)):
             if not (math.isfinite(value) and 0.0 <= value <= 10.0):
                 raise ValueError(f'{name} = {value!r} must be a number in [0, 10]')
         if not (math.isfinite(tau_s) and tau_s > 0.0):
             raise ValueError(f'--estimator-wander-tau-s = {tau_s!r} must be a number > 0')
+        if not (math.isfinite(smoothing_s) and 0.0 < smoothing_s <= 10.0):
+            raise ValueError(f'--estimator-wander-smoothing-s = {smoothing_s!r} must be a number in (0, 10]')
+        self.smoothing_s = float(smoothing_s)
         noise = np.asarray(velocity_noise_mps, dtype=float).reshape(-1)
         if noise.shape != (3,) or not np.all(np.isfinite(noise)) or np.any(noise < 0.0) or np.any(noise > 1.0):
             raise ValueError(f'--estimator-velocity-noise-mps = {noise.tolist()} must be three numbers in [0, 1] '
@@ -96,7 +104,7 @@ class Estimate:
         self.rng = np.random.default_rng(seed)
         self.wander = np.zeros(3)   # initialised where the vehicle stands, wandering from there
         self._raw = np.zeros(3)     # the Gauss-Markov process before the output predictor's smoothing
-        self._raw_sigma = self.sigma * math.sqrt((self.tau_s + OUTPUT_TAU_S) / self.tau_s)
+        self._raw_sigma = self.sigma * math.sqrt((self.tau_s + self.smoothing_s) / self.tau_s)
         self.last_s = None
         self._history = collections.deque()   # (time s, position) of the truth
         self.vision = VisionFusion(vision_timeout_s)   # fused external-vision poses (fuse_vision)
@@ -112,7 +120,7 @@ class Estimate:
             dt_s = max(now_s - self.last_s, 0.0)
             a = math.exp(-dt_s / self.tau_s)
             self._raw = a * self._raw + self._raw_sigma * math.sqrt(1.0 - a * a) * self.rng.standard_normal(3)
-            self.wander += (self._raw - self.wander) * (1.0 - math.exp(-dt_s / OUTPUT_TAU_S))
+            self.wander += (self._raw - self.wander) * (1.0 - math.exp(-dt_s / self.smoothing_s))
         if self.last_s is not None and self.velocity_sigma.any():
             a = math.exp(-max(now_s - self.last_s, 0.0) / VELOCITY_TAU_S)
             self.velocity_noise_body = (a * self.velocity_noise_body + self.velocity_sigma * math.sqrt(1.0 - a * a)

@@ -36,7 +36,7 @@ from quad_sim.mocap import MocapConfig, MotionCapture
 from quad_sim.simulator import Simulator
 from quad_vehicle_emu.attitude import RATE_LOOPS, AttitudeResponse, default_tau_s, emulated_vehicle
 from quad_vehicle_emu.drag import check_drag, with_linear_drag
-from quad_vehicle_emu.estimator import Estimate
+from quad_vehicle_emu.estimator import OUTPUT_TAU_S, WANDER_SMOOTHING_PX4_SIH_S, Estimate
 from quad_vehicle_emu.external_vision import VisionClock
 
 PHYSICS_RATE_HZ = 500.0   # the emulator's physics rate (mavlink_vehicle --physics-rate-hz): its onboard loop's
@@ -70,13 +70,16 @@ def add_plant_arguments(ap: argparse.ArgumentParser):
                     's before a 0.15 s first order: --attitude-tau-s 0 --attitude-dead-time-s 0.1 with --rate-loop '
                     'px4-sih); default 0')
     ap.add_argument('--estimator-lag-s', type=float, default=0.0,
-                    help="its position estimate trails the truth this much (PX4 SIH: 0.15; velocity is now)")
+                    help="its position estimate trails the truth this much (velocity is now; PX4 SIH's logs: 0)")
     ap.add_argument('--estimator-wander-m', type=float, default=0.0,
                     help="RMS of the estimate's horizontal position wander per axis (PX4 SIH: 0.4-0.8 m off)")
     ap.add_argument('--estimator-wander-z-m', type=float, default=0.0,
                     help="RMS of the estimate's height wander (PX4 SIH: 0.3-1.3 m)")
     ap.add_argument('--estimator-wander-tau-s', type=float, default=60.0,
                     help="the wander's correlation time (PX4 SIH: about 0.5 m a minute)")
+    ap.add_argument('--estimator-wander-smoothing-s', type=float, default=OUTPUT_TAU_S,
+                    help="the wander's first-order smoothing (default EKF2_TAU_POS 0.25 s; PX4 SIH's error spectrum: "
+                         f'{WANDER_SMOOTHING_PX4_SIH_S})')
     ap.add_argument('--estimator-velocity-noise-mps', type=triple, default=[0.0, 0.0, 0.0], metavar='X,Y,Z',
                     help="RMS of the estimate's velocity noise on the body axes, correlated over EKF2_TAU_VEL "
                          '(PX4 SIH: 0.0125,0.0425,0.035 from its accelerometer noise); default none')
@@ -123,7 +126,8 @@ def plant_from_flags(args, rp_rates_fed: bool = True, vision=None, vision_timeou
     estimate = Estimate(args.estimator_lag_s, args.estimator_wander_m, args.estimator_wander_z_m,
                         args.estimator_wander_tau_s, args.seed, args.estimator_velocity_noise_mps,
                         args.estimator_velocity_wander_mps, args.estimator_velocity_wander_z_mps,
-                        args.estimator_velocity_wander_tau_s, **estimate_options)
+                        args.estimator_velocity_wander_tau_s, smoothing_s=args.estimator_wander_smoothing_s,
+                        **estimate_options)
     if estimate_wrapper is not None:
         estimate = estimate_wrapper(estimate)
     vehicle, drag = with_linear_drag(emulated_vehicle(parameter_file('--vehicle', args.vehicle),
