@@ -13,8 +13,6 @@ from quad_vehicle_emu.estimate_error import band_rms, best_lag_s, emulated_estim
 
 DATA = Path(__file__).parent / 'data' / 'px4_sih_estimate.csv.gz'
 RATE_HZ = 25.0
-
-
 FLIGHTS = read_flights(DATA)
 FITTED = (*PX4_SIH_FITTED, '--vehicle', VEHICLE_FILE)
 

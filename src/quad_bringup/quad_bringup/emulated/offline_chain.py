@@ -50,7 +50,7 @@ PX4_SIH_LIKE = (*PX4_SIH_BEFORE, '--rate-loop', 'px4-sih', '--rp-rates-with-atti
 # attitude response tau 0.15 s behind a 0.105 s dead time (default loop + 0.05 s shaping + 0.07 s dead time fits
 # so), the estimate's error as measured (position std 0.1-0.4 m over 3-6 s, its spectrum's fall above 0.5 Hz,
 # velocity 0.1-0.32 m/s over 2-5 s), and current: EKF2's logged estimate at its timestamp_sample is the truth then,
-# no lag (the first guess, 0.15 s, came from odometry a clock fallback stamped 0.07-0.15 s early)
+# no lag (the first guess, 0.15 s, is not in PX4's log; docs/emulator.md "PX4 SIH fitted")
 PX4_SIH_FITTED = ('--attitude-tau-s', '0.05', '--attitude-dead-time-s', '0.07', '--estimator-lag-s', '0',
                   '--estimator-wander-m', '0.18', '--estimator-wander-z-m', '0.3', '--estimator-wander-tau-s', '4',
                   '--estimator-wander-smoothing-s', str(WANDER_SMOOTHING_PX4_SIH_S),
