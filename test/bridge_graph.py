@@ -15,7 +15,7 @@ from contextlib import contextmanager
 import rclpy
 from rclpy.parameter import Parameter
 
-from quad_bringup.emulated.vehicle_graph import ROOT, free_udp_port, running_graph
+from quad_bringup.emulated.vehicle_graph import PORT_TRIES, ROOT, free_udp_port, running_graph, start_bridge
 from quad_common.ros.node_main import close_nodes
 from quad_common.ros.testing import Spinner
 
@@ -205,8 +205,6 @@ def bridge_in_this_process(observer, namespace, url, **params):
             sys.setswitchinterval(switch)
 
 
-PORT_TAKEN = 'Address already in use'   # the bridge's refusal when its udpin port is bound by another process
-PORT_TRIES = 3
 
 
 @contextmanager
@@ -222,15 +220,11 @@ def tapped_graph(tmp_path):
                 tap = Tap(bridge_port)
                 taps.append(tap)
                 procs.vehicle(flavour, f'udpout:127.0.0.1:{tap.port}', position=position, extra=extra)
-                bridge = procs.bridge(f'udpin:127.0.0.1:{bridge_port}', **bridge_params)
-                observer.wait_for(lambda b=bridge: observer.link()[1].get('armed') == 'True' or b.poll() is not None,
-                                  'the bridge to see the armed vehicle')
-                if bridge.poll() is None:
+                if start_bridge(procs, f'udpin:127.0.0.1:{bridge_port}', **bridge_params) is not None:
+                    observer.wait_for(lambda: observer.link()[1].get('armed') == 'True',
+                                      'the bridge to see the armed vehicle')
                     return tap
-                log = procs.log('bridge')
-                assert PORT_TAKEN in log, f'the bridge exited with {bridge.returncode}: {log[-2000:]}'
-                procs.stop('bridge')   # its claimed port taken by a process that claims none: new ports
-                procs.stop('vehicle')
+                procs.stop('vehicle')   # its claimed port taken by a process that claims none: new ports
             raise AssertionError(f'the bridge found its port taken {PORT_TRIES} times')
         try:
             yield procs, observer, start

@@ -10,10 +10,9 @@ from pathlib import Path
 import pytest
 import rclpy
 from ament_index_python.packages import get_package_prefix
-from bridge_graph import PORT_TAKEN, PORT_TRIES
 from rclpy.executors import SingleThreadedExecutor
 
-from quad_bringup.emulated.vehicle_graph import WAIT_S, free_udp_port
+from quad_bringup.emulated.vehicle_graph import PORT_TAKEN, PORT_TRIES, WAIT_S, free_udp_port
 from quad_common.ros.testing import isolated_domain
 
 EXECUTABLES = [('quad_trajectory', 'trajectory_node', []), ('quad_control', 'position_controller', []),

@@ -27,6 +27,7 @@ from rclpy.serialization import deserialize_message
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
+from quad_bridge.parameters import NAME as BRIDGE_NAME
 from quad_common import contract
 from quad_common.conversions import stamp_to_s
 from quad_common.paths import REPO_ROOT
@@ -35,6 +36,8 @@ from quad_common.ros.testing import Spinner, isolated_domain
 ROOT = REPO_ROOT   # the checkout whose packages and config/ the processes use
 VEHICLE_FILE = str(ROOT / 'config' / 'vehicles' / 'px4_quad.yaml')
 WAIT_S = 90.0  # generous: a busy 2-core machine
+PORT_TAKEN = 'Address already in use'   # the bridge's refusal when its udpin port is bound by another process
+PORT_TRIES = 3
 _GRAPHS = itertools.count()
 
 
@@ -276,14 +279,41 @@ EMULATOR_SCHEDULING = ('--realtime-priority', '30')
 VEHICLE_PARAMS = {'px4': (), 'ardupilot': ('--param', 'GUID_OPTIONS=8')}
 
 
+def start_bridge(procs, url: str, **params):
+    """mavlink_bridge on `url` (`params` its parameters), once it listens there (its start-up line, written after the
+    link is open); None, the bridge stopped, if another process held the port (it exits 2 saying PORT_TAKEN: one
+    that claims no test port); any other exit fails naming it, with the bridge's log."""
+    bridge = procs.bridge(url, **params)
+    started = f'{BRIDGE_NAME}: {url},'
+    deadline = time.monotonic() + WAIT_S
+    while bridge.poll() is None and started not in procs.log('bridge'):
+        if time.monotonic() > deadline:
+            raise AssertionError(f'the bridge did not open {url} within {WAIT_S} s: {procs.log("bridge")[-2000:]}')
+        time.sleep(0.05)
+    if bridge.poll() is None:
+        return bridge
+    log = procs.log('bridge')
+    procs.stop('bridge')
+    if PORT_TAKEN in log:
+        return None
+    raise AssertionError(f'the bridge exited with {bridge.returncode}: {log[-2000:]}')
+
+
 def start_vehicle_graph(procs, flavour, port, controller_files=(), position=(0.0, 0.0, 1.0), bridge_port=None,
                         bridge=None, controller=None, vehicle_extra=()):
     """The emulated vehicle (sending to udp `port`, VEHICLE_PARAMS and vehicle_extra), mavlink_bridge (listening on
     `bridge_port`, default `port`: another port puts a Tap between them; `bridge` parameters) and
-    position_controller (parameter files, then `controller` parameters)."""
-    procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=position,
-                  extra=(*VEHICLE_PARAMS[flavour], *vehicle_extra))
-    procs.bridge(f'udpin:127.0.0.1:{bridge_port or port}', **(bridge or {}))
+    position_controller (parameter files, then `controller` parameters). Without a Tap, a port another process
+    holds is given up for a new one (PORT_TRIES in all)."""
+    for _ in range(1 if bridge_port else PORT_TRIES):
+        procs.vehicle(flavour, f'udpout:127.0.0.1:{port}', position=position,
+                      extra=(*VEHICLE_PARAMS[flavour], *vehicle_extra))
+        if start_bridge(procs, f'udpin:127.0.0.1:{bridge_port or port}', **(bridge or {})) is not None:
+            break
+        procs.stop('vehicle')
+        port = free_udp_port()
+    else:
+        raise AssertionError(f'the bridge found its port taken {1 if bridge_port else PORT_TRIES} times')
     procs.controller(*controller_files, **(controller or {}))
 
 
