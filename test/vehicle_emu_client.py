@@ -174,8 +174,10 @@ class EmulatedVehicle:
         self.stream_thread.start()
 
     def stop_stream(self):
+        """Ends the stream; the time of its last setpoint (the thread has ended: none follows)."""
         if self.stream_thread is not None:
             self.stream_stop.set()
-            self.stream_thread.join(timeout=2)
+            self.stream_thread.join(timeout=60)   # a starved thread (FIFO emulators beside it) may wake late
+            assert not self.stream_thread.is_alive(), 'the setpoint stream did not stop'
             self.stream_thread = None
         return getattr(self, 'stream_last_s', None)
