@@ -37,3 +37,22 @@ def test_a_follower_that_flushes_each_spin_acknowledges_every_ack_every_th_step_
     while len(node.sent) < 3 and time.monotonic() < deadline:   # a stopping simulator: the rest after ACK_FLUSH_S
         ack.flush_if_due()
     assert node.sent[-1] == (lockstep.ACK_EVERY + 2) * 10_000_000
+
+
+def test_a_fleet_follower_counts_steps_not_messages():
+    """Sixteen vehicles' odometry of one step is one step taken: the acknowledgement goes every ACK_EVERY steps,
+    as one vehicle's would, not every ACK_EVERY messages."""
+    node = _Node()
+    ack = lockstep.Acknowledger(node, 'recorder')
+    ack.taken(0)
+    ack.flush()
+    for step in range(1, lockstep.ACK_EVERY):
+        for _vehicle in range(16):
+            ack.taken(step * 10_000_000)
+    assert node.sent == [0]
+    for _vehicle in range(16):
+        ack.taken(lockstep.ACK_EVERY * 10_000_000)
+    assert node.sent == [0, lockstep.ACK_EVERY * 10_000_000]
+    ack.taken(5 * 10_000_000)   # an older stamp (reordered) neither counts nor moves the newest back
+    ack.flush()
+    assert node.sent == [0, lockstep.ACK_EVERY * 10_000_000]

@@ -16,6 +16,7 @@ import os
 import shutil
 import struct
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -88,6 +89,8 @@ class BagRecorder:
         self._writer.open()
         self._connections = {}
         self.counts = {}
+        self._sync_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix='bag-fsync')
+        self._syncing = None   # the fsync in progress (a Future), if any
 
     def add_topic(self, topic: str, spec: TopicSpec, depth: int = 10):
         if topic in self._connections:
@@ -103,17 +106,23 @@ class BagRecorder:
         self.counts[topic] += 1
 
     def flush(self):
-        """Push the pending chunk to disk (so a SIGKILL loses at most what came after this)."""
+        """Push the pending chunk to the file (so a SIGKILL loses at most what came after this: the kernel holds it),
+        and to the disk in a thread of its own (os.fsync, for a crash of the machine): fsync waits for the disk, a
+        tenth of a second and more beside another process's writes, and the writing thread is a lockstep follower
+        that must not stop for it. One fsync at a time: a flush while one is still running leaves it to the next."""
         storage = self._writer.storage
         if storage is None:
             return
         if storage.chunk.bio.tell():
             storage.close_chunk()
         storage.bio.flush()
-        os.fsync(storage.bio.fileno())
+        if self._syncing is None or self._syncing.done():
+            self._syncing = self._sync_thread.submit(os.fsync, storage.bio.fileno())
 
     def close(self):
-        """Finish the MCAP file (index, footer) and write metadata.yaml."""
+        """Finish the MCAP file (index, footer) and write metadata.yaml (after the fsync in progress: it holds
+        the file's descriptor)."""
+        self._sync_thread.shutdown(wait=True)
         if self._writer.storage is not None:
             self._writer.close()
 

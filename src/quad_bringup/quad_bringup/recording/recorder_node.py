@@ -8,7 +8,8 @@ does the death of the process that started it (quad_common.lifeline.bind_to_pare
 
 A lockstep follower (quad_common.ros.lockstep): it acknowledges the odometry it has written, so a simulator started
 with lockstep_followers:=recorder never publishes more than the bag can take. The subscriptions are served in
-one pass per wake-up (HotPathExecutor), the status timer and discovery in its slow pass.
+one pass per wake-up (HotPathExecutor), each ready one's whole backlog in it; the status timer, the bag's flush and
+discovery in its slow pass (the flush's fsync in a thread of its own: recorder.BagRecorder.flush).
 
 Status on `diagnostics` (name `recorder`, one value per topic: messages written) every second and when a topic
 gets its first message: how `quadflight fly` knows the latched plan is in the bag before the flight starts.
@@ -40,6 +41,9 @@ from quad_common.ros.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
 DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends with a pass this long that takes nothing sent before it
+# messages taken from a ready subscription per wake-up (quad_common.ros.hot_path): a fleet's recorder woke ~9 times a
+# lockstep step, each wake-up a pass over its every subscription (~0.3 ms at 65 of them) for a message or two
+TAKES_PER_PASS = 100
 ODOM = 'odom'
 CLOCK = contract.CLOCK
 
@@ -79,6 +83,7 @@ class RecorderNode(Node):
         self.bag = BagRecorder(self.params['output_dir'])
         self.ack = lockstep.Acknowledger(self, self.get_name())
         self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
+        self._awaited = list(self.ack_after)   # those of ack_after not in the bag yet
         self._raw_subscriptions = {}
         # the stop's wall time (ns; none yet: the largest int64) and how many messages published before it (their
         # publisher's source timestamp) were taken: what the drain after a stop waits for
@@ -122,10 +127,12 @@ class RecorderNode(Node):
                 self.sent_before_stop += 1
             if topic in self._paced_newest_ns:
                 stamp_ns = _clock_ns(data) if topic == CLOCK else cdr.header_stamp_ns(data, Odometry)
-                self._paced_newest_ns[topic] = max(self._paced_newest_ns[topic], stamp_ns)
+                if stamp_ns > self._paced_newest_ns[topic]:
+                    self._paced_newest_ns[topic] = stamp_ns
                 self.ack.taken(min(self._paced_newest_ns.values()))
-                if self.ack_after:  # nothing acknowledged until the bag has these (e.g. the latched plan)
-                    self.ack.hold(any(self.bag.counts.get(t, 0) == 0 for t in self.ack_after))
+                if self._awaited:  # nothing acknowledged until the bag has these (e.g. the latched plan)
+                    self._awaited = [t for t in self._awaited if self.bag.counts.get(t, 0) == 0]
+                    self.ack.hold(bool(self._awaited))
             if self.bag.counts[topic] == 1:
                 self.publish_status()
 
@@ -196,7 +203,7 @@ def main(args=None):
         print(f'recorder: {exc}', file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(2)
-    executor = HotPathExecutor(node.hot_entities)
+    executor = HotPathExecutor(node.hot_entities, takes_per_pass=TAKES_PER_PASS)
     executor.add_node(node)
     try:
         while not stop:

@@ -46,6 +46,7 @@ LOCKSTEP_TIMEOUT_S = 3.0    # wall time sim_node waits for a setpoint (a loaded 
 class GraphTiming:
     total_s: float = 0.0     # the whole run: processes started to stopped
     flight_s: float = 0.0    # sim_node's stepping: its first step (the plans in) to its exit
+    follower_wait_ms: float = float('nan')   # sim_node's longest wait for the recorder while stepping
     processes: dict = field(default_factory=dict)   # name -> exit code
     cpu_s: dict = field(default_factory=dict)       # name -> CPU seconds (user + system) when the flight ended
 
@@ -139,7 +140,8 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
             run.start(env)
             run.await_end(start + timeout_s)
             timing.cpu_s = {p.name: cpu_s(p.pid) for p in [run.recorder, *run.nodes[1:]]}
-            timing.flight_s = _stepping_s(run.nodes[0].log_path, time.monotonic() - start)
+            timing.flight_s, timing.follower_wait_ms = _lockstep_summary(run.nodes[0].log_path,
+                                                                         time.monotonic() - start)
         finally:
             timing.processes = run.stop(log=log)
             timing.total_s = time.monotonic() - start
@@ -156,15 +158,24 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def _stepping_s(log_path: Path, fallback_s: float) -> float:
-    """sim_node's wall time from its first advanced step to its end, as it logs it ('stepped ... in X s')."""
+def _lockstep_summary(log_path: Path, fallback_s: float) -> tuple[float, float]:
+    """(sim_node's wall time from its first advanced step to its end, its longest wait for the followers in ms) as
+    it logs them ('lockstep: stepped ... in X s', 'lockstep: longest wait for followers Y ms'); fallback_s and
+    nan for what the log does not say."""
+    stepping_s, wait_ms = fallback_s, float('nan')
     try:
-        for line in reversed(log_path.read_text(errors='replace').splitlines()):
+        lines = log_path.read_text(errors='replace').splitlines()
+    except OSError:
+        return stepping_s, wait_ms
+    for line in lines:
+        try:
             if 'lockstep: stepped' in line:
-                return float(line.split(' in ')[1].split(' s')[0])
-    except (OSError, IndexError, ValueError):
-        pass
-    return fallback_s
+                stepping_s = float(line.split(' in ')[1].split(' s')[0])
+            elif 'lockstep: longest wait for followers' in line:
+                wait_ms = float(line.split('longest wait for followers ')[1].split(' ms')[0])
+        except (IndexError, ValueError):
+            pass
+    return stepping_s, wait_ms
 
 
 def fleet_run(bag_dir, plan: FleetPlan, rule: Completion | None = None, reports_dir=None,

@@ -61,21 +61,42 @@ def _take_message(sub):
     return None if msg_info is None else msg_info[0]
 
 
+class _HotSet:
+    """The hot entities of a pass, looked up once (an entity's handle is a Python property; its pointer a call)
+    while they stay the same: (pointer, subscription, handle, takes MessageInfo) per subscription, (timer, handle)
+    per timer, (pointer, guard) per guard condition, every handle to hold in use, and the wait set."""
+
+    def __init__(self, subscriptions, timers, guards, wakers, context):
+        self.subscriptions = [(s.handle.pointer, s, s.handle,
+                               s._callback_type is Subscription.CallbackType.WithMessageInfo) for s in subscriptions]
+        self.timers = [(t, t.handle) for t in timers]
+        self.guards = [(g.handle.pointer, g) for g in guards]
+        self.subscription_handles = [h for _, _, h, _ in self.subscriptions]
+        self.timer_handles = [h for _, h in self.timers]
+        self.guard_handles = [g.handle for g in (*wakers, *guards)]
+        self.handles = (*self.subscription_handles, *self.timer_handles, *self.guard_handles)
+        self.wait_set = _rclpy.WaitSet(len(subscriptions), len(self.guard_handles), len(timers), 0, 0, 0,
+                                       context.handle)
+
+
 class HotPathExecutor(SingleThreadedExecutor):
     def __init__(self, hot: Callable[[], tuple], *, slow_period_s: float = SLOW_PERIOD_S, context=None,
-                 take: Callable | None = None):
+                 take: Callable | None = None, takes_per_pass: int = 1):
         """hot() -> (subscriptions, timers) or (subscriptions, timers, guard conditions) of the tick; asked before
         every wait, as a node may replace them. Their callbacks take the message, or the message and its MessageInfo
         when they take two arguments as rclpy's own executor decides (none for a guard condition), and are plain
         functions (no coroutines). take(subscription) -> message or None replaces the plain take of a hot
-        subscription of the first kind (quad_bridge.setpoint_source: with the publisher's GID)."""
+        subscription of the first kind (quad_bridge.setpoint_source: with the publisher's GID). takes_per_pass:
+        the messages taken from a ready subscription in one pass, until its queue is empty (1: one per pass, so
+        messages of different subscriptions are served in turn; a recorder takes its backlog in one wake-up instead
+        of one wake-up and one wait-set pass per message)."""
         super().__init__(context=context)
         self._hot = hot
         self._take = take or _take_message
         self._slow_period_s = slow_period_s
+        self._takes_per_pass = max(int(takes_per_pass), 1)
         self._next_slow_s = 0.0
-        self._wait_set = None
-        self._wait_set_key = None
+        self._hot_set_key = self._hot_set_made = None
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
         """Wait up to timeout_sec (None: until the next slow pass) for a hot entity and run every ready one."""
@@ -107,67 +128,72 @@ class HotPathExecutor(SingleThreadedExecutor):
         wakers = (self._guard, self._sigint_gc)
         if None in wakers:   # shut down
             return False
+        try:
+            hot = self._hot_set(subscriptions, timers, guards, wakers)
+        except InvalidHandle:
+            return False
         in_use = []
         try:
             try:
-                for entity in (*subscriptions, *timers, *guards, *wakers):
-                    entity.handle.__enter__()
-                    in_use.append(entity.handle)
+                for handle in hot.handles:
+                    handle.__enter__()
+                    in_use.append(handle)
             except InvalidHandle:
                 return False
-            return self._serve_hot(wait_s, subscriptions, timers, guards, wakers)
+            return self._serve_hot(wait_s, hot)
         finally:
             for handle in reversed(in_use):
                 handle.__exit__(None, None, None)
 
-    def _serve_hot(self, wait_s, subscriptions, timers, guards, wakers) -> bool:
-        wait_set = self._prepared_wait_set(subscriptions, timers, guards, wakers)
+    def _serve_hot(self, wait_s, hot) -> bool:
+        wait_set = hot.wait_set
+        wait_set.clear_entities()   # rcl_wait empties it: the entities are added again before every wait
+        for handle in hot.subscription_handles:
+            wait_set.add_subscription(handle)
+        for handle in hot.timer_handles:
+            wait_set.add_timer(handle)
+        for handle in hot.guard_handles:   # add_node / shutdown wake-ups, SIGINT, then the node's guards
+            wait_set.add_guard_condition(handle)
         wait_set.wait(max(int(wait_s * 1e9), 0))
         if not self._context.ok():
             raise ExternalShutdownException()
-        ready = wait_set.get_ready_entities('subscription')
+        ready = set(wait_set.get_ready_entities('subscription'))
         served = bool(ready)
-        for sub in subscriptions:
-            if sub.handle.pointer in ready:
-                if sub._callback_type is Subscription.CallbackType.WithMessageInfo:  # callback(msg, MessageInfo)
-                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                    if taken is not None:
-                        sub.callback(*taken)
+        if ready:
+            for pointer, sub, handle, with_info in hot.subscriptions:
+                if pointer not in ready:
                     continue
-                msg = self._take(sub)
-                if msg is not None:
+                for _ in range(self._takes_per_pass):
+                    if with_info:  # callback(msg, MessageInfo)
+                        taken = handle.take_message(sub.msg_type, sub.raw)
+                        if taken is None:
+                            break
+                        sub.callback(*taken)
+                        continue
+                    msg = self._take(sub)
+                    if msg is None:
+                        break
                     sub.callback(msg)
-        if guards:  # a worker thread's result (e.g. a decoded trajectory)
-            ready = wait_set.get_ready_entities('guard_condition')
-            for gc in guards:
-                if gc.handle.pointer in ready:
+        if hot.guards:  # a worker thread's result (e.g. a decoded trajectory)
+            ready = set(wait_set.get_ready_entities('guard_condition'))
+            for pointer, gc in hot.guards:
+                if pointer in ready:
                     served = True
                     gc.callback()
-        for timer in timers:  # after the subscriptions: a /clock message may just have made a sim-time timer due
-            if timer.handle.is_timer_ready():
+        for timer, handle in hot.timers:  # after the subscriptions: a /clock message may just have made a sim-time
+            if handle.is_timer_ready():   # timer due
                 served = True
-                timer.handle.call_timer()
+                handle.call_timer()
                 timer.callback()
         return served
 
-    def _prepared_wait_set(self, subscriptions, timers, guards, wakers):
-        """The wait set, re-made only when the hot entities change (rcl_wait empties it, so they are re-added)."""
-        key = (tuple(subscriptions), tuple(timers), tuple(guards))
-        if key != self._wait_set_key:
-            self._wait_set = _rclpy.WaitSet(len(subscriptions), 2 + len(guards), len(timers), 0, 0, 0,
-                                            self._context.handle)
-            self._wait_set_key = key
-        wait_set = self._wait_set
-        wait_set.clear_entities()
-        for sub in subscriptions:
-            wait_set.add_subscription(sub.handle)
-        for timer in timers:
-            wait_set.add_timer(timer.handle)
-        for gc in wakers:   # add_node / shutdown wake-ups, SIGINT
-            wait_set.add_guard_condition(gc.handle)
-        for gc in guards:
-            wait_set.add_guard_condition(gc.handle)
-        return wait_set
+    def _hot_set(self, subscriptions, timers, guards, wakers) -> '_HotSet':
+        """The hot entities' handles and wait set, made again only when the entities change."""
+        key = (tuple(subscriptions), tuple(timers), tuple(guards), wakers)
+        if key != self._hot_set_key:
+            self._hot_set_key = key
+            self._hot_set_made = _HotSet(subscriptions, timers, guards, wakers, self._context)
+        return self._hot_set_made
 
     def _spin_ready_others(self):
         """Every callback the stock executor finds ready now (one wait-set pass), hot ones included."""

@@ -2,9 +2,10 @@
 
 The lockstep simulator publishes step k only once every follower has acknowledged taking an odom stamped at or
 after t_k - FOLLOWER_LAG_STEPS periods. A follower acknowledges on `<name>/lockstep_ack` (rosgraph_msgs/Clock:
-the newest odom stamp it has taken) every ACK_EVERY odometry messages. So at most FOLLOWER_LAG_STEPS + 1 steps
-are unacknowledged, and every publisher paced by the lockstep keeps HISTORY_DEPTH > that in its (reliable)
-history: a slow follower slows the simulation down instead of losing samples.
+the newest odom stamp it has taken) every ACK_EVERY steps it has taken (newer stamps, however many vehicles'
+odometry and /clock messages a step holds: a fleet's recorder acknowledges as often as one vehicle's). So at most
+FOLLOWER_LAG_STEPS + 1 steps are unacknowledged, and every publisher paced by the lockstep keeps HISTORY_DEPTH > that
+in its (reliable) history: a slow follower slows the simulation down instead of losing samples.
 """
 
 import time
@@ -27,7 +28,9 @@ def ack_topic(follower: str) -> str:
 
 
 class Acknowledger:
-    """A follower's side: `taken(stamp_ns)` for every odom taken; publishes every ACK_EVERY-th (and `flush()`)."""
+    """A follower's side: `taken(stamp_ns)` for every odom taken; publishes every ACK_EVERY-th newer stamp (and
+    `flush()`); a stamp not newer than the newest taken (another vehicle's odometry of the same step) counts
+    nothing."""
 
     def __init__(self, node, follower: str):
         self._pub = node.create_publisher(Clock, ack_topic(follower), ACK)
@@ -42,7 +45,9 @@ class Acknowledger:
         self._held = held
 
     def taken(self, stamp_ns: int):
-        self.newest_ns = max(self.newest_ns, stamp_ns)
+        if stamp_ns <= self.newest_ns:
+            return
+        self.newest_ns = stamp_ns
         self._pending += 1
         if self._pending >= ACK_EVERY:
             self.flush()
