@@ -39,7 +39,7 @@ from quad_common.ros.node_main import STOP_SIGNALS, close_nodes, ignore_stop_sig
 from quad_common.ros.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
-DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends with a pass this long that takes nothing sent before it
+DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends when this long took nothing sent before it
 ODOM = 'odom'
 CLOCK = contract.CLOCK
 
@@ -163,16 +163,17 @@ class RecorderNode(Node):
 
 
 def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
-    """Takes what was published before the stop: passes of pass_s until one takes no message whose publisher
+    """Takes what was published before the stop: spins until pass_s has passed without a message whose publisher
     sent it before now. What a publisher sends after the stop is still written while the drain lasts, but does not
     prolong it: publishers that never stop do not keep the recorder alive."""
     node.stop_ns = time.time_ns()
-    taken = -1
-    while taken != node.sent_before_stop:
-        taken = node.sent_before_stop
-        deadline = time.monotonic() + pass_s
-        while time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.01)
+    taken = node.sent_before_stop
+    deadline = time.monotonic() + pass_s
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.01)
+        if node.sent_before_stop != taken:
+            taken = node.sent_before_stop
+            deadline = time.monotonic() + pass_s
 
 
 def main(args=None):
