@@ -35,7 +35,7 @@ from quad_common.lifeline import bind_to_parent
 from quad_common.params import Param
 from quad_common.ros import cdr, lockstep
 from quad_common.ros.hot_path import HotPathExecutor
-from quad_common.ros.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, rcl_reason
+from quad_common.ros.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, lean_log_caller, rcl_reason
 from quad_common.ros.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
@@ -183,6 +183,7 @@ def main(args=None):
     for sig in STOP_SIGNALS:
         signal.signal(sig, lambda signum, frame: stop.append(signum))
     bind_to_parent()
+    lean_log_caller()
     if stop:   # Ctrl-C before anything was built
         ignore_stop_signals()
         return
