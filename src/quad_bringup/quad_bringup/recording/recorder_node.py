@@ -132,6 +132,11 @@ class RecorderNode(Node):
         self._raw_subscriptions[topic] = self.create_subscription(message_class(spec.msgtype), topic, on_message, qos,
                                                               raw=True)
 
+    def publishers_left(self) -> bool:
+        """Whether a recorded topic has a publisher other than this node's status publisher."""
+        own = self.status_pub.topic_name
+        return any(sub.get_publisher_count() > (sub.topic_name == own) for sub in self._raw_subscriptions.values())
+
     def hot_entities(self):
         return list(self._raw_subscriptions.values()), [self.ack_timer]
 
@@ -164,12 +169,20 @@ class RecorderNode(Node):
 
 def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
     """Takes what was published before the stop: spins until pass_s has passed without a message whose publisher
-    sent it before now. What a publisher sends after the stop is still written while the drain lasts, but does not
+    sent it before now, or, sooner, until no recorded topic has a publisher left (once a writer is gone its
+    reader keeps what it had received and drops what comes after: waiting longer cannot bring more), then takes
+    what is there. What a publisher sends after the stop is still written while the drain lasts, but does not
     prolong it: publishers that never stop do not keep the recorder alive."""
     node.stop_ns = time.time_ns()
     taken = node.sent_before_stop
     deadline = time.monotonic() + pass_s
     while time.monotonic() < deadline:
+        if not node.publishers_left():
+            total = -1
+            while total != node.bag.total:   # each pass takes one message per subscription
+                total = node.bag.total
+                executor.spin_once(timeout_sec=0.0)
+            return
         executor.spin_once(timeout_sec=0.01)
         if node.sent_before_stop != taken:
             taken = node.sent_before_stop
