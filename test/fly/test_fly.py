@@ -39,9 +39,15 @@ def alive(pid):
 def test_fly_short_mission_end_to_end(tmp_path, ros_env):
     run_dir = tmp_path / 'run'
     path = mission(tmp_path, [[0, 0, 1], [0.8, 0.4, 1.2], [1.5, 0, 1]])
-    done = subprocess.run([QUADFLIGHT, 'fly', str(path), '--out', str(run_dir), '--quiet'], env=ros_env,
-                          capture_output=True, text=True, timeout=TIMEOUT_S)
+    done = subprocess.run([QUADFLIGHT, 'fly', str(path), '--out', str(run_dir), '--quiet'],
+                          env=dict(ros_env, QUADFLIGHT_TIMING='1'), capture_output=True, text=True, timeout=TIMEOUT_S)
     assert done.returncode == 0, done.stdout + done.stderr
+    # the figures' process starts once the flight is under way (its imports then do not slow the start-up), and
+    # draws every figure
+    phases = [line.split('] ', 1)[1] for line in done.stderr.splitlines() if line.startswith('[')]
+    assert phases.index('figure worker started') == \
+        phases.index('flight started (plan and odometry at the monitor and in the bag)') + 1, phases
+    assert len(list((run_dir / 'figures').glob('*.png'))) == 6
     metrics = json.loads((run_dir / 'metrics.json').read_text())
     assert metrics['completed'] is True and metrics['collided'] is False
     assert metrics['rmse_m'] < 0.03 and metrics['max_error_m'] < 0.06

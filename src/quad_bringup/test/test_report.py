@@ -399,6 +399,27 @@ def test_the_figure_worker_draws_a_pickled_flight_without_the_bag_reader(tmp_pat
     assert 'quad_bringup.analysis.report' not in imported
 
 
+def test_the_figure_worker_exits_without_python_finalization_once_it_has_answered(tmp_path):
+    """fly reaps the worker after its answer: it ends at once (os._exit), its answer and figures complete; an exit
+    handler registered in it never runs."""
+    import json
+    import pickle
+    import subprocess
+    import sys
+
+    with open(tmp_path / 'flight.pickle', 'wb') as f:
+        pickle.dump(load_flight(make_bag(tmp_path / 'bag')), f)
+    run_worker = ('import atexit, runpy, sys; atexit.register(lambda: print("FINALIZED", file=sys.stderr)); '
+                  'runpy.run_module("quad_bringup.analysis.figure_worker", run_name="__main__")')
+    done = subprocess.run([sys.executable, '-c', run_worker], text=True, capture_output=True, timeout=300,
+                          input=json.dumps({'flight': str(tmp_path / 'flight.pickle'), 'out': str(tmp_path)}) + '\n')
+    assert done.returncode == 0, done.stderr
+    assert 'FINALIZED' not in done.stderr
+    figures = json.loads(done.stdout)['figures']
+    assert sorted(figures) == sorted(f'figures/{name}' for name, _ in FIGURES)
+    assert all((tmp_path / f).stat().st_size > 0 for f in figures)
+
+
 def _children() -> set[int]:
     """This process's children, zombies (exited, not reaped) included."""
     me, kids = str(os.getpid()), set()

@@ -13,10 +13,11 @@ recompiles instead of loading stale machine code.
 import hashlib
 import importlib.util
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from quad_common.paths import cache_dir
 
 KERNEL_PACKAGES = ('quad_common', 'quad_sim')
 
@@ -34,12 +35,7 @@ def _kernel_sources_hash() -> str:
 
 
 def _cache_dir() -> str:
-    base = Path(os.environ.get('XDG_CACHE_HOME') or Path.home() / '.cache') / 'quadflight'
-    try:
-        base.mkdir(parents=True, exist_ok=True)
-    except OSError:  # no writable home: the temporary folder
-        base = Path(tempfile.gettempdir()) / 'quadflight'
-    return str(base / f'numba-{_kernel_sources_hash()}')
+    return str(cache_dir() / f'numba-{_kernel_sources_hash()}')
 
 
 if 'NUMBA_CACHE_DIR' not in os.environ and os.environ.get('NUMBA_DISABLE_JIT', '0') in ('', '0'):

@@ -4,10 +4,23 @@ share/quad_bringup/config, found through the ament index, then the checkout's co
 `config/` (`vehicles/px4_quad.yaml` and `config/vehicles/px4_quad.yaml` name the same file)."""
 
 import os
+import tempfile
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[3]  # src/quad_common/quad_common/paths.py (symlink-install too)
 SHARE_PACKAGE = 'quad_bringup'                   # the package whose share directory holds config/
+
+
+def cache_dir() -> Path:
+    """The project's cache folder, made if missing: $XDG_CACHE_HOME/quadflight (default ~/.cache/quadflight), or the
+    temporary folder's quadflight where that cannot be made. OSError where neither can."""
+    base = Path(os.environ.get('XDG_CACHE_HOME') or Path.home() / '.cache') / 'quadflight'
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+    except OSError:  # no writable home
+        base = Path(tempfile.gettempdir()) / 'quadflight'
+        base.mkdir(parents=True, exist_ok=True)
+    return base
 
 
 def share_dir() -> Path | None:

@@ -123,6 +123,22 @@ def test_trajectory_bytes_decode_to_msg_to_sampleds_interpolant(frame_id):
         assert np.array_equal(getattr(got, name), getattr(expected, name)), name
 
 
+@pytest.mark.parametrize('n', [1, 2, 500])
+@pytest.mark.parametrize('frame_id', ['map', 'mapp', '', 'world'])  # the first point 8-aligned or 4 past it
+def test_trajectory_written_as_bytes_deserializes_to_sampled_to_msgs_message(frame_id, n):
+    from quad_common.sampled_trajectory import SampledTrajectory
+    rng = np.random.default_rng(n)
+    p, v, a = rng.normal(size=(n, 4)), rng.normal(size=(n, 4)), rng.normal(size=(n, 4))
+    sampled = SampledTrajectory(0.5 + np.arange(n) * 0.013, p, v, a)
+    stamp = conv.s_to_stamp(7.25)
+    raw = bytes(cdr.set_stamp(cdr.sampled_to_trajectory(sampled, frame_id), stamp))
+    expected = conv.sampled_to_msg(sampled, stamp, frame_id)
+    assert deserialize_message(raw, MultiDOFJointTrajectory) == expected
+    rclpy_raw = serialize_message(expected)   # the same bytes but for padding, which rclpy leaves unset
+    assert len(raw) == len(rclpy_raw)
+    assert all(raw[i] == 0 for i in range(len(raw)) if raw[i] != rclpy_raw[i])
+
+
 def test_trajectory_bytes_refused_as_msg_to_sampled_refuses():
     msg = MultiDOFJointTrajectory()
     with pytest.raises(ValueError, match='no points'):

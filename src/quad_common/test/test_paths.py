@@ -60,3 +60,12 @@ def test_with_or_without_config_prefix_from_any_directory(tmp_path, monkeypatch)
         paths.resolve_config('vehicles/y.yaml')
     assert str(refused.value) == (f'vehicles/y.yaml: no such file (looked in {elsewhere}/vehicles/y.yaml, '
                                   f'{prefix}/share/quad_bringup/config/vehicles/y.yaml)')
+
+
+def test_the_cache_folder_is_made_under_xdg_cache_home_else_in_the_temporary_folder(tmp_path, monkeypatch):
+    monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'cache'))
+    assert paths.cache_dir() == tmp_path / 'cache' / 'quadflight' and paths.cache_dir().is_dir()
+    (tmp_path / 'a_file').write_text('')
+    monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'a_file'))   # cannot hold a folder
+    monkeypatch.setattr(paths.tempfile, 'gettempdir', lambda: str(tmp_path / 'tmp'))
+    assert paths.cache_dir() == tmp_path / 'tmp' / 'quadflight' and paths.cache_dir().is_dir()

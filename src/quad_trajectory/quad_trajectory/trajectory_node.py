@@ -21,9 +21,9 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from quad_common import contract, diagnostics
-from quad_common.conversions import sampled_to_msg
 from quad_common.params import Param
 from quad_common.paths import parameter_file
+from quad_common.ros.cdr import sampled_to_trajectory, set_stamp
 from quad_common.ros.node_main import run_node
 from quad_common.ros.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
@@ -218,16 +218,18 @@ class TrajectoryNode(Node):
         traj = result.trajectory
         view = traj.evaluate(traj.sample_times(PATH_RATE_HZ))
         # the messages are built first (a 10,000-point plan takes a while on a busy machine), then stamped, so the
-        # plan starts start_delay_s after it goes out, not after it was planned
+        # plan starts start_delay_s after it goes out, not after it was planned; the plan itself as bytes
+        # (quad_common.ros.cdr: its Python message took ~0.1 s to build and serialize for a 1,668-point plan)
         unstamped = rclpy.time.Time().to_msg()
+        plan = sampled_to_trajectory(traj.to_sampled(self.params['sample_rate_hz']), frame)
         messages_out = [
-            (self.traj_pub, sampled_to_msg(traj.to_sampled(self.params['sample_rate_hz']), unstamped, frame)),
             (self.path_pub, messages.poses_to_path(view[:, :3], view[:, 3], unstamped, frame)),
             (self.waypoints_pub, messages.poses_to_path(result.waypoints, result.yaw, unstamped, frame)),
             (self.markers_pub, messages.plan_markers(result.waypoints, result.world, view[:, :3], unstamped, frame))]
         now = rclpy.time.Time(nanoseconds=self._now_ns(), clock_type=self.get_clock().clock_type)
         delay_s = self.params['start_delay_s'] + self.fleet_delay_s
         start = (now + Duration(nanoseconds=int(delay_s * 1e9))).to_msg()
+        self.traj_pub.publish(bytes(set_stamp(plan, start)))
         for publisher, msg in messages_out:
             messages.stamp_all(msg, start)
             publisher.publish(msg)

@@ -214,18 +214,18 @@ def test_with_sim_time_the_plan_waits_for_the_first_clock(graph):
 def test_the_plan_starts_start_delay_after_it_is_published_however_long_its_message_took(graph, monkeypatch):
     """On a busy machine building a long plan's message took seconds; a plan stamped before that arrived already
     started (the controller then joins it mid-way). Here building it takes 1.5 s, the delay is 2 s."""
-    build = trajectory_node.sampled_to_msg
+    build = trajectory_node.sampled_to_trajectory
 
     def slow_build(*args, **kwargs):
         time.sleep(1.5)   # stands for a starved process, not a synchronisation
         return build(*args, **kwargs)
 
-    monkeypatch.setattr(trajectory_node, 'sampled_to_msg', slow_build)
+    monkeypatch.setattr(trajectory_node, 'sampled_to_trajectory', slow_build)
     published = []   # when the plan goes out (not when the probe hears it: discovery on a busy machine adds to that)
     publish = Publisher.publish
 
     def timed_publish(self, msg):
-        if isinstance(msg, MultiDOFJointTrajectory):
+        if self.msg_type is MultiDOFJointTrajectory:
             published.append(time.time())
         return publish(self, msg)
 

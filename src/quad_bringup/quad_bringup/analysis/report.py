@@ -61,7 +61,6 @@ def load_flights(bag_dir, namespaces) -> dict:
     """{namespace: its Flight} (load_flight's) from one read of the bag: a fleet's N vehicles open, index and
     deserialize it once, not N times (opening parses its metadata and every connection's QoS: ~1 s for a
     16-vehicle bag)."""
-    ts = typestore()
     parts = {ns: _FlightParts() for ns in namespaces}
     reader, repair = open_bag_reader(bag_dir)
     try:
@@ -82,6 +81,7 @@ def load_flights(bag_dir, namespaces) -> dict:
             topics = {topic for _, topic in routes[conn.id]}
             kind = FROM_BYTES.get(topics.pop()) if len(topics) == 1 else None
             from_bytes[conn.id] = kind[1] if kind is not None and kind[0] == conn.msgtype else None
+        ts = typestore(*(c.msgtype for c in connections))
         for conn, record_ns, raw in reader.messages(connections=connections):
             fields = from_bytes[conn.id](raw) if from_bytes[conn.id] is not None else None
             msg = ts.deserialize_cdr(raw, conn.msgtype) if fields is None else None

@@ -36,11 +36,11 @@ from quad_common.lifeline import bind_to_parent
 from quad_common.params import Param
 from quad_common.ros import cdr, lockstep
 from quad_common.ros.hot_path import HotPathExecutor
-from quad_common.ros.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, rcl_reason
+from quad_common.ros.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, lean_log_caller, rcl_reason
 from quad_common.ros.ros_params import ParameterSet
 
 STATUS_PERIOD_S = 1.0
-DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends with a pass this long that takes nothing sent before it
+DRAIN_PASS_S = 0.2  # wall time: the drain after a stop ends when this long took nothing sent before it
 # messages taken from a ready subscription per wake-up (quad_common.ros.hot_path): a fleet's recorder woke ~9 times a
 # lockstep step, each wake-up a pass over its every subscription (~0.3 ms at 65 of them) for a message or two
 TAKES_PER_PASS = 100
@@ -139,6 +139,11 @@ class RecorderNode(Node):
         self._raw_subscriptions[topic] = self.create_subscription(message_class(spec.msgtype), topic, on_message, qos,
                                                               raw=True)
 
+    def publishers_left(self) -> bool:
+        """Whether a recorded topic has a publisher other than this node's status publisher."""
+        own = self.status_pub.topic_name
+        return any(sub.get_publisher_count() > (sub.topic_name == own) for sub in self._raw_subscriptions.values())
+
     def hot_entities(self):
         return list(self._raw_subscriptions.values()), [self.ack_timer]
 
@@ -170,16 +175,25 @@ class RecorderNode(Node):
 
 
 def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
-    """Takes what was published before the stop: passes of pass_s until one takes no message whose publisher
-    sent it before now. What a publisher sends after the stop is still written while the drain lasts, but does not
+    """Takes what was published before the stop: spins until pass_s has passed without a message whose publisher
+    sent it before now, or, sooner, until no recorded topic has a publisher left (once a writer is gone its
+    reader keeps what it had received and drops what comes after: waiting longer cannot bring more), then takes
+    what is there. What a publisher sends after the stop is still written while the drain lasts, but does not
     prolong it: publishers that never stop do not keep the recorder alive."""
     node.stop_ns = time.time_ns()
-    taken = -1
-    while taken != node.sent_before_stop:
-        taken = node.sent_before_stop
-        deadline = time.monotonic() + pass_s
-        while time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.01)
+    taken = node.sent_before_stop
+    deadline = time.monotonic() + pass_s
+    while time.monotonic() < deadline:
+        if not node.publishers_left():
+            total = -1
+            while total != node.bag.total:   # each pass takes one message per subscription
+                total = node.bag.total
+                executor.spin_once(timeout_sec=0.0)
+            return
+        executor.spin_once(timeout_sec=0.01)
+        if node.sent_before_stop != taken:
+            taken = node.sent_before_stop
+            deadline = time.monotonic() + pass_s
 
 
 def main(args=None):
@@ -189,6 +203,7 @@ def main(args=None):
     for sig in STOP_SIGNALS:
         signal.signal(sig, lambda signum, frame: stop.append(signum))
     bind_to_parent()
+    lean_log_caller()
     if stop:   # Ctrl-C before anything was built
         ignore_stop_signals()
         return

@@ -16,7 +16,8 @@ landed the vehicle (LANDING_TIMEOUT_S).
 
 Start-up: all processes start at once (their imports and DDS discovery overlap); the order that matters is
 kept by the lockstep itself: the simulator does not leave step 0 until both followers have taken it, and the
-recorder and monitor acknowledge nothing before they have the plan.
+recorder and monitor acknowledge nothing before they have the plan. The figures' process starts once the flight
+is under way.
 """
 
 import json
@@ -187,7 +188,7 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
             started.append(node)
         _write_pids(run_dir, started)
         clock.mark('processes started')
-        figure_worker = FigureWorker.start(env) if options.figures else None
+        figure_worker = None
         from quad_bringup.running.flight_monitor import FlightJudge, FlightMonitor
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
@@ -199,6 +200,11 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
             deadline = time.monotonic() + options.startup_timeout_s
             reason = _await(_flight_not_started, started, monitor, interrupt, deadline, options, log)
             clock.mark('flight started (plan and odometry at the monitor and in the bag)')
+            # the figures' process now: its imports (matplotlib, ~0.6 s of CPU) overlap the flight, which waits on
+            # the lockstep more than it computes, not the start-up, where every process computes at once
+            if options.figures:
+                figure_worker = FigureWorker.start(env)
+                clock.mark('figure worker started')
             if reason is None:
                 reason = _watch(judge, monitor, started, interrupt, options, log)
                 clock.mark('verdict')

@@ -1,7 +1,7 @@
 """The lockstep tick's messages as serialized bytes: `odom` (nav_msgs/Odometry) and `cmd/attitude_thrust`
 (sensor_msgs/Imu as a setpoint), packed and read with struct, `control/reference` (packed), and `trajectory`
-(trajectory_msgs/MultiDOFJointTrajectory) read with numpy (a 10,000-point plan in milliseconds instead of the
-~0.3-1 s of building its Python message and converting it point by point).
+(trajectory_msgs/MultiDOFJointTrajectory) written and read with numpy (a 10,000-point plan in milliseconds instead
+of the ~0.3-1 s of building its Python message and converting it point by point).
 
 Why: building these as Python message objects and converting them to and from C cost ~0.1-0.2 ms per message
 each way on the 2-core machine, a third of a lockstep tick; Publisher.publish(bytes) and a raw subscription
@@ -190,6 +190,41 @@ def _trajectory_points(raw: bytes):
     if not (np.all(n_tf == 1) and np.all(n_vel == 1) and np.all(n_acc == 1)):
         return None
     return tf, vel, acc, sec, nanosec
+
+
+def sampled_to_trajectory(traj: SampledTrajectory, frame_id=WORLD_FRAME, joint_name=BODY_FRAME) -> bytearray:
+    """conversions.sampled_to_msg serialized (little-endian plain CDR) with header.stamp 0 (set_stamp stamps it):
+    the points written as one structured array in the layout trajectory_to_sampled reads, not point by point."""
+    head = b''   # header.frame_id, joint_names, the number of points: each 4-aligned, no padding after
+    for part in (frame_id, 1, joint_name, len(traj.times_s)):
+        head += b'\x00' * (-len(head) % 4)
+        head += struct.pack('<I', part) if isinstance(part, int) else (
+            struct.pack('<I', len(part) + 1) + part.encode() + b'\x00')
+    n = len(traj.times_s)
+    unaligned = (8 + len(head)) % 8 != 0   # the first point's body offset: 4 past an 8-alignment
+    points = np.zeros(n, _POINT_ALIGNED)
+    t_ns = np.round((traj.times_s - traj.times_s[0]) * 1e9).astype(np.int64)
+    points['n_tf'] = points['n_vel'] = points['n_acc'] = 1
+    points['tf'][:, :3] = traj.position[:, :3]
+    points['tf'][:, 3:7] = rotations.from_yaw(traj.position[:, 3])
+    points['vel'][:, :3], points['vel'][:, 5] = traj.velocity[:, :3], traj.velocity[:, 3]
+    points['acc'][:, :3], points['acc'][:, 5] = traj.acceleration[:, :3], traj.acceleration[:, 3]
+    points['sec'], points['nanosec'] = t_ns // 1_000_000_000, t_ns % 1_000_000_000
+    raw = bytearray(CDR_LE + bytes(8) + head)
+    if unaligned and n:
+        first = np.zeros(1, _POINT_UNALIGNED)
+        for name in _POINT_ALIGNED.names:
+            first[name] = points[name][:1]
+        raw += first.tobytes()
+        points = points[1:]
+    raw += points.tobytes()
+    return raw
+
+
+def set_stamp(raw: bytearray, stamp) -> bytearray:
+    """header.stamp (a builtin_interfaces Time) of a serialized little-endian message, in place."""
+    struct.pack_into('<iI', raw, 4, stamp.sec, stamp.nanosec)
+    return raw
 
 
 def trajectory_to_sampled(raw: bytes) -> tuple[int, SampledTrajectory]:
