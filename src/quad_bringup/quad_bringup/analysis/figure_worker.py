@@ -99,8 +99,8 @@ def exit_now(code: int):
     """Ends the process without Python's finalization (stdout and stderr flushed first): once the answer is out and
     every figure file closed, tearing down matplotlib's modules and the flight only delays fly, which waits for
     this process's exit to reap it (on the 2-core machine at load 11-13: 0.24-0.55 s from the answer to the exit,
-    0.003-0.009 s without). It holds nothing the
-    operating system does not release: no DDS participant, no shared memory, no child (its parts are reaped)."""
+    0.003-0.009 s without). It holds nothing the operating system does not release: no DDS participant, no shared
+    memory, no child (its parts are reaped)."""
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

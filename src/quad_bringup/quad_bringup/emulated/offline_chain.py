@@ -8,6 +8,7 @@ benches."""
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -106,17 +107,27 @@ def score(stamps_s, positions, traj, hover_s: float = HOVER_S) -> float:
 def fly_chain_offline(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_early_s=None,
                       mocap=None, truth=False, vision=None, waypoints=SQUARE, speed_mps: float = SPEED_MPS,
                       hover_s: float = HOVER_S) -> float:
-    """The RMSE of chain_flight (same arguments)."""
-    return chain_flight(profile, seed, velocity_lag_s, options, odom_early_s, mocap, truth, vision, waypoints,
-                        speed_mps, hover_s).rmse_m
+    """The RMSE of chain_flight (its other arguments): of the estimate, or with `truth` of the truth (where the vehicle
+    is, every 10 ms) against the plan."""
+    flight = chain_flight(profile, seed, velocity_lag_s, options, odom_early_s, mocap, vision, waypoints, speed_mps,
+                          hover_s)
+    return flight.truth_rmse_m if truth else flight.rmse_m
 
 
 @dataclass
 class ChainFlight:
     """What fly_chain_offline scores, with what the vehicle did from the plan's start to its end + 3 s."""
-    rmse_m: float
+    rmse_m: float                 # the estimate (the odometry) against the plan
     tilt_deg: np.ndarray          # the vehicle's tilt every 10 ms
     counts: dict                  # ControlLoop's counters over the whole flight (saturation_tilt, ...)
+    track: tuple                  # (times s, positions) of the truth after each 10 ms period
+    traj: object                  # the plan (sampled) and when it started
+    hover_s: float
+
+    @cached_property
+    def truth_rmse_m(self) -> float:
+        """The truth (where the vehicle is, every 10 ms) against the plan, scored as the estimate is."""
+        return score(*self.track, self.traj, self.hover_s)
 
     def describe(self) -> str:
         saturated = {k: v for k, v in self.counts.items() if k.startswith('saturation') and v}
@@ -125,7 +136,7 @@ class ChainFlight:
 
 
 def chain_flight(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_early_s=None,
-                 mocap=None, truth=False, vision=None, waypoints=SQUARE, speed_mps: float = SPEED_MPS,
+                 mocap=None, vision=None, waypoints=SQUARE, speed_mps: float = SPEED_MPS,
                  hover_s: float = HOVER_S) -> ChainFlight:
     """The PX4 SIH-like emulated chain without processes, MAVLink or a loaded machine: the emulator's own pieces
     (quad_vehicle_emu.plant: its vehicle with SIH's drag, the attitude shaping behind the autopilot's loop, the
@@ -144,7 +155,6 @@ def chain_flight(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_e
     mocap: None, or (noise_m, latency_s, rate_hz): the controller flies from motion capture (position_controller's
     state_source external_pose: quad_bringup.offline.harness.Mocap, the simulator's stand-in at rate_hz with that noise
     and latency, through quad_control.pose_state's filter with the profile's pose parameters) instead of the odometry.
-    truth: score the truth (where the vehicle is, every 10 ms) against the plan, not the estimate.
     vision: None, or (noise_m, age_s, rate_hz, delay_ms): the autopilot's estimate is fused from a motion-capture
     pose (quad_vehicle_emu.plant.VisionFeed: the simulator's stand-in at rate_hz with that noise, reaching PX4 age_s
     later, fused as quad_vehicle_emu.external_vision does with EKF2_EV_DELAY = delay_ms) on every axis; the
@@ -179,14 +189,12 @@ def chain_flight(profile, seed, velocity_lag_s=0.0, options=PX4_SIH_LIKE, odom_e
     end_s = hover_s + traj.duration_s + 3.0
     flown = fly(loop, plant, telemetry, int(end_s * 100) + 1)
     t_s, states = flown.track()
-    if truth:
-        scored = [(t, s.position) for t, s in zip(t_s[1:], states[1:])]   # where the vehicle is after each period
-    else:
-        scored = [(stamp_ns * 1e-9, state.position) for stamp_ns, state in flown.odometry]
     in_plan = [s for t, s in zip(t_s, states) if hover_s <= t <= end_s]
     tilt_deg = np.degrees([math.acos(min(1.0, rotations.to_matrix(s.quaternion)[2, 2])) for s in in_plan])
-    return ChainFlight(score([t for t, _ in scored], [p for _, p in scored], traj, hover_s), tilt_deg,
-                       dict(loop.counts))
+    odometry_rmse_m = score([stamp_ns * 1e-9 for stamp_ns, _ in flown.odometry],
+                            [state.position for _, state in flown.odometry], traj, hover_s)
+    track = (t_s[1:], [s.position for s in states[1:]])   # where the vehicle is after each period
+    return ChainFlight(odometry_rmse_m, tilt_deg, dict(loop.counts), track, traj, hover_s)
 
 
 class _LateVelocity:

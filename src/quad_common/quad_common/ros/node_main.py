@@ -38,6 +38,7 @@ def lean_log_caller():
 
     rcutils_logger.inspect = _CallerFile
 
+
 def run_node(name, make_node, refused=(ValueError,), make_executor=None, spin=None, args=None, own_signals=False):
     """Builds the node (an exception in `refused`, e.g. a bad parameter, or a command line rcl cannot parse, e.g. a
     missing --params-file: one error line naming it, exit 2), adds it to `make_executor(node)` (default a
