@@ -91,7 +91,8 @@ def test_external_pose_is_forwarded_and_its_faults_end_the_hand_over(graph, flav
     """A jump ends the hand-over at once; late samples are dropped and end it only when no timely one comes for
     external_pose_timeout_s (2 s here: a busy machine must not turn the 0.1 s late burst into a timeout)."""
     procs, observer, start = graph
-    tap = start(flavour, vehicle_params='ignore', external_pose_rate_hz=30.0, external_pose_timeout_s=2.0)
+    tap = start(flavour, vehicle_params='ignore', external_pose_rate_hz=30.0, external_pose_timeout_s=2.0,
+                setpoint_timeout_s=1.0)   # the test's own setpoints: a busy 2-core machine's stalls, as elsewhere
     kind = WIRE[flavour]
     assert _fault(observer).startswith('timeout: never received') or not observer.status(STATUS)[0]
     poses = PosePublisher(observer)
