@@ -39,6 +39,7 @@ from quad_bridge.vehicle_state import Vehicle
 from quad_common import contract, diagnostics
 from quad_common.realtime import apply_or_report
 from quad_common.ros.node_main import run_node
+from quad_common.ros.rcl_serialized import SerializedPublisher
 from quad_common.ros.ros_params import ParameterSet
 from quad_common.signing_key import load_signing_key
 
@@ -63,8 +64,11 @@ class MavlinkBridge(Node):
         self.bridge_services = BridgeServices(self)
         self.receiver = Receiver(self)   # the receive thread's: never waits on the executor
         self.stopping = threading.Event()
-        self.diag_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS, contract.qos(contract.DIAGNOSTICS))
-        self.engaged_pub = self.create_publisher(Bool, contract.ENGAGED, contract.qos(contract.ENGAGED))
+        # every DDS write of the bridge with the interpreter lock released (rcl_serialized: why)
+        self.diag_pub = SerializedPublisher(self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS,
+                                                                  contract.qos(contract.DIAGNOSTICS)))
+        self.engaged_pub = SerializedPublisher(self.create_publisher(Bool, contract.ENGAGED,
+                                                                     contract.qos(contract.ENGAGED)))
         self.engaged_lock = threading.Lock()
         self.engaged = None
         self.update_engaged()

@@ -1,9 +1,8 @@
 """Who may command the vehicle (rclpy): each `cmd/attitude_thrust` is taken with its publisher's GID and flown only
 when the ROS graph names that publisher's node `setpoint_source` (docs/bridge.md, "Who can command your vehicle").
 
-Why ctypes: rclpy 7.1.5's take returns the message info without the publisher's GID (source/received timestamps
-and sequence numbers only), but rmw's `rmw_message_info_t` carries it, so the take goes through rcl's own
-`rcl_take_serialized_message` with that struct (rmw 7.3 / Jazzy layout, RMW_GID_STORAGE_SIZE 16). The graph API
+rclpy 7.1.5's take returns the message info without the publisher's GID, so the take goes through rcl's own
+`rcl_take_serialized_message` (quad_common.ros.rcl_serialized.SerializedTake). The graph API
 (`get_publishers_info_by_topic`) maps the endpoint GID to its node. Fast DDS discovers an endpoint before its
 node's name (the graph says _NODE_NAME_UNKNOWN_ until ros_discovery_info arrives: 0.5-0.7 s after a controller
 started on a real vehicle's companion, seconds on a busy machine): such a publisher is neither flown nor refused
@@ -13,13 +12,12 @@ stops any other node of the domain (a test tool, a second controller, a stray sc
 never a deliberate impostor; two publishers claiming the name refuse both. Authentication needs SROS2.
 """
 
-import ctypes
 import threading
 import time
 from collections.abc import Callable
 
-RMW_GID_STORAGE_SIZE = 16
-RCL_RET_OK = 0
+from quad_common.ros.rcl_serialized import SerializedTake
+
 GRAPH_REFRESH_MIN_S = 0.1   # a publisher not admitted asks the graph at most this often (an intruder cannot flood it)
 NAME_WAIT_S = 5.0           # a publisher the graph does not name is held this long after its first setpoint
 HELD_MAX_AGE_S = 0.2        # a held setpoint older than this when its publisher is admitted is not flown (stale)
@@ -102,62 +100,6 @@ class SourceGate:
         return {'setpoint_source': self.source, 'refused_source': sum(refused.values()),
                 'refused_publishers': ', '.join(f'{n} ({c})' for n, c in sorted(refused.items())),
                 'held_unnamed': self.held}
-
-
-class _Gid(ctypes.Structure):
-    _fields_ = [('implementation_identifier', ctypes.c_char_p), ('data', ctypes.c_uint8 * RMW_GID_STORAGE_SIZE)]
-
-
-class _MessageInfo(ctypes.Structure):   # rmw/types.h rmw_message_info_t
-    _fields_ = [('source_timestamp', ctypes.c_int64), ('received_timestamp', ctypes.c_int64),
-                ('publication_sequence_number', ctypes.c_uint64), ('reception_sequence_number', ctypes.c_uint64),
-                ('publisher_gid', _Gid), ('from_intra_process', ctypes.c_bool)]
-
-
-class _Allocator(ctypes.Structure):     # rcutils/allocator.h rcutils_allocator_t
-    _fields_ = [('allocate', ctypes.c_void_p), ('deallocate', ctypes.c_void_p), ('reallocate', ctypes.c_void_p),
-                ('zero_allocate', ctypes.c_void_p), ('state', ctypes.c_void_p)]
-
-
-class _SerializedMessage(ctypes.Structure):   # rcutils_uint8_array_t
-    _fields_ = [('buffer', ctypes.POINTER(ctypes.c_uint8)), ('buffer_length', ctypes.c_size_t),
-                ('buffer_capacity', ctypes.c_size_t), ('allocator', _Allocator)]
-
-
-class SerializedTake:
-    """take(subscription) -> (CDR bytes, publisher gid bytes) or None: rcl_take_serialized_message on the
-    subscription's rcl handle (the libraries rclpy has loaded), one reusable buffer. One thread at a time."""
-
-    def __init__(self, capacity: int = 1024):
-        self._rcl = ctypes.CDLL('librcl.so')
-        self._rcutils = ctypes.CDLL('librcutils.so')
-        self._rcl.rcl_take_serialized_message.argtypes = [ctypes.c_void_p] * 4
-        self._rcutils.rcutils_get_default_allocator.restype = _Allocator
-        self._allocator = self._rcutils.rcutils_get_default_allocator()
-        self._message = _SerializedMessage()
-        self._info = _MessageInfo()
-        if self._rcutils.rcutils_uint8_array_init(ctypes.byref(self._message), ctypes.c_size_t(capacity),
-                                                  ctypes.byref(self._allocator)) != RCL_RET_OK:
-            raise MemoryError('rcutils_uint8_array_init failed')
-        # made once: every setpoint is taken through here
-        self._take_c = self._rcl.rcl_take_serialized_message
-        self._message_ref, self._info_ref = ctypes.byref(self._message), ctypes.byref(self._info)
-        self._gid_address = ctypes.addressof(self._info) + _MessageInfo.publisher_gid.offset + _Gid.data.offset
-
-    def __call__(self, subscription):
-        handle = subscription.handle
-        with handle:
-            ret = self._take_c(handle.pointer, self._message_ref, self._info_ref, None)
-        if ret != RCL_RET_OK:   # RCL_RET_SUBSCRIPTION_TAKE_FAILED: nothing there after all
-            return None
-        message = self._message
-        return (ctypes.string_at(message.buffer, message.buffer_length),
-                ctypes.string_at(self._gid_address, RMW_GID_STORAGE_SIZE))
-
-    def close(self):
-        if self._message.buffer:
-            self._rcutils.rcutils_uint8_array_fini(ctypes.byref(self._message))
-            self._message.buffer = None
 
 
 class SetpointSource:

@@ -23,6 +23,7 @@ from quad_bridge.telemetry import (
 from quad_bridge.telemetry_streams import StreamSelector
 from quad_common import contract
 from quad_common.ros import cdr
+from quad_common.ros.rcl_serialized import SerializedPublisher
 from quad_common.types import State
 
 ODOM_GAP_WINDOW_S = 10.0   # diagnostics' odom_gap_max_ms: the longest gap between odometry publications this recent
@@ -53,9 +54,10 @@ class TelemetryPublisher:
         """on_state(state): every published odometry state (ENU/FLU), e.g. for the geofence."""
         self.vehicle, self.client, self.on_state, self.grace_s = vehicle, client, on_state, grace_s
         c = contract
-        self.odom_pub = node.create_publisher(Odometry, c.ODOM, c.qos(c.ODOM))
-        self.imu_pub = node.create_publisher(Imu, c.IMU, c.qos(c.IMU))
-        self.battery_pub = node.create_publisher(BatteryState, c.BATTERY, c.qos(c.BATTERY))
+        # every DDS write with the interpreter lock released: a write that blocks holds this thread, not the others
+        self.odom_pub = SerializedPublisher(node.create_publisher(Odometry, c.ODOM, c.qos(c.ODOM)))
+        self.imu_pub = SerializedPublisher(node.create_publisher(Imu, c.IMU, c.qos(c.IMU)))
+        self.battery_pub = SerializedPublisher(node.create_publisher(BatteryState, c.BATTERY, c.qos(c.BATTERY)))
         self.log = node.get_logger()
         self.clock = ClockMapper()
         self.streams = None            # StreamSelector once the backend is known

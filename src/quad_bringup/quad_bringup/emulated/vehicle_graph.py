@@ -148,8 +148,10 @@ class Processes:
         out.write_text(yaml.safe_dump({'/**': {'ros__parameters': merged}}))
         return str(out)
 
-    def bridge(self, url, **params):
-        args = ['-m', 'quad_bridge.mavlink_bridge_node', '--ros-args', '-p', f'fcu_url:={url}']
+    def bridge(self, url, script=None, **params):
+        """mavlink_bridge (or `script`, a path that runs it, for a test's instrumented bridge) on `url`."""
+        entry = [script] if script else ['-m', 'quad_bridge.mavlink_bridge_node']
+        args = [*entry, '--ros-args', '-p', f'fcu_url:={url}']
         for k, v in params.items():
             args += ['-p', f'{k}:={v}']
         return self.start('bridge', args)
