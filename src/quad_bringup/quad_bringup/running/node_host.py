@@ -33,6 +33,7 @@ queued and closes the bag (close_recorder), before the simulator waits for follo
 import importlib
 import sys
 
+from quad_common.lifeline import exit_now
 from quad_common.ros.hot_path import HotPathExecutor
 from quad_common.ros.node_main import run_node
 
@@ -160,3 +161,5 @@ def main(argv=None):
 
 if __name__ == '__main__':
     main()
+    # stopped: the nodes destroyed (a hosted recorder's bag closed), rclpy shut down; fly waits for this exit
+    exit_now(0)
