@@ -213,10 +213,13 @@ def test_node_host_takes_fly_s_nodes_without_a_namespace():
     assert ros_args == ['--ros-args', '-p', 'a:=1']
     assert parse_nodes(['position_controller', 'position_controller@cf1'])[0] == [
         ('position_controller', ''), ('position_controller', 'cf1')]
+    assert parse_nodes(['recorder', 'sim_node'])[0] == [('recorder', ''), ('sim_node', '')]   # fly's recorder
 
 
 def test_node_host_refuses_an_unknown_node_and_a_node_given_twice(ros_env):
     for args, text in ((['sim_node@cf1'], "node 'sim_node@cf1' refused"),
+                       (['recorder@cf1', 'sim_node'], "node 'recorder@cf1' refused"),
+                       (['recorder', 'position_controller'], "node 'recorder' refused without sim_node"),
                        (['position_controller@'], "node 'position_controller@' refused"),
                        (['planner'], "node 'planner' refused"),
                        (['position_controller', 'position_controller'], 'given twice'),

@@ -76,9 +76,10 @@ def test_fly_short_mission_end_to_end(tmp_path, ros_env):
     p = last.pose.pose.position
     assert [p.x, p.y, p.z] == pytest.approx([1.5, 0.0, 1.0], abs=0.03)
     pids = json.loads((run_dir / 'pids.json').read_text())
-    assert set(pids) == {'node_host', 'recorder'}   # trajectory_node, sim_node and position_controller in one
+    assert set(pids) == {'node_host'}   # the recorder, trajectory_node, sim_node and position_controller in one
     host_log = (run_dir / 'logs' / 'node_host.log').read_text()
-    assert all(f'[{name}]' in host_log for name in ('trajectory_node', 'sim_node', 'position_controller')), host_log
+    assert all(f'[{name}]' in host_log for name in ('recorder', 'trajectory_node', 'sim_node', 'position_controller'))
+    assert 'bag closed: ' in host_log, host_log
     assert not any(alive(pid) for pid in pids.values())
     # nothing lost: every step sim_node published is in the bag, and the line fly printed says so
     record = metrics['record']

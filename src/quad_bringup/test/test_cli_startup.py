@@ -151,3 +151,37 @@ def test_a_refusal_by_a_numpy_module_imports_numpy_only(inputs, argv, said):
     assert code == 2 and len(lines) == 1 and said in lines[0], lines
     assert not modules & set(HEAVY + ('rosbags',)), sorted(modules & set(HEAVY + ('rosbags',)))
     assert sorted(inputs.iterdir()) == before
+
+
+BLAS_PROBE = """
+import os, sys
+from quad_bringup import cli
+seen = {}
+def fake_fly(options, log, defer_figures):
+    import numpy   # fly's own numpy: imported after the command set its BLAS threads, as the real fly's is
+    seen['numpy_at_run'] = numpy_at_run
+    seen['threads'] = os.environ.get('OPENBLAS_NUM_THREADS')
+    raise SystemExit(0)
+import quad_bringup.running.flight as flight
+numpy_at_run = 'numpy' in sys.modules
+flight.fly = fake_fly
+try:
+    cli.main(sys.argv[1:])
+except SystemExit:
+    pass
+print(seen['numpy_at_run'], seen['threads'], file=sys.stderr)
+"""
+
+
+@pytest.mark.parametrize('preset, expected', [(None, '1'), ('2', '2')])
+def test_fly_runs_numpy_s_blas_on_one_thread_unless_told(tmp_path, preset, expected):
+    """fly and every process it starts (they inherit its environment) run OpenBLAS on one thread (commands.fly
+    BLAS_THREADS): set before fly's own numpy import; a value the user set is kept."""
+    env = {k: v for k, v in os.environ.items() if k != 'OPENBLAS_NUM_THREADS'}
+    if preset is not None:
+        env['OPENBLAS_NUM_THREADS'] = preset
+    mission = tmp_path / 'm.yaml'
+    mission.write_text('name: m\nwaypoints: [[0, 0, 1], [1, 0, 1]]\n')
+    done = subprocess.run([sys.executable, '-c', BLAS_PROBE, 'fly', str(mission)], capture_output=True, text=True,
+                          timeout=120, env=env)
+    assert done.stderr.strip().splitlines()[-1] == f'False {expected}', done.stderr

@@ -227,3 +227,25 @@ def test_a_fleet_vehicles_topics_have_the_contracts_specs():
     assert contract_spec('/cf1/trajectory') == DEFAULT_TOPICS['trajectory'] and DEFAULT_TOPICS['trajectory'].latched
     assert contract_spec('/cf1/trajectory/path') == DEFAULT_TOPICS['trajectory/path']
     assert contract_spec('/clock') == DEFAULT_TOPICS['/clock'] and contract_spec('/cf1/unknown') is None
+
+
+def test_a_hosted_recorder_closes_its_bag_when_destroyed(tmp_path):
+    """In a process that hosts it beside other nodes (quad_bringup.running.node_host), whatever ends the process
+    destroys the nodes (quad_common.ros.node_main.close_nodes): the recorder closes its bag then, once."""
+    from quad_bringup.recording.recorder_node import RecorderNode
+
+    bag = tmp_path / 'bag'
+    with isolated_domain() as (domain, _):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain, args=['--ros-args', '-p', f'output_dir:={bag}', '-p',
+                                                        'topics:=["odom"]'])
+        try:
+            node = RecorderNode(context=ctx)
+            node.bag.write('odom', 1, b'\x00\x01\x00\x00' + bytes(300))   # a little-endian CDR body
+            node.destroy_node()
+            assert (bag / 'metadata.yaml').exists()
+            node.close_bag()   # a second close (the standalone recorder's own, then its teardown's) does nothing
+        finally:
+            rclpy.shutdown(context=ctx)
+    with Reader(bag) as reader:   # closed: metadata.yaml and the MCAP footer written
+        assert {c.topic: c.msgcount for c in reader.connections} == {'odom': 1}

@@ -509,9 +509,9 @@ def test_a_forked_part_dies_with_its_caller(tmp_path):
 
 
 def test_odometry_and_setpoints_read_from_their_bytes_give_the_flight_deserialising_gives(tmp_path, monkeypatch):
-    """Bags written with rosbags (the offline loop's, and a simulator's with /clock): odometry, setpoints and /clock
-    read from the CDR bytes (no message object) give exactly the Flight that deserialising every message gives;
-    only the other topics deserialise."""
+    """Bags written with rosbags (the offline loop's, and a simulator's with /clock): odometry, setpoints, /clock and
+    the plan read from the CDR bytes (no message object) give exactly the Flight that deserialising every message
+    gives; only the other topics deserialise."""
     from quad_bringup.analysis import report
     from quad_bringup.offline.closed_loop import LoopOptions, fly_offline
     from quad_common.paths import resolve_config
@@ -528,7 +528,8 @@ def test_odometry_and_setpoints_read_from_their_bytes_give_the_flight_deserialis
         deserialised.clear()
         monkeypatch.setattr(report, 'FROM_BYTES', read_as_bytes)
         from_bytes = report.load_flight(bag)
-        assert not {'nav_msgs/msg/Odometry', 'sensor_msgs/msg/Imu', 'rosgraph_msgs/msg/Clock'} & set(deserialised)
+        assert not {'nav_msgs/msg/Odometry', 'sensor_msgs/msg/Imu', 'rosgraph_msgs/msg/Clock',
+                    'trajectory_msgs/msg/MultiDOFJointTrajectory'} & set(deserialised)
         monkeypatch.setattr(report, 'FROM_BYTES', {})
         objects = report.load_flight(bag)
         assert deserialised.count('nav_msgs/msg/Odometry') == len(objects.odom_t) > 100
@@ -536,6 +537,11 @@ def test_odometry_and_setpoints_read_from_their_bytes_give_the_flight_deserialis
         for name in ('odom_t', 'position', 'velocity', 'euler', 'odom_stamps_ns', 'odom_record_ns', 'cmd_t',
                      'cmd_specific_force', 'cmd_euler', 'cmd_record_ns', 'clock_stamps_ns'):
             assert np.array_equal(getattr(from_bytes, name), getattr(objects, name)), (bag.name, name)
+        assert from_bytes.traj_start_s == objects.traj_start_s
+        if bag == simulated:   # (the offline loop's bag has no plan)
+            assert 'trajectory_msgs/msg/MultiDOFJointTrajectory' in deserialised
+            for name in ('times_s', 'position', 'velocity', 'acceleration'):
+                assert np.array_equal(getattr(from_bytes.trajectory, name), getattr(objects.trajectory, name)), name
     assert len(from_bytes.clock_stamps_ns) > 100
 
 

@@ -84,6 +84,9 @@ class SimNode(Node):
         self.contacts = VehicleContacts([v.name for v in self.vehicles], sims, [r for *_, r in fleet])
         self.hot_subscriptions = [v.setpoint_sub for v in self.vehicles]
         self.acks = policy.Followers(self.followers)
+        # called with the executor at a stop, once the final counts are published and before the wait for the
+        # followers: a recorder in this process (quad_bringup.running.node_host) takes its queue and closes its bag
+        self.at_final_counts = []
         for follower in self.followers:
             self.hot_subscriptions.append(self.create_subscription(
                 ClockMsg, lockstep.ack_topic(follower),
@@ -252,6 +255,8 @@ class SimNode(Node):
         if not rclpy.ok(context=self.context):
             return
         self.publish_diagnostics()
+        for call in self.at_final_counts:
+            call(executor)
         last = self.vehicles[0].lockstep.last_odom_ns
         watch = policy.DrainWatch(self.acks.acked_ns, time.monotonic())
         while (behind := self.acks.behind(last)) and rclpy.ok(context=self.context):

@@ -2,9 +2,9 @@
 
 Reads any rosbag2 bag (MCAP or sqlite3, ours or `ros2 bag record`'s) with `rosbags`,
 deserialising with its ROS 2 Jazzy typestore; the messages it yields have the rclpy field names,
-so the shared converters of quad_common.conversions read them. Odometry, setpoints and /clock, most of a bag, are read
-from their bytes where they are little-endian plain CDR (quad_common.cdr_layout: the same values, without a
-Python object per field), and deserialised like the rest where not.
+so the shared converters of quad_common.conversions read them. Odometry, setpoints, /clock and the plan, most of a
+bag, are read from their bytes where they are little-endian plain CDR (quad_common.cdr_layout: the same values,
+without a Python object per field), and deserialised like the rest where not.
 
 Times are message header stamps (simulated time in lockstep). The metrics and their definitions (the scored
 window, completion per vehicle) are quad_bringup.analysis.metrics (numpy only; docs/quad_bringup.md).
@@ -30,7 +30,15 @@ from quad_bringup.analysis.metrics import (  # noqa: F401  (re-exported: the rep
 )
 from quad_bringup.recording.recorder import open_bag_reader, typestore
 from quad_common import contract, conversions, rotations
-from quad_common.cdr_layout import imu_fields, imu_setpoint_values, le_stamp, odometry_fields, odometry_state_values
+from quad_common.cdr_layout import (
+    imu_fields,
+    imu_setpoint_values,
+    le_stamp,
+    odometry_fields,
+    odometry_state_values,
+    trajectory_fields,
+    trajectory_points_to_sampled,
+)
 from quad_common.contract import DIAGNOSTICS, ENGAGED, ODOM, TRAJECTORY
 from quad_common.contract import SETPOINT as COMMAND
 from quad_common.contract import TRAJECTORY_MARKERS as MARKERS
@@ -48,7 +56,8 @@ _namespaced = contract.matches
 WANTED = (ODOM, TRAJECTORY, WAYPOINTS, MARKERS, COMMAND, DIAGNOSTICS, CLOCK, ENGAGED)   # what a Flight is made of
 # topic -> (its type, the reader of its fields from the bytes)
 FROM_BYTES = {ODOM: ('nav_msgs/msg/Odometry', odometry_fields), COMMAND: ('sensor_msgs/msg/Imu', imu_fields),
-              CLOCK: ('rosgraph_msgs/msg/Clock', le_stamp)}   # a Clock's body is its one Time
+              CLOCK: ('rosgraph_msgs/msg/Clock', le_stamp),   # a Clock's body is its one Time
+              TRAJECTORY: ('trajectory_msgs/msg/MultiDOFJointTrajectory', trajectory_fields)}
 
 
 def load_flight(bag_dir, namespace: str = '') -> Flight:
@@ -150,8 +159,8 @@ class _FlightParts:
                     self.errors.append((t, st.name, st.message))
                     if self.collision is None:  # an event is a key, not a name or a message
                         self.collision = contract.event_time_s(values, contract.COLLISION_TIME_S)
-        else:
-            self.latest[topic] = msg  # latched topics: the newest plan counts
+        else:   # latched topics: the newest plan counts (the plan: its message, or its stamp and points' fields)
+            self.latest[topic] = msg if fields is None else fields
 
     def flight(self, bag_dir, namespace: str, repair) -> Flight:
         odom, cmds, latest, clock = self.odom, self.cmds, self.latest, self.clock
@@ -173,7 +182,12 @@ class _FlightParts:
             truncated=None if repair is None else repair.as_dict(), engaged=sorted(self.engaged),
             handover=sorted(self.handover), controller_odom_age=sorted(self.odom_age))
         if TRAJECTORY in latest:
-            flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(latest[TRAJECTORY])
+            plan = latest[TRAJECTORY]
+            if isinstance(plan, tuple):   # trajectory_fields: (sec, nanosec, points)
+                flight.traj_start_s = conversions.stamp_to_s(_Stamp(plan[0], plan[1]))
+                flight.trajectory = trajectory_points_to_sampled(plan[2])
+            else:
+                flight.traj_start_s, flight.trajectory = conversions.msg_to_sampled(plan)
         if WAYPOINTS in latest:
             flight.waypoints = np.array([conversions.vec3(p.pose.position) for p in latest[WAYPOINTS].poses])
         if MARKERS in latest:

@@ -81,6 +81,7 @@ class RecorderNode(Node):
         if not self.params['output_dir']:
             raise ValueError('output_dir = \'\' refused: give the bag directory to create')
         self.bag = BagRecorder(self.params['output_dir'])
+        self.closed = False
         self.ack = lockstep.Acknowledger(self, self.get_name())
         self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
         self._awaited = list(self.ack_after)   # those of ack_after not in the bag yet
@@ -122,6 +123,8 @@ class RecorderNode(Node):
         self.bag.add_topic(topic, spec, depth=qos.depth)
 
         def on_message(data: bytes, info: dict, topic=topic):
+            if self.closed:   # hosted: closed at the simulator's stop, while the other nodes still publish
+                return
             self.bag.write(topic, time.time_ns(), data)
             if info['source_timestamp'] <= self.stop_ns:
                 self.sent_before_stop += 1
@@ -169,9 +172,21 @@ class RecorderNode(Node):
             contract.RECORDER_STATUS, diagnostics.OK, f'{self.bag.total} messages', counts)]))
 
     def close_bag(self):
+        """Finish the bag (once: a second call does nothing)."""
+        if self.closed:
+            return
+        self.closed = True
         self.bag.close()
         self.get_logger().info(f'bag closed: {self.bag.total} messages '
                                + ', '.join(f'{t}={n}' for t, n in self.bag.counts.items() if n))
+
+    def destroy_node(self):
+        """Closes the bag first, whatever ended the process that hosts this node (quad_bringup.running.node_host: a
+        stop, or another hosted node's exception)."""
+        try:
+            self.close_bag()
+        finally:
+            super().destroy_node()
 
 
 def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
@@ -185,15 +200,22 @@ def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
     deadline = time.monotonic() + pass_s
     while time.monotonic() < deadline:
         if not node.publishers_left():
-            total = -1
-            while total != node.bag.total:   # each pass takes one message per subscription
-                total = node.bag.total
-                executor.spin_once(timeout_sec=0.0)
+            take_queued(node, executor)
             return
         executor.spin_once(timeout_sec=0.01)
         if node.sent_before_stop != taken:
             taken = node.sent_before_stop
             deadline = time.monotonic() + pass_s
+
+
+def take_queued(node: RecorderNode, executor):
+    """Writes what the subscriptions hold now, without waiting for more. After a stop in a process that hosts the
+    recorder beside the simulator (quad_bringup.running.node_host) this is the whole drain: a publisher in the same
+    process delivers as it publishes, so what the simulator's own drain made it publish is already queued here."""
+    total = -1
+    while total != node.bag.total:   # each pass takes one message per subscription (or takes_per_pass)
+        total = node.bag.total
+        executor.spin_once(timeout_sec=0.0)
 
 
 def main(args=None):

@@ -3,10 +3,11 @@ quad_bringup.running.flight_options; the figures: quad_bringup.analysis.figure_w
 
 The graph is the one sim.launch.py starts (quad_bringup.running.graph.fly_graph over sim_graph): trajectory_node,
 sim_node and position_controller (lockstep, use_sim_time), plus the recorder, in a ROS domain of their own
-(quad_common.domains.isolated_domain, localhost discovery). The three nodes run in one node_host process (one
-interpreter and one DDS participant to start, the lockstep's odometry and setpoints kept inside the process) and the
-recorder in its own; with process_per_node each node is a process of its own, as launch_ros starts them (a
-controller that dies then leaves the simulator's failsafe to land the vehicle). Each process has its own group.
+(quad_common.domains.isolated_domain, localhost discovery). The three nodes and the recorder run in one node_host
+process (one interpreter and one DDS participant to start, the lockstep's messages kept inside the process; the
+recorder takes what the simulator published and closes the bag at its stop); with process_per_node each node,
+the recorder too, is a process of its own, as launch_ros starts them (a controller that dies then leaves the
+simulator's failsafe to land the vehicle). Each process has its own group.
 
 Reliability (README, Reliability): the recorder and fly's monitor are the simulator's lockstep followers
 (quad_common.ros.lockstep), so the bag and the verdict hold every step; the bag is checked against the simulator's
@@ -170,20 +171,22 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
     if plan_overrides(options):
         flown = write_flown_mission(options, mission, run_dir / 'mission.yaml')
         parameters_of(params, 'trajectory_node')['mission_file'] = str(flown.resolve())
+    params = {graph.RECORDER: {'ros__parameters': {'output_dir': str(run_dir / 'bag'), 'topics': list(DEFAULT_TOPICS),
+                                                  'lockstep_ack_after': 'trajectory'}}, **params}
     params_file = run_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
-    nodes = processes.node_processes([graph.NodeSpec(name) for name in params], params_file, run_dir / 'logs',
-                                     hosted=not options.process_per_node)
-    topics = ','.join(f'"{t}"' for t in DEFAULT_TOPICS)
-    recorder = processes.NodeProcess(graph.RECORDER, 'quad_bringup.recording.recorder_node',
-                                     ['-p', f'output_dir:={run_dir / "bag"}', '-p', f'topics:=[{topics}]',
-                                      '-p', 'lockstep_ack_after:=trajectory'],
-                                     run_dir / 'logs' / 'recorder.log')
+    specs = [graph.NodeSpec(name) for name in params]
+    if options.process_per_node:   # the recorder a process of its own too, stopped after the nodes (its drain)
+        nodes = processes.node_processes(specs[1:], params_file, run_dir / 'logs', hosted=False)
+        recorders = processes.node_processes(specs[:1], params_file, run_dir / 'logs', hosted=False)
+    else:   # one process: the recorder drains and closes the bag after the simulator's loop (node_host)
+        nodes = processes.node_processes(specs, params_file, run_dir / 'logs', hosted=True)
+        recorders = []
     log(f'flying {options.mission} with {options.controller} -> {run_dir}')
     started = []
     with isolated_domain(probe=domain_occupants) as (domain, env), \
             _Interrupt() as interrupt:
-        for node in [recorder, *nodes]:  # at once: imports and discovery overlap (module docstring)
+        for node in [*recorders, *nodes]:  # at once: imports and discovery overlap (module docstring)
             node.start(env)
             started.append(node)
         _write_pids(run_dir, started)
@@ -214,10 +217,10 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
         finally:
             stopped = processes.stop(nodes, log=log, idle=monitor.spin_once)
             clock.mark('nodes stopped')
-            stopped.update(processes.stop([recorder], log=log, idle=monitor.spin_once))
+            stopped.update(processes.stop(recorders, log=log, idle=monitor.spin_once))
             monitor.close()
             clock.mark('graph stopped')
-    pids = [p.pid for p in nodes + [recorder] if p.popen is not None]
+    pids = [p.pid for p in nodes + recorders if p.popen is not None]
     extra = {'mission': mission.name, 'controller': options.controller, 'speed_mps': options.speed_mps,
              'outcome': reason.reason}
     if fault is not None:

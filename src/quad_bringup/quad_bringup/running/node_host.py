@@ -2,7 +2,8 @@
 
     python -m quad_bringup.running.node_host [sim_node] position_controller@cf1 trajectory_node@cf1 ... \
         --ros-args --params-file F
-    python -m quad_bringup.running.node_host trajectory_node sim_node position_controller --ros-args --params-file F
+    python -m quad_bringup.running.node_host recorder trajectory_node sim_node position_controller --ros-args \
+        --params-file F
 
 Each NAME@NAMESPACE is the node of that executable (quad_bringup.running.graph.MODULES) built with that namespace, a
 plain NAME the node without one (fly's graph, named as sim.launch.py names it); the params files' sections are
@@ -23,11 +24,16 @@ of its waits serves the controllers' ticks, and odometry and setpoints go from w
 cross-process deliveries and no context switch on the lockstep's path (4 vehicles: 4.9x -> 5.7x real time, median
 of 5 interleaved runs on the loaded 2-core machine). Stop signals then reach the simulator (its final diagnostics
 and the recorder's drain), as a lone sim_node's do.
+
+`recorder` (no namespace, beside sim_node only: fly's graph) records in the same process: every message reaches it
+without leaving the process, and at the simulator's stop, once its final counts are published, it takes what is
+queued and closes the bag (close_recorder), before the simulator waits for followers in other processes.
 """
 
 import importlib
 import sys
 
+from quad_common.lifeline import exit_now
 from quad_common.ros.hot_path import HotPathExecutor
 from quad_common.ros.node_main import run_node
 
@@ -36,8 +42,11 @@ HOSTABLE = {
     'position_controller': ('quad_control.position_controller_node', 'PositionControllerNode'),
     'trajectory_node': ('quad_trajectory.trajectory_node', 'TrajectoryNode'),
     'sim_node': ('quad_sim.sim_node', 'SimNode'),   # no namespace: the fleet's one simulator
+    'recorder': ('quad_bringup.recording.recorder_node', 'RecorderNode'),   # no namespace, beside sim_node only
 }
 SIMULATOR = 'sim_node'
+RECORDER = 'recorder'
+GLOBAL = (SIMULATOR, RECORDER)   # the nodes a host holds without a namespace only
 
 
 def parse_nodes(argv: list[str]) -> tuple[list[tuple[str, str]], list[str]]:
@@ -48,12 +57,16 @@ def parse_nodes(argv: list[str]) -> tuple[list[tuple[str, str]], list[str]]:
     for entry in entries:
         name, at, namespace = entry.partition('@')
         namespace = namespace.strip('/')
-        if name not in HOSTABLE or (at and not namespace) or (name == SIMULATOR and namespace):
+        if name not in HOSTABLE or (at and not namespace) or (name in GLOBAL and namespace):
             raise ValueError(f'node {entry!r} refused: NAME or NAME@NAMESPACE with NAME one of '
-                             f'{", ".join(n for n in HOSTABLE if n != SIMULATOR)}, or {SIMULATOR} (no namespace)')
+                             f'{", ".join(n for n in HOSTABLE if n not in GLOBAL)}, or {" or ".join(GLOBAL)} '
+                             '(no namespace)')
         nodes.append((name, namespace))
     if not nodes:
         raise ValueError('no nodes given: NAME or NAME@NAMESPACE ...')
+    if (RECORDER, '') in nodes and (SIMULATOR, '') not in nodes:
+        raise ValueError(f'node {RECORDER!r} refused without {SIMULATOR}: a hosted recorder drains and closes its bag '
+                         "after the simulator's loop, on the host's own stop signals")
     if len(set(nodes)) != len(nodes):
         raise ValueError(f'node {next(f"{n}@{ns}" for n, ns in nodes if nodes.count((n, ns)) > 1)!r} given twice')
     return nodes, ros_args
@@ -89,6 +102,19 @@ def share_clock(nodes):
     return source._clock_sub
 
 
+def close_recorder(recorder, executor):
+    """A hosted recorder's drain: what the simulator published, its final counts included, is queued already (a
+    publisher in this process delivers as it publishes): take it and close the bag. At the simulator's stop, before it
+    waits for its followers: fly's monitor, in another process, may be gone without the graph knowing it yet (fly
+    killed: its DDS participant stays until its lease runs out), and this process is killed 5 s after fly's death
+    (quad_common.lifeline)."""
+    from quad_bringup.recording.recorder_node import take_queued
+
+    if not recorder.closed:
+        take_queued(recorder, executor)
+        recorder.close_bag()
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
@@ -111,7 +137,8 @@ def main(argv=None):
                 for node in nodes:
                     node.destroy_node()
                 raise ValueError(f'{f"/{namespace}" if namespace else ""}/{name}: {exc}') from None
-        clock[:] = [share_clock(nodes)]
+        # the recorder stamps with the system clock (receive times, as `ros2 bag record`): not on the shared /clock
+        clock[:] = [share_clock([node for (name, _), node in zip(entries, nodes) if name != RECORDER])]
         return nodes
 
     def spin(nodes, executor):
@@ -119,7 +146,13 @@ def main(argv=None):
             return executor.spin()
         from quad_sim import sim_node
 
-        sim_node.spin(nodes[entries.index((SIMULATOR, ''))], executor)
+        simulator = nodes[entries.index((SIMULATOR, ''))]
+        recorder = nodes[entries.index((RECORDER, ''))] if (RECORDER, '') in entries else None
+        if recorder is not None:
+            simulator.at_final_counts.append(lambda executor: close_recorder(recorder, executor))
+        sim_node.spin(simulator, executor)
+        if recorder is not None:   # a stop that did not reach the lockstep's drain (realtime mode)
+            close_recorder(recorder, executor)
 
     run_node('node_host', make_nodes, refused=(ValueError, OSError),
              make_executor=lambda nodes: HotPathExecutor(lambda: hot_entities(nodes, clock[0])),
@@ -128,3 +161,5 @@ def main(argv=None):
 
 if __name__ == '__main__':
     main()
+    # stopped: the nodes destroyed (a hosted recorder's bag closed), rclpy shut down; fly waits for this exit
+    exit_now(0)

@@ -22,11 +22,15 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from quad_common import conversions, rotations
 from quad_common.cdr_layout import (
     CDR_LE,
+    POINT_ALIGNED,
+    POINT_UNALIGNED,
     imu_fields,
     imu_setpoint_values,
     le_stamp,
     odometry_fields,
     odometry_state_values,
+    trajectory_fields,
+    trajectory_points_to_sampled,
 )
 from quad_common.conversions import BODY_FRAME, UNSET_COVARIANCE, WORLD_FRAME
 from quad_common.sampled_trajectory import SampledTrajectory
@@ -141,57 +145,6 @@ def _msg_stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
-def _point_dtype(aligned: bool) -> np.dtype:
-    """One MultiDOFJointTrajectoryPoint with one transform, one velocity and one acceleration, starting at a body
-    offset that is 8-aligned (aligned) or 4 past it: the uint32 sequence lengths, the doubles (8-aligned in the
-    body) and time_from_start."""
-    offsets = [0, 8, 64, 72, 120, 128, 176, 180] if aligned else [0, 4, 60, 68, 116, 124, 172, 176]
-    return np.dtype({'names': ['n_tf', 'tf', 'n_vel', 'vel', 'n_acc', 'acc', 'sec', 'nanosec'],
-                     'formats': ['<u4', ('<f8', 7), '<u4', ('<f8', 6), '<u4', ('<f8', 6), '<i4', '<u4'],
-                     'offsets': offsets, 'itemsize': 184 if aligned else 180})
-
-
-_POINT_ALIGNED, _POINT_UNALIGNED = _point_dtype(True), _point_dtype(False)
-
-
-def _skip_string(raw: bytes, offset: int) -> int:
-    """Body offset after the CDR string at body offset `offset` (4-aligned first)."""
-    offset += -offset % 4
-    return offset + 4 + struct.unpack_from('<I', raw, 4 + offset)[0]
-
-
-def _u32(raw: bytes, offset: int) -> tuple[int, int]:
-    offset += -offset % 4
-    return struct.unpack_from('<I', raw, 4 + offset)[0], offset + 4
-
-
-def _trajectory_points(raw: bytes):
-    """The points of a little-endian plain-CDR MultiDOFJointTrajectory as a structured array, or None when a
-    point has other than one transform, velocity and acceleration (then it is read the ordinary way)."""
-    offset = _skip_string(raw, 8)                       # header.stamp, header.frame_id
-    n_names, offset = _u32(raw, offset)
-    for _ in range(n_names):
-        offset = _skip_string(raw, offset)
-    n_points, offset = _u32(raw, offset)
-    if n_points == 0:
-        raise ValueError('trajectory has no points')
-    parts = []
-    if offset % 8:                                      # the first point starts 4 past an 8-alignment
-        if 4 + offset + _POINT_UNALIGNED.itemsize > len(raw):
-            return None
-        parts.append(np.frombuffer(raw, _POINT_UNALIGNED, count=1, offset=4 + offset))
-        offset, n_points = offset + _POINT_UNALIGNED.itemsize, n_points - 1
-    if 4 + offset + n_points * _POINT_ALIGNED.itemsize > len(raw):
-        return None  # shorter points (no velocity, ...): the first that is, has a length other than 1 where read
-    parts.append(np.frombuffer(raw, _POINT_ALIGNED, count=n_points, offset=4 + offset))
-    points = [(p['n_tf'], p['tf'], p['n_vel'], p['vel'], p['n_acc'], p['acc'], p['sec'], p['nanosec'])
-              for p in parts]
-    n_tf, tf, n_vel, vel, n_acc, acc, sec, nanosec = (np.concatenate(x) for x in zip(*points))
-    if not (np.all(n_tf == 1) and np.all(n_vel == 1) and np.all(n_acc == 1)):
-        return None
-    return tf, vel, acc, sec, nanosec
-
-
 def sampled_to_trajectory(traj: SampledTrajectory, frame_id=WORLD_FRAME, joint_name=BODY_FRAME) -> bytearray:
     """conversions.sampled_to_msg serialized (little-endian plain CDR) with header.stamp 0 (set_stamp stamps it):
     the points written as one structured array in the layout trajectory_to_sampled reads, not point by point."""
@@ -202,7 +155,7 @@ def sampled_to_trajectory(traj: SampledTrajectory, frame_id=WORLD_FRAME, joint_n
             struct.pack('<I', len(part) + 1) + part.encode() + b'\x00')
     n = len(traj.times_s)
     unaligned = (8 + len(head)) % 8 != 0   # the first point's body offset: 4 past an 8-alignment
-    points = np.zeros(n, _POINT_ALIGNED)
+    points = np.zeros(n, POINT_ALIGNED)
     t_ns = np.round((traj.times_s - traj.times_s[0]) * 1e9).astype(np.int64)
     points['n_tf'] = points['n_vel'] = points['n_acc'] = 1
     points['tf'][:, :3] = traj.position[:, :3]
@@ -212,8 +165,8 @@ def sampled_to_trajectory(traj: SampledTrajectory, frame_id=WORLD_FRAME, joint_n
     points['sec'], points['nanosec'] = t_ns // 1_000_000_000, t_ns % 1_000_000_000
     raw = bytearray(CDR_LE + bytes(8) + head)
     if unaligned and n:
-        first = np.zeros(1, _POINT_UNALIGNED)
-        for name in _POINT_ALIGNED.names:
+        first = np.zeros(1, POINT_UNALIGNED)
+        for name in POINT_ALIGNED.names:
             first[name] = points[name][:1]
         raw += first.tobytes()
         points = points[1:]
@@ -230,13 +183,9 @@ def set_stamp(raw: bytearray, stamp) -> bytearray:
 def trajectory_to_sampled(raw: bytes) -> tuple[int, SampledTrajectory]:
     """(header.stamp in ns, conversions.msg_to_sampled's interpolant) of a serialized MultiDOFJointTrajectory;
     ValueError as msg_to_sampled (no points, non-finite, times not increasing)."""
-    fields = _trajectory_points(raw) if raw[:4] == CDR_LE else None
+    fields = trajectory_fields(raw)
     if fields is None:
         msg = deserialize_message(raw, MultiDOFJointTrajectory)
         return _msg_stamp_ns(msg), conversions.msg_to_sampled(msg)[1]
-    tf, vel, acc, sec, nanosec = fields
-    t = sec + nanosec * 1e-9
-    position = np.column_stack([tf[:, :3], rotations.to_euler(tf[:, 3:7])[:, 2]])
-    velocity = np.column_stack([vel[:, :3], vel[:, 5]])
-    acceleration = np.column_stack([acc[:, :3], acc[:, 5]])
-    return _le_stamp_ns(raw), SampledTrajectory(t, position, velocity, acceleration)
+    sec, nanosec, points = fields
+    return sec * 1_000_000_000 + nanosec, trajectory_points_to_sampled(points)
