@@ -177,8 +177,10 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
     params_file.write_text(yaml.safe_dump(params, sort_keys=False))
     specs = [graph.NodeSpec(name) for name in params]
     if options.process_per_node:   # the recorder a process of its own too, stopped after the nodes (its drain)
-        nodes = processes.node_processes(specs[1:], params_file, run_dir / 'logs', hosted=False)
-        recorders = processes.node_processes(specs[:1], params_file, run_dir / 'logs', hosted=False)
+        nodes = processes.node_processes([s for s in specs if s.name != graph.RECORDER], params_file,
+                                         run_dir / 'logs', hosted=False)
+        recorders = processes.node_processes([s for s in specs if s.name == graph.RECORDER], params_file,
+                                             run_dir / 'logs', hosted=False)
     else:   # one process: the recorder drains and closes the bag after the simulator's loop (node_host)
         nodes = processes.node_processes(specs, params_file, run_dir / 'logs', hosted=True)
         recorders = []

@@ -105,10 +105,6 @@ class SerializedPublisher:
         self._publish_c.argtypes = [ctypes.c_void_p, ctypes.POINTER(_SerializedMessage), ctypes.c_void_p]
         self._publish_c.restype = ctypes.c_int
 
-    @property
-    def topic_name(self) -> str:
-        return self.publisher.topic_name
-
     def publish(self, data):
         if not isinstance(data, bytes):
             data = serialize_message(data)
