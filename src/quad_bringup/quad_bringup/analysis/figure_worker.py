@@ -1,41 +1,65 @@
 """Figures of a finished flight in a process of their own (`quadflight fly` starts it with the graph).
 
-It imports matplotlib and the report while the flight runs (most of its cost), then reads one JSON line on
-stdin, {"flight": PICKLE, "out": DIR} (the report.Flight fly has loaded already, pickled; or {"bag": BAG, ...}
-to load it here), draws DIR/figures/*.png on every core (report_figures.PARTS: the graph has stopped by then; the
-parts are forked from this process, so matplotlib is imported once) and answers one JSON line on stdout:
-{"figures": [paths relative to DIR]} or {"error": message}. FigureWorker is fly's side of it.
+It imports matplotlib and the report while the flight runs (most of its cost), then reads one JSON line,
+{"flight": PICKLE, "out": DIR} (the report.Flight fly has loaded already, pickled; or {"bag": BAG, ...} to load it
+here), draws DIR/figures/*.png on every core (report_figures.PARTS: the graph has stopped by then; the parts are
+forked from this process, so matplotlib is imported once) and answers one JSON line: {"figures": [paths relative
+to DIR]} or {"error": message}. As `python -m quad_bringup.analysis.figure_worker` it reads stdin and answers on
+stdout. FigureWorker is fly's side of it: a child forked from fly while fly has one thread (it inherits fly's
+interpreter, numpy and the analysis modules, ~0.2 s of CPU less than a new interpreter), or that module started.
 """
 
 import json
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+GO = b'\n'   # the forked worker's first line: import now (fly sends it once the flight has started)
+
 
 class FigureWorker:
-    """A process started with the graph that imports matplotlib and the report while the flight runs, then
-    draws the figures of the finished bag (quad_bringup.analysis.figure_worker): the verdict does not wait for them."""
+    """fly's side of the figures' process: made before the graph starts (`prepare`), its imports begun once the
+    flight has started (`begin`: they overlap the flight, which waits on the lockstep more than it computes, not
+    the start-up, where every process computes at once), handed the finished flight (`draw`)."""
 
-    def __init__(self, popen):
-        self.popen = popen
+    def __init__(self):
+        self.child = None   # _ForkedChild, or subprocess.Popen of the module
+        self.begun = False
 
     @classmethod
-    def start(cls, env):
-        popen = subprocess.Popen([sys.executable, '-m', 'quad_bringup.analysis.figure_worker'], env=env, text=True,
-                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
-        return cls(popen)
+    def prepare(cls):
+        """Forks the worker now where this process has one thread (fly before its monitor's DDS threads): a fork
+        of a process with other threads may hold their locks forever. Otherwise `begin` starts the module."""
+        worker = cls()
+        if _threads() == 1:
+            from quad_bringup.analysis import metrics  # noqa: F401 - the child's, inherited rather than imported
+            worker.child = _ForkedChild.fork()
+        return worker
+
+    def begin(self, env=None):
+        """Its imports start now (env: the started module's environment)."""
+        if self.begun:
+            return
+        self.begun = True
+        if self.child is None:
+            self.child = subprocess.Popen([sys.executable, '-m', 'quad_bringup.analysis.figure_worker'],
+                                          env=env, text=True, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                          start_new_session=True)
+        else:
+            self.child.go()
 
     def draw(self, flight, out_dir: Path) -> list[str]:
         """The figure paths written (relative to out_dir); raises RuntimeError with the worker's message."""
+        self.begin()
         with tempfile.NamedTemporaryFile(suffix='.pickle') as f:
             pickle.dump(flight, f, protocol=pickle.HIGHEST_PROTOCOL)
             f.flush()
             try:
-                out, _ = self.popen.communicate(json.dumps({'flight': f.name, 'out': str(out_dir)}) + '\n')
+                out, _ = self.child.communicate(json.dumps({'flight': f.name, 'out': str(out_dir)}) + '\n')
             except BaseException:   # a signal to fly while drawing: the worker ends with it
                 self.cancel()
                 raise
@@ -45,9 +69,99 @@ class FigureWorker:
         return answer['figures']
 
     def cancel(self):
-        if self.popen.poll() is None:
-            self.popen.kill()
-            self.popen.wait()
+        if self.child is not None and self.child.poll() is None:
+            self.child.kill()
+            self.child.wait()
+
+
+def _threads() -> int:
+    """This process's threads, the operating system's count (numpy's OpenBLAS and DDS threads included)."""
+    try:
+        return len(os.listdir('/proc/self/task'))
+    except OSError:   # no /proc: never fork
+        return 0
+
+
+class _ForkedChild:
+    """A worker forked from the caller (Popen's poll, kill, wait and communicate, text in and out): it waits for
+    GO, then imports and serves one request (serve), and exits without returning into the caller's code."""
+
+    def __init__(self, pid: int, requests: int, answers: int):
+        self.pid, self._requests, self._answers, self.returncode = pid, requests, answers, None
+
+    @classmethod
+    def fork(cls):
+        parent = os.getpid()
+        request_read, request_write = os.pipe()
+        answer_read, answer_write = os.pipe()
+        pid = os.fork()
+        if pid:
+            os.close(request_read)
+            os.close(answer_write)
+            return cls(pid, request_write, answer_read)
+        code = 1
+        try:   # the child: never returns into the caller's code
+            code = _serve_forked(parent, request_read, answer_write)
+        finally:
+            os._exit(code)
+
+    def go(self):
+        try:
+            os.write(self._requests, GO)
+        except BrokenPipeError:   # it died: communicate reports no answer
+            pass
+
+    def communicate(self, text: str):
+        try:
+            with os.fdopen(self._requests, 'w') as requests:
+                requests.write(text)
+        except BrokenPipeError:
+            pass
+        with os.fdopen(self._answers) as answers:
+            out = answers.read()
+        self.wait()
+        return out, None
+
+    def poll(self):
+        if self.returncode is None:
+            done, status = os.waitpid(self.pid, os.WNOHANG)
+            if done:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def kill(self):
+        if self.poll() is None:
+            os.kill(self.pid, signal.SIGKILL)
+
+    def wait(self):
+        if self.returncode is None:
+            self.returncode = os.waitstatus_to_exitcode(os.waitpid(self.pid, 0)[1])
+        return self.returncode
+
+
+def _serve_forked(parent: int, request_fd: int, answer_fd: int) -> int:
+    """The forked worker: its own session (fly's terminal signals are fly's to handle), killed with fly, every
+    inherited descriptor but stderr and its two pipes closed (the run directory's lock is fly's alone)."""
+    from quad_bringup.pools.pool_lifeline import die_with_parent
+    from quad_common.lifeline import exit_now
+
+    os.setsid()
+    die_with_parent(parent)
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_DFL)
+    null = os.open(os.devnull, os.O_RDWR)
+    os.dup2(null, 0)
+    os.dup2(null, 1)
+    keep = {0, 1, 2, request_fd, answer_fd}
+    for fd in map(int, os.listdir('/proc/self/fd')):
+        if fd not in keep:
+            try:
+                os.close(fd)
+            except OSError:   # the listing's own descriptor, closed already
+                pass
+    requests, answers = os.fdopen(request_fd), os.fdopen(answer_fd, 'w')
+    exit_now(serve(requests, answers) if requests.readline() else 0)   # end of file: fly ended before GO
+    return 1
 
 
 def finish_figures(worker: FigureWorker, flight, run_dir: Path, metrics: dict, mark=lambda what: None) -> str | None:
@@ -63,13 +177,14 @@ def finish_figures(worker: FigureWorker, flight, run_dir: Path, metrics: dict, m
     return None
 
 
-def main():
+def serve(requests, answers) -> int:
+    """Imports matplotlib and the figures, then answers one request line (module docstring); the exit status."""
     # the imports are the point: they overlap the flight; the report module (rosbags, the ROS messages) only for a
     # bag to load here, as a pickled Flight needs quad_bringup.analysis.metrics alone
     import matplotlib  # noqa: F401
 
     from quad_bringup.analysis import metrics, report_figures  # noqa: F401
-    line = sys.stdin.readline()
+    line = requests.readline()
     if not line.strip():
         return 0  # fly ended before a bag: nothing to draw
     try:
@@ -88,11 +203,17 @@ def main():
     except Exception as exc:  # any failure is an answer, not a traceback on fly's terminal
         answer = {'error': f'{type(exc).__name__}: {exc}'}
     try:
-        print(json.dumps(answer), flush=True)
+        answers.write(json.dumps(answer) + '\n')
+        answers.flush()
     except BrokenPipeError:   # fly is gone (a signal while drawing): nobody to answer, nothing to say
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        if answers is sys.stdout:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
     return 0
+
+
+def main():
+    return serve(sys.stdin, sys.stdout)
 
 
 if __name__ == '__main__':

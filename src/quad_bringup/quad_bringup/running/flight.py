@@ -161,11 +161,8 @@ def _fly(options: FlightOptions, log) -> FlightResult:
 
 def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock, log) -> FlightResult:
     """_fly once the run directory is this fly's."""
-    # here, not at the top: a refusal before start-up does not wait for numpy, rclpy, rosbags and the report's imports
-    from quad_bringup.analysis.report import load_flight, record_summary, write_report
+    # here, not at the top: a refusal before start-up does not wait for numpy, rosbags and the recorder's imports
     from quad_bringup.recording.recorder import DEFAULT_TOPICS
-    from quad_common.ros.domain_probe import domain_occupants
-    from quad_control.parameters import NODE_NAME as CONTROLLER_NODE
 
     clock.mark('validated, run directory made')
     if plan_overrides(options):
@@ -185,6 +182,22 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
         nodes = processes.node_processes(specs, params_file, run_dir / 'logs', hosted=True)
         recorders = []
     log(f'flying {options.mission} with {options.controller} -> {run_dir}')
+    # the figures' process now, before the monitor's DDS threads: forked from this one (figure_worker)
+    figure_worker = FigureWorker.prepare() if options.figures else None
+    try:
+        return _fly_graph(run_dir, options, mission, nodes, recorders, figure_worker, clock, log)
+    except BaseException:
+        if figure_worker:
+            figure_worker.cancel()
+        raise
+
+
+def _fly_graph(run_dir, options, mission, nodes, recorders, figure_worker, clock, log) -> FlightResult:
+    """_fly_in from the processes' start to the report (figure_worker: FigureWorker.prepare's, or None)."""
+    from quad_bringup.analysis.report import load_flight, record_summary, write_report
+    from quad_common.ros.domain_probe import domain_occupants
+    from quad_control.parameters import NODE_NAME as CONTROLLER_NODE
+
     started = []
     with isolated_domain(probe=domain_occupants) as (domain, env), \
             _Interrupt() as interrupt:
@@ -193,7 +206,6 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
             started.append(node)
         _write_pids(run_dir, started)
         clock.mark('processes started')
-        figure_worker = None
         from quad_bringup.running.flight_monitor import FlightJudge, FlightMonitor
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,
@@ -207,9 +219,9 @@ def _fly_in(run_dir: Path, options: FlightOptions, mission, params: dict, clock,
             clock.mark('flight started (plan and odometry at the monitor and in the bag)')
             # the figures' process now: its imports (matplotlib, ~0.6 s of CPU) overlap the flight, which waits on
             # the lockstep more than it computes, not the start-up, where every process computes at once
-            if options.figures:
-                figure_worker = FigureWorker.start(env)
-                clock.mark('figure worker started')
+            if figure_worker:
+                figure_worker.begin(env)
+                clock.mark('figure worker importing')
             if reason is None:
                 reason = _watch(judge, monitor, started, interrupt, options, log)
                 clock.mark('verdict')
