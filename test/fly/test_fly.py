@@ -42,10 +42,11 @@ def test_fly_short_mission_end_to_end(tmp_path, ros_env):
     done = subprocess.run([QUADFLIGHT, 'fly', str(path), '--out', str(run_dir), '--quiet'],
                           env=dict(ros_env, QUADFLIGHT_TIMING='1'), capture_output=True, text=True, timeout=TIMEOUT_S)
     assert done.returncode == 0, done.stdout + done.stderr
-    # the figures' process starts once the flight is under way (its imports then do not slow the start-up), and
-    # draws every figure
+    # node_host is forked from fly (it inherits fly's imports: running.forked); the figures' process imports once
+    # the flight is under way (its imports then do not slow the start-up), and draws every figure
     phases = [line.split('] ', 1)[1] for line in done.stderr.splitlines() if line.startswith('[')]
-    assert phases.index('figure worker started') == \
+    assert 'processes started (forked: node_host)' in phases, phases
+    assert phases.index('figure worker importing') == \
         phases.index('flight started (plan and odometry at the monitor and in the bag)') + 1, phases
     assert len(list((run_dir / 'figures').glob('*.png'))) == 6
     metrics = json.loads((run_dir / 'metrics.json').read_text())

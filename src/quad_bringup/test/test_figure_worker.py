@@ -11,10 +11,10 @@ import subprocess
 import sys
 
 import pytest
+from test_report import make_bag
 
 from quad_bringup.analysis.report import load_flight
 from quad_bringup.analysis.report_figures import FIGURES
-from test_report import make_bag
 
 FLY = '''
 import json, os, pickle, sys, threading, time

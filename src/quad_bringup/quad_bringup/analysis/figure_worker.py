@@ -12,7 +12,6 @@ interpreter, numpy and the analysis modules, ~0.2 s of CPU less than a new inter
 import json
 import os
 import pickle
-import signal
 import subprocess
 import sys
 import tempfile
@@ -34,8 +33,10 @@ class FigureWorker:
     def prepare(cls):
         """Forks the worker now where this process has one thread (fly before its monitor's DDS threads): a fork
         of a process with other threads may hold their locks forever. Otherwise `begin` starts the module."""
+        from quad_bringup.running.forked import can_fork
+
         worker = cls()
-        if _threads() == 1:
+        if can_fork():
             from quad_bringup.analysis import metrics  # noqa: F401 - the child's, inherited rather than imported
             worker.child = _ForkedChild.fork()
         return worker
@@ -74,36 +75,32 @@ class FigureWorker:
             self.child.wait()
 
 
-def _threads() -> int:
-    """This process's threads, the operating system's count (numpy's OpenBLAS and DDS threads included)."""
-    try:
-        return len(os.listdir('/proc/self/task'))
-    except OSError:   # no /proc: never fork
-        return 0
-
-
 class _ForkedChild:
-    """A worker forked from the caller (Popen's poll, kill, wait and communicate, text in and out): it waits for
-    GO, then imports and serves one request (serve), and exits without returning into the caller's code."""
+    """The worker forked from fly (quad_bringup.running.forked), with Popen's poll, kill, wait and communicate
+    (text in and out): it waits for GO, then imports and serves one request (serve). Killed with fly."""
 
-    def __init__(self, pid: int, requests: int, answers: int):
-        self.pid, self._requests, self._answers, self.returncode = pid, requests, answers, None
+    def __init__(self, process, requests: int, answers: int):
+        self.process, self._requests, self._answers = process, requests, answers
 
     @classmethod
     def fork(cls):
+        from quad_bringup.running.forked import ForkedProcess
+
         parent = os.getpid()
         request_read, request_write = os.pipe()
         answer_read, answer_write = os.pipe()
-        pid = os.fork()
-        if pid:
-            os.close(request_read)
-            os.close(answer_write)
-            return cls(pid, request_write, answer_read)
-        code = 1
-        try:   # the child: never returns into the caller's code
-            code = _serve_forked(parent, request_read, answer_write)
+        null = os.open(os.devnull, os.O_RDWR)
+        try:
+            process = ForkedProcess.start(lambda: _serve_forked(parent, request_read, answer_write), stdin=null,
+                                          stdout=null, stderr=2, keep=(request_read, answer_write))
         finally:
-            os._exit(code)
+            for fd in (request_read, answer_write, null):
+                os.close(fd)
+        return cls(process, request_write, answer_read)
+
+    @property
+    def pid(self):
+        return self.process.pid
 
     def go(self):
         try:
@@ -119,46 +116,24 @@ class _ForkedChild:
             pass
         with os.fdopen(self._answers) as answers:
             out = answers.read()
-        self.wait()
+        self.process.wait()
         return out, None
 
     def poll(self):
-        if self.returncode is None:
-            done, status = os.waitpid(self.pid, os.WNOHANG)
-            if done:
-                self.returncode = os.waitstatus_to_exitcode(status)
-        return self.returncode
+        return self.process.poll()
 
     def kill(self):
-        if self.poll() is None:
-            os.kill(self.pid, signal.SIGKILL)
+        self.process.kill()
 
     def wait(self):
-        if self.returncode is None:
-            self.returncode = os.waitstatus_to_exitcode(os.waitpid(self.pid, 0)[1])
-        return self.returncode
+        return self.process.wait()
 
 
 def _serve_forked(parent: int, request_fd: int, answer_fd: int) -> int:
-    """The forked worker: its own session (fly's terminal signals are fly's to handle), killed with fly, every
-    inherited descriptor but stderr and its two pipes closed (the run directory's lock is fly's alone)."""
     from quad_bringup.pools.pool_lifeline import die_with_parent
     from quad_common.lifeline import exit_now
 
-    os.setsid()
     die_with_parent(parent)
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, signal.SIG_DFL)
-    null = os.open(os.devnull, os.O_RDWR)
-    os.dup2(null, 0)
-    os.dup2(null, 1)
-    keep = {0, 1, 2, request_fd, answer_fd}
-    for fd in map(int, os.listdir('/proc/self/fd')):
-        if fd not in keep:
-            try:
-                os.close(fd)
-            except OSError:   # the listing's own descriptor, closed already
-                pass
     requests, answers = os.fdopen(request_fd), os.fdopen(answer_fd, 'w')
     exit_now(serve(requests, answers) if requests.readline() else 0)   # end of file: fly ended before GO
     return 1

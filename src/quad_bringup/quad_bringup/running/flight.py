@@ -205,7 +205,8 @@ def _fly_graph(run_dir, options, mission, nodes, recorders, figure_worker, clock
             node.start(env)
             started.append(node)
         _write_pids(run_dir, started)
-        clock.mark('processes started')
+        forked = ', '.join(p.name for p in started if isinstance(p.popen, processes.ForkedProcess))
+        clock.mark('processes started' + (f' (forked: {forked})' if forked else ''))
         from quad_bringup.running.flight_monitor import FlightJudge, FlightMonitor
 
         judge = FlightJudge(options.rule, divergence_m=options.divergence_m,

@@ -13,6 +13,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from quad_bringup.running.forked import ForkedProcess, can_fork
 from quad_common.lifeline import PARENT_PID_VARIABLE
 
 
@@ -25,6 +26,7 @@ class NodeProcess:
     popen: subprocess.Popen | None = field(default=None, repr=False)
     argv: list = field(default_factory=list)   # before --ros-args
     remap_name: bool = True                    # -r __node:=NAME (not for a process of several nodes)
+    fork: bool = False   # forked from this process where it has one thread (quad_bringup.running.forked)
 
     def command(self) -> list[str]:
         name = ['-r', f'__node:={self.name}'] if self.remap_name else []
@@ -36,8 +38,16 @@ class NodeProcess:
             # A new session: its own process group, so a signal to the group reaches everything it started,
             # and a Ctrl-C on fly's terminal reaches fly only (fly decides the order of stopping).
             env = dict(env, **{PARENT_PID_VARIABLE: str(os.getpid())})
-            self.popen = subprocess.Popen(self.command(), env=env, stdout=log, stderr=subprocess.STDOUT,
-                                          stdin=subprocess.DEVNULL, start_new_session=True)
+            if self.fork and can_fork():
+                null = os.open(os.devnull, os.O_RDONLY)
+                try:
+                    self.popen = ForkedProcess.start(lambda: _run_module(self.command()[2:], env), stdin=null,
+                                                     stdout=log.fileno(), stderr=log.fileno())
+                finally:
+                    os.close(null)
+            else:
+                self.popen = subprocess.Popen(self.command(), env=env, stdout=log, stderr=subprocess.STDOUT,
+                                              stdin=subprocess.DEVNULL, start_new_session=True)
 
     @property
     def pid(self) -> int:
@@ -59,6 +69,17 @@ class NodeProcess:
             pass
 
 
+def _run_module(command: list[str], env: dict):
+    """In a forked child: `python -m MODULE ARGS...` (command: ['MODULE', ARGS...]) in environment env."""
+    import runpy
+
+    os.environ.clear()
+    os.environ.update(env)
+    sys.argv = [command[0], *command[1:]]
+    runpy.run_module(command[0], run_name='__main__', alter_sys=True)
+    return 0
+
+
 HOST = 'node_host'   # the process that holds several nodes (quad_bringup.running.node_host)
 
 
@@ -70,7 +91,7 @@ def node_processes(specs, params_file: Path, log_dir: Path, hosted: bool) -> lis
     if hosted:
         return [NodeProcess(HOST, 'quad_bringup.running.node_host', args, log_dir / f'{HOST}.log',
                             argv=[f'{s.name}@{s.namespace}' if s.namespace else s.name for s in specs],
-                            remap_name=False)]
+                            remap_name=False, fork=True)]
     return [NodeProcess(s.name, s.module, [*(['-r', f'__ns:=/{s.namespace}'] if s.namespace else []), *args],
                         log_dir / (f'{s.namespace}_{s.name}.log' if s.namespace else f'{s.name}.log'))
             for s in specs]

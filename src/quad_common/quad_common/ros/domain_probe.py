@@ -2,8 +2,6 @@
 
 import time
 
-import rclpy
-
 from quad_common.domains import domain_ports_holders
 
 PROBE_WAIT_S = 0.5   # where the socket tables are not readable: how long a probe node waits for discovery
@@ -19,6 +17,8 @@ def domain_occupants(domain: int) -> list[str]:
 def foreign_nodes(domain: int, wait_s: float) -> list[str]:
     """Nodes already in ROS domain `domain` (a graph someone started without our lock files, e.g. a real bridge),
     seen by a probe node for wait_s (Fast DDS answers a new participant at once)."""
+    import rclpy  # here: loading rcl starts threads, and fly forks node_host while it has none (running.forked)
+
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     try:
