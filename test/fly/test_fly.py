@@ -42,7 +42,7 @@ def test_fly_short_mission_end_to_end(tmp_path, ros_env):
     done = subprocess.run([QUADFLIGHT, 'fly', str(path), '--out', str(run_dir), '--quiet'],
                           env=dict(ros_env, QUADFLIGHT_TIMING='1'), capture_output=True, text=True, timeout=TIMEOUT_S)
     assert done.returncode == 0, done.stdout + done.stderr
-    # node_host is forked from fly (it inherits fly's imports: running.forked); the figures' process imports once
+    # node_host is forked from fly (it inherits fly's imports: pools.forked); the figures' process imports once
     # the flight is under way (its imports then do not slow the start-up), and draws every figure
     phases = [line.split('] ', 1)[1] for line in done.stderr.splitlines() if line.startswith('[')]
     assert 'processes started (forked: node_host)' in phases, phases

@@ -1,4 +1,4 @@
-"""quad_bringup.running.forked: a child forked instead of a new interpreter. Each case runs in a fresh one-thread
+"""quad_bringup.pools.forked: a child forked instead of a new interpreter. Each case runs in a fresh one-thread
 process (pytest's may hold DDS threads, and only a one-thread process forks)."""
 
 import json
@@ -8,7 +8,7 @@ import textwrap
 
 PRELUDE = '''
 import json, os, signal, subprocess, sys, threading
-from quad_bringup.running.forked import ForkedProcess, can_fork
+from quad_bringup.pools.forked import ForkedProcess, can_fork
 '''
 
 

@@ -17,6 +17,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from quad_bringup.pools.forked import ForkedProcess, can_fork
+
 GO = b'\n'   # the forked worker's first line: import now (fly sends it once the flight has started)
 
 
@@ -33,8 +35,6 @@ class FigureWorker:
     def prepare(cls):
         """Forks the worker now where this process has one thread (fly before its monitor's DDS threads): a fork
         of a process with other threads may hold their locks forever. Otherwise `begin` starts the module."""
-        from quad_bringup.running.forked import can_fork
-
         worker = cls()
         if can_fork():
             from quad_bringup.analysis import metrics  # noqa: F401 - the child's, inherited rather than imported
@@ -76,7 +76,7 @@ class FigureWorker:
 
 
 class _ForkedChild:
-    """The worker forked from fly (quad_bringup.running.forked), with Popen's poll, kill, wait and communicate
+    """The worker forked from fly (quad_bringup.pools.forked), with Popen's poll, kill, wait and communicate
     (text in and out): it waits for GO, then imports and serves one request (serve). Killed with fly."""
 
     def __init__(self, process, requests: int, answers: int):
@@ -84,8 +84,6 @@ class _ForkedChild:
 
     @classmethod
     def fork(cls):
-        from quad_bringup.running.forked import ForkedProcess
-
         parent = os.getpid()
         request_read, request_write = os.pipe()
         answer_read, answer_write = os.pipe()

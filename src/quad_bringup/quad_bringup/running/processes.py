@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from quad_bringup.running.forked import ForkedProcess, can_fork
+from quad_bringup.pools.forked import ForkedProcess, can_fork
 from quad_common.lifeline import PARENT_PID_VARIABLE
 
 
@@ -26,7 +26,7 @@ class NodeProcess:
     popen: subprocess.Popen | None = field(default=None, repr=False)
     argv: list = field(default_factory=list)   # before --ros-args
     remap_name: bool = True                    # -r __node:=NAME (not for a process of several nodes)
-    fork: bool = False   # forked from this process where it has one thread (quad_bringup.running.forked)
+    fork: bool = False   # forked from this process where it has one thread (quad_bringup.pools.forked)
 
     def command(self) -> list[str]:
         name = ['-r', f'__node:={self.name}'] if self.remap_name else []

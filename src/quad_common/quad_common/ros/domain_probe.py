@@ -17,7 +17,7 @@ def domain_occupants(domain: int) -> list[str]:
 def foreign_nodes(domain: int, wait_s: float) -> list[str]:
     """Nodes already in ROS domain `domain` (a graph someone started without our lock files, e.g. a real bridge),
     seen by a probe node for wait_s (Fast DDS answers a new participant at once)."""
-    import rclpy  # here: loading rcl starts threads, and fly forks node_host while it has none (running.forked)
+    import rclpy  # here: loading rcl starts threads, and fly forks node_host while it has none (pools.forked)
 
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
