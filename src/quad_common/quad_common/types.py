@@ -15,7 +15,7 @@ def _vec(n):
     return field(default_factory=lambda: np.zeros(n))
 
 
-def _all_finite(vectors) -> bool:
+def all_finite(vectors) -> bool:
     """Whether every value of the vectors is finite: a non-finite value makes their sum inf or nan, and a finite
     sum means none is; only a sum that overflows (or a non-finite value) takes numpy's elementwise check."""
     total = 0.0
@@ -36,7 +36,7 @@ class State:
     def is_finite(self) -> bool:
         """Every odometry message is checked: the sum of the values as floats (a few us less than numpy on
         13 values), numpy only when that sum is not finite (a non-finite value, or finite ones that overflow)."""
-        return _all_finite((self.position, self.velocity, self.quaternion, self.body_rates))
+        return all_finite((self.position, self.velocity, self.quaternion, self.body_rates))
 
 
 @dataclass
@@ -73,4 +73,4 @@ class AttitudeSetpoint:
         vals = [self.quaternion, [self.specific_force_mps2]]
         if self.body_rates is not None:
             vals.append(self.body_rates)
-        return _all_finite(vals)
+        return all_finite(vals)

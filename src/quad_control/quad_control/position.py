@@ -20,13 +20,12 @@ Limits come from the vehicle (thrust range, max tilt); every clamp is reported i
 A non-finite state or reference raises ValueError: no non-finite command is ever produced.
 """
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from quad_common import rotations
-from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
+from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State, all_finite
 from quad_common.vehicle import Vehicle
 from quad_control.controller_names import CONTROLLERS
 from quad_control.drag_estimate import DragEstimate
@@ -97,8 +96,9 @@ def _floats(values) -> list:
 
 def check_finite(state: State, ref: Reference):
     """Raises ValueError naming the first non-finite field of the state or the reference."""
-    if math.isfinite(sum(_finite_sum_terms(state, ref))):   # a sum of finite values can overflow: then the
-        return                                              # field-by-field check below decides
+    if all_finite((state.position, state.velocity, state.quaternion, state.body_rates, ref.position, ref.velocity,
+                   ref.acceleration, ref.jerk, (ref.yaw, ref.yaw_rate))):
+        return
     for owner, obj, names in (('state', state, ('position', 'velocity', 'quaternion', 'body_rates')),
                               ('reference', ref, ('position', 'velocity', 'acceleration', 'jerk', 'yaw',
                                                   'yaw_rate'))):
@@ -106,12 +106,6 @@ def check_finite(state: State, ref: Reference):
             value = np.asarray(getattr(obj, name), dtype=float)
             if not np.all(np.isfinite(value)):
                 raise ValueError(f'{owner}.{name} is not finite: {value.tolist()}')
-
-
-def _finite_sum_terms(state: State, ref: Reference) -> list:
-    return [*_floats(state.position), *_floats(state.velocity), *_floats(state.quaternion),
-            *_floats(state.body_rates), *_floats(ref.position), *_floats(ref.velocity), *_floats(ref.acceleration),
-            *_floats(ref.jerk), float(ref.yaw), float(ref.yaw_rate)]
 
 
 def desired_acceleration(state: State, ref: Reference, gains: PositionGains, integral_m_s=None,
