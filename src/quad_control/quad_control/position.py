@@ -20,6 +20,7 @@ Limits come from the vehicle (thrust range, max tilt); every clamp is reported i
 A non-finite state or reference raises ValueError: no non-finite command is ever produced.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -276,7 +277,7 @@ class PositionController:
 
     def update(self, state: State, ref: Reference, dt_s: float) -> tuple[AttitudeSetpoint, Saturation]:
         """One control step; dt_s is the time since the previous step (integral only)."""
-        if not np.isfinite(dt_s) or dt_s < 0:
+        if not math.isfinite(dt_s) or dt_s < 0:
             raise ValueError(f'dt_s = {dt_s} must be finite and >= 0')
         check_finite(state, ref)
         mass_kg = self.vehicle.mass_kg
@@ -285,7 +286,8 @@ class PositionController:
             windup = self._integrate(np.asarray(ref.position) - state.position, dt_s)
             integral = self.integral_m_s
         self._learn_drag(state, ref, dt_s)
-        drag_per_s = self.drag_per_s
+        # the gains' D for every axis unless learning (a scalar: the same products as drag_per_s's vector)
+        drag_per_s = self.gains.drag_feedforward_per_s if self.drag is None else self.drag_per_s
         acc = desired_acceleration(state, ref, self.gains, integral, drag_per_s)
         observing = self.gains.disturbance_time_constant_s > 0
         if observing:
