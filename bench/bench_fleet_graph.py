@@ -35,9 +35,10 @@ NOTE = ('\n' +
         'and its flush\'s fsync ran on its one thread (beside one 800 MB write: 120-186 ms; now in a thread of its '
         'own). It acknowledges every 10 steps (it did every 10 odometry messages: 1.6 a step at 16 vehicles) and '
         'takes a ready subscription\'s backlog in one wake-up. Where the stepping goes at 16 vehicles: the '
-        'vehicles\' process is on CPU for ~85 % of it, 5.5-7 ms a step, ~0.35 ms per vehicle (cProfile: DDS '
-        'writes, two per vehicle and step, each to a reader in the process and to the recorder, ~20 %; the '
-        'controllers\' ticks ~35 %; the simulator\'s odometry, setpoints and physics ~20 %; the executor ~10 %).')
+        'vehicles\' process is on CPU for ~85 % of it (py-spy, its samples on CPU while stepping: DDS writes, two '
+        'per vehicle and step, each to a reader in the process and to the recorder, ~25 %; the physics ~12 % and '
+        'the contact check ~4 %; the controllers\' ticks ~25 % with their writes, the plan\'s reference and the '
+        'control law ~10 % of it; the executor\'s passes over every entity ~10-14 %, its hot passes ~5-10 %).')
 
 SIZES = (1, 4, 16, 64)
 PER_NODE_SIZES = (1, 4)      # one process per node (as launch_ros starts them) beside one process for the nodes

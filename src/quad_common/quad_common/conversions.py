@@ -3,6 +3,8 @@
 Contract: quad_common.contract and docs/interfaces.md.
 """
 
+import math
+
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Quaternion, Transform, TransformStamped, Twist, Vector3
@@ -13,7 +15,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectory
 from quad_common import rotations
 from quad_common.contract import BODY_FRAME, UNSET_COVARIANCE, WORLD_FRAME  # noqa: F401  (re-exported)
 from quad_common.sampled_trajectory import SampledTrajectory
-from quad_common.types import AttitudeSetpoint, Reference, State
+from quad_common.types import AttitudeSetpoint, Reference, State, all_finite
 
 
 def stamp_to_s(stamp) -> float:
@@ -115,7 +117,7 @@ def imu_values_to_setpoint(orientation, orientation_cov0, rates, rates_cov0, spe
     if specific_force_cov0 == UNSET_COVARIANCE:
         raise ValueError('cmd/attitude_thrust.linear_acceleration is marked unset (covariance[0] = -1)')
     f = specific_force_mps2
-    if not np.isfinite(f):
+    if not math.isfinite(f):
         raise ValueError(f'cmd/attitude_thrust.linear_acceleration.z must be finite, got {f}')
     try:
         q = rotations.normalize(orientation)
@@ -124,7 +126,7 @@ def imu_values_to_setpoint(orientation, orientation_cov0, rates, rates_cov0, spe
     body_rates = None
     if rates_cov0 != UNSET_COVARIANCE:
         body_rates = np.array(rates, dtype=float)
-        if not np.all(np.isfinite(body_rates)):
+        if not all_finite((body_rates,)):
             raise ValueError(f'cmd/attitude_thrust.angular_velocity must be finite, got {body_rates.tolist()}')
     return AttitudeSetpoint(quaternion=q, specific_force_mps2=float(f), body_rates=body_rates)
 

@@ -6,6 +6,8 @@ so position is C2 across samples and jerk is available between them. Axes are (x
 yaw is stored unwrapped.
 """
 
+import bisect
+
 import numpy as np
 
 from quad_common.types import Reference
@@ -36,6 +38,7 @@ _ORDERS, _TERMS = np.arange(4)[:, None], np.arange(6)[None, :]
 _FACTORS = np.array([[float(np.prod(np.arange(m - d + 1, m + 1))) if m >= d else 0.0 for m in range(6)]
                      for d in range(4)])
 _POWERS = np.maximum(_TERMS - _ORDERS, 0)
+_ORDER_POWERS = np.arange(4)[:, None]   # h^d per derivative d
 
 
 class SampledTrajectory:
@@ -56,6 +59,7 @@ class SampledTrajectory:
         p = p.copy()
         p[:, 3] = np.unwrap(p[:, 3])
         self.times_s, self.position, self.velocity, self.acceleration = t, p, v, a
+        self._times = t.tolist()   # reference()'s search: bisect on floats, no numpy call
         if len(t) > 1:
             h = np.diff(t)[:, None]
             self._coef = _quintic_coefficients(h, p[:-1], v[:-1], a[:-1], p[1:], v[1:], a[1:])  # (N-1, 4, 6)
@@ -94,14 +98,15 @@ class SampledTrajectory:
     def reference(self, t_s) -> Reference:
         """The flat-output reference at one time (evaluate(t, 3) for a single t, without its array set-up:
         the controller calls this every tick)."""
-        t, times = float(t_s), self.times_s
+        t, times = float(t_s), self._times
         if t <= times[0] or t >= times[-1]:
-            p, v, a, j = np.zeros((4, 4))
-            p[:] = self.position[0] if t <= times[0] else self.position[-1]
+            derivatives = np.zeros((4, 4))
+            derivatives[0] = self.position[0] if t <= times[0] else self.position[-1]
         else:
-            k = min(max(int(np.searchsorted(times, t, side='right')) - 1, 0), len(times) - 2)
+            k = min(max(bisect.bisect_right(times, t) - 1, 0), len(times) - 2)   # np.searchsorted(side='right')
             h = times[k + 1] - times[k]
             s = (t - times[k]) / h
-            p, v, a, j = (_FACTORS * s ** _POWERS) @ self._coef[k].T / (h ** np.arange(4))[:, None]
-        return Reference(position=p[:3].copy(), velocity=v[:3].copy(), acceleration=a[:3].copy(),
-                         jerk=j[:3].copy(), yaw=float(p[3]), yaw_rate=float(v[3]))
+            derivatives = (_FACTORS * s ** _POWERS) @ self._coef[k].T / h ** _ORDER_POWERS
+        p, v, a, j = derivatives   # rows of a fresh array: the Reference's vectors share nothing with the samples
+        return Reference(position=p[:3], velocity=v[:3], acceleration=a[:3], jerk=j[:3], yaw=float(p[3]),
+                         yaw_rate=float(v[3]))

@@ -3,6 +3,7 @@
 Frames (docs/design.md, docs/interfaces.md): world `map` ENU, body `base_link` FLU, SI units, quaternions (x, y, z, w).
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,6 +13,15 @@ GRAVITY_MPS2 = 9.81
 
 def _vec(n):
     return field(default_factory=lambda: np.zeros(n))
+
+
+def all_finite(vectors) -> bool:
+    """Whether every value of the vectors is finite: a non-finite value makes their sum inf or nan, and a finite
+    sum means none is; only a sum that overflows (or a non-finite value) takes numpy's elementwise check."""
+    total = 0.0
+    for values in vectors:
+        total += sum(values.tolist() if isinstance(values, np.ndarray) else values)
+    return math.isfinite(total) or bool(np.isfinite(np.concatenate(vectors)).all())
 
 
 @dataclass
@@ -24,9 +34,9 @@ class State:
     body_rates: np.ndarray = _vec(3)
 
     def is_finite(self) -> bool:
-        """One numpy call, not four: every odometry message is checked."""
-        return bool(np.isfinite(np.concatenate((self.position, self.velocity, self.quaternion,
-                                                self.body_rates))).all())
+        """Every odometry message is checked: the sum of the values as floats (a few us less than numpy on
+        13 values), numpy only when that sum is not finite (a non-finite value, or finite ones that overflow)."""
+        return all_finite((self.position, self.velocity, self.quaternion, self.body_rates))
 
 
 @dataclass
@@ -59,8 +69,8 @@ class AttitudeSetpoint:
     body_rates: np.ndarray | None = None
 
     def is_finite(self) -> bool:
-        """One numpy call: the simulator checks every setpoint."""
+        """The simulator checks every setpoint (State.is_finite's way)."""
         vals = [self.quaternion, [self.specific_force_mps2]]
         if self.body_rates is not None:
             vals.append(self.body_rates)
-        return bool(np.isfinite(np.concatenate(vals)).all())
+        return all_finite(vals)

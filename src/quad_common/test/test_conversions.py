@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 from sensor_msgs.msg import Imu
@@ -53,3 +55,18 @@ def test_trajectory_message_round_trip():
     start, back = conv.msg_to_sampled(msg)
     assert start == 100.0 and len(msg.points) == 11
     assert np.allclose(back.position, p) and np.allclose(back.velocity, v) and np.allclose(back.acceleration, a)
+
+
+@pytest.mark.parametrize('bad', [math.nan, math.inf, -math.inf])
+def test_finiteness_of_states_and_setpoints(bad):
+    """A non-finite value anywhere is found; finite values whose sum overflows are finite."""
+    big = np.array([1e308, 1e308, 1e308])
+    assert State(position=big, velocity=big).is_finite()
+    assert AttitudeSetpoint(specific_force_mps2=1e308, body_rates=big).is_finite()
+    for field in ('position', 'velocity', 'quaternion', 'body_rates'):
+        state = State()
+        getattr(state, field)[1] = bad
+        assert not state.is_finite()
+    assert not AttitudeSetpoint(specific_force_mps2=bad).is_finite()
+    assert not AttitudeSetpoint(body_rates=np.array([0.0, bad, 0.0])).is_finite()
+    assert AttitudeSetpoint(body_rates=None).is_finite()

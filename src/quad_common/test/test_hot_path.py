@@ -42,3 +42,34 @@ def test_one_pass_takes_a_ready_subscriptions_backlog_up_to_takes_per_pass(takes
             node.destroy_node()
         finally:
             rclpy.shutdown(context=ctx)
+
+
+def test_one_pass_serves_the_ready_subscriptions_in_the_hot_lists_order():
+    """Subscriptions ready at one wake-up are served in the order hot() lists them (a host lists /clock first:
+    its ticks then see the new time), whatever order they were created or became ready in."""
+    with isolated_domain() as (domain, _):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        try:
+            node = rclpy.create_node('hot_path_order', context=ctx)
+            qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+            got = []
+            subs = {name: node.create_subscription(UInt32, name, lambda msg, name=name: got.append(name), qos)
+                    for name in ('a', 'b', 'c', 'd')}
+            pubs = {name: node.create_publisher(UInt32, name, qos) for name in subs}
+            hot = [subs[name] for name in ('c', 'a', 'd', 'b')]
+            executor = HotPathExecutor(lambda: (hot, []), slow_period_s=3600.0, context=ctx)
+            executor.add_node(node)
+            executor.spin_once(timeout_sec=0.0)   # its first slow pass, with nothing queued yet
+            deadline = time.monotonic() + TIMEOUT_S
+            while any(pub.get_subscription_count() < 1 for pub in pubs.values()):
+                assert time.monotonic() < deadline, 'a subscription never matched its own node\'s publisher'
+                executor.spin_once(timeout_sec=0.01)
+            for name in ('a', 'b', 'd'):   # c is not ready: not served
+                pubs[name].publish(UInt32(data=1))
+            executor.spin_once(timeout_sec=TIMEOUT_S)
+            assert got == ['a', 'd', 'b']
+            executor.shutdown()
+            node.destroy_node()
+        finally:
+            rclpy.shutdown(context=ctx)

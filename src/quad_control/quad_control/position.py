@@ -20,12 +20,13 @@ Limits come from the vehicle (thrust range, max tilt); every clamp is reported i
 A non-finite state or reference raises ValueError: no non-finite command is ever produced.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from quad_common import rotations
-from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State
+from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, Reference, State, all_finite
 from quad_common.vehicle import Vehicle
 from quad_control.controller_names import CONTROLLERS
 from quad_control.drag_estimate import DragEstimate
@@ -83,11 +84,21 @@ class Saturation:
         return self.thrust or self.tilt or self.integral
 
 
+def _floats(values) -> list:
+    """A vector (or a scalar, for every axis) as Python floats: the per-tick law is scalar arithmetic (a numpy
+    operation on a 3-vector costs ~1 us, a float one ~30 ns), each operation the IEEE one numpy does elementwise,
+    so the result is the same."""
+    if isinstance(values, np.ndarray) and values.ndim == 1:
+        return values.tolist()
+    if np.ndim(values) == 0:
+        return [float(values)] * 3
+    return [float(v) for v in values]
+
+
 def check_finite(state: State, ref: Reference):
     """Raises ValueError naming the first non-finite field of the state or the reference."""
-    values = np.concatenate([state.position, state.velocity, state.quaternion, state.body_rates, ref.position,
-                             ref.velocity, ref.acceleration, ref.jerk, [ref.yaw, ref.yaw_rate]])
-    if np.isfinite(values).all():
+    if all_finite((state.position, state.velocity, state.quaternion, state.body_rates, ref.position, ref.velocity,
+                   ref.acceleration, ref.jerk, (ref.yaw, ref.yaw_rate))):
         return
     for owner, obj, names in (('state', state, ('position', 'velocity', 'quaternion', 'body_rates')),
                               ('reference', ref, ('position', 'velocity', 'acceleration', 'jerk', 'yaw',
@@ -103,15 +114,21 @@ def desired_acceleration(state: State, ref: Reference, gains: PositionGains, int
     """Eq. 1 (plus ki * integral of the position error for pid), with the plan's drag D v_T in the feed-forward:
     a vehicle in linear air drag (-D v) needs a_T + D v_T to follow the plan, from the plan alone (outside the
     feedback loop, so it adds no lag to it). drag_per_s: D per axis (default gains.drag_feedforward_per_s)."""
-    acc = gains.kp * (ref.position - state.position) + gains.kd * (ref.velocity - state.velocity)
+    kp, kd = _floats(gains.kp), _floats(gains.kd)
+    r, v = _floats(state.position), _floats(state.velocity)
+    r_t, v_t = _floats(ref.position), _floats(ref.velocity)
+    acc = [kp[i] * (r_t[i] - r[i]) + kd[i] * (v_t[i] - v[i]) for i in range(3)]
     drag = gains.drag_feedforward_per_s if drag_per_s is None else drag_per_s
     if gains.use_feedforward:
-        acc = acc + ref.acceleration
-        if np.any(drag):
-            acc = acc + drag * np.asarray(ref.velocity, dtype=float)
+        a_t = _floats(ref.acceleration)
+        acc = [acc[i] + a_t[i] for i in range(3)]
+        drag = _floats(drag)
+        if any(drag):
+            acc = [acc[i] + drag[i] * v_t[i] for i in range(3)]
     if integral_m_s is not None:
-        acc = acc + gains.ki * integral_m_s
-    return acc
+        ki, integral = _floats(gains.ki), _floats(integral_m_s)
+        acc = [acc[i] + ki[i] * integral[i] for i in range(3)]
+    return np.array(acc)
 
 
 def attitude_acceleration(acc_des, ref: Reference, gains: PositionGains, drag_per_s=None) -> np.ndarray:
@@ -140,17 +157,19 @@ def clamp_thrust(thrust_n, limits: Limits, sat: Saturation) -> float:
 def seed_setpoint(acc_des, yaw, yaw_rate, mass_kg: float, limits: Limits,
                   acc_attitude=None) -> tuple[AttitudeSetpoint, Saturation]:
     """Eq. 2-5 (roll/pitch from acc_attitude if given, else acc_des); roll/pitch scaled together so that
-    their magnitude stays within the max tilt."""
+    their magnitude stays within the max tilt. Scalar arithmetic; sin, cos and hypot are numpy's (math.hypot
+    rounds differently)."""
     sat = Saturation()
-    s, c = np.sin(yaw), np.cos(yaw)
-    acc_att = acc_des if acc_attitude is None else acc_attitude
-    roll = (acc_att[0] * s - acc_att[1] * c) / GRAVITY_MPS2
-    pitch = (acc_att[0] * c + acc_att[1] * s) / GRAVITY_MPS2
-    tilt = np.hypot(roll, pitch)
+    yaw = float(yaw)
+    s, c = float(np.sin(yaw)), float(np.cos(yaw))
+    ax, ay, _ = _floats(acc_des if acc_attitude is None else acc_attitude)
+    roll = (ax * s - ay * c) / GRAVITY_MPS2
+    pitch = (ax * c + ay * s) / GRAVITY_MPS2
+    tilt = float(np.hypot(roll, pitch))
     if tilt > limits.max_tilt_rad:
         sat.tilt = True
         roll, pitch = roll * limits.max_tilt_rad / tilt, pitch * limits.max_tilt_rad / tilt
-    thrust_n = clamp_thrust(mass_kg * GRAVITY_MPS2 + mass_kg * acc_des[2], limits, sat)
+    thrust_n = clamp_thrust(mass_kg * GRAVITY_MPS2 + mass_kg * float(acc_des[2]), limits, sat)
     return AttitudeSetpoint(quaternion=rotations.from_euler(roll, pitch, yaw), specific_force_mps2=thrust_n / mass_kg,
                             body_rates=np.array([0.0, 0.0, float(yaw_rate)])), sat
 
@@ -258,7 +277,7 @@ class PositionController:
 
     def update(self, state: State, ref: Reference, dt_s: float) -> tuple[AttitudeSetpoint, Saturation]:
         """One control step; dt_s is the time since the previous step (integral only)."""
-        if not np.isfinite(dt_s) or dt_s < 0:
+        if not math.isfinite(dt_s) or dt_s < 0:
             raise ValueError(f'dt_s = {dt_s} must be finite and >= 0')
         check_finite(state, ref)
         mass_kg = self.vehicle.mass_kg
@@ -267,12 +286,14 @@ class PositionController:
             windup = self._integrate(np.asarray(ref.position) - state.position, dt_s)
             integral = self.integral_m_s
         self._learn_drag(state, ref, dt_s)
-        acc = desired_acceleration(state, ref, self.gains, integral, self.drag_per_s)
+        # the gains' D for every axis unless learning (a scalar: the same products as drag_per_s's vector)
+        drag_per_s = self.gains.drag_feedforward_per_s if self.drag is None else self.drag_per_s
+        acc = desired_acceleration(state, ref, self.gains, integral, drag_per_s)
         observing = self.gains.disturbance_time_constant_s > 0
         if observing:
             body_z = self._observe_disturbance(state, dt_s)
             acc = acc - self.disturbance_mps2
-        acc_attitude = attitude_acceleration(acc, ref, self.gains, self.drag_per_s)
+        acc_attitude = attitude_acceleration(acc, ref, self.gains, drag_per_s)
         if self.name == 'se3':
             sp, sat = geometric_setpoint(acc, state, ref, mass_kg, self.limits, use_jerk=self.gains.use_feedforward,
                                          acc_attitude=acc_attitude)

@@ -33,6 +33,7 @@ from quad_common.paths import parameter_file
 from quad_common.realtime import apply_or_report, thread_ids
 from quad_common.ros import cdr, lockstep
 from quad_common.ros.hot_path import HotPathExecutor
+from quad_common.ros.hot_path import now_ns as now_ns_of
 from quad_common.ros.node_main import run_node
 from quad_common.ros.ros_params import ParameterSet
 from quad_common.vehicle import load_vehicle
@@ -117,7 +118,8 @@ class PositionControllerNode(Node):
                                 engaged=not self.params['wait_for_engagement'],
                                 engage_delay_s=self.params['engage_delay_s'], on_fault=self._fault,
                                 on_event=self.get_logger().info)
-        self.odom_received_ns = None  # steady time of the newest finite odometry
+        self.odom_received_ns = None  # steady time (time.monotonic_ns, CLOCK_MONOTONIC as rcl's steady clock) of
+        #                               the newest finite odometry
         self.odom_fault = None      # reason the newest odometry was refused (non-finite), until a good one
         self.pending_since_ns = 0
         self.stale = False
@@ -223,7 +225,7 @@ class PositionControllerNode(Node):
         except ValueError as exc:
             self._refuse_state(exc)
             return
-        now_ns = self.get_clock().now().nanoseconds
+        now_ns = now_ns_of(self.get_clock())
         if stamp_ns > now_ns + self._period_ns:
             self.node_counts['future_odom'] += 1
             self.last_future_odom = f'stamp {stamp_ns * 1e-9:.6f} s > clock {now_ns * 1e-9:.6f} s + one period'
@@ -242,7 +244,7 @@ class PositionControllerNode(Node):
         if self.odom_fault is not None:
             self.get_logger().info('odom finite again: control resumes')
             self.odom_fault = None
-        self.odom_received_ns = self.steady.now().nanoseconds
+        self.odom_received_ns = time.monotonic_ns()
         self._publish(self.loop.set_odometry(stamp_ns, state))
 
     def _refuse_state(self, exc: ValueError):
@@ -315,10 +317,10 @@ class PositionControllerNode(Node):
 
     def _on_tick(self):
         self._take_trajectories()
-        now_ns = self.get_clock().now().nanoseconds
+        now_ns = now_ns_of(self.get_clock())
         if self.loop.lockstep:
             if self.loop.pending_tick_ns is None:
-                self.pending_since_ns = self.steady.now().nanoseconds
+                self.pending_since_ns = time.monotonic_ns()
             if self.odom_fault is None:
                 self._publish(self.loop.tick(now_ns))
             else:  # the tick waits for a finite odometry
@@ -326,9 +328,9 @@ class PositionControllerNode(Node):
             return
         if self.loop.odom is None or self.odom_fault is not None:
             return
-        age_s = (self.steady.now().nanoseconds - self.odom_received_ns) * 1e-9
+        age_s = (time.monotonic_ns() - self.odom_received_ns) * 1e-9
         if age_s > self.params['odom_timeout_s'] and self._take_waiting_odometry():
-            age_s = (self.steady.now().nanoseconds - self.odom_received_ns) * 1e-9
+            age_s = (time.monotonic_ns() - self.odom_received_ns) * 1e-9
         if age_s > self.params['odom_timeout_s']:
             if not self.stale:
                 self.stale = True
@@ -379,7 +381,7 @@ class PositionControllerNode(Node):
         /clock (use_sim_time) it is stamped 0, ROS's "no time yet", so a start-up can be followed."""
         now_ns = self.get_clock().now().nanoseconds
         timeout_s = self.params['odom_timeout_s']
-        deferred_s = (self.steady.now().nanoseconds - self.pending_since_ns) * 1e-9
+        deferred_s = (time.monotonic_ns() - self.pending_since_ns) * 1e-9
         level, message = diagnostics.OK, self.loop.mode(now_ns)
         if fault is not None:
             level, message = diagnostics.ERROR, fault

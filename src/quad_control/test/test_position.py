@@ -145,6 +145,56 @@ def test_non_finite_input_raises_naming_the_field(field, owner):
         PositionController('pid', SEED, VEHICLE).update(state, ref, 0.01)
 
 
+def test_finite_values_whose_sum_overflows_are_accepted():
+    """The finiteness check sums the values; a sum that overflows is not a non-finite input."""
+    big = 1e308
+    state, ref = _state(position=(big, big, big)), _ref(position=(big, big, big))
+    sp, _ = pd(state, ref, SEED, VEHICLE)
+    assert np.all(np.isfinite(sp.quaternion))
+
+
+def _seed_law_in_numpy(state, ref, gains, limits, integral=None):
+    """Eq. 1-5 on numpy 3-vectors, the vectorized form of the law: (quaternion, specific force, tilt clipped,
+    thrust clipped)."""
+    acc = gains.kp * (ref.position - state.position) + gains.kd * (ref.velocity - state.velocity)
+    if gains.use_feedforward:
+        acc = acc + ref.acceleration
+        if np.any(gains.drag_feedforward_per_s):
+            acc = acc + gains.drag_feedforward_per_s * ref.velocity
+    if integral is not None:
+        acc = acc + gains.ki * integral
+    s, c = np.sin(ref.yaw), np.cos(ref.yaw)
+    roll, pitch = (acc[0] * s - acc[1] * c) / G, (acc[0] * c + acc[1] * s) / G
+    tilt = np.hypot(roll, pitch)
+    if tilt > limits.max_tilt_rad:
+        roll, pitch = roll * limits.max_tilt_rad / tilt, pitch * limits.max_tilt_rad / tilt
+    thrust = M * G + M * acc[2]
+    clamped = min(max(thrust, limits.thrust_min_n), limits.thrust_max_n)
+    return rotations.from_euler(roll, pitch, ref.yaw), clamped / M, tilt > limits.max_tilt_rad, clamped != thrust
+
+
+@pytest.mark.parametrize('controller', ['pd', 'pid'])
+def test_seed_law_equals_its_numpy_form_bit_for_bit(controller):
+    """The per-tick law in scalar arithmetic gives exactly what eq. 1-5 on numpy vectors give (random states,
+    references, yaws, drag feed-forward on and off, tilt and thrust clipped or not)."""
+    rng = np.random.default_rng(7)
+    limits = Limits.of(VEHICLE)
+    for k in range(2000):
+        gains = PositionGains(drag_feedforward_per_s=[0.0, 0.35][k % 2], use_feedforward=k % 5 != 0)
+        q = rng.normal(size=4)
+        state = State(position=rng.normal(size=3) * 3, velocity=rng.normal(size=3) * 2,
+                      quaternion=q / np.linalg.norm(q), body_rates=rng.normal(size=3))
+        ref = Reference(position=rng.normal(size=3) * 3, velocity=rng.normal(size=3) * 2,
+                        acceleration=rng.normal(size=3) * 4, jerk=rng.normal(size=3), yaw=float(rng.uniform(-7, 7)),
+                        yaw_rate=float(rng.normal()))
+        integral = rng.normal(size=3) * 0.05 if controller == 'pid' else None
+        sp, sat = _law(controller)(state, ref, gains, VEHICLE, integral=integral)
+        quaternion, force, tilt, thrust = _seed_law_in_numpy(state, ref, gains, limits, integral)
+        assert np.array_equal(sp.quaternion, quaternion) and sp.specific_force_mps2 == force
+        assert (sat.tilt, sat.thrust) == (tilt, thrust)
+        assert np.array_equal(sp.body_rates, [0.0, 0.0, ref.yaw_rate])
+
+
 def test_unknown_controller_named():
     with pytest.raises(ValueError, match="'lqr'"):
         PositionController('lqr', SEED, VEHICLE)
