@@ -77,19 +77,18 @@ class FigureWorker:
 
 class _ForkedChild:
     """The worker forked from fly (quad_bringup.pools.forked), with Popen's poll, kill, wait and communicate
-    (text in and out): it waits for GO, then imports and serves one request (serve). Killed with fly."""
+    (text in and out): it waits for GO, then imports and serves one request (serve)."""
 
     def __init__(self, process, requests: int, answers: int):
         self.process, self._requests, self._answers = process, requests, answers
 
     @classmethod
     def fork(cls):
-        parent = os.getpid()
         request_read, request_write = os.pipe()
         answer_read, answer_write = os.pipe()
         null = os.open(os.devnull, os.O_RDWR)
         try:
-            process = ForkedProcess.start(lambda: _serve_forked(parent, request_read, answer_write), stdin=null,
+            process = ForkedProcess.start(lambda: _serve_forked(request_read, answer_write), stdin=null,
                                           stdout=null, stderr=2, keep=(request_read, answer_write))
         finally:
             for fd in (request_read, answer_write, null):
@@ -127,11 +126,9 @@ class _ForkedChild:
         return self.process.wait()
 
 
-def _serve_forked(parent: int, request_fd: int, answer_fd: int) -> int:
-    from quad_bringup.pools.pool_lifeline import die_with_parent
+def _serve_forked(request_fd: int, answer_fd: int) -> int:
     from quad_common.lifeline import exit_now
 
-    die_with_parent(parent)
     requests, answers = os.fdopen(request_fd), os.fdopen(answer_fd, 'w')
     exit_now(serve(requests, answers) if requests.readline() else 0)   # end of file: fly ended before GO
     return 1

@@ -2,8 +2,9 @@
 messages, the analysis modules: ~0.2-0.3 s of CPU per process on the 2-core machine), and nothing else of fly's.
 
 Only a process with one thread may fork (`can_fork`): another thread may hold a lock the child would wait on forever
-(DDS's, a pool's). The child: its own session (a Ctrl-C on fly's terminal is fly's to handle, as for
-start_new_session), the default signal handlers, its standard streams as given, every other inherited descriptor
+(DDS's, a pool's). The child: killed when fly dies (pool_lifeline.die_with_parent, from its first instruction: a
+node's own lifeline may set a gentler signal later), its own session (a Ctrl-C on fly's terminal is fly's to handle,
+as for start_new_session), the default signal handlers, its standard streams as given, every other inherited descriptor
 closed (fly's run-directory and domain locks stay fly's), and it never returns into fly's code: `run()`'s return
 value or SystemExit code is its exit status. ForkedProcess is the parent's handle, with the subprocess.Popen calls
 fly uses (pid, poll, wait, send_signal, kill, returncode).
@@ -15,6 +16,8 @@ import signal
 import subprocess
 import sys
 import traceback
+
+from quad_bringup.pools.pool_lifeline import die_with_parent
 
 
 def can_fork() -> bool:
@@ -35,11 +38,13 @@ class ForkedProcess:
         become; keep: further descriptors it keeps open."""
         for stream in (sys.stdout, sys.stderr):   # else the child would write fly's buffered output again
             stream.flush()
+        parent = os.getpid()
         pid = os.fork()
         if pid:
             return cls(pid)
         code = 1
         try:
+            die_with_parent(parent)
             _become_child((stdin, stdout, stderr), keep)
             code = run()
         except SystemExit as exc:

@@ -23,14 +23,18 @@ class NodeProcess:
     module: str
     ros_args: list
     log_path: Path
-    popen: subprocess.Popen | None = field(default=None, repr=False)
+    popen: subprocess.Popen | ForkedProcess | None = field(default=None, repr=False)
     argv: list = field(default_factory=list)   # before --ros-args
     remap_name: bool = True                    # -r __node:=NAME (not for a process of several nodes)
     fork: bool = False   # forked from this process where it has one thread (quad_bringup.pools.forked)
 
-    def command(self) -> list[str]:
+    def arguments(self) -> list[str]:
+        """The module's command line after `python -m MODULE`."""
         name = ['-r', f'__node:={self.name}'] if self.remap_name else []
-        return [sys.executable, '-m', self.module, *self.argv, '--ros-args', *name, *self.ros_args]
+        return [*self.argv, '--ros-args', *name, *self.ros_args]
+
+    def command(self) -> list[str]:
+        return [sys.executable, '-m', self.module, *self.arguments()]
 
     def start(self, env):
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -41,8 +45,8 @@ class NodeProcess:
             if self.fork and can_fork():
                 null = os.open(os.devnull, os.O_RDONLY)
                 try:
-                    self.popen = ForkedProcess.start(lambda: _run_module(self.command()[2:], env), stdin=null,
-                                                     stdout=log.fileno(), stderr=log.fileno())
+                    self.popen = ForkedProcess.start(lambda: _run_module(self.module, self.arguments(), env),
+                                                     stdin=null, stdout=log.fileno(), stderr=log.fileno())
                 finally:
                     os.close(null)
             else:
@@ -69,14 +73,14 @@ class NodeProcess:
             pass
 
 
-def _run_module(command: list[str], env: dict):
-    """In a forked child: `python -m MODULE ARGS...` (command: ['MODULE', ARGS...]) in environment env."""
+def _run_module(module: str, args: list[str], env: dict):
+    """In a forked child: `python -m MODULE ARGS...` in environment env."""
     import runpy
 
     os.environ.clear()
     os.environ.update(env)
-    sys.argv = [command[0], *command[1:]]
-    runpy.run_module(command[0], run_name='__main__', alter_sys=True)
+    sys.argv = [module, *args]
+    runpy.run_module(module, run_name='__main__', alter_sys=True)
     return 0
 
 
