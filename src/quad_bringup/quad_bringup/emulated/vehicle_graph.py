@@ -42,10 +42,12 @@ _GRAPHS = itertools.count()
 
 
 # Ports the tests hand to a process that binds them later (a bridge's udpin, an emulator's tcpin). They lie below
-# Fast DDS's (7400 + 250 * domain) and below the kernel's ephemeral range (ip_local_port_range, 32768 and up), so no
-# socket gets one unless it names it: a port bound to 0 and closed again could be any process's ephemeral port
-# before the test's process binds it. Test processes share them through lock files, held until the process exits.
-TEST_PORTS = range(6100, 7400)
+# Fast DDS's (7400 + 250 * domain), below the UDP ports every DDS participant of these graphs binds from 7000 up
+# (one each: 7000-7005 seen with three flights at once; in that band the bridge's udpin found its test port taken),
+# and below the kernel's ephemeral range (ip_local_port_range, 32768 and up), so no socket gets one unless it names
+# it: a port bound to 0 and closed again could be any process's ephemeral port before the test's process binds it.
+# Test processes share them through lock files, held until the process exits.
+TEST_PORTS = range(6100, 7000)
 _PORT_LOCK_DIR = Path(tempfile.gettempdir()) / 'quadflight-test-ports'
 _EPHEMERAL_RANGE = Path('/proc/sys/net/ipv4/ip_local_port_range')
 _held_ports = []
