@@ -73,3 +73,94 @@ def test_one_pass_serves_the_ready_subscriptions_in_the_hot_lists_order():
             node.destroy_node()
         finally:
             rclpy.shutdown(context=ctx)
+
+
+class _Host:
+    """One node on its own context with a HotPathExecutor that has no hot entities: everything is the slow pass's
+    (slow_period_s 0: one slow pass per spin_once). stock: how many times the stock executor's pass ran."""
+
+    def __init__(self, domain):
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node('hot_path_slow', context=self.ctx)
+        self.executor = HotPathExecutor(lambda: ([], []), slow_period_s=0.0, context=self.ctx)
+        self.executor.add_node(self.node)
+        self.stock = 0
+        stock_pass = self.executor._spin_stock_ready
+
+        def counted():
+            self.stock += 1
+            stock_pass()
+        self.executor._spin_stock_ready = counted
+
+    def spin_until(self, done, what):
+        deadline = time.monotonic() + TIMEOUT_S
+        while not done():
+            assert time.monotonic() < deadline, what
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def host():
+    with isolated_domain() as (domain, _):
+        made = _Host(domain)
+        try:
+            yield made
+        finally:
+            made.close()
+
+
+def test_the_slow_pass_serves_ready_timers_without_the_stock_pass(host):
+    """Between the stock executor's passes (one per STOCK_PERIOD_S) a ready timer of any node is served by the
+    probe: its callback runs, the stock pass (a wait set over every entity) does not."""
+    fired = []
+    host.node.create_timer(0.001, lambda: fired.append(1))
+    host.executor.spin_once(timeout_sec=0.0)   # the first slow pass is the stock one
+    stock_before = host.stock
+    host.spin_until(lambda: len(fired) >= 5, 'the timer never fired five times')
+    assert host.stock == stock_before
+
+
+def test_a_service_request_hands_the_slow_pass_to_the_stock_executor(host, monkeypatch):
+    """Anything but a timer ready (here a service request) is served at once, by the stock pass, not at its
+    next period."""
+    from std_srvs.srv import Trigger
+
+    from quad_common.ros import hot_path
+
+    monkeypatch.setattr(hot_path, 'STOCK_PERIOD_S', 3600.0)
+
+    host.node.create_service(Trigger, 'probe_me', lambda request, response: setattr(response, 'success', True)
+                             or response)
+    client = host.node.create_client(Trigger, 'probe_me')
+    host.executor.spin_once(timeout_sec=0.0)
+    host.spin_until(client.service_is_ready, 'the service never matched')
+    future = client.call_async(Trigger.Request())
+    host.spin_until(future.done, 'the request was never served')
+    assert future.result().success
+
+
+def test_a_guard_condition_seen_by_the_probe_is_served(host):
+    """rcl takes a guard condition's trigger in the wait that sees it: the probe triggers it again, so the stock
+    pass it hands over to still serves it."""
+    called = []
+    guard = host.node.create_guard_condition(lambda: called.append(1))
+    host.executor.spin_once(timeout_sec=0.0)
+    stock_before = host.stock
+    guard.trigger()
+    host.spin_until(lambda: called, 'the guard condition\'s callback never ran')
+    assert host.stock > stock_before
+
+
+def test_the_stock_pass_still_runs_every_stock_period(host, monkeypatch):
+    """The QoS event handlers are not in the probe: the stock pass serves them every STOCK_PERIOD_S."""
+    from quad_common.ros import hot_path
+
+    monkeypatch.setattr(hot_path, 'STOCK_PERIOD_S', 0.0)
+    host.node.create_timer(3600.0, lambda: None)
+    host.spin_until(lambda: host.stock >= 3, 'the stock pass stopped running')

@@ -8,6 +8,7 @@ parameters, slow timers, other subscriptions) is served by the stock executor ev
 or every SLOW_SHARE_BOUND times as long as its last pass took when that is longer (a host of many nodes).
 """
 
+import inspect
 import time
 from collections.abc import Callable
 
@@ -53,6 +54,9 @@ SLOW_PERIOD_S = 0.1
 # vehicles: ~1,000 entities, 20-40 ms), so at a fixed period it would take a growing share of the loop (the fleet's
 # stepping time grew as N^2); bounded, it stays under ~1 / SLOW_SHARE_BOUND of it.
 SLOW_SHARE_BOUND = 10.0
+# The stock executor's own pass (every entity, the QoS event handlers too) at least this often (wall time); between
+# its passes a probe of the rest serves the ready timers (HotPathExecutor._spin_ready_others).
+STOCK_PERIOD_S = 1.0
 HOT_PASSES_BEFORE_SLOW = 3   # zero-wait hot passes before a slow pass (each serves what the one before made ready)
 
 
@@ -91,6 +95,74 @@ class _HotSet:
                                        context.handle)
 
 
+class _SlowProbe:
+    """One wait set over the subscriptions, timers, clients, services and guard conditions of the executor's nodes,
+    made again only when they change (the stock executor builds one per pass over every entity, ~9 ms of Python at a
+    host of 33 nodes, most of it their ~600 QoS event handlers). `serve` waits on it without blocking and serves the
+    ready timers when nothing else is ready (plain callbacks, served as the hot path serves its own); it returns
+    False, serving nothing, when anything else is (the stock pass serves it, in its order). The event handlers are
+    not in it: the stock pass serves them every STOCK_PERIOD_S."""
+
+    def __init__(self, nodes, context):
+        self.timers = [t for n in nodes for t in n.timers]
+        self.guards = [g for n in nodes for g in n.guards]   # not the executor's wake-ups: the hot waits take those
+        self.plain_timers = all(not inspect.iscoroutinefunction(t.callback) for t in self.timers)
+        self.subscription_handles = [s.handle for n in nodes for s in n.subscriptions]
+        self.timer_handles = [t.handle for t in self.timers]
+        self.client_handles = [c.handle for n in nodes for c in n.clients]
+        self.service_handles = [s.handle for n in nodes for s in n.services]
+        self.guard_handles = [g.handle for g in self.guards]
+        self.handles = (*self.subscription_handles, *self.timer_handles, *self.client_handles,
+                        *self.service_handles, *self.guard_handles, context.handle)
+        self.wait_set = _rclpy.WaitSet(len(self.subscription_handles), len(self.guard_handles), len(self.timers),
+                                       len(self.client_handles), len(self.service_handles), 0, context.handle)
+
+    def serve(self) -> bool:
+        if not self.plain_timers or any(timer._executor_event for timer in self.timers):
+            return False   # a coroutine, or a stock handler still pending: the stock executor's own business
+        in_use = []   # held for the pass, as the stock executor holds them (see HotPathExecutor._spin_hot)
+        try:
+            try:
+                for handle in self.handles:
+                    handle.__enter__()
+                    in_use.append(handle)
+            except InvalidHandle:   # an entity being destroyed (its node is going away): the stock pass copes
+                return False
+            return self._serve()
+        finally:
+            for handle in reversed(in_use):
+                handle.__exit__(None, None, None)
+
+    def _serve(self) -> bool:
+        wait_set = self.wait_set
+        wait_set.clear_entities()
+        for handle in self.subscription_handles:
+            wait_set.add_subscription(handle)
+        for handle in self.client_handles:
+            wait_set.add_client(handle)
+        for handle in self.service_handles:
+            wait_set.add_service(handle)
+        for handle in self.timer_handles:
+            wait_set.add_timer(handle)
+        for handle in self.guard_handles:
+            wait_set.add_guard_condition(handle)
+        wait_set.wait(0)
+        guards = set(wait_set.get_ready_entities('guard_condition'))
+        if guards:   # taken by this wait (rcl): triggered again for the stock pass to see
+            for guard, handle in zip(self.guards, self.guard_handles):
+                if handle.pointer in guards:
+                    guard.trigger()
+            return False
+        if any(wait_set.get_ready_entities(kind) for kind in ('subscription', 'client', 'service')):
+            return False
+        ready = set(wait_set.get_ready_entities('timer'))
+        for timer, handle in zip(self.timers, self.timer_handles):
+            if handle.pointer in ready and handle.is_timer_ready():   # rcl: a cancelled timer is reported ready
+                handle.call_timer()
+                timer.callback()
+        return True
+
+
 class HotPathExecutor(SingleThreadedExecutor):
     def __init__(self, hot: Callable[[], tuple], *, slow_period_s: float = SLOW_PERIOD_S, context=None,
                  take: Callable | None = None, takes_per_pass: int = 1):
@@ -109,6 +181,8 @@ class HotPathExecutor(SingleThreadedExecutor):
         self._takes_per_pass = max(int(takes_per_pass), 1)
         self._next_slow_s = 0.0
         self._hot_set_key = self._hot_set_made = None
+        self._probe_key = self._probe = None
+        self._next_stock_s = 0.0
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
         """Wait up to timeout_sec (None: until the next slow pass) for a hot entity and run every ready one."""
@@ -208,6 +282,24 @@ class HotPathExecutor(SingleThreadedExecutor):
         return self._hot_set_made
 
     def _spin_ready_others(self):
+        """Every callback ready now among all entities, hot ones included: the stock executor's pass every
+        STOCK_PERIOD_S, else a probe first (_SlowProbe): ready timers only, the usual case (the nodes'
+        diagnostics), are served there; anything else ready (a service request, a non-hot message, a guard
+        condition) hands the pass to the stock executor's."""
+        now_s = time.monotonic()
+        if now_s >= self._next_stock_s or not self._probe_set(self.get_nodes()).serve():
+            self._next_stock_s = now_s + STOCK_PERIOD_S
+            self._spin_stock_ready()
+
+    def _probe_set(self, nodes) -> '_SlowProbe':
+        key = tuple((node, tuple(node.subscriptions), tuple(node.timers), tuple(node.clients),
+                     tuple(node.services), tuple(node.guards), tuple(node.waitables)) for node in nodes)
+        if key != self._probe_key:
+            self._probe_key = key
+            self._probe = _SlowProbe(nodes, self._context)
+        return self._probe
+
+    def _spin_stock_ready(self):
         """Every callback the stock executor finds ready now (one wait-set pass), hot ones included."""
         while True:
             try:
