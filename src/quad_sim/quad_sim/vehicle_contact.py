@@ -11,6 +11,7 @@ as it does after an obstacle collision. A pair in contact is reported once, when
 
 import numpy as np
 
+from quad_common.compiled import njit
 from quad_sim.simulator import Event
 
 VEHICLE_COLLISION = 'vehicle_collision'
@@ -18,11 +19,27 @@ VEHICLE_COLLISION = 'vehicle_collision'
 
 def closest_approach(p0, p1, i, j) -> np.ndarray:
     """Pairs (i[k], j[k]): the smallest |p_i - p_j| while both move linearly from p0 to p1 (module docstring)."""
-    d0, d1 = p0[j] - p0[i], p1[j] - p1[i]
-    dd = d1 - d0
-    den = np.einsum('ij,ij->i', dd, dd)
-    s = np.clip(-np.einsum('ij,ij->i', d0, dd) / np.where(den > 0, den, 1.0), 0.0, 1.0)
-    return np.linalg.norm(d0 + s[:, None] * dd, axis=1)
+    out = np.empty(len(i))
+    _closest_approaches(np.ascontiguousarray(p0, dtype=float), np.ascontiguousarray(p1, dtype=float),
+                        np.asarray(i, dtype=np.int64), np.asarray(j, dtype=np.int64), out)
+    return out
+
+
+@njit
+def _closest_approaches(p0, p1, i, j, out):
+    """closest_approach into out, a loop over the pairs (a fleet's simulator checks N (N - 1) / 2 of them each
+    step: ~15 numpy calls of ~2-5 us each, against ~1 us here for 120 pairs)."""
+    for k in range(len(i)):
+        a, b = i[k], j[k]
+        d0x, d0y, d0z = p0[b, 0] - p0[a, 0], p0[b, 1] - p0[a, 1], p0[b, 2] - p0[a, 2]
+        ddx = p1[b, 0] - p1[a, 0] - d0x
+        ddy = p1[b, 1] - p1[a, 1] - d0y
+        ddz = p1[b, 2] - p1[a, 2] - d0z
+        den = ddx * ddx + ddy * ddy + ddz * ddz
+        s = -(d0x * ddx + d0y * ddy + d0z * ddz) / (den if den > 0.0 else 1.0)
+        s = min(max(s, 0.0), 1.0)
+        x, y, z = d0x + s * ddx, d0y + s * ddy, d0z + s * ddz
+        out[k] = np.sqrt(x * x + y * y + z * z)
 
 
 def contact_fraction(p0, p1, i, j, touch_m) -> float:
