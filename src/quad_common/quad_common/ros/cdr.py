@@ -48,6 +48,12 @@ def _constant(parts) -> bytes:
     return out + b'\x00' * (-(8 + len(out)) % 8)
 
 
+def _floats(values):
+    """A vector's values as Python floats: an array's tolist() (map(float, array) makes a numpy scalar of each
+    first, ~2 us of the ~4 us of a setpoint's packing); the same doubles."""
+    return values.tolist() if isinstance(values, np.ndarray) else map(float, values)
+
+
 def _le_stamp_ns(raw: bytes) -> int | None:
     """header.stamp of a serialized message in nanoseconds; None if it is not little-endian plain CDR."""
     stamp = le_stamp(raw)
@@ -91,7 +97,7 @@ class SetpointPacker:
         if rates is None:
             rates, rates_cov0 = (0.0, 0.0, 0.0), UNSET_COVARIANCE
         return self._struct.pack(CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._frames,
-                                 *map(float, setpoint.quaternion), *map(float, rates), rates_cov0,
+                                 *_floats(setpoint.quaternion), *_floats(rates), rates_cov0,
                                  0.0, 0.0, float(setpoint.specific_force_mps2))
 
 
@@ -108,7 +114,7 @@ class ImuPacker:
         q, cov0 = (orientation_xyzw, 0.0) if orientation_xyzw is not None else ((0.0, 0.0, 0.0, 1.0),
                                                                                 UNSET_COVARIANCE)
         return self._struct.pack(CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._frames,
-                                 *map(float, q), cov0, *map(float, rates), *map(float, specific_force))
+                                 *_floats(q), cov0, *_floats(rates), *_floats(specific_force))
 
 
 class ReferencePacker:
@@ -122,9 +128,9 @@ class ReferencePacker:
 
     def pack(self, ref: Reference, time_ns: int) -> bytes:
         return self._struct.pack(CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._head,
-                                 *map(float, ref.position), *rotations.from_yaw(ref.yaw).tolist(),
-                                 1, *map(float, ref.velocity), 0.0, 0.0, float(ref.yaw_rate),
-                                 1, *map(float, ref.acceleration), 0.0, 0.0, 0.0, 0, 0)
+                                 *_floats(ref.position), *rotations.from_yaw(ref.yaw).tolist(),
+                                 1, *_floats(ref.velocity), 0.0, 0.0, float(ref.yaw_rate),
+                                 1, *_floats(ref.acceleration), 0.0, 0.0, 0.0, 0, 0)
 
 
 def imu_to_setpoint(raw: bytes) -> AttitudeSetpoint:
