@@ -90,7 +90,7 @@ class _Host:
 
         def counted():
             self.stock += 1
-            stock_pass()
+            return stock_pass()
         self.executor._spin_stock_ready = counted
 
     def spin_until(self, done, what):
@@ -164,3 +164,37 @@ def test_the_stock_pass_still_runs_every_stock_period(host, monkeypatch):
     monkeypatch.setattr(hot_path, 'STOCK_PERIOD_S', 0.0)
     host.node.create_timer(3600.0, lambda: None)
     host.spin_until(lambda: host.stock >= 3, 'the stock pass stopped running')
+
+
+def test_spin_once_does_not_wait_after_its_slow_turn_ran_a_callback():
+    """A spin_once whose slow turn (hot passes, then the slow pass) already ran a callback returns without waiting:
+    its caller looks first (a lockstep simulator's setpoints may all be in). Waiting here held the lockstep until the
+    next message or the next slow pass (~0.1 s)."""
+    with isolated_domain() as (domain, _):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        try:
+            node = rclpy.create_node('hot_path_no_wait', context=ctx)
+            qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+            got = []
+            sub = node.create_subscription(UInt32, 'served', lambda msg: got.append(msg.data), qos)
+            pub = node.create_publisher(UInt32, 'served', qos)
+            executor = HotPathExecutor(lambda: ([sub], []), slow_period_s=3600.0, context=ctx)
+            executor.add_node(node)
+            executor.spin_once(timeout_sec=0.0)
+            deadline = time.monotonic() + TIMEOUT_S
+            while pub.get_subscription_count() < 1:
+                assert time.monotonic() < deadline, 'the subscription never matched its own node\'s publisher'
+                executor.spin_once(timeout_sec=0.01)
+            waits = []
+            spin_hot = executor._spin_hot
+            executor._spin_hot = lambda wait_s: waits.append(wait_s) or spin_hot(wait_s)
+            pub.publish(UInt32(data=7))
+            executor._next_slow_s = 0.0   # this spin_once is the slow pass's turn
+            executor.spin_once(timeout_sec=TIMEOUT_S)
+            assert got == [7]
+            assert waits and max(waits) == 0.0
+            executor.shutdown()
+            node.destroy_node()
+        finally:
+            rclpy.shutdown(context=ctx)

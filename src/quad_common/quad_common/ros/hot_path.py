@@ -96,18 +96,18 @@ class _HotSet:
 
 
 class _SlowProbe:
-    """One wait set over the subscriptions, timers, clients, services and guard conditions of the executor's nodes,
-    made again only when they change (the stock executor builds one per pass over every entity, ~9 ms of Python at a
-    host of 33 nodes, most of it their ~600 QoS event handlers). `serve` waits on it without blocking and serves the
-    ready timers when nothing else is ready (plain callbacks, served as the hot path serves its own); it returns
-    False, serving nothing, when anything else is (the stock pass serves it, in its order). The event handlers are
-    not in it: the stock pass serves them every STOCK_PERIOD_S."""
+    """One wait set over the subscriptions, timers, clients, services and guard conditions of the executor's nodes
+    that are not hot (the hot passes serve those), made again only when they change (the stock executor builds one
+    per pass over every entity, ~9 ms of Python at a host of 33 nodes, most of it their ~600 QoS event handlers).
+    `serve` waits on it without blocking and serves the ready timers when nothing else is ready (plain callbacks,
+    served as the hot path serves its own); it returns None, serving nothing, when anything else is (the stock pass
+    serves it, in its order). The event handlers are not in it: the stock pass serves them every STOCK_PERIOD_S."""
 
-    def __init__(self, nodes, context):
-        self.timers = [t for n in nodes for t in n.timers]
-        self.guards = [g for n in nodes for g in n.guards]   # not the executor's wake-ups: the hot waits take those
+    def __init__(self, nodes, hot: set, context):
+        self.timers = [t for n in nodes for t in n.timers if t not in hot]
+        self.guards = [g for n in nodes for g in n.guards if g not in hot]   # nor the executor's wake-ups
         self.plain_timers = all(not inspect.iscoroutinefunction(t.callback) for t in self.timers)
-        self.subscription_handles = [s.handle for n in nodes for s in n.subscriptions]
+        self.subscription_handles = [s.handle for n in nodes for s in n.subscriptions if s not in hot]
         self.timer_handles = [t.handle for t in self.timers]
         self.client_handles = [c.handle for n in nodes for c in n.clients]
         self.service_handles = [s.handle for n in nodes for s in n.services]
@@ -117,9 +117,10 @@ class _SlowProbe:
         self.wait_set = _rclpy.WaitSet(len(self.subscription_handles), len(self.guard_handles), len(self.timers),
                                        len(self.client_handles), len(self.service_handles), 0, context.handle)
 
-    def serve(self) -> bool:
+    def serve(self) -> int | None:
+        """The number of timers served, or None (nothing served) where the stock pass must serve."""
         if not self.plain_timers or any(timer._executor_event for timer in self.timers):
-            return False   # a coroutine, or a stock handler still pending: the stock executor's own business
+            return None   # a coroutine, or a stock handler still pending: the stock executor's own business
         in_use = []   # held for the pass, as the stock executor holds them (see HotPathExecutor._spin_hot)
         try:
             try:
@@ -127,13 +128,13 @@ class _SlowProbe:
                     handle.__enter__()
                     in_use.append(handle)
             except InvalidHandle:   # an entity being destroyed (its node is going away): the stock pass copes
-                return False
+                return None
             return self._serve()
         finally:
             for handle in reversed(in_use):
                 handle.__exit__(None, None, None)
 
-    def _serve(self) -> bool:
+    def _serve(self) -> int | None:
         wait_set = self.wait_set
         wait_set.clear_entities()
         for handle in self.subscription_handles:
@@ -152,15 +153,16 @@ class _SlowProbe:
             for guard, handle in zip(self.guards, self.guard_handles):
                 if handle.pointer in guards:
                     guard.trigger()
-            return False
+            return None
         if any(wait_set.get_ready_entities(kind) for kind in ('subscription', 'client', 'service')):
-            return False
-        ready = set(wait_set.get_ready_entities('timer'))
+            return None
+        ready, served = set(wait_set.get_ready_entities('timer')), 0
         for timer, handle in zip(self.timers, self.timer_handles):
             if handle.pointer in ready and handle.is_timer_ready():   # rcl: a cancelled timer is reported ready
                 handle.call_timer()
                 timer.callback()
-        return True
+                served += 1
+        return served
 
 
 class HotPathExecutor(SingleThreadedExecutor):
@@ -185,20 +187,23 @@ class HotPathExecutor(SingleThreadedExecutor):
         self._next_stock_s = 0.0
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
-        """Wait up to timeout_sec (None: until the next slow pass) for a hot entity and run every ready one."""
+        """Wait up to timeout_sec (None: until the next slow pass) for a hot entity and run every ready one; no wait
+        when the slow pass's turn ran any callback (the caller looks first: a lockstep's setpoints may be in)."""
         if self._is_shutdown or not self._context.ok():
             return
         now_s = time.monotonic()
+        served = False
         if now_s >= self._next_slow_s:
             # The hot entities ready now first, and what their callbacks made ready (a controller's setpoint for a
             # hosted simulator): the stock executor would serve each with a pass over every entity of every node.
             for _ in range(HOT_PASSES_BEFORE_SLOW):
                 if not self._spin_hot(0.0):
                     break
-            self._spin_ready_others()
+                served = True
+            served = self._spin_ready_others() or served
             slow_s = time.monotonic() - now_s
             self._next_slow_s = now_s + max(self._slow_period_s, SLOW_SHARE_BOUND * slow_s)
-        wait_s = self._next_slow_s - now_s
+        wait_s = 0.0 if served else self._next_slow_s - now_s
         if timeout_sec is not None and timeout_sec >= 0:
             wait_s = min(wait_s, timeout_sec)
         self._spin_hot(wait_s)
@@ -281,31 +286,37 @@ class HotPathExecutor(SingleThreadedExecutor):
             self._hot_set_made = _HotSet(subscriptions, timers, guards, wakers, self._context)
         return self._hot_set_made
 
-    def _spin_ready_others(self):
+    def _spin_ready_others(self) -> bool:
         """Every callback ready now among all entities, hot ones included: the stock executor's pass every
         STOCK_PERIOD_S, else a probe first (_SlowProbe): ready timers only, the usual case (the nodes'
         diagnostics), are served there; anything else ready (a service request, a non-hot message, a guard
-        condition) hands the pass to the stock executor's."""
+        condition) hands the pass to the stock executor's. Whether any callback ran."""
         now_s = time.monotonic()
-        if now_s >= self._next_stock_s or not self._probe_set(self.get_nodes()).serve():
-            self._next_stock_s = now_s + STOCK_PERIOD_S
-            self._spin_stock_ready()
+        if now_s < self._next_stock_s:
+            served = self._probe_set(self.get_nodes()).serve()
+            if served is not None:
+                return served > 0
+        self._next_stock_s = now_s + STOCK_PERIOD_S
+        return self._spin_stock_ready() > 0
 
     def _probe_set(self, nodes) -> '_SlowProbe':
-        key = tuple((node, tuple(node.subscriptions), tuple(node.timers), tuple(node.clients),
-                     tuple(node.services), tuple(node.guards), tuple(node.waitables)) for node in nodes)
+        hot = self._hot_set_key or ((), (), ())
+        key = (tuple((node, tuple(node.subscriptions), tuple(node.timers), tuple(node.clients),
+                      tuple(node.services), tuple(node.guards), tuple(node.waitables)) for node in nodes), hot[:3])
         if key != self._probe_key:
             self._probe_key = key
-            self._probe = _SlowProbe(nodes, self._context)
+            self._probe = _SlowProbe(nodes, {*hot[0], *hot[1], *hot[2]}, self._context)
         return self._probe
 
-    def _spin_stock_ready(self):
-        """Every callback the stock executor finds ready now (one wait-set pass), hot ones included."""
+    def _spin_stock_ready(self) -> int:
+        """Every callback the stock executor finds ready now (one wait-set pass), hot ones included; how many ran."""
+        ran = 0
         while True:
             try:
                 handler, _, _ = self.wait_for_ready_callbacks(0)
             except (TimeoutException, ShutdownException, ConditionReachedException):
-                return
+                return ran
             handler()
+            ran += 1
             if handler.exception() is not None:
                 raise handler.exception()
