@@ -34,6 +34,7 @@ from quad_bringup.recording.recorder import DEFAULT_TOPICS, BagRecorder, TopicSp
 from quad_common import contract, diagnostics, node_start
 from quad_common.lifeline import bind_to_parent
 from quad_common.params import Param
+from quad_common.realtime import freeze_startup_heap
 from quad_common.ros import cdr, lockstep
 from quad_common.ros.hot_path import HotPathExecutor
 from quad_common.ros.node_main import STOP_SIGNALS, close_nodes, ignore_stop_signals, lean_log_caller, rcl_reason
@@ -242,6 +243,7 @@ def main(args=None):
         sys.exit(2)
     executor = HotPathExecutor(node.hot_entities, takes_per_pass=TAKES_PER_PASS)
     executor.add_node(node)
+    freeze_startup_heap()   # no full collection of the start-up heap while recording (as quad_common.ros.node_main)
     try:
         while not stop:
             executor.spin_once(timeout_sec=0.1)
