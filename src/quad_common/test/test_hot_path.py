@@ -1,5 +1,7 @@
-"""HotPathExecutor's pass over a ready subscription: one message, or its backlog up to takes_per_pass."""
+"""HotPathExecutor: its pass over a ready subscription (one message, or its backlog up to takes_per_pass), its
+slow pass (a probe that serves ready timers and hands anything else to the stock executor), and spin_once's wait."""
 
+import contextlib
 import time
 
 import pytest
@@ -13,66 +15,68 @@ from quad_common.ros.testing import TIMEOUT_S, isolated_domain
 BACKLOG = 20
 
 
-@pytest.mark.parametrize(('takes_per_pass', 'taken'), [(1, 1), (5, 5), (100, BACKLOG)])
-def test_one_pass_takes_a_ready_subscriptions_backlog_up_to_takes_per_pass(takes_per_pass, taken):
-    """BACKLOG messages queued (a publisher of the same node delivers within the process as it publishes); one
-    wake-up of the hot path serves min(takes_per_pass, BACKLOG) of them, in order."""
+@contextlib.contextmanager
+def _hot_node(name, hot, **executor_options):
+    """(node, executor) on a context of their own in an isolated domain: hot(node) -> the hot subscriptions, served
+    by a HotPathExecutor whose slow pass has already run once (with nothing queued)."""
     with isolated_domain() as (domain, _):
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=domain)
         try:
-            node = rclpy.create_node('hot_path_backlog', context=ctx)
-            qos = QoSProfile(depth=BACKLOG, reliability=ReliabilityPolicy.RELIABLE)
-            got = []
-            sub = node.create_subscription(UInt32, 'backlog', lambda msg: got.append(msg.data), qos)
-            pub = node.create_publisher(UInt32, 'backlog', qos)
-            executor = HotPathExecutor(lambda: ([sub], []), slow_period_s=3600.0, context=ctx,
-                                       takes_per_pass=takes_per_pass)
+            node = rclpy.create_node(name, context=ctx)
+            subscriptions = []
+            executor = HotPathExecutor(lambda: (subscriptions, []), slow_period_s=3600.0, context=ctx,
+                                       **executor_options)
             executor.add_node(node)
-            executor.spin_once(timeout_sec=0.0)   # its first slow pass, with nothing queued yet
-            deadline = time.monotonic() + TIMEOUT_S
-            while pub.get_subscription_count() < 1:
-                assert time.monotonic() < deadline, 'the subscription never matched its own node\'s publisher'
-                executor.spin_once(timeout_sec=0.01)
-            for k in range(BACKLOG):
-                pub.publish(UInt32(data=k))
-            executor.spin_once(timeout_sec=TIMEOUT_S)
-            assert got == list(range(taken))
+            subscriptions += hot(node)
+            executor.spin_once(timeout_sec=0.0)
+            yield node, executor
             executor.shutdown()
             node.destroy_node()
         finally:
             rclpy.shutdown(context=ctx)
+
+
+def _matched(executor, publishers):
+    deadline = time.monotonic() + TIMEOUT_S
+    while any(pub.get_subscription_count() < 1 for pub in publishers):
+        assert time.monotonic() < deadline, 'a subscription never matched its own node\'s publisher'
+        executor.spin_once(timeout_sec=0.01)
+
+
+@pytest.mark.parametrize(('takes_per_pass', 'taken'), [(1, 1), (5, 5), (100, BACKLOG)])
+def test_one_pass_takes_a_ready_subscriptions_backlog_up_to_takes_per_pass(takes_per_pass, taken):
+    """BACKLOG messages queued (a publisher of the same node delivers within the process as it publishes); one
+    wake-up of the hot path serves min(takes_per_pass, BACKLOG) of them, in order."""
+    qos = QoSProfile(depth=BACKLOG, reliability=ReliabilityPolicy.RELIABLE)
+    got = []
+    with _hot_node('hot_path_backlog', lambda node: [node.create_subscription(
+            UInt32, 'backlog', lambda msg: got.append(msg.data), qos)], takes_per_pass=takes_per_pass) as (node, ex):
+        pub = node.create_publisher(UInt32, 'backlog', qos)
+        _matched(ex, [pub])
+        for k in range(BACKLOG):
+            pub.publish(UInt32(data=k))
+        ex.spin_once(timeout_sec=TIMEOUT_S)
+        assert got == list(range(taken))
 
 
 def test_one_pass_serves_the_ready_subscriptions_in_the_hot_lists_order():
     """Subscriptions ready at one wake-up are served in the order hot() lists them (a host lists /clock first:
     its ticks then see the new time), whatever order they were created or became ready in."""
-    with isolated_domain() as (domain, _):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=domain)
-        try:
-            node = rclpy.create_node('hot_path_order', context=ctx)
-            qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-            got = []
-            subs = {name: node.create_subscription(UInt32, name, lambda msg, name=name: got.append(name), qos)
-                    for name in ('a', 'b', 'c', 'd')}
-            pubs = {name: node.create_publisher(UInt32, name, qos) for name in subs}
-            hot = [subs[name] for name in ('c', 'a', 'd', 'b')]
-            executor = HotPathExecutor(lambda: (hot, []), slow_period_s=3600.0, context=ctx)
-            executor.add_node(node)
-            executor.spin_once(timeout_sec=0.0)   # its first slow pass, with nothing queued yet
-            deadline = time.monotonic() + TIMEOUT_S
-            while any(pub.get_subscription_count() < 1 for pub in pubs.values()):
-                assert time.monotonic() < deadline, 'a subscription never matched its own node\'s publisher'
-                executor.spin_once(timeout_sec=0.01)
-            for name in ('a', 'b', 'd'):   # c is not ready: not served
-                pubs[name].publish(UInt32(data=1))
-            executor.spin_once(timeout_sec=TIMEOUT_S)
-            assert got == ['a', 'd', 'b']
-            executor.shutdown()
-            node.destroy_node()
-        finally:
-            rclpy.shutdown(context=ctx)
+    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+    got = []
+
+    def hot(node):
+        subs = {name: node.create_subscription(UInt32, name, lambda msg, name=name: got.append(name), qos)
+                for name in ('a', 'b', 'c', 'd')}
+        return [subs[name] for name in ('c', 'a', 'd', 'b')]
+    with _hot_node('hot_path_order', hot) as (node, ex):
+        pubs = {name: node.create_publisher(UInt32, name, qos) for name in ('a', 'b', 'c', 'd')}
+        _matched(ex, pubs.values())
+        for name in ('a', 'b', 'd'):   # c is not ready: not served
+            pubs[name].publish(UInt32(data=1))
+        ex.spin_once(timeout_sec=TIMEOUT_S)
+        assert got == ['a', 'd', 'b']
 
 
 class _Host:
@@ -170,31 +174,17 @@ def test_spin_once_does_not_wait_after_its_slow_turn_ran_a_callback():
     """A spin_once whose slow turn (hot passes, then the slow pass) already ran a callback returns without waiting:
     its caller looks first (a lockstep simulator's setpoints may all be in). Waiting here held the lockstep until the
     next message or the next slow pass (~0.1 s)."""
-    with isolated_domain() as (domain, _):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=domain)
-        try:
-            node = rclpy.create_node('hot_path_no_wait', context=ctx)
-            qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-            got = []
-            sub = node.create_subscription(UInt32, 'served', lambda msg: got.append(msg.data), qos)
-            pub = node.create_publisher(UInt32, 'served', qos)
-            executor = HotPathExecutor(lambda: ([sub], []), slow_period_s=3600.0, context=ctx)
-            executor.add_node(node)
-            executor.spin_once(timeout_sec=0.0)
-            deadline = time.monotonic() + TIMEOUT_S
-            while pub.get_subscription_count() < 1:
-                assert time.monotonic() < deadline, 'the subscription never matched its own node\'s publisher'
-                executor.spin_once(timeout_sec=0.01)
-            waits = []
-            spin_hot = executor._spin_hot
-            executor._spin_hot = lambda wait_s: waits.append(wait_s) or spin_hot(wait_s)
-            pub.publish(UInt32(data=7))
-            executor._next_slow_s = 0.0   # this spin_once is the slow pass's turn
-            executor.spin_once(timeout_sec=TIMEOUT_S)
-            assert got == [7]
-            assert waits and max(waits) == 0.0
-            executor.shutdown()
-            node.destroy_node()
-        finally:
-            rclpy.shutdown(context=ctx)
+    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+    got = []
+    with _hot_node('hot_path_no_wait', lambda node: [node.create_subscription(
+            UInt32, 'served', lambda msg: got.append(msg.data), qos)]) as (node, ex):
+        pub = node.create_publisher(UInt32, 'served', qos)
+        _matched(ex, [pub])
+        waits = []
+        spin_hot = ex._spin_hot
+        ex._spin_hot = lambda wait_s: waits.append(wait_s) or spin_hot(wait_s)
+        pub.publish(UInt32(data=7))
+        ex._next_slow_s = 0.0   # this spin_once is the slow pass's turn
+        ex.spin_once(timeout_sec=TIMEOUT_S)
+        assert got == [7]
+        assert waits and max(waits) == 0.0
