@@ -4,8 +4,10 @@ Why: rclpy's executor rebuilds its wait set from every entity of every node (par
 handlers, all timers and subscriptions) and runs one callback per spin_once: ~0.2-0.4 ms of Python per callback on
 the 2-core machine, several callbacks per lockstep tick, most of the graph's wall time. Here the few entities of
 the tick (`hot`) wake the loop and all of them that are ready run in one pass; everything else (services,
-parameters, slow timers, other subscriptions) is served by the stock executor every `slow_period_s` of wall time,
-or every SLOW_SHARE_BOUND times as long as its last pass took when that is longer (a host of many nodes).
+parameters, slow timers, other subscriptions) is served in a slow pass every `slow_period_s` of wall time, or every
+SLOW_SHARE_BOUND times as long as its last pass took when that is longer (a host of many nodes): a probe of those
+entities (_SlowProbe) that serves the ready timers itself and hands anything else to the stock executor, whose own
+pass also runs every STOCK_PERIOD_S.
 """
 
 import inspect
@@ -287,9 +289,9 @@ class HotPathExecutor(SingleThreadedExecutor):
         return self._hot_set_made
 
     def _spin_ready_others(self) -> bool:
-        """Every callback ready now among all entities, hot ones included: the stock executor's pass every
-        STOCK_PERIOD_S, else a probe first (_SlowProbe): ready timers only, the usual case (the nodes'
-        diagnostics), are served there; anything else ready (a service request, a non-hot message, a guard
+        """Every callback ready now that the hot passes do not serve: the stock executor's pass (every entity, hot
+        ones included) every STOCK_PERIOD_S, else a probe first (_SlowProbe): ready timers only, the usual case (the
+        nodes' diagnostics), are served there; anything else ready (a service request, a non-hot message, a guard
         condition) hands the pass to the stock executor's. Whether any callback ran."""
         now_s = time.monotonic()
         if now_s < self._next_stock_s:
