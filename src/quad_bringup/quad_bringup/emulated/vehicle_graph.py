@@ -322,10 +322,12 @@ def start_vehicle_graph(procs, flavour, port, controller_files=(), position=(0.0
 
 
 def enter_offboard(observer, flavour):
-    """Once the bridge sees the armed vehicle and the controller holds: `offboard`, until the bridge reports the
-    offboard mode."""
+    """Once the bridge sees the armed vehicle, the controller holds and its setpoints reach the bridge: `offboard`,
+    until the bridge reports the offboard mode. (The observer seeing the controller's reference does not mean the
+    bridge has matched its setpoint publisher yet: the bridge refuses `offboard` without a live stream.)"""
     observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
     observer.wait_for(lambda: observer.references, 'the controller to hold position')
+    observer.wait_for(lambda: int(observer.setpoints()[1].get('received', 0)) > 0, 'the bridge to receive setpoints')
     result = observer.call('offboard', SetBool.Request(data=True))
     assert result.success, result.message
     observer.wait_for(lambda: observer.link()[1].get('mode') == OFFBOARD_MODE[flavour],
