@@ -94,6 +94,8 @@ class VehicleContacts(ContactRule):
         super().__init__(names, radii_m)
         self.sims = list(simulators)
         self._p = self.positions()
+        if self.pair_i.size:   # its kernel loaded (compiled the first time) now, not in the first step (~0.1 s)
+            closest_approach(self._p, self._p, self.pair_i, self.pair_j)
 
     def positions(self) -> np.ndarray:
         return np.array([s.position_m for s in self.sims])
