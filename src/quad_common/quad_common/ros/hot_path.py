@@ -76,6 +76,25 @@ def _take_message(sub):
     return None if msg_info is None else msg_info[0]
 
 
+def _hold(handles) -> list | None:
+    """Every handle held in use for a pass, until _release (why: HotPathExecutor._spin_hot); None, holding none, when
+    one is destroyed already."""
+    held = []
+    try:
+        for handle in handles:
+            handle.__enter__()
+            held.append(handle)
+    except InvalidHandle:
+        _release(held)
+        return None
+    return held
+
+
+def _release(held: list):
+    for handle in reversed(held):
+        handle.__exit__(None, None, None)
+
+
 class _HotSet:
     """The hot entities of a pass, looked up once (an entity's handle is a Python property; its pointer a call)
     while they stay the same: (pointer, subscription, handle, takes MessageInfo) per subscription, (timer, handle)
@@ -123,18 +142,13 @@ class _SlowProbe:
         """The number of timers served, or None (nothing served) where the stock pass must serve."""
         if not self.plain_timers or any(timer._executor_event for timer in self.timers):
             return None   # a coroutine, or a stock handler still pending: the stock executor's own business
-        in_use = []   # held for the pass, as the stock executor holds them (see HotPathExecutor._spin_hot)
+        in_use = _hold(self.handles)
+        if in_use is None:   # an entity being destroyed (its node is going away): the stock pass copes
+            return None
         try:
-            try:
-                for handle in self.handles:
-                    handle.__enter__()
-                    in_use.append(handle)
-            except InvalidHandle:   # an entity being destroyed (its node is going away): the stock pass copes
-                return None
             return self._serve()
         finally:
-            for handle in reversed(in_use):
-                handle.__exit__(None, None, None)
+            _release(in_use)
 
     def _serve(self) -> int | None:
         wait_set = self.wait_set
@@ -225,18 +239,13 @@ class HotPathExecutor(SingleThreadedExecutor):
             hot = self._hot_set(subscriptions, timers, guards, wakers)
         except InvalidHandle:
             return False
-        in_use = []
+        in_use = _hold(hot.handles)
+        if in_use is None:
+            return False
         try:
-            try:
-                for handle in hot.handles:
-                    handle.__enter__()
-                    in_use.append(handle)
-            except InvalidHandle:
-                return False
             return self._serve_hot(wait_s, hot)
         finally:
-            for handle in reversed(in_use):
-                handle.__exit__(None, None, None)
+            _release(in_use)
 
     def _serve_hot(self, wait_s, hot) -> bool:
         wait_set = hot.wait_set
