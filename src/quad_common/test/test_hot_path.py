@@ -2,6 +2,7 @@
 slow pass (a probe that serves ready timers and hands anything else to the stock executor), and spin_once's wait."""
 
 import contextlib
+import math
 import time
 
 import pytest
@@ -25,8 +26,8 @@ def _hot_node(name, hot, **executor_options):
         try:
             node = rclpy.create_node(name, context=ctx)
             subscriptions = []
-            executor = HotPathExecutor(lambda: (subscriptions, []), slow_period_s=3600.0, context=ctx,
-                                       **executor_options)
+            executor = HotPathExecutor(lambda: (subscriptions, []), context=ctx,
+                                       **{'slow_period_s': 3600.0, **executor_options})
             executor.add_node(node)
             subscriptions += hot(node)
             executor.spin_once(timeout_sec=0.0)
@@ -37,11 +38,16 @@ def _hot_node(name, hot, **executor_options):
             rclpy.shutdown(context=ctx)
 
 
-def _matched(executor, publishers):
+def _spin_until(executor, done, what):
     deadline = time.monotonic() + TIMEOUT_S
-    while any(pub.get_subscription_count() < 1 for pub in publishers):
-        assert time.monotonic() < deadline, 'a subscription never matched its own node\'s publisher'
+    while not done():
+        assert time.monotonic() < deadline, what
         executor.spin_once(timeout_sec=0.01)
+
+
+def _matched(executor, publishers):
+    _spin_until(executor, lambda: all(pub.get_subscription_count() >= 1 for pub in publishers),
+                'a subscription never matched its own node\'s publisher')
 
 
 @pytest.mark.parametrize(('takes_per_pass', 'taken'), [(1, 1), (5, 5), (100, BACKLOG)])
@@ -80,43 +86,26 @@ def test_one_pass_serves_the_ready_subscriptions_in_the_hot_lists_order():
 
 
 class _Host:
-    """One node on its own context with a HotPathExecutor that has no hot entities: everything is the slow pass's
-    (slow_period_s 0: one slow pass per spin_once). stock: how many times the stock executor's pass ran."""
+    """A node whose entities are all the slow pass's (no hot ones; slow_period_s 0: a slow pass each spin_once), and
+    `stock`: how many times the stock executor's pass ran since its first."""
 
-    def __init__(self, domain):
-        self.ctx = rclpy.Context()
-        rclpy.init(context=self.ctx, domain_id=domain)
-        self.node = rclpy.create_node('hot_path_slow', context=self.ctx)
-        self.executor = HotPathExecutor(lambda: ([], []), slow_period_s=0.0, context=self.ctx)
-        self.executor.add_node(self.node)
-        self.stock = 0
-        stock_pass = self.executor._spin_stock_ready
+    def __init__(self, node, executor):
+        self.node, self.executor, self.stock = node, executor, 0
+        stock_pass = executor._spin_stock_ready
 
         def counted():
             self.stock += 1
             return stock_pass()
-        self.executor._spin_stock_ready = counted
+        executor._spin_stock_ready = counted
 
     def spin_until(self, done, what):
-        deadline = time.monotonic() + TIMEOUT_S
-        while not done():
-            assert time.monotonic() < deadline, what
-            self.executor.spin_once(timeout_sec=0.01)
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.ctx)
+        _spin_until(self.executor, done, what)
 
 
 @pytest.fixture
 def host():
-    with isolated_domain() as (domain, _):
-        made = _Host(domain)
-        try:
-            yield made
-        finally:
-            made.close()
+    with _hot_node('hot_path_slow', lambda node: [], slow_period_s=0.0) as (node, executor):
+        yield _Host(node, executor)
 
 
 def test_the_slow_pass_serves_ready_timers_without_the_stock_pass(host):
@@ -124,7 +113,6 @@ def test_the_slow_pass_serves_ready_timers_without_the_stock_pass(host):
     probe: its callback runs, the stock pass (a wait set over every entity) does not."""
     fired = []
     host.node.create_timer(0.001, lambda: fired.append(1))
-    host.executor.spin_once(timeout_sec=0.0)   # the first slow pass is the stock one
     stock_before = host.stock
     host.spin_until(lambda: len(fired) >= 5, 'the timer never fired five times')
     assert host.stock == stock_before
@@ -135,10 +123,7 @@ def test_a_service_request_hands_the_slow_pass_to_the_stock_executor(host, monke
     next period."""
     from std_srvs.srv import Trigger
 
-    from quad_common.ros import hot_path
-
-    monkeypatch.setattr(hot_path, 'STOCK_PERIOD_S', 3600.0)
-
+    monkeypatch.setattr(host.executor, '_next_stock_s', math.inf)   # no stock pass by its period in this test
     host.node.create_service(Trigger, 'probe_me', lambda request, response: setattr(response, 'success', True)
                              or response)
     client = host.node.create_client(Trigger, 'probe_me')
