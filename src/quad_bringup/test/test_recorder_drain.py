@@ -1,4 +1,5 @@
-"""recorder_node.drain on a simulated clock: when it ends, given what arrives after the stop."""
+"""recorder_node.drain and record on a simulated clock: when the drain ends, given what arrives after the stop;
+how many wake-ups the recording takes a lockstep's bursts in."""
 
 from types import SimpleNamespace
 
@@ -55,3 +56,49 @@ def test_with_every_publisher_gone_the_drain_takes_what_is_there_and_ends(monkey
     graph = _drain(monkeypatch, [(0.01, True)] + [(0.05, True)] * 3, publishers_gone_s=0.05)
     assert graph.node.sent_before_stop == 4 and not graph.arrivals   # all taken, three after they left
     assert graph.now_s == pytest.approx(0.05, abs=0.011)              # not a quiet pass_s more
+
+
+class _Bursts:
+    """Messages arriving at given times: a spin waits for the first (up to its timeout) and takes every one arrived
+    by then (a pass takes each ready subscription's backlog); a sleep advances the clock; the stop comes once all
+    are taken."""
+
+    def __init__(self, arrivals_s, take_pause_s):
+        self.now_s, self.arrivals, self.wakeups, self.latest_s, self.stop = 0.0, sorted(arrivals_s), 0, 0.0, []
+        self.node = SimpleNamespace(params={'take_pause_s': take_pause_s}, bag=SimpleNamespace(total=0))
+
+    def spin_once(self, timeout_sec):
+        if not self.arrivals:
+            self.stop.append('SIGTERM')
+            return
+        self.now_s = max(self.now_s, min(self.arrivals[0], self.now_s + timeout_sec))
+        taken = [t for t in self.arrivals if t <= self.now_s]
+        if taken:
+            self.wakeups += 1
+            self.latest_s = max(self.latest_s, self.now_s - taken[0])
+            self.arrivals = self.arrivals[len(taken):]
+            self.node.bag.total += len(taken)
+
+    def sleep(self, seconds):
+        self.now_s += seconds
+
+
+def _record(take_pause_s, steps=20, step_s=0.003, per_step=33, spread_s=0.0016):
+    """A 16-vehicle lockstep: per step_s, /clock and the odometry at once, the setpoints one by one over spread_s."""
+    arrivals = [k * step_s + (0.0 if m <= 16 else spread_s * (m - 16) / (per_step - 17))
+                for k in range(steps) for m in range(per_step)]
+    graph = _Bursts(arrivals, take_pause_s)
+    recorder_node.record(graph.node, graph, graph.stop, sleep=graph.sleep)
+    assert graph.node.bag.total == steps * per_step and graph.stop
+    return graph
+
+
+def test_the_recording_takes_a_steps_burst_in_one_wake_up_no_later_than_its_pause():
+    graph = _record(0.005)
+    assert graph.wakeups <= 20          # one per message (17 a step) without the pause
+    assert graph.latest_s <= 0.005 + 0.003
+
+
+def test_with_no_pause_every_message_is_taken_as_it_arrives():
+    graph = _record(0.0)
+    assert graph.latest_s == 0.0 and graph.wakeups == 20 * 17

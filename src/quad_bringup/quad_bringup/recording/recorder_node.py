@@ -64,6 +64,11 @@ SPECS = [
           'acknowledged (quad_common.ros.lockstep: a follower\'s simulator does not start without them), '
           'e.g. trajectory',
           read_only=True),
+    Param('take_pause_s', 0.005, 'wall time the recorder pauses after a wake-up that took messages: a burst (a '
+          "lockstep step's odometry and setpoints, published one by one over its controllers' ticks) is then taken in "
+          'one wake-up, each a pass over every subscription, not one per message; a message reaches the bag at most '
+          'this much later (the lockstep holds only a follower 40 steps behind)',
+          min=0.0, max=0.1, read_only=True),
     Param('queue_depth', 1000, 'subscription history depth (reliable; generous so a busy recorder drops nothing)',
           min=1, max=100000, read_only=True),
 ]
@@ -190,6 +195,17 @@ class RecorderNode(Node):
             super().destroy_node()
 
 
+def record(node: RecorderNode, executor, stop: list, sleep=time.sleep):
+    """Spins until `stop` holds a signal, pausing take_pause_s after every wake-up that took a message (a
+    SIGTERM in the pause is seen at its end)."""
+    pause_s = node.params['take_pause_s']
+    while not stop:
+        written = node.bag.total
+        executor.spin_once(timeout_sec=0.1)
+        if pause_s and node.bag.total != written:
+            sleep(pause_s)
+
+
 def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
     """Takes what was published before the stop: spins until pass_s has passed without a message whose publisher
     sent it before now, or, sooner, until no recorded topic has a publisher left (once a writer is gone its
@@ -245,8 +261,7 @@ def main(args=None):
     executor.add_node(node)
     freeze_startup_heap()   # no full collection of the start-up heap while recording (as quad_common.ros.node_main)
     try:
-        while not stop:
-            executor.spin_once(timeout_sec=0.1)
+        record(node, executor, stop)
         drain(node, executor)
     except ExternalShutdownException:
         pass
