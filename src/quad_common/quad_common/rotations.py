@@ -84,9 +84,12 @@ def from_matrix(R):
     return q if q[3] >= 0 else -q
 
 
+_SCALARS = (float, int, np.floating)
+
+
 def from_euler(roll, pitch, yaw):
     """Quaternion of intrinsic Z-Y-X (yaw, then pitch, then roll) Euler angles, radians."""
-    if all(isinstance(v, (float, int, np.floating)) for v in (roll, pitch, yaw)):  # one attitude: math, not ufuncs
+    if isinstance(roll, _SCALARS) and isinstance(pitch, _SCALARS) and isinstance(yaw, _SCALARS):   # one: math
         cr, sr = math.cos(roll / 2), math.sin(roll / 2)
         cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
         cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)

@@ -42,8 +42,9 @@ RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's 
 ENGAGE_DELAY_S = 1.0       # position_controller engage_delay_s
 MAX_START_STEP_M = 0.5     # position_controller max_start_step_m and the offline loop's default
 CONTROLLER_FAILED = 'controller failed'   # how the fault of a dead controller begins (fly's monitor ends on it)
+SATURATION_COUNTS = tuple((name, f'saturation_{name}') for name in ('thrust', 'tilt', 'integral'))   # Saturation's
 COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'controller_failures',
-          'refused_start_steps', 'saturation_thrust', 'saturation_tilt', 'saturation_integral')
+          'refused_start_steps', *(count for _, count in SATURATION_COUNTS))
 
 
 @dataclass(frozen=True)
@@ -202,8 +203,8 @@ class ControlLoop:
             return None
         self.last_control_ns = t_ns
         self.counts['setpoints'] += 1
-        for name in ('thrust', 'tilt', 'integral'):
-            self.counts[f'saturation_{name}'] += int(getattr(sat, name))
+        for name, count in SATURATION_COUNTS:
+            self.counts[count] += int(getattr(sat, name))
         return Tick(t_ns, setpoint, ref, sat)
 
     def _reset_controller(self, t_ns: int):

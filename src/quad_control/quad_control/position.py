@@ -88,8 +88,11 @@ def _floats(values) -> list:
     """A vector (or a scalar, for every axis) as Python floats: the per-tick law is scalar arithmetic (a numpy
     operation on a 3-vector costs ~1 us, a float one ~30 ns), each operation the IEEE one numpy does elementwise,
     so the result is the same."""
-    if isinstance(values, np.ndarray) and values.ndim == 1:
+    kind = type(values)
+    if kind is np.ndarray and values.ndim == 1:
         return values.tolist()
+    if kind is float or kind is int:   # a gain or drag for every axis: np.ndim costs ~1 us
+        return [float(values)] * 3
     if np.ndim(values) == 0:
         return [float(values)] * 3
     return [float(v) for v in values]

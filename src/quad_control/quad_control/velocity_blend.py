@@ -28,7 +28,8 @@ class VelocityBlend:
         """The state with its velocity blended at tau = time_constant_s (>= 0); an odometry not newer than the
         previous one leaves c as it is."""
         if not time_constant_s:   # off: nothing kept, nothing computed on the odometry's path
-            self.previous, self.correction_mps = None, np.zeros(3)
+            if self.previous is not None:   # c is non-zero only once an odometry was kept
+                self.previous, self.correction_mps = None, np.zeros(3)
             return state
         position, velocity = np.asarray(state.position, dtype=float), np.asarray(state.velocity, dtype=float)
         if self.previous is None or stamp_ns > self.previous[0]:
