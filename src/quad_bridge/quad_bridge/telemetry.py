@@ -47,17 +47,6 @@ def local_position_enu(msg) -> tuple:
     return (float(msg.y), float(msg.x), -float(msg.z)), (float(msg.vy), float(msg.vx), -float(msg.vz))
 
 
-def body_velocity(q, v) -> tuple:
-    """R(q)^T v on Python floats (quad_common.conversions.body_velocity's arithmetic, rotations.to_matrix's
-    entries): the odometry twist's linear part."""
-    x, y, z, w = q
-    r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
-    r10, r11, r12 = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
-    r20, r21, r22 = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
-    vx, vy, vz = v
-    return (r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz)
-
-
 def finite(*vectors) -> bool:
     return all(map(math.isfinite, sum(vectors, ())))
 

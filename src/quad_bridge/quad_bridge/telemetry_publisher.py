@@ -13,7 +13,6 @@ from sensor_msgs.msg import BatteryState, Imu
 from quad_bridge.clock import ClockMapper, answer_clock_ns
 from quad_bridge.telemetry import (
     attitude_enu,
-    body_velocity,
     finite,
     imu_flu_floats,
     local_position_enu,
@@ -21,7 +20,7 @@ from quad_bridge.telemetry import (
     time_us,
 )
 from quad_bridge.telemetry_streams import StreamSelector
-from quad_common import contract
+from quad_common import contract, rotations
 from quad_common.ros import cdr
 from quad_common.ros.rcl_serialized import SerializedPublisher
 from quad_common.types import State
@@ -129,7 +128,7 @@ class TelemetryPublisher:
         if not finite(p, v, q, rates):
             return
         state = State(position=np.array(p), velocity=np.array(v), quaternion=np.array(q), body_rates=np.array(rates))
-        self._published(state, q, self.odom_packer.pack_floats(p, q, body_velocity(q, v), rates, stamp_ns))
+        self._published(state, q, self.odom_packer.pack_floats(p, q, rotations.rotate_back(q, v), rates, stamp_ns))
 
     def on_odometry(self, msg, stamp_ns):
         if self.streams.uses('odometry', 'ODOMETRY'):

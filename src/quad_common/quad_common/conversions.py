@@ -70,7 +70,7 @@ def state_to_odometry(state: State, stamp: Time, frame_id=WORLD_FRAME, child_fra
 
 def body_velocity(state: State) -> np.ndarray:
     """The odometry twist's linear part: v_body = R^T v_world."""
-    return rotations.to_matrix(state.quaternion).T @ state.velocity
+    return np.array(rotations.rotate_back(state.quaternion.tolist(), state.velocity.tolist()))
 
 
 def odometry_to_state(msg: Odometry) -> State:
@@ -83,7 +83,7 @@ def odometry_to_state(msg: Odometry) -> State:
 def odometry_values_to_state(position, quaternion, v_body, body_rates) -> State:
     """odometry_to_state on the fields' values (also what quad_common.ros.cdr decodes)."""
     q = rotations.normalize(quaternion)
-    return State(position=np.array(position, dtype=float), velocity=rotations.to_matrix(q) @ np.asarray(v_body),
+    return State(position=np.array(position, dtype=float), velocity=np.array(rotations.rotate(q.tolist(), v_body)),
                  quaternion=q, body_rates=np.array(body_rates, dtype=float))
 
 

@@ -62,6 +62,26 @@ def to_matrix(q):
     ], axis=-2)
 
 
+def rotate(q, v) -> tuple:
+    """R(q) v for one quaternion and one vector, on Python floats (to_matrix's entries): ~1 us against ~5 us for
+    to_matrix(q) @ v, every odometry message; the sums in index order (numpy's matmul may round the last bit
+    differently)."""
+    x, y, z, w = q
+    vx, vy, vz = v
+    return ((1 - 2 * (y * y + z * z)) * vx + 2 * (x * y - z * w) * vy + 2 * (x * z + y * w) * vz,
+            2 * (x * y + z * w) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z - x * w) * vz,
+            2 * (x * z - y * w) * vx + 2 * (y * z + x * w) * vy + (1 - 2 * (x * x + y * y)) * vz)
+
+
+def rotate_back(q, v) -> tuple:
+    """R(q)^T v on Python floats, as rotate."""
+    x, y, z, w = q
+    vx, vy, vz = v
+    return ((1 - 2 * (y * y + z * z)) * vx + 2 * (x * y + z * w) * vy + 2 * (x * z - y * w) * vz,
+            2 * (x * y - z * w) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z + x * w) * vz,
+            2 * (x * z + y * w) * vx + 2 * (y * z - x * w) * vy + (1 - 2 * (x * x + y * y)) * vz)
+
+
 def from_matrix(R):
     """Unit quaternion (w >= 0) of a rotation matrix (Shepperd's method, robust near 180 deg)."""
     R = np.asarray(R, dtype=float)

@@ -37,3 +37,13 @@ def test_hat_vee_and_wrap():
 def test_normalize_refuses_bad_quaternion(bad):
     with pytest.raises(ValueError, match='quaternion'):
         rot.normalize(bad)
+
+
+def test_rotate_and_rotate_back_are_the_matrix_and_its_transpose():
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        q, v = rot.normalize(rng.normal(size=4)), rng.normal(scale=10.0, size=3)
+        R = rot.to_matrix(q)
+        np.testing.assert_allclose(rot.rotate(q.tolist(), v.tolist()), R @ v, rtol=1e-14, atol=1e-13)
+        np.testing.assert_allclose(rot.rotate_back(q.tolist(), v.tolist()), R.T @ v, rtol=1e-14, atol=1e-13)
+        np.testing.assert_allclose(rot.rotate(q, rot.rotate_back(q, v)), v, rtol=1e-13, atol=1e-12)

@@ -69,9 +69,10 @@ class OdometryPacker:
         self._frames = frames
 
     def pack(self, state: State, time_ns: int) -> bytes:
+        q = state.quaternion.tolist()
         return self._struct.pack(CDR_LE, time_ns // 1_000_000_000, time_ns % 1_000_000_000, self._frames,
-                                 *state.position.tolist(), *state.quaternion.tolist(),
-                                 *conversions.body_velocity(state).tolist(), *state.body_rates.tolist())
+                                 *state.position.tolist(), *q,
+                                 *rotations.rotate_back(q, state.velocity.tolist()), *state.body_rates.tolist())
 
 
 def odometry_to_state(raw: bytes) -> tuple[int, State]:
