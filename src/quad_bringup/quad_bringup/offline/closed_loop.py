@@ -15,7 +15,7 @@ import numpy as np
 
 from quad_bringup.analysis.metrics import Completion, Flight, compute_metrics
 from quad_bringup.offline.harness import Fresh, SimulatorPlant, fly
-from quad_common import contract, conversions, rotations
+from quad_common import contract, rotations
 from quad_common.paths import resolve_config
 from quad_common.vehicle import load_vehicle
 from quad_common.yaml_io import load_yaml
@@ -105,7 +105,7 @@ class FlightBag:
         vec = T['geometry_msgs/msg/Vector3']
         quat = T['geometry_msgs/msg/Quaternion']
         q = state.quaternion
-        v_body = conversions.body_velocity(state)
+        v_body = rotations.rotate_back(q.tolist(), state.velocity.tolist())   # conversions.body_velocity (no ROS)
         odom = T['nav_msgs/msg/Odometry'](
             header=self._header(t_s, contract.WORLD_FRAME), child_frame_id=contract.BODY_FRAME,
             pose=T['geometry_msgs/msg/PoseWithCovariance'](

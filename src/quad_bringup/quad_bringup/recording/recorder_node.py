@@ -8,8 +8,10 @@ does the death of the process that started it (quad_common.lifeline.bind_to_pare
 
 A lockstep follower (quad_common.ros.lockstep): it acknowledges the odometry it has written, so a simulator started
 with lockstep_followers:=recorder never publishes more than the bag can take. The subscriptions are served in
-one pass per wake-up (HotPathExecutor), each ready one's whole backlog in it; the status timer, the bag's flush and
-discovery in its slow pass (the flush's fsync in a thread of its own: recorder.BagRecorder.flush).
+one pass per wake-up (HotPathExecutor), each ready one's whole backlog in it, and after a wake-up that took messages
+it pauses take_pause_s (a lockstep step's messages come one by one over its controllers' ticks: taken as they came,
+each would cost a wake-up and a pass over every subscription); the status timer, the bag's flush and discovery in
+its slow pass (the flush's fsync in a thread of its own: recorder.BagRecorder.flush).
 
 Status on `diagnostics` (name `recorder`, one value per topic: messages written) every second and when a topic
 gets its first message: how `quadflight fly` knows the latched plan is in the bag before the flight starts.
