@@ -3,7 +3,6 @@
 cdr.OdometryPacker / ImuPacker)."""
 
 import os
-import struct
 
 import numpy as np
 import pytest
@@ -13,15 +12,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from quad_bridge import frames, telemetry  # noqa: E402
 from quad_bridge.telemetry_publisher import OdometryFloats  # noqa: E402
-from quad_common import cdr_layout, rotations  # noqa: E402
+from quad_common import rotations  # noqa: E402
 from quad_common.ros import cdr  # noqa: E402
 
-ODOM = struct.Struct('<7d288x6d')
 STAMP_NS = 1_234_567_890_123
-
-
-def _odom_values(raw):
-    return ODOM.unpack_from(raw, cdr_layout.fields_offset(raw, cdr_layout.ODOM_STRINGS))
 
 
 def _messages(seed):
