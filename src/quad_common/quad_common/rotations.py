@@ -74,12 +74,10 @@ def rotate(q, v) -> tuple:
 
 
 def rotate_back(q, v) -> tuple:
-    """R(q)^T v on Python floats, as rotate."""
+    """R(q)^T v = R(q*) v on Python floats, as rotate (the conjugate's entries are R(q)'s transposed, bit for bit:
+    negating x, y and z is exact)."""
     x, y, z, w = q
-    vx, vy, vz = v
-    return ((1 - 2 * (y * y + z * z)) * vx + 2 * (x * y + z * w) * vy + 2 * (x * z - y * w) * vz,
-            2 * (x * y - z * w) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z + x * w) * vz,
-            2 * (x * z + y * w) * vx + 2 * (y * z - x * w) * vy + (1 - 2 * (x * x + y * y)) * vz)
+    return rotate((-x, -y, -z, w), v)
 
 
 def from_matrix(R):

@@ -42,7 +42,8 @@ RATE_HZ = 100.0            # position_controller rate_hz and the offline loop's 
 ENGAGE_DELAY_S = 1.0       # position_controller engage_delay_s
 MAX_START_STEP_M = 0.5     # position_controller max_start_step_m and the offline loop's default
 CONTROLLER_FAILED = 'controller failed'   # how the fault of a dead controller begins (fly's monitor ends on it)
-SATURATION_COUNTS = tuple((name, f'saturation_{name}') for name in ('thrust', 'tilt', 'integral'))   # Saturation's
+# (Saturation's field, its count)
+SATURATION_COUNTS = tuple((name, f'saturation_{name}') for name in ('thrust', 'tilt', 'integral'))
 COUNTS = ('setpoints', 'deferred_ticks', 'superseded_ticks', 'control_errors', 'controller_failures',
           'refused_start_steps', *(count for _, count in SATURATION_COUNTS))
 
