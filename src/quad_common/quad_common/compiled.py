@@ -10,6 +10,8 @@ hash of every kernel file of these packages (NUMBA_CACHE_DIR, unless set already
 recompiles instead of loading stale machine code.
 """
 
+import contextlib
+import fcntl
 import hashlib
 import importlib.util
 import os
@@ -78,6 +80,27 @@ def njit(function):
     if numba is None:
         return function
     return numba.njit(cache=True, nogil=True)(function)
+
+
+@contextlib.contextmanager
+def one_compiler():
+    """Held while a process loads its kernels (Simulator.warm_up): an exclusive lock on the cache folder, so that
+    processes started together (a test run's graphs, a fleet's nodes) on a cache without their kernels compile them
+    one at a time, the first one compiling (~12 s of CPU on the 2-core machine) and the others loading what it wrote
+    (~0.15 s), not each compiling the same kernels at once. Nothing to hold where nothing is compiled or cached."""
+    folder = os.environ.get('NUMBA_CACHE_DIR')
+    if numba is None or not folder or os.environ.get('NUMBA_DISABLE_JIT', '0') not in ('', '0'):
+        yield
+        return
+    try:
+        os.makedirs(folder, exist_ok=True)
+        lock = open(os.path.join(folder, 'compile.lock'), 'a')
+    except OSError:   # an unwritable cache: numba compiles without caching anyway
+        yield
+        return
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)   # released at close, or by the kernel when the holder dies
+        yield
 
 
 def float_array(values) -> np.ndarray:

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_common import rotations
-from quad_common.compiled import float_array, njit
+from quad_common.compiled import float_array, njit, one_compiler
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint, State
 from quad_common.vehicle import Vehicle
 from quad_common.world import World
@@ -357,11 +357,13 @@ class Simulator:
 
     def warm_up(self):
         """Loads (or, the first time, compiles) the step kernels now, on a throwaway copy of this simulator,
-        so that start-up pays for it rather than the first lockstep step."""
+        so that start-up pays for it rather than the first lockstep step; one process at a time compiles
+        (compiled.one_compiler)."""
         spare = Simulator(self.vehicle, physics_rate_hz=self.physics_rate_hz, initial_position=(0.0, 0.0, 1.0),
                           disturbances=self.profile)
-        spare.advance_steps(1)
-        spare._physics_step()
+        with one_compiler():
+            spare.advance_steps(1)
+            spare._physics_step()
 
     def _enter_failsafe(self):
         self.failsafe_active = True

@@ -252,3 +252,41 @@ def test_loading_the_kernels_imports_no_scipy_linalg():
               'print(sorted(m for m in sys.modules if m.startswith("scipy.linalg")))')
     out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=600, check=True)
     assert out.stdout.strip() == '[]', out.stdout
+
+
+def _blocked_on_a_lock(pid: int) -> bool:
+    """Whether process pid waits for a file lock (/proc/locks lists a waiter as '-> FLOCK ...')."""
+    with open('/proc/locks') as locks:
+        return any('->' in line and f' {pid} ' in line for line in locks)
+
+
+def test_warm_up_waits_while_another_process_loads_or_compiles_the_kernels(crazyflie, tmp_path):
+    """Processes started together on a cache without their kernels compile them one at a time
+    (quad_common.compiled.one_compiler): a warm_up waits while another process holds the cache's lock, then goes on
+    (here it loads a copy of this process's cache)."""
+    import fcntl
+    import shutil
+    import subprocess
+    import sys
+    import time
+
+    Simulator(crazyflie).warm_up()   # this process's kernels, in its cache: the copy below holds them
+    cache = tmp_path / 'cache'
+    shutil.copytree(os.environ['NUMBA_CACHE_DIR'], cache, ignore=shutil.ignore_patterns('compile.lock'))
+    script = ('from quad_common.vehicle import load_vehicle; from quad_sim.simulator import Simulator; '
+              f'Simulator(load_vehicle({os.path.join(CONFIG, "vehicles", "crazyflie.yaml")!r})).warm_up(); '
+              'print("warm")')
+    with open(cache / 'compile.lock', 'a') as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        child = subprocess.Popen([sys.executable, '-c', script], env=dict(os.environ, NUMBA_CACHE_DIR=str(cache)),
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 300
+            while not _blocked_on_a_lock(child.pid) and child.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.01)   # polling /proc/locks: the child's start (its imports) takes a while
+            assert child.poll() is None and _blocked_on_a_lock(child.pid), \
+                'warm_up did not wait for the lock held by another process'
+        finally:
+            held.close()   # released: the child goes on
+    out, err = child.communicate(timeout=600)
+    assert child.returncode == 0 and out.strip() == 'warm', err
