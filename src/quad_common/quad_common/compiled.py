@@ -82,10 +82,16 @@ def njit(function):
     return numba.njit(cache=True, nogil=True)(function)
 
 
+def compile_lock_path(cache_folder: str, source_folder: str) -> str:
+    """The lock file of one source folder's kernels in a cache folder (numba keeps each source folder's apart)."""
+    digest = hashlib.sha256(os.path.abspath(source_folder).encode()).hexdigest()[:16]
+    return os.path.join(cache_folder, f'compile-{digest}.lock')
+
+
 @contextlib.contextmanager
-def one_compiler():
-    """Held while a process loads its kernels (Simulator.warm_up): an exclusive lock on the cache folder, so that
-    processes started together (a test run's graphs, a fleet's nodes) on a cache without their kernels compile them
+def one_compiler(source_folder: str):
+    """Held while a process loads the kernels of source_folder (Simulator.warm_up): an exclusive lock, so that
+    processes started together (a test run's graphs, a fleet's nodes) on a cache without those kernels compile them
     one at a time, the first one compiling (~12 s of CPU on the 2-core machine) and the others loading what it wrote
     (~0.15 s), not each compiling the same kernels at once. Nothing to hold where nothing is compiled or cached."""
     folder = os.environ.get('NUMBA_CACHE_DIR')
@@ -94,7 +100,7 @@ def one_compiler():
         return
     try:
         os.makedirs(folder, exist_ok=True)
-        lock = open(os.path.join(folder, 'compile.lock'), 'a')
+        lock = open(compile_lock_path(folder, source_folder), 'a')
     except OSError:   # an unwritable cache: numba compiles without caching anyway
         yield
         return

@@ -25,6 +25,7 @@ Floor at z = floor_z_m (the world's lower bound, else 0): the vehicle never goes
 """
 
 import math
+import os
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -361,7 +362,7 @@ class Simulator:
         (compiled.one_compiler)."""
         spare = Simulator(self.vehicle, physics_rate_hz=self.physics_rate_hz, initial_position=(0.0, 0.0, 1.0),
                           disturbances=self.profile)
-        with one_compiler():
+        with one_compiler(os.path.dirname(__file__)):
             spare.advance_steps(1)
             spare._physics_step()
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from quad_common import rotations
+from quad_common.compiled import compile_lock_path
 from quad_common.types import GRAVITY_MPS2, AttitudeSetpoint
 from quad_common.world import World
 from quad_sim import simulator as simulator_module
@@ -272,11 +273,11 @@ def test_warm_up_waits_while_another_process_loads_or_compiles_the_kernels(crazy
 
     Simulator(crazyflie).warm_up()   # this process's kernels, in its cache: the copy below holds them
     cache = tmp_path / 'cache'
-    shutil.copytree(os.environ['NUMBA_CACHE_DIR'], cache, ignore=shutil.ignore_patterns('compile.lock'))
+    shutil.copytree(os.environ['NUMBA_CACHE_DIR'], cache, ignore=shutil.ignore_patterns('compile-*.lock'))
     script = ('from quad_common.vehicle import load_vehicle; from quad_sim.simulator import Simulator; '
               f'Simulator(load_vehicle({os.path.join(CONFIG, "vehicles", "crazyflie.yaml")!r})).warm_up(); '
               'print("warm")')
-    with open(cache / 'compile.lock', 'a') as held:
+    with open(compile_lock_path(str(cache), os.path.dirname(simulator_module.__file__)), 'a') as held:
         fcntl.flock(held, fcntl.LOCK_EX)
         child = subprocess.Popen([sys.executable, '-c', script], env=dict(os.environ, NUMBA_CACHE_DIR=str(cache)),
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
