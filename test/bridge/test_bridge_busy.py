@@ -312,7 +312,11 @@ def test_a_stalled_receive_thread_keeps_a_live_link_and_the_hand_over(graph):
     procs, observer = graph
     port = free_udp_port()
     procs.vehicle('px4', f'udpout:127.0.0.1:{port}')
-    with bridge_in_this_process(observer, procs.namespace, f'udpin:127.0.0.1:{port}') as bridge:
+    # setpoint_timeout_s at PX4's COM_OF_LOSS_T (1 s), not 0.5: the setpoints come from this process's thread, beside
+    # the bridge's executor; in a fresh clone's make test (load ~9) a 0.5 s gap between them ended the hand-over
+    # as stale, which is not what this test is about
+    with bridge_in_this_process(observer, procs.namespace, f'udpin:127.0.0.1:{port}',
+                                setpoint_timeout_s=1.0) as bridge:
         observer.wait_for(lambda: observer.link()[1].get('armed') == 'True', 'the bridge to see the armed vehicle')
         setpoints = SetpointPublisher(observer)
         try:
