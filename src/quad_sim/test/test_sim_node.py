@@ -265,7 +265,10 @@ def test_dead_controller_lets_the_failsafe_land():
             graph.close()
     assert failsafe and level_of(failsafe[0]) == level_of_error()
     values = {kv.key: kv.value for kv in failsafe[0].values}
-    assert float(values[contract.FAILSAFE_TIME_S]) == pytest.approx(0.2 + 0.5, abs=0.02)
+    # setpoint_timeout_s (0.5 s) after the last setpoint taken, the one answered for t = 0.2 s; on a loaded machine
+    # that answer can miss its step's wait (lockstep_timeout_s: 10 ms of wall time) and be taken a few steps later
+    # (0.721 s once in a fresh clone's make test at load ~9)
+    assert float(values[contract.FAILSAFE_TIME_S]) == pytest.approx(0.2 + 0.5, abs=0.05)
 
 
 def test_reset_service_restarts_lockstep_time():
