@@ -1,11 +1,11 @@
 """python -m quad_sim.compile_kernels: every physics kernel compiled into numba's cache now, or loaded where the cache
 has it already (quad_common.compiled).
 
-`make build` runs it for each folder the packages are imported from: numba keeps a kernel's machine code per source
-folder, and there are two (the build's, which the installed nodes import; src/, which `./quadflight` and the package
-tests import). Without it, a fresh clone's first processes (a test run's, every run on a new CI machine) compile
-the kernels while their flights wait: ~12 s of CPU each on the 2-core machine, at load ~9 long enough for a test's
-90 s wait for an emulated vehicle to run out."""
+`make kernels` (the first step of `make test`) runs it for each folder the packages are imported from: numba keeps a
+kernel's machine code per source folder, and there are two (the build's, which the installed nodes import; src/,
+which `./quadflight` and the package tests import). Without it, a fresh clone's first processes (a test run's, every
+run on a new CI machine) compile the kernels while their flights wait: ~12 s of CPU each on the 2-core machine, at
+load ~9 long enough for a test's 90 s wait for an emulated vehicle to run out."""
 
 import numpy as np
 

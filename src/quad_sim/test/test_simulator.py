@@ -263,8 +263,8 @@ def _blocked_on_a_lock(pid: int) -> bool:
 
 def test_warm_up_waits_while_another_process_loads_or_compiles_the_kernels(crazyflie, tmp_path):
     """Processes started together on a cache without their kernels compile them one at a time
-    (quad_common.compiled.one_compiler): a warm_up waits while another process holds the cache's lock, then goes on
-    (here it loads a copy of this process's cache)."""
+    (quad_common.compiled.one_compiler): a warm_up waits while another process holds the lock of its source folder's
+    kernels, then goes on (here it loads a copy of this process's cache)."""
     import fcntl
     import shutil
     import subprocess
@@ -287,6 +287,10 @@ def test_warm_up_waits_while_another_process_loads_or_compiles_the_kernels(crazy
                 time.sleep(0.01)   # polling /proc/locks: the child's start (its imports) takes a while
             assert child.poll() is None and _blocked_on_a_lock(child.pid), \
                 'warm_up did not wait for the lock held by another process'
+        except BaseException:
+            child.kill()
+            child.communicate()
+            raise
         finally:
             held.close()   # released: the child goes on
     out, err = child.communicate(timeout=600)
