@@ -126,7 +126,9 @@ def test_ardupilot_over_tcp(graph):
 
 
 SETPOINT_RATE_HZ = 50.0
-FULL_RATE = 0.8   # of SETPOINT_RATE_HZ, measured at the vehicle over 150 setpoints (a busy machine's jitter)
+# of SETPOINT_RATE_HZ, measured at the vehicle over 150 setpoints: the setpoints come from this process's thread, and
+# at a fresh clone's make test load (~9) they reached the vehicle at 39 Hz (a stopped stream: none)
+FULL_RATE = 0.7
 
 
 def _rate_hz(tap, after_s, n):
