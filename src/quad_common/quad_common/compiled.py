@@ -40,7 +40,9 @@ def _cache_dir() -> str:
     return str(cache_dir() / f'numba-{_kernel_sources_hash()}')
 
 
-if 'NUMBA_CACHE_DIR' not in os.environ and os.environ.get('NUMBA_DISABLE_JIT', '0') in ('', '0'):
+JIT_ENABLED = os.environ.get('NUMBA_DISABLE_JIT', '0') in ('', '0')   # numba reads it once, at its import, as here
+
+if 'NUMBA_CACHE_DIR' not in os.environ and JIT_ENABLED:
     try:
         os.environ['NUMBA_CACHE_DIR'] = _cache_dir()
     except OSError:  # unreadable sources or home: numba's default cache place (next to the sources)
@@ -95,7 +97,7 @@ def one_compiler(source_folder: str):
     one at a time, the first one compiling (~12 s of CPU on the 2-core machine) and the others loading what it wrote
     (~0.15 s), not each compiling the same kernels at once. Nothing to hold where nothing is compiled or cached."""
     folder = os.environ.get('NUMBA_CACHE_DIR')
-    if numba is None or not folder or os.environ.get('NUMBA_DISABLE_JIT', '0') not in ('', '0'):
+    if numba is None or not JIT_ENABLED or not folder:
         yield
         return
     try:
