@@ -168,12 +168,13 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
 
 
 def test_the_simulator_hosted_with_the_vehicles_stops_on_sigint_and_loses_nothing(tmp_path):
-    """The default layout: sim_node and every vehicle's nodes in one node_host process. SIGINT at t >= 1 s: the
-    simulator (not rclpy) takes it, publishes its final diagnostics, drains the recorder and the process exits 0;
-    every step it published is in the bag, for each vehicle."""
+    """The default layout: sim_node, the recorder and every vehicle's nodes in one node_host process. SIGINT at
+    t >= 1 s: the simulator (not rclpy) takes it, publishes its final diagnostics, the recorder takes what is queued
+    and closes the bag, and the process exits 0; every step it published is in the bag, for each vehicle."""
     plan = plan_fleet(load_fleet(two_abreast(tmp_path)))
     run = fleet_graph.prepare(plan, tmp_path / 'run')
-    assert [p.name for p in run.nodes] == ['node_host'] and run.nodes[0].argv[0] == 'sim_node', run.nodes
+    assert [p.name for p in run.processes] == ['node_host'] and run.recorder is None, run.processes
+    assert run.nodes[0].argv[:2] == ['sim_node', 'recorder'], run.nodes[0].argv
     host = run.nodes[0]
     with flying_until(run, 1.0) as flight:
         host.signal_group(signal.SIGINT)
@@ -181,9 +182,9 @@ def test_the_simulator_hosted_with_the_vehicles_stops_on_sigint_and_loses_nothin
             assert time.monotonic() < flight['deadline'], 'node_host did not stop after SIGINT'
             time.sleep(0.05)   # polling a child's exit (no event to await but waitpid)
     codes = flight['codes']
-    assert host.exit_code() == 0 and codes['recorder'] == 0, (codes, host.log_tail())
+    assert host.exit_code() == 0 and codes == {'node_host': 0}, (codes, host.log_tail())
     log = host.log_path.read_text()
-    assert 'lockstep: stepped' in log and 'may miss the last steps' not in log, log
+    assert 'lockstep: stepped' in log and 'may miss the last steps' not in log and 'bag closed' in log, log
     result = fleet_graph.fleet_run(run.bag, plan)
     for name, m in result.metrics.items():
         assert m['record']['complete'] and m['record']['odom_recorded'] == m['record']['steps_published'] > 100, \

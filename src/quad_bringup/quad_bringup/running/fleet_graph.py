@@ -2,13 +2,15 @@
 under one /clock, each vehicle's trajectory_node and position_controller under its namespace, the recorder as the
 simulator's lockstep follower (nothing lost), then each vehicle's metrics from the bag.
 
-Processes: the recorder, and sim_node with the vehicles' nodes in one process (quad_bringup.running.node_host; the
+Processes: sim_node, the vehicles' nodes and the recorder in one process (quad_bringup.running.node_host; the
 default: one interpreter and one DDS participant for all of them, so odometry and setpoints go from writer to
-reader inside the process, and the lockstep loop serves every controller's tick in its own wait) or one process
-per node (hosted=False, as launch_ros starts them). The recorder is always a process of its own: it records on the
-other core while the lockstep steps. Everything runs on simulated time; sim_node ends the run at duration_s (the
-latest planned end plus SETTLE_S), drains the recorder and exits; then the rest is stopped (processes.stop: SIGINT,
-SIGTERM, SIGKILL).
+reader inside the process, the lockstep loop serves every controller's tick in its own wait, and the recorder takes
+each message without a copy to another process; at the simulator's stop it takes what is queued and closes the bag,
+as fly's does) or one process per node, the recorder's too (hosted=False, as launch_ros starts them). Why the
+recorder in the host: each write to a reader in another process woke that process's threads, ~30 us of the
+writer's wall time on 2 cores, and on a shared machine the recorder's process took the core the lockstep needed.
+Everything runs on simulated time; sim_node ends the run at duration_s (the latest planned end plus SETTLE_S),
+drains the recorder and exits; then the rest is stopped (processes.stop: SIGINT, SIGTERM, SIGKILL).
 
 Per vehicle the bag holds /NAME/odom, /NAME/cmd/attitude_thrust, /NAME/trajectory and /NAME/diagnostics (the
 simulator's collision, vehicle_collision and failsafe events); report.load_flights reads every vehicle's part in one
@@ -61,7 +63,7 @@ class GraphRun:
     """A fleet's graph, ready to start: its files written under out_dir, its processes (not started)."""
     plan: FleetPlan
     out_dir: Path
-    recorder: processes.NodeProcess
+    recorder: processes.NodeProcess | None   # None: a node of the simulator's process (hosted)
     nodes: list                # the simulator's process first (node_host, or sim_node), then the vehicles'
     end_s: float               # sim time at which sim_node ends the run
 
@@ -69,15 +71,20 @@ class GraphRun:
     def bag(self) -> Path:
         return self.out_dir / 'bag'
 
+    @property
+    def processes(self) -> list:
+        """Every process of the run: the recorder's (when it has one), then the nodes'."""
+        return [p for p in [self.recorder, *self.nodes] if p is not None]
+
     def start(self, env):
-        for p in [self.recorder, *self.nodes]:
+        for p in self.processes:
             p.start(env)
 
     def await_end(self, deadline: float, expected_dead=()):
         """Until the simulator's process has ended the run (exit 0); RuntimeError naming a process that exits before
         it (except those in expected_dead), or the deadline (time.monotonic) passing."""
         sim = self.nodes[0]
-        others = [p for p in [self.recorder, *self.nodes[1:]] if p not in expected_dead]
+        others = [p for p in self.processes if p is not sim and p not in expected_dead]
         while sim.exit_code() is None:
             dead = next((p for p in others if p.exit_code() is not None), None)
             if dead is not None:
@@ -92,7 +99,8 @@ class GraphRun:
     def stop(self, log=print) -> dict:
         """The vehicles' nodes and the simulator, then the recorder (its bag closed last): {name: exit code}."""
         codes = processes.stop(self.nodes, log=log)
-        codes.update(processes.stop([self.recorder], log=log))
+        if self.recorder is not None:
+            codes.update(processes.stop([self.recorder], log=log))
         return codes
 
 
@@ -109,17 +117,20 @@ def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted:
     specs = graph.fleet_sim_graph(fleet_file, speed_mps=speed_mps, sim={
         'lockstep_followers': ','.join((graph.RECORDER, *followers)), 'lockstep_timeout_s': LOCKSTEP_TIMEOUT_S,
         'duration_s': end_s})
+    names = plan.fleet.names
+    recorder = graph.NodeSpec(graph.RECORDER, ({
+        'output_dir': str(out_dir / 'bag'),
+        'topics': [contract.CLOCK] + [f'/{n}/{t}' for n in names for t in VEHICLE_TOPICS],
+        'lockstep_ack_after': ','.join(f'/{n}/{contract.TRAJECTORY}' for n in names)},))
+    specs.insert(1, recorder)   # after sim_node: node_host hosts it beside the simulator only
     params_file = out_dir / 'params.yaml'
     params_file.write_text(yaml.safe_dump(graph.params_file_content(specs), sort_keys=False))
-    names = plan.fleet.names
-    topics = [contract.CLOCK] + [f'/{n}/{t}' for n in names for t in VEHICLE_TOPICS]
-    listed = ','.join(f'"{t}"' for t in topics)
-    ack_after = ','.join(f'/{n}/{contract.TRAJECTORY}' for n in names)
-    recorder = processes.NodeProcess(graph.RECORDER, 'quad_bringup.recording.recorder_node',
-                                     ['-p', f'output_dir:={out_dir / "bag"}', '-p', f'topics:=[{listed}]',
-                                      '-p', f'lockstep_ack_after:={ack_after}'], out_dir / 'logs' / 'recorder.log')
-    nodes = processes.node_processes(specs, params_file, out_dir / 'logs', hosted)
-    return GraphRun(plan, out_dir, recorder, nodes, end_s)
+    if hosted:
+        return GraphRun(plan, out_dir, None, processes.node_processes(specs, params_file, out_dir / 'logs', True),
+                        end_s)
+    nodes = processes.node_processes([s for s in specs if s is not recorder], params_file, out_dir / 'logs', False)
+    return GraphRun(plan, out_dir, *processes.node_processes([recorder], params_file, out_dir / 'logs', False),
+                    nodes, end_s)
 
 
 def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted: bool = True,
@@ -139,7 +150,7 @@ def fly_graph(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hoste
         try:
             run.start(env)
             run.await_end(start + timeout_s)
-            timing.cpu_s = {p.name: cpu_s(p.pid) for p in [run.recorder, *run.nodes[1:]]}
+            timing.cpu_s = {p.name: cpu_s(p.pid) for p in run.processes if p is not run.nodes[0]}
             timing.flight_s, timing.follower_wait_ms = _lockstep_summary(run.nodes[0].log_path,
                                                                          time.monotonic() - start)
         finally:
