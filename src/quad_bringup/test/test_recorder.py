@@ -7,6 +7,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import rclpy
@@ -249,3 +250,44 @@ def test_a_hosted_recorder_closes_its_bag_when_destroyed(tmp_path):
             rclpy.shutdown(context=ctx)
     with Reader(bag) as reader:   # closed: metadata.yaml and the MCAP footer written
         assert {c.topic: c.msgcount for c in reader.connections} == {'odom': 1}
+
+
+def test_a_recorder_beside_a_lockstep_simulator_takes_each_step_without_the_wait_set(tmp_path):
+    """node_host serves a recorder beside a lockstep simulator once a step (take_step), its subscriptions out of the
+    host's wait set: everything published in the process since the last step is written then (a publisher in the
+    process delivers as it publishes), acknowledged when due, and nothing is taken twice. Beside a realtime
+    simulator it stays in the wait set."""
+    from quad_bringup.recording.recorder_node import RecorderNode
+    from quad_bringup.running.node_host import RECORDER, SIMULATOR, hot_entities, take_step, taken_per_step
+
+    bag = tmp_path / 'bag'
+    with isolated_domain() as (domain, _):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain, args=['--ros-args', '-p', f'output_dir:={bag}', '-p',
+                                                        'topics:=["/clock", "/cf1/odom"]'])
+        try:
+            node = RecorderNode(context=ctx)
+            simulator = SimpleNamespace(params={'mode': 'lockstep'})
+            entries = [(SIMULATOR, ''), (RECORDER, '')]
+            assert taken_per_step(entries, [simulator, node]) == [node]
+            assert taken_per_step(entries, [SimpleNamespace(params={'mode': 'realtime'}), node]) == []
+            assert taken_per_step([(SIMULATOR, '')], [simulator]) == []
+            assert hot_entities([node])[0], 'a standalone recorder is served by its wait set'
+            talker = rclpy.create_node('talker', context=ctx)
+            odom = talker.create_publisher(Odometry, '/cf1/odom', 10)
+            clock = talker.create_publisher(Clock, '/clock', 10)
+            for step in range(1, 4):
+                for _ in range(step):
+                    msg = Odometry()
+                    msg.header.stamp.sec = step
+                    odom.publish(msg)
+                    clock.publish(Clock(clock=msg.header.stamp))
+                take_step(node)
+                assert node.bag.counts == {'/clock': sum(range(1, step + 1)), '/cf1/odom': sum(range(1, step + 1))}
+            node.ack._next_flush_s = 0.0   # due: the newest step acknowledged
+            take_step(node)
+            assert node.ack.newest_ns == 3_000_000_000 and node.ack._pending == 0
+            node.destroy_node()
+            talker.destroy_node()
+        finally:
+            rclpy.shutdown(context=ctx)

@@ -15,7 +15,9 @@ class _Graph:
     def __init__(self, arrivals, publishers_gone_s=float('inf')):
         self.now_s, self.arrivals = 0.0, sorted(arrivals)
         self.node = SimpleNamespace(stop_ns=None, sent_before_stop=0, bag=SimpleNamespace(total=0),
-                                    publishers_left=lambda: self.now_s < publishers_gone_s)
+                                    publishers_left=lambda: self.now_s < publishers_gone_s,
+                                    _raw_subscriptions={'/odom': self})
+        self.handle, self.msg_type = self, None   # the one subscription: recorder_node.take_ready takes from it
 
     def monotonic(self):
         return self.now_s
@@ -23,10 +25,24 @@ class _Graph:
     def spin_once(self, timeout_sec):
         """Takes one message that has arrived (as a pass takes one per subscription)."""
         self.now_s += timeout_sec
+        message = self.take_message(None, True)
+        if message is not None:
+            self.callback(*message)
+
+    def take_message(self, msg_type, raw):
         if self.arrivals and self.arrivals[0][0] <= self.now_s:
-            _, before_stop = self.arrivals.pop(0)
-            self.node.sent_before_stop += before_stop
-            self.node.bag.total += 1
+            return self.arrivals.pop(0)[1:]
+        return None
+
+    def callback(self, before_stop):
+        self.node.sent_before_stop += before_stop
+        self.node.bag.total += 1
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
 
 
 def _drain(monkeypatch, arrivals, pass_s=0.2, publishers_gone_s=float('inf')):

@@ -87,6 +87,9 @@ class SimNode(Node):
         # called with the executor at a stop, once the final counts are published and before the wait for the
         # followers: a recorder in this process (quad_bringup.running.node_host) takes its queue and closes its bag
         self.at_final_counts = []
+        # called after each step's odometry is published, and while the loop waits for its followers: a recorder in
+        # this process served once a step, not by the executor's every pass (quad_bringup.running.node_host)
+        self.each_step = []
         for follower in self.followers:
             self.hot_subscriptions.append(self.create_subscription(
                 ClockMsg, lockstep.ack_topic(follower),
@@ -181,6 +184,8 @@ class SimNode(Node):
         lag_ns = lockstep.FOLLOWER_LAG_STEPS * self.steps_per_period * self.sim.step_ns
         while self.running():
             self.publish_step()
+            for call in self.each_step:
+                call()
             t_k = self.sim.time_ns
             follower_ns = policy.Followers.step_target_ns(t_k, lag_ns)
             waited, behind = time.monotonic(), self.acks.behind(follower_ns)
@@ -245,6 +250,8 @@ class SimNode(Node):
             if wait.warn_due(now):
                 self.get_logger().warn(f'waiting for {", ".join(behind)} to take odometry of t = '
                                        f'{stamp_ns * 1e-9:.3f} s (lockstep_followers)')
+            for call in self.each_step:
+                call()
             executor.spin_once(timeout_sec=0.05)
 
     def drain(self, executor):

@@ -219,7 +219,7 @@ def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
     deadline = time.monotonic() + pass_s
     while time.monotonic() < deadline:
         if not node.publishers_left():
-            take_queued(node, executor)
+            take_queued(node)
             return
         executor.spin_once(timeout_sec=0.01)
         if node.sent_before_stop != taken:
@@ -227,14 +227,27 @@ def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
             deadline = time.monotonic() + pass_s
 
 
-def take_queued(node: RecorderNode, executor):
-    """Writes what the subscriptions hold now, without waiting for more. After a stop in a process that hosts the
-    recorder beside the simulator (quad_bringup.running.node_host) this is the whole drain: a publisher in the same
-    process delivers as it publishes, so what the simulator's own drain made it publish is already queued here."""
-    total = -1
-    while total != node.bag.total:   # each pass takes one message per subscription (or takes_per_pass)
-        total = node.bag.total
-        executor.spin_once(timeout_sec=0.0)
+def take_ready(node: RecorderNode) -> int:
+    """Writes every message its subscriptions hold now, taken without a wait set; returns how many. A hosted recorder
+    beside a lockstep simulator is served this way once a step (quad_bringup.running.node_host): a take from an empty
+    queue costs ~1.5 us, where its ~65 subscriptions (a fleet of 16) in the host's wait set cost ~150 us in every
+    pass of the lockstep's loop."""
+    taken = 0
+    for sub in node._raw_subscriptions.values():
+        with sub.handle:
+            while (message := sub.handle.take_message(sub.msg_type, True)) is not None:
+                sub.callback(*message)
+                taken += 1
+    return taken
+
+
+def take_queued(node: RecorderNode):
+    """Writes what the subscriptions hold now, and what writing it let in, without waiting for more. After a stop in a
+    process that hosts the recorder beside the simulator (quad_bringup.running.node_host) this is the whole drain: a
+    publisher in the same process delivers as it publishes, so what the simulator's own drain made it publish is
+    already queued here."""
+    while take_ready(node):
+        pass
 
 
 def main(args=None):

@@ -25,9 +25,11 @@ cross-process deliveries and no context switch on the lockstep's path (4 vehicle
 of 5 interleaved runs on the loaded 2-core machine). Stop signals then reach the simulator (its final diagnostics
 and the recorder's drain), as a lone sim_node's do.
 
-`recorder` (no namespace, beside sim_node only: fly's graph) records in the same process: every message reaches it
-without leaving the process, and at the simulator's stop, once its final counts are published, it takes what is
-queued and closes the bag (close_recorder), before the simulator waits for followers in other processes.
+`recorder` (no namespace, beside sim_node only: fly's graph, a fleet's) records in the same process: every message
+reaches it without leaving the process; beside a lockstep simulator it takes what is queued once a step (take_step),
+its subscriptions out of the executor's wait set (at 16 vehicles ~65 of them, ~150 us in every pass); at the
+simulator's stop, once its final counts are published, it takes what is queued and closes the bag (close_recorder),
+before the simulator waits for followers in other processes.
 """
 
 import importlib
@@ -102,7 +104,25 @@ def share_clock(nodes):
     return source._clock_sub
 
 
-def close_recorder(recorder, executor):
+def taken_per_step(entries, nodes) -> list:
+    """The nodes served once a lockstep step (take_step) instead of by the executor's wait set: a recorder beside a
+    simulator in lockstep mode. In realtime mode there are no steps: the recorder is served as the others are."""
+    if (RECORDER, '') not in entries or nodes[entries.index((SIMULATOR, ''))].params['mode'] != 'lockstep':
+        return []
+    return [nodes[entries.index((RECORDER, ''))]]
+
+
+def take_step(recorder):
+    """A hosted recorder's turn in each lockstep step (SimNode.each_step): what is queued, then its
+    acknowledgements when due (its subscriptions are not in the host's wait set)."""
+    from quad_bringup.recording.recorder_node import take_ready
+
+    if not recorder.closed:
+        take_ready(recorder)
+        recorder.ack.flush_if_due()
+
+
+def close_recorder(recorder):
     """A hosted recorder's drain: what the simulator published, its final counts included, is queued already (a
     publisher in this process delivers as it publishes): take it and close the bag. At the simulator's stop, before it
     waits for its followers: fly's monitor, in another process, may be gone without the graph knowing it yet (fly
@@ -111,7 +131,7 @@ def close_recorder(recorder, executor):
     from quad_bringup.recording.recorder_node import take_queued
 
     if not recorder.closed:
-        take_queued(recorder, executor)
+        take_queued(recorder)
         recorder.close_bag()
 
 
@@ -125,6 +145,7 @@ def main(argv=None):
 
     clock = [None]
     simulated = any(name == SIMULATOR for name, _ in entries)
+    stepped = []   # a recorder beside a lockstep simulator: served once a step (take_step), not in the wait set
 
     def make_nodes():
         nodes = []
@@ -139,7 +160,12 @@ def main(argv=None):
                 raise ValueError(f'{f"/{namespace}" if namespace else ""}/{name}: {exc}') from None
         # the recorder stamps with the system clock (receive times, as `ros2 bag record`): not on the shared /clock
         clock[:] = [share_clock([node for (name, _), node in zip(entries, nodes) if name != RECORDER])]
+        stepped[:] = taken_per_step(entries, nodes)
         return nodes
+
+    def make_executor(nodes):
+        served = [node for node in nodes if node not in stepped]
+        return HotPathExecutor(lambda: hot_entities(served, clock[0]))
 
     def spin(nodes, executor):
         if not simulated:
@@ -149,13 +175,15 @@ def main(argv=None):
         simulator = nodes[entries.index((SIMULATOR, ''))]
         recorder = nodes[entries.index((RECORDER, ''))] if (RECORDER, '') in entries else None
         if recorder is not None:
-            simulator.at_final_counts.append(lambda executor: close_recorder(recorder, executor))
+            if recorder in stepped:
+                simulator.each_step.append(lambda: take_step(recorder))
+            simulator.at_final_counts.append(lambda executor: close_recorder(recorder))
         sim_node.spin(simulator, executor)
         if recorder is not None:   # a stop that did not reach the lockstep's drain (realtime mode)
-            close_recorder(recorder, executor)
+            close_recorder(recorder)
 
     run_node('node_host', make_nodes, refused=(ValueError, OSError),
-             make_executor=lambda nodes: HotPathExecutor(lambda: hot_entities(nodes, clock[0])),
+             make_executor=make_executor,
              spin=spin, args=['node_host', *ros_args], own_signals=simulated)
 
 
