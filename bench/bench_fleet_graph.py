@@ -3,9 +3,11 @@ vehicles on this machine, beside Crazyswarm2's published figures and the same fl
 
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 
 from bench_fleet import SPACING_M, grid_fleet
 
@@ -17,9 +19,15 @@ NOTE = ('\n' +
         'The lockstep is serial: each step sim_node publishes every odometry, the controllers answer, '
         'sim_node takes every setpoint and advances, so the rate falls as 1/N. With the simulator in the '
         "vehicles' process (node_host, the default) odometry and setpoints go from writer to reader inside "
-        'that process; what is left per message is the copy to the recorder (~40 us per write on this '
-        'machine, against ~26 us with no reader in another process) and Python (rclpy take, the controller, '
-        'cdr packing, ~0.1 ms per vehicle and step). Before this (sim_node in a process of its own; the '
+        'that process, the recorder\'s copy too (it is a node of that process, served once a step); what is left '
+        'per message is Python (rclpy take, the controller, cdr packing, ~0.1 ms per vehicle and step). With the '
+        'recorder in a process of its own (until 2026-12-07) each write to it woke that process, ~30 us of the '
+        'writer\'s wall time on 2 cores, and on a shared machine its process took the core the lockstep needed: '
+        'against that tree (14b437d), 16 vehicles beside a busy loop 2.94x against 1.76x (medians of 5 interleaved '
+        'pairs, load 0.6-2.1 by the 1-minute average), beside two 2.58x against 1.54x (3 pairs), quiet 2.54x '
+        'against 2.77x (3 pairs: within the noise). Hosted but served by the host\'s wait set like any node (its '
+        '~65 subscriptions in every pass of the lockstep\'s loop, ~150 us each pass), beside a busy loop: 2.07x '
+        'against 1.21x. Before this (sim_node in a process of its own; the '
         "executor's pass over every entity every 0.1 s however long it took) the quiet machine gave medians "
         'of 4.6x at 4 vehicles (13 runs, 1.9-7.1x), 1.3x at 16 and 0.10x at 64. Hosting the simulator: 4 '
         'vehicles 3.7-4.9x -> 5.7-5.9x median in interleaved runs on the loaded machine; the slow pass '
@@ -28,7 +36,8 @@ NOTE = ('\n' +
         'while subscribed (a fleet publishes them to nobody) took 4 vehicles from 3.4x to 5-7x before that. '
         'sim_node logs its longest wait for setpoints and for the recorder (`lockstep: longest wait for '
         '...`; the recorder\'s in the table): a slow run shows where it lost its time.\n\n'
-        'The recorder holds the lockstep only while it is more than 40 steps behind: at 16 vehicles on a machine '
+        'The recorder in a process of its own (one per node, --process-per-node) holds the lockstep only while it '
+        'is more than 40 steps behind: at 16 vehicles on a machine '
         'that is not starved (load 1.3-2.4) its longest wait was 0.1-0.9 ms in every run; stopped (SIGSTOP) for 1 s '
         'it held sim_node 0.83 s, nothing lost. The waits of seconds came from a DDS sample it lost while '
         'descheduled, asked again only at the writer\'s next heartbeat (3 s; 50 ms since, the Fast DDS profile), '
@@ -49,9 +58,23 @@ NOTE = ('\n' +
 
 SIZES = (1, 4, 16, 64)
 PER_NODE_SIZES = (1, 4)      # one process per node (as launch_ros starts them) beside one process for the nodes
+BUSY_SIZES = (16,)           # again beside a busy loop (the goal's load ~4: the graph's own ~2-3, and one more core's)
 REPEATS = {1: 5, 4: 7, 16: 5, 64: 1}   # runs per row (the spread from run to run is wide on a shared machine)
 CRAZYSWARM2 = {1: '0.70x', 4: '0.15x (5 drones)', 16: '0.05x', 64: ''}   # Crazyswarm2's own measurement (its machine)
 GOAL = {4: 5.0, 16: 3.0}
+
+
+@contextmanager
+def busy_loops(count: int):
+    """`count` processes spinning a pure-Python loop while the body runs (another user's work on the shared machine),
+    killed after it."""
+    loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(count)]
+    try:
+        yield
+    finally:
+        for loop in loops:
+            loop.kill()
+            loop.wait()
 
 
 def main():
@@ -59,10 +82,11 @@ def main():
     for n in SIZES:
         plan = plan_fleet(grid_fleet(n))
         offline = fly_fleet(plan.fleet, fleet_plan=plan)
-        for hosted in (True, False) if n in PER_NODE_SIZES else (True,):
+        layouts = [(True, 0)] + [(False, 0)] * (n in PER_NODE_SIZES) + [(True, 1)] * (n in BUSY_SIZES)
+        for hosted, busy in layouts:
             rtf, command, done, rmse, load, follower_ms = [], [], [], [], [], []
             for _ in range(REPEATS[n]):
-                with tempfile.TemporaryDirectory() as out:
+                with tempfile.TemporaryDirectory() as out, busy_loops(busy):
                     start = time.perf_counter()
                     run, timing = fly_graph(plan, out, hosted=hosted, log=lambda *_: None)
                     command.append(time.perf_counter() - start)
@@ -71,16 +95,18 @@ def main():
                 rtf.append(run.sim_s / timing.flight_s)
                 done.append(sum(m['completed'] and not m['collided'] for m in run.metrics.values()))
                 rmse.append(max(m['rmse_m'] for m in run.metrics.values()))
-                print(f'{n} vehicles ({"hosted" if hosted else "per node"}): {rtf[-1]:.2f}x stepping, '
-                      f'command {command[-1]:.1f} s', file=sys.stderr)
+                layout = ('one process' if hosted else 'one per node') + ', a busy loop beside' * busy
+                print(f'{n} vehicles ({layout}): {rtf[-1]:.2f}x stepping, command {command[-1]:.1f} s',
+                      file=sys.stderr)
             med = statistics.median(rtf)
-            rows.append(f'| {n} | {"one process" if hosted else "one per node"} | {len(rtf)} | {run.sim_s:.2f} | '
+            rows.append(f'| {n} | {layout} | {len(rtf)} | {run.sim_s:.2f} | '
                         f'**{med:.2f}x** | {min(rtf):.2f}-{max(rtf):.2f}x | {statistics.median(command):.1f} | '
                         f'{run.sim_s / statistics.median(command):.2f}x | {min(done)}/{n} | {max(rmse) * 100:.2f} | '
                         f'{offline.real_time_factor:.1f}x | {min(load):.1f}-{max(load):.1f} | '
                         f'{max(follower_ms):.1f} | {CRAZYSWARM2[n]} |')
             if hosted and n in GOAL:
-                verdicts.append(f'- {n} vehicles: median {med:.2f}x over {len(rtf)} runs against >= {GOAL[n]:g}x: '
+                verdicts.append(f'- {n} vehicles{", a busy loop beside" * busy}: median {med:.2f}x over {len(rtf)} '
+                                f'runs against >= {GOAL[n]:g}x: '
                                 f'{"met" if med >= GOAL[n] else "NOT met"} ({sum(r >= GOAL[n] for r in rtf)} of '
                                 f'{len(rtf)} runs at or above it)')
     print('## Fleets through the ROS graph (bench_fleet_graph)\n')
@@ -88,10 +114,10 @@ def main():
           '`fleets/formation4.yaml`\'s path; one sim_node steps them all in lockstep (1 kHz physics, 100 Hz setpoints, '
           'one /clock, each vehicle\'s topics under its namespace), each vehicle\'s trajectory_node and '
           'position_controller (pd) under its namespace, the recorder (every vehicle\'s odom, setpoints, plan and '
-          'diagnostics) as the lockstep follower: nothing lost. sim_node and the vehicles\' nodes run in one '
-          'process (quad_bringup.running.node_host, the default; the recorder in its own) or, for 1 and 4 '
-          'vehicles, one '
-          'process per node as launch_ros starts them. Stepping = sim_node\'s wall time from its first step to its '
+          'diagnostics) as the lockstep follower: nothing lost. sim_node, the vehicles\' nodes and the recorder run in '
+          'one process (quad_bringup.running.node_host, the default) or, for 1 and 4 vehicles, one process per '
+          'node as launch_ros starts them; 16 vehicles again beside a busy loop (a pure-Python loop in a process of '
+          'its own: the goal\'s load). Stepping = sim_node\'s wall time from its first step to its '
           'last (the real-time factor: simulated / stepping); the command = what the user waits for (processes '
           'started, planned, flown, stopped, the bag read and scored). Runs per row: the median and the range. '
           'Beside them the same fleet offline (fleet_loop, no ROS) and Crazyswarm2\'s simulation through ROS with '
