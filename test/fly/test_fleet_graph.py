@@ -169,15 +169,17 @@ def test_a_vehicle_whose_controller_dies_lands_and_the_other_completes(tmp_path)
 
 def test_the_simulator_hosted_with_the_vehicles_stops_on_sigint_and_loses_nothing(tmp_path):
     """The default layout: sim_node, the recorder and every vehicle's nodes in one node_host process. SIGINT at
-    t >= 1 s: the simulator (not rclpy) takes it, publishes its final diagnostics, the recorder takes what is queued
-    and closes the bag, and the process exits 0; every step it published is in the bag, for each vehicle."""
+    t ~1 s (the probe holds the lockstep there, whatever the load: the whole flight takes well under a second of wall
+    time): the simulator (not rclpy) takes it, publishes its final diagnostics, the recorder takes what is queued and
+    closes the bag, and the process exits 0; every step it published is in the bag, for each vehicle."""
     plan = plan_fleet(load_fleet(two_abreast(tmp_path)))
-    run = fleet_graph.prepare(plan, tmp_path / 'run')
+    run = fleet_graph.prepare(plan, tmp_path / 'run', followers=(HOLD_PROBE,))
     assert [p.name for p in run.processes] == ['node_host'] and run.recorder is None, run.processes
     assert run.nodes[0].argv[:2] == ['sim_node', 'recorder'], run.nodes[0].argv
     host = run.nodes[0]
-    with flying_until(run, 1.0) as flight:
+    with flying_until(run, 1.0, hold=True) as flight:
         host.signal_group(signal.SIGINT)
+        flight['release']()   # the simulator's drain waits for every follower to take its last step
         while host.exit_code() is None:
             assert time.monotonic() < flight['deadline'], 'node_host did not stop after SIGINT'
             time.sleep(0.05)   # polling a child's exit (no event to await but waitpid)

@@ -87,8 +87,9 @@ class SimNode(Node):
         # called with the executor at a stop, once the final counts are published and before the wait for the
         # followers: a recorder in this process (quad_bringup.running.node_host) takes its queue and closes its bag
         self.at_final_counts = []
-        # called after each step's odometry is published, and while the loop waits for its followers: a recorder in
-        # this process served once a step, not by the executor's every pass (quad_bringup.running.node_host)
+        # called after each step's odometry is published (re-published too), and while the loop waits for its
+        # followers: a recorder in this process served once a step, not by the executor's every pass
+        # (quad_bringup.running.node_host)
         self.each_step = []
         for follower in self.followers:
             self.hot_subscriptions.append(self.create_subscription(
@@ -235,6 +236,8 @@ class SimNode(Node):
             starting = [v for v in wait.waiting if v.lockstep.setpoints_received == 0]
             if starting and wait.republish_due(now):  # for nodes that joined late
                 self.publish_step(starting)
+                for call in self.each_step:   # a long wait's re-publications taken as they come
+                    call()
             executor.spin_once(timeout_sec=wait.wake_in_s(now))
             wait.answered(lambda v: v.lockstep.setpoint_stamp_ns >= t_k)
         return waited_for
