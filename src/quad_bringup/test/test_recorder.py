@@ -6,6 +6,7 @@ import subprocess
 import sys
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -230,24 +231,31 @@ def test_a_fleet_vehicles_topics_have_the_contracts_specs():
     assert contract_spec('/clock') == DEFAULT_TOPICS['/clock'] and contract_spec('/cf1/unknown') is None
 
 
-def test_a_hosted_recorder_closes_its_bag_when_destroyed(tmp_path):
-    """In a process that hosts it beside other nodes (quad_bringup.running.node_host), whatever ends the process
-    destroys the nodes (quad_common.ros.node_main.close_nodes): the recorder closes its bag then, once."""
+@contextmanager
+def recorder_in_process(bag, topics: str):
+    """A RecorderNode in this process (as node_host hosts it), writing `bag`, recording `topics` (a parameter
+    value, e.g. '["odom"]'), in a context of its own on an isolated domain: yields (node, context)."""
     from quad_bringup.recording.recorder_node import RecorderNode
 
-    bag = tmp_path / 'bag'
     with isolated_domain() as (domain, _):
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=domain, args=['--ros-args', '-p', f'output_dir:={bag}', '-p',
-                                                        'topics:=["odom"]'])
+                                                        f'topics:={topics}'])
         try:
-            node = RecorderNode(context=ctx)
-            node.bag.write('odom', 1, b'\x00\x01\x00\x00' + bytes(300))   # a little-endian CDR body
-            node.destroy_node()
-            assert (bag / 'metadata.yaml').exists()
-            node.close_bag()   # a second close (the standalone recorder's own, then its teardown's) does nothing
+            yield RecorderNode(context=ctx), ctx
         finally:
             rclpy.shutdown(context=ctx)
+
+
+def test_a_hosted_recorder_closes_its_bag_when_destroyed(tmp_path):
+    """In a process that hosts it beside other nodes (quad_bringup.running.node_host), whatever ends the process
+    destroys the nodes (quad_common.ros.node_main.close_nodes): the recorder closes its bag then, once."""
+    bag = tmp_path / 'bag'
+    with recorder_in_process(bag, '["odom"]') as (node, _):
+        node.bag.write('odom', 1, b'\x00\x01\x00\x00' + bytes(300))   # a little-endian CDR body
+        node.destroy_node()
+        assert (bag / 'metadata.yaml').exists()
+        node.close_bag()   # a second close (the standalone recorder's own, then its teardown's) does nothing
     with Reader(bag) as reader:   # closed: metadata.yaml and the MCAP footer written
         assert {c.topic: c.msgcount for c in reader.connections} == {'odom': 1}
 
@@ -257,37 +265,28 @@ def test_a_recorder_beside_a_lockstep_simulator_takes_each_step_without_the_wait
     host's wait set: everything published in the process since the last step is written then (a publisher in the
     process delivers as it publishes), acknowledged when due, and nothing is taken twice. Beside a realtime
     simulator it stays in the wait set."""
-    from quad_bringup.recording.recorder_node import RecorderNode
     from quad_bringup.running.node_host import RECORDER, SIMULATOR, hot_entities, take_step, taken_per_step
 
-    bag = tmp_path / 'bag'
-    with isolated_domain() as (domain, _):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=domain, args=['--ros-args', '-p', f'output_dir:={bag}', '-p',
-                                                        'topics:=["/clock", "/cf1/odom"]'])
-        try:
-            node = RecorderNode(context=ctx)
-            simulator = SimpleNamespace(params={'mode': 'lockstep'})
-            entries = [(SIMULATOR, ''), (RECORDER, '')]
-            assert taken_per_step(entries, [simulator, node]) == [node]
-            assert taken_per_step(entries, [SimpleNamespace(params={'mode': 'realtime'}), node]) == []
-            assert taken_per_step([(SIMULATOR, '')], [simulator]) == []
-            assert hot_entities([node])[0], 'a standalone recorder is served by its wait set'
-            talker = rclpy.create_node('talker', context=ctx)
-            odom = talker.create_publisher(Odometry, '/cf1/odom', 10)
-            clock = talker.create_publisher(Clock, '/clock', 10)
-            for step in range(1, 4):
-                for _ in range(step):
-                    msg = Odometry()
-                    msg.header.stamp.sec = step
-                    odom.publish(msg)
-                    clock.publish(Clock(clock=msg.header.stamp))
-                take_step(node)
-                assert node.bag.counts == {'/clock': sum(range(1, step + 1)), '/cf1/odom': sum(range(1, step + 1))}
-            node.ack._next_flush_s = 0.0   # due: the newest step acknowledged
+    with recorder_in_process(tmp_path / 'bag', '["/clock", "/cf1/odom"]') as (node, ctx):
+        simulator = SimpleNamespace(params={'mode': 'lockstep'})
+        entries = [(SIMULATOR, ''), (RECORDER, '')]
+        assert taken_per_step(entries, [simulator, node]) == [node]
+        assert taken_per_step(entries, [SimpleNamespace(params={'mode': 'realtime'}), node]) == []
+        assert taken_per_step([(SIMULATOR, '')], [simulator]) == []
+        assert hot_entities([node])[0], 'a standalone recorder is served by its wait set'
+        talker = rclpy.create_node('talker', context=ctx)
+        odom = talker.create_publisher(Odometry, '/cf1/odom', 10)
+        clock = talker.create_publisher(Clock, '/clock', 10)
+        for step in range(1, 4):
+            for _ in range(step):
+                msg = Odometry()
+                msg.header.stamp.sec = step
+                odom.publish(msg)
+                clock.publish(Clock(clock=msg.header.stamp))
             take_step(node)
-            assert node.ack.newest_ns == 3_000_000_000 and node.ack._pending == 0
-            node.destroy_node()
-            talker.destroy_node()
-        finally:
-            rclpy.shutdown(context=ctx)
+            assert node.bag.counts == {'/clock': sum(range(1, step + 1)), '/cf1/odom': sum(range(1, step + 1))}
+        node.ack._next_flush_s = 0.0   # due: the newest step acknowledged
+        take_step(node)
+        assert node.ack.newest_ns == 3_000_000_000 and node.ack._pending == 0
+        node.destroy_node()
+        talker.destroy_node()
