@@ -27,7 +27,12 @@ NOTE = ('\n' +
         'pairs, load 0.6-2.1 by the 1-minute average), beside two 2.58x against 1.54x (3 pairs), quiet 2.54x '
         'against 2.77x (3 pairs: within the noise). Hosted but served by the host\'s wait set like any node (its '
         '~65 subscriptions in every pass of the lockstep\'s loop, ~150 us each pass), beside a busy loop: 2.07x '
-        'against 1.21x. Before this (sim_node in a process of its own; the '
+        'against 1.21x. A subscription whose last take found nothing (the plans and diagnostics: half of them) '
+        'taken again 8 steps later, not every step, against every one every step (73c0c11): quiet 3.85x, 3.90x and '
+        '3.44x against 3.58x, 3.43x and 2.49x (3 interleaved pairs; the vehicles\' process 2.8-3.2 s of CPU a '
+        'flight against 3.0-4.4 s), beside a busy loop 2.65x against 2.09x (medians of 4 pairs). Beside a busy '
+        'loop the same flight costs the vehicles\' process 3.2-7.4 s of CPU against 2.8-3.2 s quiet: the two '
+        'cores share more than time. Before this (sim_node in a process of its own; the '
         "executor's pass over every entity every 0.1 s however long it took) the quiet machine gave medians "
         'of 4.6x at 4 vehicles (13 runs, 1.9-7.1x), 1.3x at 16 and 0.10x at 64. Hosting the simulator: 4 '
         'vehicles 3.7-4.9x -> 5.7-5.9x median in interleaved runs on the loaded machine; the slow pass '

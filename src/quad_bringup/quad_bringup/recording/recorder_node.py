@@ -92,8 +92,9 @@ class RecorderNode(Node):
         self.closed = False
         self.ack = lockstep.Acknowledger(self, self.get_name())
         self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
-        self._awaited = list(self.ack_after)   # those of ack_after not in the bag yet
+        self.awaiting = list(self.ack_after)   # those of ack_after not in the bag yet
         self._raw_subscriptions = {}
+        self.quiet_steps = {}   # topic -> lockstep steps until its next take (take_step_messages)
         # the stop's wall time (ns; none yet: the largest int64) and how many messages published before it (their
         # publisher's source timestamp) were taken: what the drain after a stop waits for
         self.stop_ns = 2 ** 63 - 1
@@ -141,9 +142,9 @@ class RecorderNode(Node):
                 if stamp_ns > self._paced_newest_ns[topic]:
                     self._paced_newest_ns[topic] = stamp_ns
                 self.ack.taken(min(self._paced_newest_ns.values()))
-                if self._awaited:  # nothing acknowledged until the bag has these (e.g. the latched plan)
-                    self._awaited = [t for t in self._awaited if self.bag.counts.get(t, 0) == 0]
-                    self.ack.hold(bool(self._awaited))
+                if self.awaiting:  # nothing acknowledged until the bag has these (e.g. the latched plan)
+                    self.awaiting = [t for t in self.awaiting if self.bag.counts.get(t, 0) == 0]
+                    self.ack.hold(bool(self.awaiting))
             if self.bag.counts[topic] == 1:
                 self.publish_status()
 
@@ -227,17 +228,43 @@ def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
             deadline = time.monotonic() + pass_s
 
 
-def take_ready(node: RecorderNode) -> int:
-    """Writes every message its subscriptions hold now, taken without a wait set; returns how many. A hosted recorder
-    beside a lockstep simulator is served this way once a step (quad_bringup.running.node_host): a take from an empty
-    queue costs ~1.5 us, where its ~65 subscriptions (a fleet of 16) in the host's wait set cost ~150 us in every
-    pass of the lockstep's loop."""
+# lockstep steps between takes of a subscription whose last take found nothing (take_step_messages)
+QUIET_TAKE_EVERY = 8
+
+
+def _take_all(sub) -> int:
+    """Writes every message `sub` holds now (its callback), taken without a wait set; how many."""
     taken = 0
-    for sub in node._raw_subscriptions.values():
-        with sub.handle:
-            while (message := sub.handle.take_message(sub.msg_type, True)) is not None:
-                sub.callback(*message)
-                taken += 1
+    with sub.handle:
+        while (message := sub.handle.take_message(sub.msg_type, True)) is not None:
+            sub.callback(*message)
+            taken += 1
+    return taken
+
+
+def take_ready(node: RecorderNode) -> int:
+    """Writes every message its subscriptions hold now, taken without a wait set; returns how many."""
+    return sum(_take_all(sub) for sub in node._raw_subscriptions.values())
+
+
+def take_step_messages(node: RecorderNode) -> int:
+    """take_ready for a lockstep step, as a hosted recorder beside a lockstep simulator is served
+    (quad_bringup.running.node_host): its subscriptions out of the host's wait set (at 16 vehicles ~65 of them cost
+    ~150 us in every pass of the lockstep's loop), a take from an empty queue ~1.5 us. A subscription whose last take
+    found nothing (a fleet's plans and diagnostics: half of them) is taken again QUIET_TAKE_EVERY steps later; one
+    that found a message at the next step (odometry, setpoints, /clock: every step); all of them while it waits for
+    a topic before acknowledging (lockstep_ack_after: the plan, which the simulator's first step waits for). Returns
+    how many."""
+    if node.awaiting:
+        return take_ready(node)
+    taken, quiet = 0, node.quiet_steps
+    for topic, sub in node._raw_subscriptions.items():
+        if quiet.get(topic, 0):
+            quiet[topic] -= 1
+            continue
+        count = _take_all(sub)
+        quiet[topic] = 0 if count else QUIET_TAKE_EVERY - 1
+        taken += count
     return taken
 
 

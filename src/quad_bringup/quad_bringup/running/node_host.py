@@ -26,8 +26,8 @@ of 5 interleaved runs on the loaded 2-core machine). Stop signals then reach the
 and the recorder's drain), as a lone sim_node's do.
 
 `recorder` (no namespace, beside sim_node only: fly's graph, a fleet's) records in the same process: every message
-reaches it without leaving the process; beside a lockstep simulator it takes what is queued once a step (take_step),
-its subscriptions out of the executor's wait set (at 16 vehicles ~65 of them, ~150 us in every pass); at the
+reaches it without leaving the process; beside a lockstep simulator it takes what is queued once a step (take_step:
+recorder_node.take_step_messages), its subscriptions out of the executor's wait set; at the
 simulator's stop, once its final counts are published, it takes what is queued and closes the bag (close_recorder),
 before the simulator waits for followers in other processes.
 """
@@ -115,10 +115,10 @@ def taken_per_step(entries, nodes) -> list:
 def take_step(recorder):
     """A hosted recorder's turn in each lockstep step (SimNode.each_step): what is queued, then its
     acknowledgements when due (its subscriptions are not in the host's wait set)."""
-    from quad_bringup.recording.recorder_node import take_ready
+    from quad_bringup.recording.recorder_node import take_step_messages
 
     if not recorder.closed:
-        take_ready(recorder)
+        take_step_messages(recorder)
         recorder.ack.flush_if_due()
 
 
