@@ -264,9 +264,9 @@ def test_a_recorder_beside_a_lockstep_simulator_takes_each_step_without_the_wait
     """node_host serves a recorder beside a lockstep simulator once a step (take_step), its subscriptions out of the
     host's wait set: everything published in the process since the last step is written then (a publisher in the
     process delivers as it publishes), acknowledged when due, and nothing is taken twice; a topic whose last take
-    found nothing is taken again QUIET_TAKE_EVERY steps later, nothing lost. Beside a realtime simulator it stays in
-    the wait set."""
-    from quad_bringup.recording.recorder_node import QUIET_TAKE_EVERY
+    found nothing is taken again IDLE_TAKE_EVERY_STEPS steps later, nothing lost. Beside a realtime simulator it
+    stays in the wait set."""
+    from quad_bringup.recording.recorder_node import IDLE_TAKE_EVERY_STEPS
     from quad_bringup.running.node_host import RECORDER, SIMULATOR, hot_entities, take_step, taken_per_step
 
     topics = '["/clock", "/cf1/odom", "/cf1/diagnostics"]'
@@ -282,7 +282,7 @@ def test_a_recorder_beside_a_lockstep_simulator_takes_each_step_without_the_wait
         clock = talker.create_publisher(Clock, '/clock', 10)
         diagnostics = talker.create_publisher(DiagnosticArray, '/cf1/diagnostics', 10)
         written = 0
-        for step in range(1, QUIET_TAKE_EVERY + 2):
+        for step in range(1, IDLE_TAKE_EVERY_STEPS + 2):
             for _ in range(step % 3 + 1):
                 msg = Odometry()
                 msg.header.stamp.sec = step
@@ -290,12 +290,12 @@ def test_a_recorder_beside_a_lockstep_simulator_takes_each_step_without_the_wait
                 clock.publish(Clock(clock=msg.header.stamp))
                 written += 1
             take_step(node)
-            if step == 1:   # after a take that found none: taken QUIET_TAKE_EVERY steps later
+            if step == 1:   # after a take that found none: taken IDLE_TAKE_EVERY_STEPS steps later
                 diagnostics.publish(DiagnosticArray())
             assert node.bag.counts['/clock'] == node.bag.counts['/cf1/odom'] == written, (step, node.bag.counts)
-            assert node.bag.counts['/cf1/diagnostics'] == (step > QUIET_TAKE_EVERY), (step, node.bag.counts)
+            assert node.bag.counts['/cf1/diagnostics'] == (step > IDLE_TAKE_EVERY_STEPS), (step, node.bag.counts)
         node.ack._next_flush_s = 0.0   # due: the newest step acknowledged
         take_step(node)
-        assert node.ack.newest_ns == (QUIET_TAKE_EVERY + 1) * 1_000_000_000 and node.ack._pending == 0
+        assert node.ack.newest_ns == (IDLE_TAKE_EVERY_STEPS + 1) * 1_000_000_000 and node.ack._pending == 0
         node.destroy_node()
         talker.destroy_node()

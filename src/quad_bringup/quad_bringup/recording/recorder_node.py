@@ -94,7 +94,7 @@ class RecorderNode(Node):
         self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
         self.awaiting = list(self.ack_after)   # those of ack_after not in the bag yet
         self._raw_subscriptions = {}
-        self.quiet_steps = {}   # topic -> lockstep steps until its next take (take_step_messages)
+        self.steps_until_take = {}   # topic -> lockstep steps until its next take (take_step_messages)
         # the stop's wall time (ns; none yet: the largest int64) and how many messages published before it (their
         # publisher's source timestamp) were taken: what the drain after a stop waits for
         self.stop_ns = 2 ** 63 - 1
@@ -229,7 +229,7 @@ def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
 
 
 # lockstep steps between takes of a subscription whose last take found nothing (take_step_messages)
-QUIET_TAKE_EVERY = 8
+IDLE_TAKE_EVERY_STEPS = 8
 
 
 def _take_all(sub) -> int:
@@ -251,19 +251,19 @@ def take_step_messages(node: RecorderNode) -> int:
     """take_ready for a lockstep step, as a hosted recorder beside a lockstep simulator is served
     (quad_bringup.running.node_host): its subscriptions out of the host's wait set (at 16 vehicles ~65 of them cost
     ~150 us in every pass of the lockstep's loop), a take from an empty queue ~1.5 us. A subscription whose last take
-    found nothing (a fleet's plans and diagnostics: half of them) is taken again QUIET_TAKE_EVERY steps later; one
-    that found a message at the next step (odometry, setpoints, /clock: every step); all of them while it waits for
-    a topic before acknowledging (lockstep_ack_after: the plan, which the simulator's first step waits for). Returns
-    how many."""
+    found nothing (a fleet's plans and diagnostics: half of them) is taken again IDLE_TAKE_EVERY_STEPS steps later;
+    one that found a message at the next step (odometry, setpoints, /clock: every step); all of them while it waits
+    for a topic before acknowledging (lockstep_ack_after: the plan, which the simulator's first step waits for).
+    Returns how many."""
     if node.awaiting:
         return take_ready(node)
-    taken, quiet = 0, node.quiet_steps
+    taken, wait = 0, node.steps_until_take
     for topic, sub in node._raw_subscriptions.items():
-        if quiet.get(topic, 0):
-            quiet[topic] -= 1
+        if wait.get(topic, 0):
+            wait[topic] -= 1
             continue
         count = _take_all(sub)
-        quiet[topic] = 0 if count else QUIET_TAKE_EVERY - 1
+        wait[topic] = 0 if count else IDLE_TAKE_EVERY_STEPS - 1
         taken += count
     return taken
 
