@@ -266,8 +266,8 @@ def test_a_recorder_beside_a_lockstep_simulator_takes_each_step_without_the_wait
     process delivers as it publishes), acknowledged when due, and nothing is taken twice; a topic whose last take
     found nothing is taken again IDLE_TAKE_EVERY_STEPS steps later, nothing lost. Beside a realtime simulator it
     stays in the wait set."""
-    from quad_bringup.recording.recorder_node import IDLE_TAKE_EVERY_STEPS
-    from quad_bringup.running.node_host import RECORDER, SIMULATOR, hot_entities, take_step, taken_per_step
+    from quad_bringup.recording.recorder_node import IDLE_TAKE_EVERY_STEPS, take_step
+    from quad_bringup.running.node_host import RECORDER, SIMULATOR, hot_entities, taken_per_step
 
     topics = '["/clock", "/cf1/odom", "/cf1/diagnostics"]'
     with recorder_in_process(tmp_path / 'bag', topics) as (node, ctx):

@@ -185,8 +185,7 @@ class SimNode(Node):
         lag_ns = lockstep.FOLLOWER_LAG_STEPS * self.steps_per_period * self.sim.step_ns
         while self.running():
             self.publish_step()
-            for call in self.each_step:
-                call()
+            self._each_step()
             t_k = self.sim.time_ns
             follower_ns = policy.Followers.step_target_ns(t_k, lag_ns)
             waited, behind = time.monotonic(), self.acks.behind(follower_ns)
@@ -214,6 +213,10 @@ class SimNode(Node):
                                        f'{t_ns * 1e-9:.3f} s ({", ".join(who) or "none behind at its start"})')
         self.drain(executor)
 
+    def _each_step(self):
+        for call in self.each_step:
+            call()
+
     def _await_setpoints(self, executor, t_k: int) -> list:
         """Spin until every vehicle has a setpoint stamped >= t_k or its wait (policy.setpoint_timeout_s) ran out,
         re-publishing the odometry of those without a first setpoint (policy.SetpointWait). Returns the vehicles
@@ -236,8 +239,7 @@ class SimNode(Node):
             starting = [v for v in wait.waiting if v.lockstep.setpoints_received == 0]
             if starting and wait.republish_due(now):  # for nodes that joined late
                 self.publish_step(starting)
-                for call in self.each_step:   # a long wait's re-publications taken as they come
-                    call()
+                self._each_step()   # a long wait's re-publications taken as they come
             executor.spin_once(timeout_sec=wait.wake_in_s(now))
             wait.answered(lambda v: v.lockstep.setpoint_stamp_ns >= t_k)
         return waited_for
@@ -253,8 +255,7 @@ class SimNode(Node):
             if wait.warn_due(now):
                 self.get_logger().warn(f'waiting for {", ".join(behind)} to take odometry of t = '
                                        f'{stamp_ns * 1e-9:.3f} s (lockstep_followers)')
-            for call in self.each_step:
-                call()
+            self._each_step()
             executor.spin_once(timeout_sec=0.05)
 
     def drain(self, executor):

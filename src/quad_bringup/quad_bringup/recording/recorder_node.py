@@ -94,7 +94,7 @@ class RecorderNode(Node):
         self.ack_after = [t.strip() for t in self.params['lockstep_ack_after'].split(',') if t.strip()]
         self.awaiting = list(self.ack_after)   # those of ack_after not in the bag yet
         self._raw_subscriptions = {}
-        self.steps_until_take = {}   # topic -> lockstep steps until its next take (take_step_messages)
+        self.steps_until_take = {}   # topic -> lockstep steps until its next take (take_step)
         # the stop's wall time (ns; none yet: the largest int64) and how many messages published before it (their
         # publisher's source timestamp) were taken: what the drain after a stop waits for
         self.stop_ns = 2 ** 63 - 1
@@ -228,7 +228,7 @@ def drain(node: RecorderNode, executor, pass_s: float = DRAIN_PASS_S):
             deadline = time.monotonic() + pass_s
 
 
-# lockstep steps between takes of a subscription whose last take found nothing (take_step_messages)
+# lockstep steps between takes of a subscription whose last take found nothing (take_step)
 IDLE_TAKE_EVERY_STEPS = 8
 
 
@@ -247,25 +247,26 @@ def take_ready(node: RecorderNode) -> int:
     return sum(_take_all(sub) for sub in node._raw_subscriptions.values())
 
 
-def take_step_messages(node: RecorderNode) -> int:
-    """take_ready for a lockstep step, as a hosted recorder beside a lockstep simulator is served
-    (quad_bringup.running.node_host): its subscriptions out of the host's wait set (at 16 vehicles ~65 of them cost
-    ~150 us in every pass of the lockstep's loop), a take from an empty queue ~1.5 us. A subscription whose last take
-    found nothing (a fleet's plans and diagnostics: half of them) is taken again IDLE_TAKE_EVERY_STEPS steps later;
-    one that found a message at the next step (odometry, setpoints, /clock: every step); all of them while it waits
-    for a topic before acknowledging (lockstep_ack_after: the plan, which the simulator's first step waits for).
-    Returns how many."""
+def take_step(node: RecorderNode):
+    """A hosted recorder's turn in each lockstep step (SimNode.each_step, quad_bringup.running.node_host): what is
+    queued, then its acknowledgements when due. Its subscriptions are out of the host's wait set (at 16 vehicles ~65
+    of them cost ~150 us in every pass of the lockstep's loop); a take from an empty queue costs ~1.5 us. A
+    subscription whose last take found nothing (a fleet's plans and diagnostics: half of them) is taken again
+    IDLE_TAKE_EVERY_STEPS steps later; one that found a message at the next step (odometry, setpoints, /clock: every
+    step); all of them while it waits for a topic before acknowledging (lockstep_ack_after: the plan, which the
+    simulator's first step waits for)."""
+    if node.closed:
+        return
     if node.awaiting:
-        return take_ready(node)
-    taken, wait = 0, node.steps_until_take
-    for topic, sub in node._raw_subscriptions.items():
-        if wait.get(topic, 0):
-            wait[topic] -= 1
-            continue
-        count = _take_all(sub)
-        wait[topic] = 0 if count else IDLE_TAKE_EVERY_STEPS - 1
-        taken += count
-    return taken
+        take_ready(node)
+    else:
+        wait = node.steps_until_take
+        for topic, sub in node._raw_subscriptions.items():
+            if wait.get(topic, 0):
+                wait[topic] -= 1
+            else:
+                wait[topic] = 0 if _take_all(sub) else IDLE_TAKE_EVERY_STEPS - 1
+    node.ack.flush_if_due()
 
 
 def take_queued(node: RecorderNode):

@@ -129,7 +129,7 @@ def prepare(plan: FleetPlan, out_dir, *, speed_mps: float | None = None, hosted:
         return GraphRun(plan, out_dir, None, processes.node_processes(specs, params_file, out_dir / 'logs', True),
                         end_s)
     nodes = processes.node_processes([s for s in specs if s is not recorder], params_file, out_dir / 'logs', False)
-    return GraphRun(plan, out_dir, *processes.node_processes([recorder], params_file, out_dir / 'logs', False),
+    return GraphRun(plan, out_dir, processes.node_processes([recorder], params_file, out_dir / 'logs', False)[0],
                     nodes, end_s)
 
 

@@ -26,8 +26,8 @@ of 5 interleaved runs on the loaded 2-core machine). Stop signals then reach the
 and the recorder's drain), as a lone sim_node's do.
 
 `recorder` (no namespace, beside sim_node only: fly's graph, a fleet's) records in the same process: every message
-reaches it without leaving the process; beside a lockstep simulator it takes what is queued once a step (take_step:
-recorder_node.take_step_messages), its subscriptions out of the executor's wait set; at the
+reaches it without leaving the process; beside a lockstep simulator it takes what is queued once a step
+(recorder_node.take_step), its subscriptions out of the executor's wait set; at the
 simulator's stop, once its final counts are published, it takes what is queued and closes the bag (close_recorder),
 before the simulator waits for followers in other processes.
 """
@@ -105,21 +105,12 @@ def share_clock(nodes):
 
 
 def taken_per_step(entries, nodes) -> list:
-    """The nodes served once a lockstep step (take_step) instead of by the executor's wait set: a recorder beside a
-    simulator in lockstep mode. In realtime mode there are no steps: the recorder is served as the others are."""
+    """The nodes served once a lockstep step (recorder_node.take_step) instead of by the executor's wait set: a
+    recorder beside a simulator in lockstep mode. In realtime mode there are no steps: the recorder is served as the
+    others are."""
     if (RECORDER, '') not in entries or nodes[entries.index((SIMULATOR, ''))].params['mode'] != 'lockstep':
         return []
     return [nodes[entries.index((RECORDER, ''))]]
-
-
-def take_step(recorder):
-    """A hosted recorder's turn in each lockstep step (SimNode.each_step): what is queued, then its
-    acknowledgements when due (its subscriptions are not in the host's wait set)."""
-    from quad_bringup.recording.recorder_node import take_step_messages
-
-    if not recorder.closed:
-        take_step_messages(recorder)
-        recorder.ack.flush_if_due()
 
 
 def close_recorder(recorder):
@@ -145,7 +136,7 @@ def main(argv=None):
 
     clock = [None]
     simulated = any(name == SIMULATOR for name, _ in entries)
-    stepped = []   # a recorder beside a lockstep simulator: served once a step (take_step), not in the wait set
+    stepped = []   # a recorder beside a lockstep simulator: served once a step, not in the wait set
 
     def make_nodes():
         nodes = []
@@ -176,6 +167,8 @@ def main(argv=None):
         recorder = nodes[entries.index((RECORDER, ''))] if (RECORDER, '') in entries else None
         if recorder is not None:
             if recorder in stepped:
+                from quad_bringup.recording.recorder_node import take_step
+
                 simulator.each_step.append(lambda: take_step(recorder))
             simulator.at_final_counts.append(lambda executor: close_recorder(recorder))
         sim_node.spin(simulator, executor)
