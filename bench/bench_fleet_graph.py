@@ -53,13 +53,11 @@ NOTE = ('\n' +
         'from 3.4-4.2 s to 1.8-2.2 s a flight, and with a busy loop beside them the stepping rose from 1.94x to '
         '2.38x median (6 interleaved pairs, load 2.9-3.6; sim_node\'s writes, each waking the recorder, took '
         '26-30 us against 32-47); on a quiet machine the rate did not change beyond the noise. '
-        'Where the stepping goes at 16 vehicles: the '
-        'vehicles\' process is on CPU for ~85 % of it (py-spy, its samples on CPU while stepping: DDS writes, two '
-        'per vehicle and step, each to a reader in the process and to the recorder, ~25 %; the physics ~12 % and '
-        'the contact check ~4 %; the controllers\' ticks ~25 % with their writes, the plan\'s reference and the '
-        'control law ~10 % of it; the executor\'s hot passes ~5-10 %, its passes over every entity ~10-14 % '
-        'until they became a probe of the entities that are not hot, ~0.5 ms a pass at 16 vehicles, with the '
-        'stock executor\'s pass once a second).')
+        'Where the stepping goes at 16 vehicles, the recorder hosted and taken once a step (py-spy --nonblocking, the '
+        'vehicles\' process\'s samples on CPU while stepping): the controllers\' ticks ~24 %, their and the '
+        'simulator\'s DDS writes ~14 %, the executor\'s hot passes ~8 %, the stock executor\'s pass once a second '
+        'and the probe of the entities that are not hot ~10 %, the physics ~6 %: Python per vehicle and step, a '
+        'few percent each. Before the hosting the DDS writes to the recorder\'s process were ~25 %.')
 
 SIZES = (1, 4, 16, 64)
 PER_NODE_SIZES = (1, 4)      # one process per node (as launch_ros starts them) beside one process for the nodes
