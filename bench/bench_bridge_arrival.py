@@ -95,7 +95,7 @@ def run_once(src: Path | None, busy: int) -> dict:
             config = (src.parent if src else ROOT) / 'config'
             ours.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
                                       '-p', f'vehicle:={config}/vehicles/px4_quad.yaml'])   # its defaults
-            enter_offboard(observer, 'ardupilot')
+            enter_offboard(observer, 'ardupilot', bridge_counts_setpoints=src is None)
             time.sleep(BEFORE_S)                 # the window measured before (wall time is what is measured)
             started = time.time()
             flat = ','.join(str(float(c)) for wp in SLOW_SQUARE for c in wp)
