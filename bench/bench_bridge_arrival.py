@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from busy import busy_loops
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu
 
@@ -78,46 +79,40 @@ def baseline_src(tmp: Path) -> Path:
     return tmp / 'src'
 
 
-def busy_loops(n):
-    return [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(n)]
-
-
 def run_once(src: Path | None, busy: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp, running_graph(Path(tmp)) as (procs, observer):
         ours = procs if src is None else Processes(procs.env, Path(tmp), procs.namespace, src_root=src)
         probe_out = Path(tmp) / 'probe.json'
         procs.start('probe', [str(Path(__file__).resolve()), '--probe', str(probe_out), '--ros-args'])
-        loops = busy_loops(busy)
         try:
-            port = free_udp_port()
-            procs.vehicle('ardupilot', f'udpout:127.0.0.1:{port}', position=HOVER, extra=('--param', 'GUID_OPTIONS=8'))
-            ours.bridge(f'udpin:127.0.0.1:{port}', autopilot='ardupilot')
-            config = (src.parent if src else ROOT) / 'config'
-            ours.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
-                                      '-p', f'vehicle:={config}/vehicles/px4_quad.yaml'])   # its defaults
-            enter_offboard(observer, 'ardupilot', bridge_counts_setpoints=src is None)
-            time.sleep(BEFORE_S)                 # the window measured before (wall time is what is measured)
-            started = time.time()
-            flat = ','.join(str(float(c)) for wp in SLOW_SQUARE for c in wp)
-            ours.start('trajectory', ['-m', 'quad_trajectory.trajectory_node', '--ros-args',
-                                      '-p', f'waypoints:=[{flat}]', '-p', f'speed_mps:={SLOW_SPEED_MPS}',
-                                      '-p', 'start_delay_s:=1.0',
-                                      '-p', f'vehicle_file:={config}/vehicles/px4_quad.yaml'])
-            observer.wait_for(lambda: observer.trajectory is not None, 'the trajectory')
-            # the controller has the plan once its references follow it (its start is 1 s after the stamp)
-            start_s = stamp_to_s(observer.trajectory.header.stamp)
-            observer.wait_for(lambda: observer.references and observer.references[-1][0] > start_s + 0.5,
-                              'the controller to fly the plan', 120.0)
-            held = time.time()
-            time.sleep(AFTER_S)
-            end = time.time()
-            mode = observer.link()[1].get('mode')
-            procs.stop('probe')
-            seen = json.loads(probe_out.read_text())
+            with busy_loops(busy):
+                port = free_udp_port()
+                procs.vehicle('ardupilot', f'udpout:127.0.0.1:{port}', position=HOVER,
+                              extra=('--param', 'GUID_OPTIONS=8'))
+                ours.bridge(f'udpin:127.0.0.1:{port}', autopilot='ardupilot')
+                config = (src.parent if src else ROOT) / 'config'
+                ours.start('controller', ['-m', 'quad_control.position_controller_node', '--ros-args',
+                                          '-p', f'vehicle:={config}/vehicles/px4_quad.yaml'])   # its defaults
+                enter_offboard(observer, 'ardupilot', bridge_counts_setpoints=src is None)
+                time.sleep(BEFORE_S)                 # the window measured before (wall time is what is measured)
+                started = time.time()
+                flat = ','.join(str(float(c)) for wp in SLOW_SQUARE for c in wp)
+                ours.start('trajectory', ['-m', 'quad_trajectory.trajectory_node', '--ros-args',
+                                          '-p', f'waypoints:=[{flat}]', '-p', f'speed_mps:={SLOW_SPEED_MPS}',
+                                          '-p', 'start_delay_s:=1.0',
+                                          '-p', f'vehicle_file:={config}/vehicles/px4_quad.yaml'])
+                observer.wait_for(lambda: observer.trajectory is not None, 'the trajectory')
+                # the controller has the plan once its references follow it (its start is 1 s after the stamp)
+                start_s = stamp_to_s(observer.trajectory.header.stamp)
+                observer.wait_for(lambda: observer.references and observer.references[-1][0] > start_s + 0.5,
+                                  'the controller to fly the plan', 120.0)
+                held = time.time()
+                time.sleep(AFTER_S)
+                end = time.time()
+                mode = observer.link()[1].get('mode')
+                procs.stop('probe')
+                seen = json.loads(probe_out.read_text())
         finally:
-            for loop in loops:
-                loop.kill()
-                loop.wait()
             if ours is not procs:
                 ours.stop_all()
         return {'odom_before_ms': longest_gap_ms(seen['odom'], started - BEFORE_S, started),

@@ -13,12 +13,10 @@ speak MAVLink 2 (pymavlink's dialect encoders) over UDP:
   (GCS_Common.cpp STREAM_*_msgs) at a companion link's usual rates: EXTRA1, POSITION, RAW_SENSORS, EXTRA2 at
   10 Hz, EXTENDED_STATUS, RC_CHANNELS, EXTRA3 at 2 Hz (286 messages/s)."""
 
-import contextlib
 import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +24,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_bridge as bb  # noqa: E402
 from bench_bridge import HOVER_THROTTLE, mavlink  # noqa: E402
+from busy import busy_loops  # noqa: E402
 
 from quad_common.domains import isolated_domain  # noqa: E402
 
@@ -158,21 +157,6 @@ def run_once(autopilot, src, env, domain, extra=(), caller_rt=0, floor=False) ->
         bench.close()
 
 
-@contextlib.contextmanager
-def busy_loops(n: int):
-    """n busy-looping processes for a whole section, started LOAD_SETTLE_S before its first window: the 1-minute
-    load average (the table's load) then is the load every window ran at, not one climbing from the last section."""
-    loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(n)]
-    try:
-        if n:
-            time.sleep(LOAD_SETTLE_S)
-        yield
-    finally:
-        for loop in loops:
-            loop.kill()
-            loop.wait()
-
-
 def run_retried(row, failed: list, *args, **kwargs) -> dict:
     """run_once, once more after a start that never streamed (said in `failed` and under the table, never
     hidden; a second failure ends the bench)."""
@@ -192,7 +176,7 @@ def main():
         codes += [(f'today, realtime_priority {p}', ROOT / 'src', ('-p', f'realtime_priority:={p}')) for p in RT]
         codes += [(FLOOR_LABEL, ROOT / 'src', ())] if FLOOR else []
         for busy in (0, BUSY):
-            with busy_loops(busy):
+            with busy_loops(busy, settle_s=LOAD_SETTLE_S):
                 for _ in range(REPEATS):
                     for autopilot in VEHICLES:
                         for caller in (0, *CALLER_RT):

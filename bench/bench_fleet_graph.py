@@ -3,13 +3,12 @@ vehicles on this machine, beside Crazyswarm2's published figures and the same fl
 
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
-from contextlib import contextmanager
 
 from bench_fleet import SPACING_M, grid_fleet
+from busy import busy_loops
 
 from quad_bringup.offline.fleet_loop import fly_fleet
 from quad_bringup.running.fleet_graph import fly_graph
@@ -65,19 +64,6 @@ BUSY_SIZES = (16,)           # again beside a busy loop (the goal's load ~4: the
 REPEATS = {1: 5, 4: 7, 16: 5, 64: 1}   # runs per row (the spread from run to run is wide on a shared machine)
 CRAZYSWARM2 = {1: '0.70x', 4: '0.15x (5 drones)', 16: '0.05x', 64: ''}   # Crazyswarm2's own measurement (its machine)
 GOAL = {4: 5.0, 16: 3.0}
-
-
-@contextmanager
-def busy_loops(count: int):
-    """`count` processes spinning a pure-Python loop while the body runs (another user's work on the shared machine),
-    killed after it."""
-    loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(count)]
-    try:
-        yield
-    finally:
-        for loop in loops:
-            loop.kill()
-            loop.wait()
 
 
 def main():
